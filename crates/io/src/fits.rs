@@ -1,0 +1,338 @@
+//! FITS images and cubes: headers parsed with `fitsrs`, pixel data streamed frame by frame by
+//! offset (so cubes larger than memory work), writing by hand (`fitsrs` only reads).
+//!
+//! Axes: `NAXIS1` is the width, `NAXIS2` the height, and all higher axes together count frames.
+//! Pixels are returned in file order (first stored row first) with `BZERO`/`BSCALE` applied.
+
+use std::fs::File;
+use std::io::{BufReader, Read, Seek, SeekFrom, Write};
+use std::path::Path;
+
+use fitsrs::card::Value;
+use fitsrs::hdu::header::Bitpix;
+use fitsrs::{Fits, HDU};
+
+use crate::{Error, Format, FrameReader, Metadata, PixelType, Result, SampleFormat, StackInfo};
+
+const BLOCK: usize = 2880;
+
+/// Streams the frames of the first image HDU that has at least two axes.
+pub struct FitsReader {
+    file: BufReader<File>,
+    info: StackInfo,
+    bitpix: i32,
+    bzero: f64,
+    bscale: f64,
+    next: usize,
+    bytes: Vec<u8>,
+}
+
+fn card_f64(v: Option<&Value>) -> Option<f64> {
+    match v? {
+        Value::Integer { value, .. } => Some(*value as f64),
+        Value::Float { value, .. } => Some(*value),
+        _ => None,
+    }
+}
+
+fn card_string(v: Option<&Value>) -> Option<String> {
+    match v? {
+        Value::String { value, .. } => Some(value.trim().to_string()),
+        _ => None,
+    }
+}
+
+impl FitsReader {
+    /// Opens a file and locates its image data.
+    pub fn open(path: &Path) -> Result<FitsReader> {
+        let file_len = std::fs::metadata(path)?.len();
+        let mut hdus = Fits::from_reader(BufReader::new(File::open(path)?));
+        let mut found = None;
+        while let Some(hdu) = hdus.next() {
+            let hdu = hdu.map_err(|e| Error::Format(format!("FITS header: {e}")))?;
+            let image = match hdu {
+                HDU::Primary(h) | HDU::XImage(h) => h,
+                _ => continue,
+            };
+            let x = image.get_header().get_xtension();
+            let naxis = x.get_naxis().to_vec();
+            if naxis.len() >= 2 && naxis.iter().all(|&n| n > 0) {
+                let bitpix: i32 = match x.get_bitpix() {
+                    Bitpix::U8 => 8,
+                    Bitpix::I16 => 16,
+                    Bitpix::I32 => 32,
+                    Bitpix::I64 => 64,
+                    Bitpix::F32 => -32,
+                    Bitpix::F64 => -64,
+                };
+                let h = image.get_header();
+                let meta = Metadata {
+                    exposure_s: card_f64(h.get("EXPTIME")).or_else(|| card_f64(h.get("EXPOSURE"))),
+                    em_gain: card_f64(h.get("EMGAIN")).or_else(|| card_f64(h.get("EM_GAIN"))),
+                    temperature_c: card_f64(h.get("CCD-TEMP")).or_else(|| card_f64(h.get("TEMPERAT"))),
+                    camera_model: card_string(h.get("INSTRUME")).or_else(|| card_string(h.get("DETECTOR"))),
+                    ..Default::default()
+                };
+                found = Some((
+                    naxis,
+                    bitpix,
+                    card_f64(h.get("BZERO")).unwrap_or(0.0),
+                    card_f64(h.get("BSCALE")).unwrap_or(1.0),
+                    image.get_data_unit_byte_offset(),
+                    meta,
+                ));
+                break;
+            }
+        }
+        let (naxis, bitpix, bzero, bscale, offset, mut metadata) =
+            found.ok_or_else(|| Error::Format("FITS: no image HDU with two or more axes".into()))?;
+        let (width, height) = (naxis[0] as usize, naxis[1] as usize);
+        let frames_declared: usize = naxis[2..].iter().product::<u64>() as usize;
+        let bpp = (bitpix.unsigned_abs() / 8) as usize;
+        let frame_bytes = width * height * bpp;
+        let whole = (file_len.saturating_sub(offset) / frame_bytes as u64) as usize;
+        let frames = whole.min(frames_declared);
+        if frames == 0 {
+            return Err(Error::Format(format!(
+                "FITS data ends early: {width}×{height} frame of {frame_bytes} bytes at offset {offset}, file is {file_len} bytes"
+            )));
+        }
+        if frames < frames_declared {
+            metadata.warnings.push(format!(
+                "truncated: {frames_declared} frames declared, only {frames} whole frames present"
+            ));
+        }
+        let pixel_type = match (bitpix, bzero, bscale) {
+            (8, _, _) => PixelType::U8,
+            (16, z, s) if z == 32768.0 && s == 1.0 => PixelType::U16,
+            (16, _, _) => PixelType::I16,
+            (32, _, _) => PixelType::I32,
+            (64, _, _) | (-64, _, _) => PixelType::F64,
+            _ => PixelType::F32,
+        };
+        let mut file = BufReader::new(File::open(path)?);
+        file.seek(SeekFrom::Start(offset))?;
+        Ok(FitsReader {
+            file,
+            info: StackInfo { width, height, frames, pixel_type, format: Format::Fits, metadata },
+            bitpix,
+            bzero,
+            bscale,
+            next: 0,
+            bytes: vec![0; frame_bytes],
+        })
+    }
+}
+
+impl FrameReader for FitsReader {
+    fn info(&self) -> &StackInfo {
+        &self.info
+    }
+
+    fn read_frame(&mut self, out: &mut [f32]) -> Result<bool> {
+        if self.next >= self.info.frames {
+            return Ok(false);
+        }
+        if out.len() != self.info.frame_len() {
+            return Err(Error::Usage(format!("buffer holds {} pixels, frame has {}", out.len(), self.info.frame_len())));
+        }
+        self.file
+            .read_exact(&mut self.bytes)
+            .map_err(|e| Error::Format(format!("frame {}: {e}", self.next)))?;
+        let (z, s) = (self.bzero, self.bscale);
+        macro_rules! conv {
+            ($t:ty, $n:expr) => {
+                for (o, c) in out.iter_mut().zip(self.bytes.chunks_exact($n)) {
+                    let raw = <$t>::from_be_bytes(c.try_into().unwrap());
+                    *o = (z + s * raw as f64) as f32;
+                }
+            };
+        }
+        match self.bitpix {
+            8 => conv!(u8, 1),
+            16 => conv!(i16, 2),
+            32 => conv!(i32, 4),
+            64 => conv!(i64, 8),
+            -32 => conv!(f32, 4),
+            _ => conv!(f64, 8),
+        }
+        self.next += 1;
+        Ok(true)
+    }
+}
+
+fn card(key: &str, value: &str, comment: &str) -> [u8; 80] {
+    let mut c = [b' '; 80];
+    let text = if value.is_empty() {
+        format!("{key:<8}")
+    } else if comment.is_empty() {
+        format!("{key:<8}= {value:>20}")
+    } else {
+        format!("{key:<8}= {value:>20} / {comment}")
+    };
+    let b = text.as_bytes();
+    let n = b.len().min(80);
+    c[..n].copy_from_slice(&b[..n]);
+    c
+}
+
+fn quoted(s: &str) -> String {
+    let clean: String = s.chars().filter(|c| c.is_ascii() && !c.is_ascii_control()).collect();
+    format!("'{:<8}'", clean.replace('\'', "''"))
+}
+
+/// Writes a FITS cube to a temporary file; see [`crate::StackWriter`].
+pub(crate) struct FitsStackWriter {
+    tmp: tempfile::NamedTempFile,
+    file: std::io::BufWriter<File>,
+    sample: SampleFormat,
+    width: usize,
+    height: usize,
+    meta: Metadata,
+    header_written: bool,
+    naxis_card: u64,
+    bytes: Vec<u8>,
+    data_len: u64,
+}
+
+impl FitsStackWriter {
+    pub(crate) fn new(
+        tmp: tempfile::NamedTempFile,
+        width: usize,
+        height: usize,
+        sample: SampleFormat,
+        _frames_hint: Option<usize>,
+    ) -> Result<Self> {
+        let file = std::io::BufWriter::new(tmp.as_file().try_clone()?);
+        Ok(FitsStackWriter {
+            tmp,
+            file,
+            sample,
+            width,
+            height,
+            meta: Metadata::default(),
+            header_written: false,
+            naxis_card: 2,
+            bytes: Vec::new(),
+            data_len: 0,
+        })
+    }
+
+    pub(crate) fn set_metadata(&mut self, meta: &Metadata) {
+        self.meta = meta.clone();
+    }
+
+    fn write_header(&mut self) -> Result<()> {
+        let mut cards: Vec<[u8; 80]> = vec![
+            card("SIMPLE", "T", "conforms to FITS standard"),
+            card("BITPIX", if self.sample == SampleFormat::U16 { "16" } else { "-32" }, "array data type"),
+            card("NAXIS", "3", "width, height, frames"),
+            card("NAXIS1", &self.width.to_string(), ""),
+            card("NAXIS2", &self.height.to_string(), ""),
+            card("NAXIS3", &format!("{:>10}", 0), "frames"),
+        ];
+        if self.sample == SampleFormat::U16 {
+            cards.push(card("BZERO", "32768", "unsigned 16-bit data"));
+            cards.push(card("BSCALE", "1", ""));
+        }
+        if let Some(e) = self.meta.exposure_s {
+            cards.push(card("EXPTIME", &format!("{e:E}"), "exposure time [s]"));
+        }
+        if let Some(g) = self.meta.em_gain {
+            cards.push(card("EMGAIN", &format!("{g:E}"), "EM gain setting"));
+        }
+        if let Some(c) = &self.meta.camera_model {
+            cards.push(card("INSTRUME", &quoted(c), "camera"));
+        }
+        cards.push(card("ORIGIN", &quoted("emccd"), ""));
+        cards.push(card("END", "", ""));
+        let mut block = Vec::with_capacity(BLOCK);
+        for c in &cards {
+            block.extend_from_slice(c);
+        }
+        block.resize(block.len().div_ceil(BLOCK) * BLOCK, b' ');
+        self.file.write_all(&block)?;
+        self.naxis_card = 2;
+        self.header_written = true;
+        Ok(())
+    }
+
+    pub(crate) fn write_frame(&mut self, frame: &[f32]) -> Result<()> {
+        if !self.header_written {
+            self.write_header()?;
+        }
+        self.bytes.clear();
+        match self.sample {
+            SampleFormat::U16 => {
+                for &x in frame {
+                    let v = if x.is_nan() { 0.0 } else { x.round().clamp(0.0, 65535.0) };
+                    let raw = (v as i32 - 32768) as i16;
+                    self.bytes.extend_from_slice(&raw.to_be_bytes());
+                }
+            }
+            SampleFormat::F32 => {
+                for &x in frame {
+                    self.bytes.extend_from_slice(&x.to_be_bytes());
+                }
+            }
+        }
+        self.file.write_all(&self.bytes)?;
+        self.data_len += self.bytes.len() as u64;
+        Ok(())
+    }
+
+    pub(crate) fn finish(mut self, frames: usize) -> Result<tempfile::NamedTempFile> {
+        if frames == 0 {
+            return Err(Error::Usage("no frames were written".into()));
+        }
+        let pad = (BLOCK as u64 - self.data_len % BLOCK as u64) % BLOCK as u64;
+        self.file.write_all(&vec![0u8; pad as usize])?;
+        // Patch the axis cards now that the frame count is known.
+        let (naxis, naxis3) = if frames == 1 {
+            (card("NAXIS", "2", "width, height"), [b' '; 80])
+        } else {
+            (card("NAXIS", "3", "width, height, frames"), card("NAXIS3", &frames.to_string(), "frames"))
+        };
+        self.file.seek(SeekFrom::Start(self.naxis_card * 80))?;
+        self.file.write_all(&naxis)?;
+        self.file.seek(SeekFrom::Start(5 * 80))?;
+        self.file.write_all(&naxis3)?;
+        self.file.flush()?;
+        drop(self.file);
+        Ok(self.tmp)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::{open, read_all, Metadata, SampleFormat, StackWriter};
+
+    #[test]
+    fn fits_roundtrip_u16_and_f32() {
+        let dir = tempfile::tempdir().unwrap();
+        for (sample, frames) in [(SampleFormat::U16, 3usize), (SampleFormat::F32, 1)] {
+            let p = dir.path().join(format!("x{frames}.fits"));
+            let (w, h) = (9, 4);
+            let data: Vec<Vec<f32>> =
+                (0..frames).map(|k| (0..w * h).map(|i| (i as f32) * 1000.0 + k as f32 + 0.5).collect()).collect();
+            let mut wr = StackWriter::create(&p, w, h, sample, None).unwrap();
+            wr.set_metadata(&Metadata { exposure_s: Some(0.05), em_gain: Some(300.0), ..Default::default() });
+            for f in &data {
+                wr.write_frame(f).unwrap();
+            }
+            wr.finish().unwrap();
+            assert_eq!(std::fs::metadata(&p).unwrap().len() % 2880, 0);
+            let (info, got) = read_all(&p).unwrap();
+            assert_eq!((info.width, info.height, info.frames), (w, h, frames));
+            assert_eq!(info.metadata.exposure_s, Some(0.05));
+            assert_eq!(info.metadata.em_gain, Some(300.0));
+            for (a, b) in got.iter().zip(&data) {
+                for (x, y) in a.iter().zip(b) {
+                    let want = if sample == SampleFormat::U16 { y.round().min(65535.0) } else { *y };
+                    assert_eq!(*x, want);
+                }
+            }
+            let _ = open(&p).unwrap();
+        }
+    }
+}

@@ -1,0 +1,333 @@
+//! Readers and writers for the files EMCCD users have, one frame at a time.
+//!
+//! Every format is opened through [`open`], which sniffs the file's magic bytes and returns a
+//! [`FrameReader`]: the stack's size, frame count, pixel type and camera metadata up front, then
+//! frames decoded one by one into a caller-owned `f32` buffer, so a stack larger than memory can
+//! be streamed. Writers ([`StackWriter`]) write to a temporary file beside the target and rename it
+//! into place on [`StackWriter::finish`], so a failed run never leaves a half-written output.
+//!
+//! Formats: TIFF and BigTIFF (the `tiff` crate), Andor SIF (hand-written: no maintained crate
+//! reads it), FITS (headers parsed with `fitsrs`; frames streamed by offset; writing is
+//! hand-written, since `fitsrs` only reads), and PNG for clean scenes (the `png` crate; colour is
+//! converted to luminance).
+
+#![deny(missing_docs)]
+
+mod error;
+pub mod fits;
+pub mod png_io;
+pub mod sif;
+pub mod tiff_io;
+
+use std::fs::File;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+pub use error::{Error, Result};
+
+/// The sample type stored in a file (what `emccd info` reports).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PixelType {
+    /// Unsigned 8-bit.
+    U8,
+    /// Unsigned 16-bit (raw camera frames).
+    U16,
+    /// Signed 16-bit.
+    I16,
+    /// Unsigned 32-bit.
+    U32,
+    /// Signed 32-bit.
+    I32,
+    /// 32-bit IEEE float (SIF data, processed frames).
+    F32,
+    /// 64-bit IEEE float.
+    F64,
+}
+
+/// The container format of a file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Format {
+    /// Classic TIFF (32-bit offsets).
+    Tiff,
+    /// BigTIFF (64-bit offsets).
+    BigTiff,
+    /// Andor Technology Multi-Channel File.
+    Sif,
+    /// Flexible Image Transport System.
+    Fits,
+    /// Portable Network Graphics.
+    Png,
+}
+
+impl Format {
+    /// Guesses the output format from a file name's extension.
+    pub fn from_extension(path: &Path) -> Option<Format> {
+        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+        match ext.as_str() {
+            "tif" | "tiff" => Some(Format::Tiff),
+            "btf" | "tf8" => Some(Format::BigTiff),
+            "fits" | "fit" | "fts" => Some(Format::Fits),
+            "png" => Some(Format::Png),
+            "sif" => Some(Format::Sif),
+            _ => None,
+        }
+    }
+}
+
+/// Camera metadata found in a file's header; `None` where the file does not say.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Metadata {
+    /// Exposure time in seconds.
+    pub exposure_s: Option<f64>,
+    /// EM gain setting as recorded by the camera software.
+    pub em_gain: Option<f64>,
+    /// Detector temperature in °C.
+    pub temperature_c: Option<f64>,
+    /// Camera model as recorded (e.g. `DU897_BV`).
+    pub camera_model: Option<String>,
+    /// On-chip binning (horizontal, vertical).
+    pub binning: Option<(u32, u32)>,
+    /// Number of accumulations summed into each frame.
+    pub accumulations: Option<u32>,
+    /// Warnings about the file that did not stop reading (e.g. a truncated stack).
+    pub warnings: Vec<String>,
+}
+
+/// What a stack holds, known before any frame is decoded.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct StackInfo {
+    /// Frame width in pixels.
+    pub width: usize,
+    /// Frame height in pixels.
+    pub height: usize,
+    /// Number of whole frames that can be read.
+    pub frames: usize,
+    /// Sample type on disk.
+    pub pixel_type: PixelType,
+    /// Container format.
+    pub format: Format,
+    /// Camera metadata from the header.
+    pub metadata: Metadata,
+}
+
+impl StackInfo {
+    /// Pixels per frame.
+    pub fn frame_len(&self) -> usize {
+        self.width * self.height
+    }
+}
+
+/// A stack opened for reading, decoded one frame at a time in row-major order.
+pub trait FrameReader: Send {
+    /// Size, count, type and metadata of the stack.
+    fn info(&self) -> &StackInfo;
+    /// Decodes the next frame into `buf` (length `width·height`); `Ok(false)` after the last.
+    fn read_frame(&mut self, buf: &mut [f32]) -> Result<bool>;
+}
+
+/// Opens an image or stack, choosing the reader from the file's first bytes.
+///
+/// Errors name the file. A truncated SIF opens with the whole frames it holds and a warning in
+/// [`Metadata::warnings`].
+pub fn open(path: impl AsRef<Path>) -> Result<Box<dyn FrameReader>> {
+    let path = path.as_ref();
+    open_inner(path).map_err(|e| e.with_path(path))
+}
+
+fn open_inner(path: &Path) -> Result<Box<dyn FrameReader>> {
+    let mut magic = [0u8; 36];
+    let n = {
+        let mut f = File::open(path)?;
+        read_up_to(&mut f, &mut magic)?
+    };
+    let magic = &magic[..n];
+    if magic.starts_with(b"II*\0") || magic.starts_with(b"MM\0*") || magic.starts_with(b"II+\0")
+        || magic.starts_with(b"MM\0+")
+    {
+        Ok(Box::new(tiff_io::TiffReader::open(path)?))
+    } else if magic.starts_with(sif::MAGIC) {
+        Ok(Box::new(sif::SifReader::open(path)?))
+    } else if magic.starts_with(b"SIMPLE  =") {
+        Ok(Box::new(fits::FitsReader::open(path)?))
+    } else if magic.starts_with(b"\x89PNG\r\n\x1a\n") {
+        Ok(Box::new(png_io::PngReader::open(path)?))
+    } else if n == 0 {
+        Err(Error::Format("the file is empty".into()))
+    } else {
+        Err(Error::Unsupported(
+            "not a TIFF, BigTIFF, Andor SIF, FITS or PNG file (unrecognized first bytes)".into(),
+        ))
+    }
+}
+
+fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut n = 0;
+    while n < buf.len() {
+        match r.read(&mut buf[n..])? {
+            0 => break,
+            k => n += k,
+        }
+    }
+    Ok(n)
+}
+
+/// Reads every frame of a file into memory (for small inputs: clean scenes, maps, tests).
+pub fn read_all(path: impl AsRef<Path>) -> Result<(StackInfo, Vec<Vec<f32>>)> {
+    let path = path.as_ref();
+    let mut r = open(path)?;
+    let info = r.info().clone();
+    let mut frames = Vec::with_capacity(info.frames);
+    loop {
+        let mut buf = vec![0f32; info.frame_len()];
+        if !r.read_frame(&mut buf).map_err(|e| e.with_path(path))? {
+            break;
+        }
+        frames.push(buf);
+    }
+    Ok((info, frames))
+}
+
+/// Sample type written by a [`StackWriter`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SampleFormat {
+    /// Unsigned 16-bit: values are rounded and clipped to 0..=65535 (raw camera frames).
+    U16,
+    /// 32-bit float (processed frames, ground truth).
+    F32,
+}
+
+/// Writes a stack frame by frame to a temporary file that is renamed into place by
+/// [`StackWriter::finish`]; dropped unfinished, it removes the temporary file and leaves any
+/// existing target untouched.
+pub struct StackWriter {
+    inner: WriterKind,
+    target: PathBuf,
+    width: usize,
+    height: usize,
+    frames: usize,
+}
+
+enum WriterKind {
+    Tiff(tiff_io::TiffStackWriter),
+    Fits(fits::FitsStackWriter),
+}
+
+impl StackWriter {
+    /// Creates a writer for `path`; the format comes from the extension (`.tif`/`.tiff`, `.btf`
+    /// for BigTIFF, `.fits`). `frames_hint` (if known) makes TIFF stacks carry an ImageJ
+    /// description so Fiji opens them as stacks, and is required for FITS.
+    pub fn create(
+        path: impl AsRef<Path>,
+        width: usize,
+        height: usize,
+        sample: SampleFormat,
+        frames_hint: Option<usize>,
+    ) -> Result<StackWriter> {
+        let path = path.as_ref();
+        let fmt = Format::from_extension(path).ok_or_else(|| {
+            Error::Usage("output must end in .tif, .tiff, .btf (BigTIFF) or .fits".into())
+                .with_path(path)
+        })?;
+        Self::create_as(path, fmt, width, height, sample, frames_hint)
+    }
+
+    /// Like [`StackWriter::create`] with an explicit format.
+    pub fn create_as(
+        path: &Path,
+        fmt: Format,
+        width: usize,
+        height: usize,
+        sample: SampleFormat,
+        frames_hint: Option<usize>,
+    ) -> Result<StackWriter> {
+        if width == 0 || height == 0 {
+            return Err(Error::Usage(format!("cannot write a {width}×{height} frame")).with_path(path));
+        }
+        let tmp = temp_beside(path).map_err(|e| Error::from(e).with_path(path))?;
+        let inner = match fmt {
+            Format::Tiff | Format::BigTiff => WriterKind::Tiff(
+                tiff_io::TiffStackWriter::new(tmp, fmt == Format::BigTiff, width, height, sample, frames_hint)
+                    .map_err(|e| e.with_path(path))?,
+            ),
+            Format::Fits => WriterKind::Fits(
+                fits::FitsStackWriter::new(tmp, width, height, sample, frames_hint)
+                    .map_err(|e| e.with_path(path))?,
+            ),
+            other => {
+                return Err(Error::Unsupported(format!("writing {other:?} stacks")).with_path(path))
+            }
+        };
+        Ok(StackWriter { inner, target: path.to_path_buf(), width, height, frames: 0 })
+    }
+
+    /// Appends one frame (row-major, `width·height` values).
+    pub fn write_frame(&mut self, frame: &[f32]) -> Result<()> {
+        if frame.len() != self.width * self.height {
+            return Err(Error::Usage(format!(
+                "frame {} has {} pixels; this stack is {}×{} = {}",
+                self.frames,
+                frame.len(),
+                self.width,
+                self.height,
+                self.width * self.height
+            ))
+            .with_path(&self.target));
+        }
+        let r = match &mut self.inner {
+            WriterKind::Tiff(w) => w.write_frame(frame),
+            WriterKind::Fits(w) => w.write_frame(frame),
+        };
+        r.map_err(|e| e.with_path(&self.target))?;
+        self.frames += 1;
+        Ok(())
+    }
+
+    /// Number of frames written so far.
+    pub fn frames_written(&self) -> usize {
+        self.frames
+    }
+
+    /// Completes the file and renames it into place.
+    pub fn finish(self) -> Result<()> {
+        let target = self.target;
+        let tmp = match self.inner {
+            WriterKind::Tiff(w) => w.finish(),
+            WriterKind::Fits(w) => w.finish(self.frames),
+        }
+        .map_err(|e| e.with_path(&target))?;
+        persist(tmp, &target)
+    }
+}
+
+/// A temporary file in the target's directory, so the final rename stays on one filesystem.
+pub fn temp_beside(path: &Path) -> std::io::Result<tempfile::NamedTempFile> {
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    tempfile::Builder::new().prefix(&format!(".{name}.")).suffix(".tmp").tempfile_in(dir)
+}
+
+/// Flushes a finished temporary file to disk and renames it to `target`.
+pub fn persist(tmp: tempfile::NamedTempFile, target: &Path) -> Result<()> {
+    tmp.as_file().sync_all().map_err(|e| Error::from(e).with_path(target))?;
+    tmp.persist(target).map_err(|e| Error::from(e.error).with_path(target))?;
+    Ok(())
+}
+
+/// Writes `bytes` to `path` atomically (temporary file, then rename).
+pub fn write_atomic(path: impl AsRef<Path>, bytes: &[u8]) -> Result<()> {
+    use std::io::Write;
+    let path = path.as_ref();
+    let mut tmp = temp_beside(path).map_err(|e| Error::from(e).with_path(path))?;
+    tmp.write_all(bytes).map_err(|e| Error::from(e).with_path(path))?;
+    persist(tmp, path)
+}
+
+/// Writes one frame as an 8-bit grayscale PNG, mapping `lo..=hi` to 0..=255 (for previews).
+pub fn write_png_preview(path: impl AsRef<Path>, width: usize, height: usize, data: &[f32], lo: f32, hi: f32) -> Result<()> {
+    png_io::write_gray8(path.as_ref(), width, height, data, lo, hi)
+}

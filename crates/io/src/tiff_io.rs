@@ -1,0 +1,374 @@
+//! TIFF and BigTIFF stacks through the `tiff` crate: one page per frame.
+//!
+//! Stacks written here carry an ImageJ description (`images=N`, `slices=N`) on the first page so
+//! Fiji opens them as stacks, plus `exposure_s=`/`em_gain=` lines that this reader reads back.
+
+use std::fs::File;
+use std::io::BufReader;
+use std::path::Path;
+
+use tiff::decoder::{Decoder, DecodingResult, Limits};
+use tiff::encoder::{colortype, TiffEncoder, TiffKindBig, TiffKindStandard};
+use tiff::tags::Tag;
+use tiff::ColorType;
+
+use crate::{Error, Format, FrameReader, Metadata, PixelType, Result, SampleFormat, StackInfo};
+
+/// Streams the pages of a TIFF or BigTIFF file.
+pub struct TiffReader {
+    decoder: Decoder<BufReader<File>>,
+    info: StackInfo,
+    next: usize,
+    buf: DecodingResult,
+}
+
+impl TiffReader {
+    /// Opens a file, counts its pages and reads the first page's metadata.
+    pub fn open(path: &Path) -> Result<TiffReader> {
+        let file = File::open(path)?;
+        let mut head = [0u8; 4];
+        {
+            use std::io::Read;
+            let mut f = File::open(path)?;
+            f.read_exact(&mut head)?;
+        }
+        let big = head[2] == 43 || head[3] == 43;
+        let mut decoder = Decoder::new(BufReader::new(file))?.with_limits(Limits::default());
+        let (w, h) = decoder.dimensions()?;
+        let ct = decoder.colortype()?;
+        let description = match decoder.find_tag(Tag::ImageDescription)? {
+            Some(v) => v.into_string().ok(),
+            None => None,
+        };
+        let pixel_type = page_pixel_type(&mut decoder, ct)?;
+        // Walk the IFD chain to count pages; every page must match the first.
+        let mut frames = 1;
+        while decoder.more_images() {
+            decoder.next_image()?;
+            let (pw, ph) = decoder.dimensions()?;
+            if (pw, ph) != (w, h) {
+                return Err(Error::Format(format!(
+                    "page {frames} is {pw}×{ph}, but page 0 is {w}×{h}; a stack needs one frame size"
+                )));
+            }
+            frames += 1;
+        }
+        decoder.seek_to_image(0)?;
+        let metadata = description.as_deref().map(parse_description).unwrap_or_default();
+        let info = StackInfo {
+            width: w as usize,
+            height: h as usize,
+            frames,
+            pixel_type,
+            format: if big { Format::BigTiff } else { Format::Tiff },
+            metadata,
+        };
+        Ok(TiffReader { decoder, info, next: 0, buf: DecodingResult::U16(Vec::new()) })
+    }
+}
+
+fn page_pixel_type(decoder: &mut Decoder<BufReader<File>>, ct: ColorType) -> Result<PixelType> {
+    let bits = match ct {
+        ColorType::Gray(b) => b,
+        other => {
+            return Err(Error::Unsupported(format!(
+                "TIFF colour type {other:?}; EMCCD stacks are single-channel grayscale"
+            )))
+        }
+    };
+    // SampleFormat: 1 = unsigned, 2 = signed, 3 = IEEE float.
+    let fmt = decoder.find_tag_unsigned::<u16>(Tag::SampleFormat)?.unwrap_or(1);
+    Ok(match (fmt, bits) {
+        (1, 8) => PixelType::U8,
+        (1, 16) => PixelType::U16,
+        (2, 16) => PixelType::I16,
+        (1, 32) => PixelType::U32,
+        (2, 32) => PixelType::I32,
+        (3, 32) => PixelType::F32,
+        (3, 64) => PixelType::F64,
+        _ => {
+            return Err(Error::Unsupported(format!(
+                "TIFF samples of {bits} bits with SampleFormat {fmt}"
+            )))
+        }
+    })
+}
+
+/// Reads `key=value` lines of an ImageJ-style description.
+fn parse_description(desc: &str) -> Metadata {
+    let mut m = Metadata::default();
+    for line in desc.lines() {
+        let Some((k, v)) = line.split_once('=') else { continue };
+        let v = v.trim();
+        match k.trim() {
+            "exposure_s" => m.exposure_s = v.parse().ok(),
+            "em_gain" => m.em_gain = v.parse().ok(),
+            "temperature_c" => m.temperature_c = v.parse().ok(),
+            "camera" => m.camera_model = Some(v.to_string()),
+            _ => {}
+        }
+    }
+    m
+}
+
+impl FrameReader for TiffReader {
+    fn info(&self) -> &StackInfo {
+        &self.info
+    }
+
+    fn read_frame(&mut self, out: &mut [f32]) -> Result<bool> {
+        if self.next >= self.info.frames {
+            return Ok(false);
+        }
+        if out.len() != self.info.frame_len() {
+            return Err(Error::Usage(format!(
+                "buffer holds {} pixels, frame has {}",
+                out.len(),
+                self.info.frame_len()
+            )));
+        }
+        if self.next > 0 {
+            self.decoder.next_image()?;
+        }
+        let page = self.next;
+        self.decoder
+            .read_image_to_buffer(&mut self.buf)
+            .map_err(|e| Error::from(e))
+            .map_err(|e| Error::Format(format!("page {page}: {e}")))?;
+        let n = out.len();
+        macro_rules! conv {
+            ($v:expr) => {{
+                if $v.len() < n {
+                    return Err(Error::Format(format!("page {page} holds {} samples, expected {n}", $v.len())));
+                }
+                for (o, &x) in out.iter_mut().zip($v.iter()) {
+                    *o = x as f32;
+                }
+            }};
+        }
+        match &self.buf {
+            DecodingResult::U8(v) => conv!(v),
+            DecodingResult::U16(v) => conv!(v),
+            DecodingResult::I16(v) => conv!(v),
+            DecodingResult::U32(v) => conv!(v),
+            DecodingResult::I32(v) => conv!(v),
+            DecodingResult::F32(v) => conv!(v),
+            DecodingResult::F64(v) => conv!(v),
+            _ => return Err(Error::Unsupported(format!("page {page}: sample type"))),
+        }
+        self.next += 1;
+        Ok(true)
+    }
+}
+
+enum Enc {
+    Standard(TiffEncoder<File, TiffKindStandard>),
+    Big(TiffEncoder<File, TiffKindBig>),
+}
+
+/// Writes pages to a temporary file; see [`crate::StackWriter`].
+pub(crate) struct TiffStackWriter {
+    tmp: tempfile::NamedTempFile,
+    enc: Enc,
+    width: u32,
+    height: u32,
+    sample: SampleFormat,
+    description: Option<String>,
+    u16buf: Vec<u16>,
+    pages: usize,
+}
+
+impl TiffStackWriter {
+    pub(crate) fn new(
+        tmp: tempfile::NamedTempFile,
+        big: bool,
+        width: usize,
+        height: usize,
+        sample: SampleFormat,
+        frames_hint: Option<usize>,
+    ) -> Result<Self> {
+        let file = tmp.as_file().try_clone()?;
+        let enc = if big { Enc::Big(TiffEncoder::new_big(file)?) } else { Enc::Standard(TiffEncoder::new(file)?) };
+        let description = frames_hint.map(|n| {
+            // ImageJ reads `images`/`slices` to present the pages as a z-stack.
+            format!("ImageJ=1.54f\nimages={n}\nslices={n}\nloop=false\n")
+        });
+        Ok(TiffStackWriter {
+            tmp,
+            enc,
+            width: width as u32,
+            height: height as u32,
+            sample,
+            description,
+            u16buf: Vec::new(),
+            pages: 0,
+        })
+    }
+
+    /// Adds `key=value` lines (e.g. `exposure_s`) to the first page's description.
+    pub(crate) fn set_extra(&mut self, extra: &str) {
+        let d = self.description.get_or_insert_with(String::new);
+        d.push_str(extra);
+    }
+
+    pub(crate) fn write_frame(&mut self, frame: &[f32]) -> Result<()> {
+        let desc = if self.pages == 0 { self.description.clone() } else { None };
+        let (w, h) = (self.width, self.height);
+        macro_rules! page {
+            ($enc:expr) => {{
+                match self.sample {
+                    SampleFormat::U16 => {
+                        self.u16buf.clear();
+                        self.u16buf.extend(frame.iter().map(|&x| {
+                            if x.is_nan() { 0 } else { x.round().clamp(0.0, 65535.0) as u16 }
+                        }));
+                        let mut img = $enc.new_image::<colortype::Gray16>(w, h)?;
+                        if let Some(d) = &desc {
+                            img.encoder().write_tag(Tag::ImageDescription, d.as_str())?;
+                        }
+                        img.write_data(&self.u16buf)?;
+                    }
+                    SampleFormat::F32 => {
+                        let mut img = $enc.new_image::<colortype::Gray32Float>(w, h)?;
+                        if let Some(d) = &desc {
+                            img.encoder().write_tag(Tag::ImageDescription, d.as_str())?;
+                        }
+                        img.write_data(frame)?;
+                    }
+                }
+            }};
+        }
+        match &mut self.enc {
+            Enc::Standard(e) => page!(e),
+            Enc::Big(e) => page!(e),
+        }
+        self.pages += 1;
+        Ok(())
+    }
+
+    pub(crate) fn finish(self) -> Result<tempfile::NamedTempFile> {
+        if self.pages == 0 {
+            return Err(Error::Usage("no frames were written".into()));
+        }
+        drop(self.enc);
+        Ok(self.tmp)
+    }
+}
+
+impl crate::StackWriter {
+    /// Records camera metadata (`exposure_s=…` lines) in a TIFF stack's description; call before
+    /// the first frame. No effect on FITS (use its header) — see [`crate::fits`].
+    pub fn set_metadata(&mut self, meta: &Metadata) {
+        let mut extra = String::new();
+        if let Some(e) = meta.exposure_s {
+            extra.push_str(&format!("exposure_s={e}\n"));
+        }
+        if let Some(g) = meta.em_gain {
+            extra.push_str(&format!("em_gain={g}\n"));
+        }
+        if let Some(c) = &meta.camera_model {
+            extra.push_str(&format!("camera={c}\n"));
+        }
+        match &mut self.inner {
+            crate::WriterKind::Tiff(w) => w.set_extra(&extra),
+            crate::WriterKind::Fits(w) => w.set_metadata(meta),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{open, StackWriter};
+
+    fn roundtrip(ext: &str, sample: SampleFormat) {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join(format!("s.{ext}"));
+        let (w, h) = (7, 5);
+        let frames: Vec<Vec<f32>> =
+            (0..3).map(|k| (0..w * h).map(|i| (i * 100 + k * 7) as f32 + 0.25).collect()).collect();
+        let mut wr = StackWriter::create(&p, w, h, sample, Some(3)).unwrap();
+        wr.set_metadata(&Metadata { exposure_s: Some(0.01), em_gain: Some(300.0), ..Default::default() });
+        for f in &frames {
+            wr.write_frame(f).unwrap();
+        }
+        wr.finish().unwrap();
+        let mut r = open(&p).unwrap();
+        let info = r.info().clone();
+        assert_eq!((info.width, info.height, info.frames), (w, h, 3));
+        assert_eq!(info.metadata.exposure_s, Some(0.01));
+        assert_eq!(info.metadata.em_gain, Some(300.0));
+        let mut buf = vec![0f32; w * h];
+        for f in &frames {
+            assert!(r.read_frame(&mut buf).unwrap());
+            for (a, b) in buf.iter().zip(f) {
+                let want = if sample == SampleFormat::U16 { b.round() } else { *b };
+                assert_eq!(*a, want);
+            }
+        }
+        assert!(!r.read_frame(&mut buf).unwrap());
+        // Only the final file remains: no temporary left behind.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn tiff_u16_roundtrip() {
+        roundtrip("tif", SampleFormat::U16);
+    }
+
+    #[test]
+    fn tiff_f32_roundtrip() {
+        roundtrip("tif", SampleFormat::F32);
+    }
+
+    #[test]
+    fn bigtiff_roundtrip() {
+        roundtrip("btf", SampleFormat::U16);
+        roundtrip("btf", SampleFormat::F32);
+    }
+
+    #[test]
+    fn u16_clips_and_rounds() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("c.tif");
+        let mut wr = StackWriter::create(&p, 4, 1, SampleFormat::U16, None).unwrap();
+        wr.write_frame(&[-5.0, 1.6, 70000.0, f32::NAN]).unwrap();
+        wr.finish().unwrap();
+        let (_, f) = crate::read_all(&p).unwrap();
+        assert_eq!(f[0], vec![0.0, 2.0, 65535.0, 0.0]);
+    }
+
+    #[test]
+    fn truncated_tiff_is_an_error_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("t.tif");
+        let mut wr = StackWriter::create(&p, 64, 64, SampleFormat::U16, Some(2)).unwrap();
+        wr.write_frame(&vec![1.0; 64 * 64]).unwrap();
+        wr.write_frame(&vec![2.0; 64 * 64]).unwrap();
+        wr.finish().unwrap();
+        let bytes = std::fs::read(&p).unwrap();
+        std::fs::write(&p, &bytes[..bytes.len() / 2]).unwrap();
+        let err = match open(&p) {
+            Err(e) => e,
+            Ok(mut r) => {
+                let mut buf = vec![0f32; 64 * 64];
+                let mut res = Ok(true);
+                while let Ok(true) = res {
+                    res = r.read_frame(&mut buf);
+                }
+                res.expect_err("truncated stack must not read cleanly").with_path(&p)
+            }
+        };
+        assert!(err.to_string().contains("t.tif"), "{err}");
+    }
+
+    #[test]
+    fn unfinished_writer_leaves_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("u.tif");
+        let mut wr = StackWriter::create(&p, 4, 4, SampleFormat::F32, None).unwrap();
+        wr.write_frame(&[0.0; 16]).unwrap();
+        drop(wr);
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+}
