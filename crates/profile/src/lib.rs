@@ -1,1 +1,375 @@
-//! stub
+//! The camera profile: every calibrated number and per-pixel map that the rest of `emccd` passes
+//! around, and its on-disk form — a directory holding a human-readable `profile.toml` and a
+//! `maps.safetensors` with the per-pixel maps.
+//!
+//! The profile describes the camera in the paper's terms (eq. 1): the photon-transfer slope
+//! `s = K·f²`, the range of the excess noise factor `f`, the quantization step, the fixed pattern
+//! `FPN_t = exp(σ(ln t; θ))` (per-pixel and shared forms), the blooming factor `x(t) = a·t^b`,
+//! and per-pixel read-noise std maps at the calibrated exposures. It also carries the parameters of
+//! the two comparison noise models (ELD and the Poisson–Gamma–Normal model) so that all three are
+//! calibrated from the same frames. Estimating these numbers is `emccd-calib`'s job; simulating a
+//! camera from them is `emccd-camera`'s.
+
+#![deny(missing_docs)]
+
+mod default;
+mod error;
+mod fpn;
+mod store;
+
+pub use default::{default_profile, DEFAULT_PROFILE_SEED};
+pub use error::{Error, Result};
+pub use fpn::{logistic, FpnForm};
+
+use serde::{Deserialize, Serialize};
+
+/// Blooming factor against exposure, `x(t) = a·t^b` (paper appendix A.2; `b ≈ −0.96`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BloomingFit {
+    /// Prefactor `a` (x at t = 1 s).
+    pub a: f64,
+    /// Exponent `b`.
+    pub b: f64,
+}
+
+impl BloomingFit {
+    /// The blooming factor at exposure `t` seconds.
+    pub fn factor(&self, exposure_s: f64) -> f64 {
+        self.a * exposure_s.powf(self.b)
+    }
+}
+
+/// How the fixed pattern depends on exposure.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FpnFit {
+    /// Which form preprocessing uses.
+    pub form: FpnForm,
+    /// Exposure of the base map (the shortest calibrated bias exposure), seconds.
+    pub base_exposure_s: f64,
+    /// Shared logistic coefficients θ = (θ0, θ1, θ2, θ3) of
+    /// `σ(u) = θ0 + θ1 / (1 + exp(−θ2·(u − θ3)))`, `u = ln t`.
+    pub shared_theta: [f64; 4],
+}
+
+/// Parameters of the ELD noise model (Wei et al. 2021) for comparison training.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EldParams {
+    /// System gain K in DN per photoelectron (ELD has no excess noise, so this is the PTC slope).
+    pub k_dn: f64,
+    /// Tukey-lambda shape λ of the read noise.
+    pub tukey_lambda: f64,
+    /// Tukey-lambda scale of the read noise, DN.
+    pub tukey_scale_dn: f64,
+    /// Std of the per-row offset, DN.
+    pub row_sigma_dn: f64,
+}
+
+/// Parameters of the theoretical Poisson–Gamma–Normal EMCCD model (Ryan et al. 2021).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PgnParams {
+    /// EM gain G (mean electrons out per electron in).
+    pub em_gain: f64,
+    /// Electrons per DN after the EM register.
+    pub e_per_dn: f64,
+    /// Clock-induced charge, electrons per pixel per frame.
+    pub cic_e: f64,
+    /// Dark current, electrons per pixel per second.
+    pub dark_e_per_s: f64,
+    /// Read noise, DN (std).
+    pub read_sigma_dn: f64,
+}
+
+/// Where a profile's numbers came from.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Provenance {
+    /// `modeled`, `calibrated` or `virtual-camera truth`.
+    pub source: String,
+    /// Free text: what is measured and what is assumed.
+    #[serde(default)]
+    pub notes: String,
+}
+
+/// Per-pixel maps, row-major `height × width`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ProfileMaps {
+    /// FPN at the base (shortest) exposure, DN.
+    pub fpn_base: Vec<f32>,
+    /// Per-pixel logistic coefficients, 4 planes (θ0..θ3), or empty if only the shared form exists.
+    pub fpn_theta: Vec<f32>,
+    /// One read-noise std map (DN) per entry of [`CameraProfile::exposures_s`].
+    pub read_noise: Vec<Vec<f32>>,
+}
+
+/// Everything known about one camera at one EM gain setting.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraProfile {
+    /// Camera name.
+    pub camera: String,
+    /// EM gain setting the profile was calibrated at.
+    pub em_gain: f64,
+    /// Sensor width in pixels.
+    pub width: usize,
+    /// Sensor height in pixels.
+    pub height: usize,
+    /// Photon-transfer slope `s = K·f²`, DN per DN of signal.
+    pub ptc_slope_dn: f64,
+    /// Range of the excess noise factor drawn during synthesis.
+    pub f_range: [f64; 2],
+    /// Quantization step q, DN.
+    pub quantization_dn: f64,
+    /// Largest value the ADC reports.
+    pub adc_max_dn: f64,
+    /// Fixed-pattern fit.
+    pub fpn: FpnFit,
+    /// Blooming fit.
+    pub blooming: BloomingFit,
+    /// Exposures (s) at which read-noise maps were measured, ascending.
+    pub exposures_s: Vec<f64>,
+    /// ELD comparison-model parameters.
+    pub eld: Option<EldParams>,
+    /// PGN comparison-model parameters.
+    pub pgn: Option<PgnParams>,
+    /// Where the numbers came from.
+    pub provenance: Provenance,
+    /// Per-pixel maps.
+    pub maps: ProfileMaps,
+}
+
+/// The summary `emccd profile show --json` prints.
+#[derive(Clone, Debug, Serialize)]
+pub struct ProfileSummary {
+    /// Camera name.
+    pub camera: String,
+    /// EM gain setting.
+    pub em_gain: f64,
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+    /// Photon-transfer slope s = K·f², DN.
+    pub ptc_slope_dn: f64,
+    /// Excess-noise-factor range.
+    pub f_range: [f64; 2],
+    /// System gain range K = s/f², DN per photoelectron.
+    pub k_range_dn: [f64; 2],
+    /// Quantization step, DN.
+    pub quantization_dn: f64,
+    /// Median of the FPN map at the shortest exposure, DN.
+    pub bias_dn: f64,
+    /// Median read-noise std over pixels and exposures, DN.
+    pub read_noise_dn: f64,
+    /// FPN form used by preprocessing.
+    pub fpn_form: FpnForm,
+    /// Shared FPN coefficients.
+    pub fpn_shared_theta: [f64; 4],
+    /// Blooming prefactor a.
+    pub blooming_a: f64,
+    /// Blooming exponent b.
+    pub blooming_b: f64,
+    /// Calibrated exposures, s.
+    pub exposures_s: Vec<f64>,
+    /// ELD parameters, if calibrated.
+    pub eld: Option<EldParams>,
+    /// PGN parameters, if calibrated.
+    pub pgn: Option<PgnParams>,
+    /// Source of the numbers.
+    pub provenance: Provenance,
+    /// Content fingerprint (hex).
+    pub fingerprint: String,
+}
+
+/// Median of a slice (NaNs ignored); 0 for an empty slice.
+pub fn median(values: impl IntoIterator<Item = f32>) -> f64 {
+    let mut v: Vec<f32> = values.into_iter().filter(|x| !x.is_nan()).collect();
+    if v.is_empty() {
+        return 0.0;
+    }
+    let mid = v.len() / 2;
+    let (_, m, _) = v.select_nth_unstable_by(mid, f32::total_cmp);
+    let m = *m as f64;
+    if v.len() % 2 == 1 {
+        m
+    } else {
+        let lo = v[..mid].iter().copied().fold(f32::MIN, f32::max) as f64;
+        0.5 * (lo + m)
+    }
+}
+
+impl CameraProfile {
+    /// Pixels per frame.
+    pub fn len(&self) -> usize {
+        self.width * self.height
+    }
+
+    /// True for a 0×0 profile.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// System gain `K = s/f²` for a given excess noise factor.
+    pub fn k_dn(&self, f: f64) -> f64 {
+        self.ptc_slope_dn / (f * f)
+    }
+
+    /// The blooming factor `x_t`.
+    pub fn blooming_factor(&self, exposure_s: f64) -> f64 {
+        self.blooming.factor(exposure_s)
+    }
+
+    /// Median of the base FPN map (the camera's bias level), DN.
+    pub fn bias_dn(&self) -> f64 {
+        median(self.maps.fpn_base.iter().copied())
+    }
+
+    /// Median read-noise std over all pixels and exposures, DN.
+    pub fn read_noise_dn(&self) -> f64 {
+        median(self.maps.read_noise.iter().flat_map(|m| m.iter().copied()))
+    }
+
+    /// The read-noise map measured closest (in log exposure) to `exposure_s`.
+    pub fn read_noise_near(&self, exposure_s: f64) -> &[f32] {
+        let i = self
+            .exposures_s
+            .iter()
+            .enumerate()
+            .min_by(|a, b| {
+                let da = (a.1.ln() - exposure_s.ln()).abs();
+                let db = (b.1.ln() - exposure_s.ln()).abs();
+                da.total_cmp(&db)
+            })
+            .map(|(i, _)| i)
+            .unwrap_or(0);
+        &self.maps.read_noise[i]
+    }
+
+    /// Whether `exposure_s` lies inside the calibrated exposure range.
+    pub fn exposure_in_range(&self, exposure_s: f64) -> bool {
+        let lo = self.fpn.base_exposure_s.min(self.exposures_s.first().copied().unwrap_or(f64::MAX));
+        let hi = self.exposures_s.last().copied().unwrap_or(0.0);
+        exposure_s >= lo * (1.0 - 1e-9) && exposure_s <= hi * (1.0 + 1e-9)
+    }
+
+    /// The summary printed by `emccd profile show`.
+    pub fn summary(&self) -> ProfileSummary {
+        ProfileSummary {
+            camera: self.camera.clone(),
+            em_gain: self.em_gain,
+            width: self.width,
+            height: self.height,
+            ptc_slope_dn: self.ptc_slope_dn,
+            f_range: self.f_range,
+            k_range_dn: [self.k_dn(self.f_range[1]), self.k_dn(self.f_range[0])],
+            quantization_dn: self.quantization_dn,
+            bias_dn: self.bias_dn(),
+            read_noise_dn: self.read_noise_dn(),
+            fpn_form: self.fpn.form,
+            fpn_shared_theta: self.fpn.shared_theta,
+            blooming_a: self.blooming.a,
+            blooming_b: self.blooming.b,
+            exposures_s: self.exposures_s.clone(),
+            eld: self.eld.clone(),
+            pgn: self.pgn.clone(),
+            provenance: self.provenance.clone(),
+            fingerprint: format!("{:016x}", self.fingerprint()),
+        }
+    }
+
+    /// A 64-bit FNV-1a hash of every parameter and map, so a model can record which profile it was
+    /// trained for and warn when used with another.
+    pub fn fingerprint(&self) -> u64 {
+        let mut h: u64 = 0xcbf29ce484222325;
+        let mut eat = |bytes: &[u8]| {
+            for &b in bytes {
+                h ^= b as u64;
+                h = h.wrapping_mul(0x100000001b3);
+            }
+        };
+        eat(self.to_toml_string().as_bytes());
+        for m in [&self.maps.fpn_base, &self.maps.fpn_theta].into_iter().chain(self.maps.read_noise.iter()) {
+            for v in m.iter() {
+                eat(&v.to_le_bytes());
+            }
+        }
+        h
+    }
+
+    /// The sub-array `x0..x0+w`, `y0..y0+h` (for simulating or calibrating a region of interest).
+    pub fn crop(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<CameraProfile> {
+        if w == 0 || h == 0 || x0 + w > self.width || y0 + h > self.height {
+            return Err(Error::Parameter(format!(
+                "crop {w}×{h} at ({x0},{y0}) does not fit the {}×{} sensor",
+                self.width, self.height
+            )));
+        }
+        let cut = |m: &[f32]| -> Vec<f32> {
+            let mut out = Vec::with_capacity(w * h);
+            for y in y0..y0 + h {
+                out.extend_from_slice(&m[y * self.width + x0..y * self.width + x0 + w]);
+            }
+            out
+        };
+        let n = self.len();
+        let mut p = self.clone();
+        p.width = w;
+        p.height = h;
+        p.maps.fpn_base = cut(&self.maps.fpn_base);
+        p.maps.fpn_theta = self.maps.fpn_theta.chunks(n.max(1)).flat_map(|c| cut(c)).collect();
+        p.maps.read_noise = self.maps.read_noise.iter().map(|m| cut(m)).collect();
+        Ok(p)
+    }
+
+    /// Checks sizes and values; every constructor and loader calls this.
+    pub fn validate(&self) -> Result<()> {
+        let n = self.len();
+        let bad = |what: String| Err(Error::Parameter(what));
+        if n == 0 {
+            return bad("the profile has no pixels".into());
+        }
+        if !(self.ptc_slope_dn > 0.0) {
+            return bad(format!("ptc_slope_dn must be positive, got {}", self.ptc_slope_dn));
+        }
+        if !(self.f_range[0] >= 1.0 && self.f_range[1] >= self.f_range[0]) {
+            return bad(format!("f_range must satisfy 1 ≤ lo ≤ hi, got {:?}", self.f_range));
+        }
+        if !(self.quantization_dn >= 0.0) {
+            return bad("quantization_dn must be ≥ 0".into());
+        }
+        if !(self.fpn.base_exposure_s > 0.0) {
+            return bad("fpn.base_exposure_s must be positive".into());
+        }
+        if self.maps.fpn_base.len() != n {
+            return bad(format!("fpn_base has {} values, expected {n}", self.maps.fpn_base.len()));
+        }
+        if !self.maps.fpn_theta.is_empty() && self.maps.fpn_theta.len() != 4 * n {
+            return bad(format!("fpn_theta has {} values, expected 4×{n}", self.maps.fpn_theta.len()));
+        }
+        if self.fpn.form == FpnForm::PerPixel && self.maps.fpn_theta.is_empty() {
+            return bad("fpn.form is per-pixel but the profile has no fpn_theta map".into());
+        }
+        if self.maps.read_noise.len() != self.exposures_s.len() {
+            return bad(format!(
+                "{} read-noise maps for {} exposures",
+                self.maps.read_noise.len(),
+                self.exposures_s.len()
+            ));
+        }
+        if self.exposures_s.is_empty() {
+            return bad("a profile needs at least one read-noise map".into());
+        }
+        if self.exposures_s.windows(2).any(|w| !(w[1] > w[0])) || self.exposures_s.iter().any(|&t| !(t > 0.0)) {
+            return bad("exposures_s must be positive and strictly ascending".into());
+        }
+        for (t, m) in self.exposures_s.iter().zip(&self.maps.read_noise) {
+            if m.len() != n {
+                return bad(format!("read-noise map at {t} s has {} values, expected {n}", m.len()));
+            }
+            if m.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
+                return bad(format!("read-noise map at {t} s holds a negative or non-finite value"));
+            }
+        }
+        if self.maps.fpn_base.iter().any(|v| !v.is_finite()) {
+            return bad("fpn_base holds a non-finite value".into());
+        }
+        Ok(())
+    }
+}

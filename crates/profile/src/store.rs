@@ -1,0 +1,222 @@
+//! On-disk form: `DIR/profile.toml` (scalars, human-readable) + `DIR/maps.safetensors`
+//! (`fpn_base` [H,W], optional `fpn_theta` [4,H,W], `read_noise_std` [E,H,W], all f32).
+
+use std::collections::HashMap;
+use std::io::Write;
+use std::path::Path;
+
+use safetensors::tensor::{Dtype, TensorView};
+use serde::{Deserialize, Serialize};
+
+use crate::{BloomingFit, CameraProfile, EldParams, Error, FpnFit, PgnParams, ProfileMaps, Provenance, Result};
+
+/// Name of the scalar file inside a profile directory.
+pub const PROFILE_TOML: &str = "profile.toml";
+/// Name of the maps file inside a profile directory.
+pub const MAPS_FILE: &str = "maps.safetensors";
+const FORMAT_VERSION: u32 = 1;
+
+#[derive(Serialize, Deserialize)]
+struct TomlProfile {
+    format_version: u32,
+    camera: String,
+    em_gain: f64,
+    width: usize,
+    height: usize,
+    /// Photon-transfer slope s = K·f² in DN.
+    ptc_slope_dn: f64,
+    f_range: [f64; 2],
+    quantization_dn: f64,
+    adc_max_dn: f64,
+    /// Informational: median of the base FPN map (recomputed from the maps on load).
+    bias_dn: f64,
+    /// Informational: median read-noise std (recomputed from the maps on load).
+    read_noise_dn: f64,
+    exposures_s: Vec<f64>,
+    fpn: FpnFit,
+    blooming: BloomingFit,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    eld: Option<EldParams>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pgn: Option<PgnParams>,
+    provenance: Provenance,
+}
+
+fn f32_bytes(v: &[f32]) -> Vec<u8> {
+    let mut b = Vec::with_capacity(v.len() * 4);
+    for x in v {
+        b.extend_from_slice(&x.to_le_bytes());
+    }
+    b
+}
+
+fn tensor_f32(view: &TensorView<'_>, name: &str, shape: &[usize]) -> Result<Vec<f32>> {
+    if view.dtype() != Dtype::F32 {
+        return Err(Error::Format(format!("{name}: dtype {:?}, expected F32", view.dtype())));
+    }
+    if view.shape() != shape {
+        return Err(Error::Format(format!("{name}: shape {:?}, expected {:?}", view.shape(), shape)));
+    }
+    Ok(view.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+}
+
+impl CameraProfile {
+    fn to_toml_struct(&self) -> TomlProfile {
+        TomlProfile {
+            format_version: FORMAT_VERSION,
+            camera: self.camera.clone(),
+            em_gain: self.em_gain,
+            width: self.width,
+            height: self.height,
+            ptc_slope_dn: self.ptc_slope_dn,
+            f_range: self.f_range,
+            quantization_dn: self.quantization_dn,
+            adc_max_dn: self.adc_max_dn,
+            bias_dn: (self.bias_dn() * 1000.0).round() / 1000.0,
+            read_noise_dn: (self.read_noise_dn() * 1000.0).round() / 1000.0,
+            exposures_s: self.exposures_s.clone(),
+            fpn: self.fpn.clone(),
+            blooming: self.blooming,
+            eld: self.eld.clone(),
+            pgn: self.pgn.clone(),
+            provenance: self.provenance.clone(),
+        }
+    }
+
+    /// The `profile.toml` text.
+    pub fn to_toml_string(&self) -> String {
+        let body = toml::to_string_pretty(&self.to_toml_struct()).expect("profile serializes");
+        format!(
+            "# emccd camera profile. Per-pixel maps are in {MAPS_FILE} beside this file.\n\
+             # Model (paper eq. 1): D = B[K(I + f·Np) + FPN_t] + Nr + Nq, with s = K·f².\n{body}"
+        )
+    }
+
+    /// Writes `dir/profile.toml` and `dir/maps.safetensors`, each atomically.
+    pub fn save(&self, dir: impl AsRef<Path>) -> Result<()> {
+        let dir = dir.as_ref();
+        self.validate()?;
+        std::fs::create_dir_all(dir).map_err(|e| Error::from(e).at(dir))?;
+        let (h, w, e) = (self.height, self.width, self.exposures_s.len());
+        let base = f32_bytes(&self.maps.fpn_base);
+        let theta = f32_bytes(&self.maps.fpn_theta);
+        let mut rn = Vec::with_capacity(e * h * w * 4);
+        for m in &self.maps.read_noise {
+            rn.extend_from_slice(&f32_bytes(m));
+        }
+        let mut tensors: Vec<(&str, TensorView<'_>)> = vec![
+            ("fpn_base", TensorView::new(Dtype::F32, vec![h, w], &base).map_err(st_err)?),
+            ("read_noise_std", TensorView::new(Dtype::F32, vec![e, h, w], &rn).map_err(st_err)?),
+        ];
+        if !self.maps.fpn_theta.is_empty() {
+            tensors.push(("fpn_theta", TensorView::new(Dtype::F32, vec![4, h, w], &theta).map_err(st_err)?));
+        }
+        let mut meta = HashMap::new();
+        meta.insert("format".to_string(), "emccd-profile-maps".to_string());
+        meta.insert("exposures_s".to_string(), format!("{:?}", self.exposures_s));
+        let bytes = safetensors::serialize(tensors, Some(meta)).map_err(st_err)?;
+        write_atomic(&dir.join(MAPS_FILE), &bytes)?;
+        write_atomic(&dir.join(PROFILE_TOML), self.to_toml_string().as_bytes())?;
+        Ok(())
+    }
+
+    /// Loads and validates a profile directory.
+    pub fn load(dir: impl AsRef<Path>) -> Result<CameraProfile> {
+        let dir = dir.as_ref();
+        if !dir.is_dir() {
+            return Err(Error::Format("not a profile directory (expected profile.toml and maps.safetensors inside)".into()).at(dir));
+        }
+        let tpath = dir.join(PROFILE_TOML);
+        let text = std::fs::read_to_string(&tpath).map_err(|e| Error::from(e).at(&tpath))?;
+        let t: TomlProfile =
+            toml::from_str(&text).map_err(|e| Error::Format(format!("{e}")).at(&tpath))?;
+        if t.format_version != FORMAT_VERSION {
+            return Err(Error::Format(format!(
+                "format_version {} is not supported (this build reads {FORMAT_VERSION})",
+                t.format_version
+            ))
+            .at(&tpath));
+        }
+        let mpath = dir.join(MAPS_FILE);
+        let bytes = std::fs::read(&mpath).map_err(|e| Error::from(e).at(&mpath))?;
+        let st = safetensors::SafeTensors::deserialize(&bytes).map_err(|e| st_err(e).at(&mpath))?;
+        let (h, w, e) = (t.height, t.width, t.exposures_s.len());
+        let get = |name: &str, shape: &[usize]| -> Result<Vec<f32>> {
+            let v = st.tensor(name).map_err(|_| Error::Format(format!("missing tensor {name}")))?;
+            tensor_f32(&v, name, shape)
+        };
+        let fpn_base = get("fpn_base", &[h, w]).map_err(|e| e.at(&mpath))?;
+        let fpn_theta = if st.names().contains(&"fpn_theta") {
+            get("fpn_theta", &[4, h, w]).map_err(|e| e.at(&mpath))?
+        } else {
+            Vec::new()
+        };
+        let rn = get("read_noise_std", &[e, h, w]).map_err(|e| e.at(&mpath))?;
+        let read_noise = rn.chunks(h * w).map(|c| c.to_vec()).collect();
+        let p = CameraProfile {
+            camera: t.camera,
+            em_gain: t.em_gain,
+            width: w,
+            height: h,
+            ptc_slope_dn: t.ptc_slope_dn,
+            f_range: t.f_range,
+            quantization_dn: t.quantization_dn,
+            adc_max_dn: t.adc_max_dn,
+            fpn: t.fpn,
+            blooming: t.blooming,
+            exposures_s: t.exposures_s,
+            eld: t.eld,
+            pgn: t.pgn,
+            provenance: t.provenance,
+            maps: ProfileMaps { fpn_base, fpn_theta, read_noise },
+        };
+        p.validate().map_err(|e| e.at(dir))?;
+        Ok(p)
+    }
+}
+
+fn st_err(e: safetensors::SafeTensorError) -> Error {
+    Error::Format(format!("safetensors: {e}"))
+}
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut tmp = tempfile::Builder::new()
+        .prefix(".profile.")
+        .suffix(".tmp")
+        .tempfile_in(dir)
+        .map_err(|e| Error::from(e).at(path))?;
+    tmp.write_all(bytes).map_err(|e| Error::from(e).at(path))?;
+    tmp.as_file().sync_all().map_err(|e| Error::from(e).at(path))?;
+    tmp.persist(path).map_err(|e| Error::from(e.error).at(path))?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::default_profile;
+
+    #[test]
+    fn save_load_roundtrip_is_exact() {
+        let p = default_profile().crop(10, 20, 32, 24).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        p.save(dir.path()).unwrap();
+        let q = crate::CameraProfile::load(dir.path()).unwrap();
+        assert_eq!(p, q);
+        assert_eq!(p.fingerprint(), q.fingerprint());
+    }
+
+    #[test]
+    fn damaged_profiles_are_named_errors() {
+        let p = default_profile().crop(0, 0, 8, 8).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        p.save(dir.path()).unwrap();
+        let maps = dir.path().join(super::MAPS_FILE);
+        let b = std::fs::read(&maps).unwrap();
+        std::fs::write(&maps, &b[..b.len() / 2]).unwrap();
+        let e = crate::CameraProfile::load(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("maps.safetensors"), "{e}");
+        let e = crate::CameraProfile::load(dir.path().join("nope")).unwrap_err().to_string();
+        assert!(e.contains("not a profile directory"), "{e}");
+    }
+}
