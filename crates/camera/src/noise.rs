@@ -1,0 +1,366 @@
+//! Noise models behind one trait. Each maps a clean photo-signal `S` (DN above bias, in the
+//! preprocessed domain: blooming and FPN already removed) to a noisy frame, and states the
+//! closed-form mean, variance and third central moment of one pixel's output, which the tests
+//! check samples against.
+
+use std::sync::Arc;
+
+use emccd_profile::CameraProfile;
+use rand::Rng;
+use rand_distr::{Distribution, Gamma, Poisson, StandardNormal};
+use rayon::prelude::*;
+
+use crate::rng::{stream, FRAME_KEY};
+use crate::Error;
+
+/// Mean, variance and third central moment of one pixel's output.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Moments {
+    /// E[D].
+    pub mean: f64,
+    /// Var[D].
+    pub var: f64,
+    /// E[(D − E[D])³].
+    pub third: f64,
+}
+
+impl Moments {
+    /// Skewness `third / var^1.5`.
+    pub fn skewness(&self) -> f64 {
+        self.third / self.var.powf(1.5)
+    }
+}
+
+/// Which noise model (for CLI flags and model metadata).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NoiseModelKind {
+    /// The paper's model, eq. 5.
+    Ours,
+    /// ELD (CMOS): Poisson + Tukey-lambda read + row noise + quantization.
+    Eld,
+    /// Theoretical EMCCD: Poisson → Gamma → Normal → ADC.
+    Pgn,
+}
+
+/// Components of the paper's model that can be switched off (its Table 2 ablation). FPN and
+/// blooming are handled by preprocessing; their switches say whether a pipeline removes them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct Ablation {
+    /// Multiplicative (excess) noise: off means f = 1 with K unchanged.
+    pub multiplicative: bool,
+    /// Per-pixel readout noise.
+    pub readout: bool,
+    /// Quantization noise.
+    pub quantization: bool,
+    /// FPN removal in preprocessing.
+    pub fpn: bool,
+    /// Blooming removal in preprocessing.
+    pub blooming: bool,
+}
+
+impl Default for Ablation {
+    fn default() -> Self {
+        Ablation { multiplicative: true, readout: true, quantization: true, fpn: true, blooming: true }
+    }
+}
+
+/// A noise model: clean photo-signal in, noisy frame out.
+pub trait NoiseModel: Send + Sync {
+    /// Short name (`ours`, `eld`, `pgn`).
+    fn name(&self) -> &'static str;
+
+    /// Writes a noisy version of `clean` (row-major, `width` columns, DN above bias) into `out`.
+    /// The same `seed` gives the same frame on any number of threads.
+    fn synthesize(&self, clean: &[f32], width: usize, out: &mut [f32], seed: u64);
+
+    /// Closed-form moments of pixel `pixel`'s output at clean signal `signal_dn`, averaged over
+    /// the model's per-frame random choices.
+    fn moments(&self, signal_dn: f64, pixel: usize) -> Moments;
+}
+
+#[inline]
+fn poisson<R: Rng + ?Sized>(rng: &mut R, lambda: f64) -> f64 {
+    if lambda > 0.0 {
+        // `Poisson::new` only fails for non-positive or non-finite λ, excluded here.
+        Poisson::new(lambda).map(|d| d.sample(rng)).unwrap_or(0.0)
+    } else {
+        0.0
+    }
+}
+
+#[inline]
+fn normal<R: Rng + ?Sized>(rng: &mut R) -> f64 {
+    StandardNormal.sample(rng)
+}
+
+/// E[f^−k] for f uniform on [a, b].
+fn inv_moment(a: f64, b: f64, k: i32) -> f64 {
+    if (b - a).abs() < 1e-12 {
+        return a.powi(-k);
+    }
+    if k == 1 {
+        (b / a).ln() / (b - a)
+    } else {
+        (a.powi(1 - k) - b.powi(1 - k)) / ((k - 1) as f64 * (b - a))
+    }
+}
+
+fn check_frame(clean: &[f32], width: usize, out: &[f32]) {
+    assert!(width > 0 && clean.len() % width == 0, "frame is not a whole number of rows");
+    assert_eq!(clean.len(), out.len(), "input and output frames differ in size");
+}
+
+/// The paper's model (eq. 5): `D̂' = K(I + f·Np) + Nr + Nq`, `I = S/K`, `K = s/f²`,
+/// `f ~ U[f_lo, f_hi]` and one read-noise map drawn per frame.
+#[derive(Clone)]
+pub struct OursModel {
+    slope: f64,
+    f_range: [f64; 2],
+    q: f64,
+    read_noise: Arc<Vec<Vec<f32>>>,
+    ablation: Ablation,
+}
+
+impl OursModel {
+    /// Builds the model from a profile's slope, f range, quantization and read-noise maps.
+    pub fn from_profile(p: &CameraProfile, ablation: Ablation) -> OursModel {
+        OursModel {
+            slope: p.ptc_slope_dn,
+            f_range: p.f_range,
+            q: p.quantization_dn,
+            read_noise: Arc::new(p.maps.read_noise.clone()),
+            ablation,
+        }
+    }
+
+    /// Builds the model from explicit parameters (one or more read-noise maps).
+    pub fn new(slope: f64, f_range: [f64; 2], q: f64, read_noise: Vec<Vec<f32>>, ablation: Ablation) -> Result<OursModel, Error> {
+        if !(slope > 0.0) || !(f_range[0] >= 1.0 && f_range[1] >= f_range[0]) || !(q >= 0.0) || read_noise.is_empty() {
+            return Err(Error::Parameter(format!(
+                "ours: need s > 0, 1 ≤ f_lo ≤ f_hi, q ≥ 0 and a read-noise map (s={slope}, f={f_range:?}, q={q})"
+            )));
+        }
+        Ok(OursModel { slope, f_range, q, read_noise: Arc::new(read_noise), ablation })
+    }
+
+    /// The per-frame draws for `seed`: (f, read-noise map index).
+    pub fn frame_draws(&self, seed: u64) -> (f64, usize) {
+        let mut r = stream(seed, FRAME_KEY, 0);
+        let [a, b] = self.f_range;
+        let f = if b > a { r.random_range(a..b) } else { a };
+        (f, r.random_range(0..self.read_noise.len()))
+    }
+}
+
+impl NoiseModel for OursModel {
+    fn name(&self) -> &'static str {
+        "ours"
+    }
+
+    fn synthesize(&self, clean: &[f32], width: usize, out: &mut [f32], seed: u64) {
+        check_frame(clean, width, out);
+        let (f, map) = self.frame_draws(seed);
+        let k = self.slope / (f * f);
+        let f_eff = if self.ablation.multiplicative { f } else { 1.0 };
+        let rn = &self.read_noise[map];
+        assert_eq!(rn.len(), clean.len(), "read-noise map and frame differ in size");
+        let (readout, quant, q) = (self.ablation.readout, self.ablation.quantization, self.q);
+        out.par_chunks_mut(width).zip(clean.par_chunks(width)).enumerate().for_each(|(y, (o, c))| {
+            let mut rng = stream(seed, y as u64, 1);
+            let sig = &rn[y * width..(y + 1) * width];
+            for ((o, &s), &sd) in o.iter_mut().zip(c).zip(sig) {
+                let i = (s.max(0.0) as f64) / k;
+                let n = poisson(&mut rng, i);
+                let mut v = k * (i + f_eff * (n - i));
+                if readout {
+                    v += sd as f64 * normal(&mut rng);
+                }
+                if quant {
+                    v += q * (rng.random::<f64>() - 0.5);
+                }
+                *o = v as f32;
+            }
+        });
+    }
+
+    fn moments(&self, signal_dn: f64, pixel: usize) -> Moments {
+        let [a, b] = self.f_range;
+        let s = self.slope;
+        let sig = signal_dn.max(0.0);
+        let (var_shot, third) = if self.ablation.multiplicative {
+            (s * sig, s * s * sig * inv_moment(a, b, 1))
+        } else {
+            (s * sig * inv_moment(a, b, 2), s * s * sig * inv_moment(a, b, 4))
+        };
+        let read = if self.ablation.readout {
+            let m = &self.read_noise;
+            m.iter().map(|map| (map[pixel] as f64).powi(2)).sum::<f64>() / m.len() as f64
+        } else {
+            0.0
+        };
+        let quant = if self.ablation.quantization { self.q * self.q / 12.0 } else { 0.0 };
+        Moments { mean: sig, var: var_shot + read + quant, third }
+    }
+}
+
+/// ELD (Wei et al. 2021), built for CMOS sensors: `K·Poisson(S/K)` + Tukey-lambda read noise +
+/// a Gaussian offset per row + uniform quantization.
+#[derive(Clone, Debug)]
+pub struct EldModel {
+    k: f64,
+    lambda: f64,
+    scale: f64,
+    row_sigma: f64,
+    q: f64,
+}
+
+/// Variance of the standard Tukey-lambda distribution (finite for λ > −1/2).
+pub fn tukey_variance(lambda: f64) -> f64 {
+    if lambda.abs() < 1e-9 {
+        std::f64::consts::PI.powi(2) / 3.0
+    } else {
+        let g = libm::tgamma;
+        2.0 / (lambda * lambda) * (1.0 / (1.0 + 2.0 * lambda) - g(lambda + 1.0).powi(2) / g(2.0 * lambda + 2.0))
+    }
+}
+
+impl EldModel {
+    /// Builds the model; λ must exceed −1/2 for the variance to exist.
+    pub fn new(k_dn: f64, tukey_lambda: f64, tukey_scale_dn: f64, row_sigma_dn: f64, q: f64) -> Result<EldModel, Error> {
+        if !(k_dn > 0.0 && tukey_lambda > -0.5 && tukey_scale_dn >= 0.0 && row_sigma_dn >= 0.0 && q >= 0.0) {
+            return Err(Error::Parameter(format!(
+                "eld: need K > 0, λ > −1/2 and non-negative scales (K={k_dn}, λ={tukey_lambda})"
+            )));
+        }
+        Ok(EldModel { k: k_dn, lambda: tukey_lambda, scale: tukey_scale_dn, row_sigma: row_sigma_dn, q })
+    }
+
+    /// Builds the model from a profile's `[eld]` section.
+    pub fn from_profile(p: &CameraProfile) -> Result<EldModel, Error> {
+        let e = p.eld.as_ref().ok_or_else(|| Error::Parameter("the profile has no [eld] parameters".into()))?;
+        EldModel::new(e.k_dn, e.tukey_lambda, e.tukey_scale_dn, e.row_sigma_dn, p.quantization_dn)
+    }
+
+    #[inline]
+    fn tukey<R: Rng + ?Sized>(&self, rng: &mut R) -> f64 {
+        // Quantile function at u ∈ (0, 1).
+        let u: f64 = rng.random_range(f64::EPSILON..1.0);
+        if self.lambda.abs() < 1e-9 {
+            (u / (1.0 - u)).ln()
+        } else {
+            (u.powf(self.lambda) - (1.0 - u).powf(self.lambda)) / self.lambda
+        }
+    }
+}
+
+impl NoiseModel for EldModel {
+    fn name(&self) -> &'static str {
+        "eld"
+    }
+
+    fn synthesize(&self, clean: &[f32], width: usize, out: &mut [f32], seed: u64) {
+        check_frame(clean, width, out);
+        out.par_chunks_mut(width).zip(clean.par_chunks(width)).enumerate().for_each(|(y, (o, c))| {
+            let mut rng = stream(seed, y as u64, 2);
+            let row = self.row_sigma * normal(&mut rng);
+            for (o, &s) in o.iter_mut().zip(c) {
+                let shot = self.k * poisson(&mut rng, s.max(0.0) as f64 / self.k);
+                let read = self.scale * self.tukey(&mut rng);
+                let quant = self.q * (rng.random::<f64>() - 0.5);
+                *o = (shot + read + row + quant) as f32;
+            }
+        });
+    }
+
+    fn moments(&self, signal_dn: f64, _pixel: usize) -> Moments {
+        let s = signal_dn.max(0.0);
+        Moments {
+            mean: s,
+            var: self.k * s
+                + self.scale * self.scale * tukey_variance(self.lambda)
+                + self.row_sigma * self.row_sigma
+                + self.q * self.q / 12.0,
+            third: self.k * self.k * s,
+        }
+    }
+}
+
+/// The theoretical EMCCD chain (Ryan et al. 2021): electrons `n ~ Poisson(S·c/G + dark·t + CIC)`,
+/// EM output `m ~ Gamma(n, G)`, then `m/c + N(0, σ²)`; the mean dark and CIC level is removed
+/// (as FPN subtraction does on real frames) and quantization is uniform on ±q/2.
+#[derive(Clone, Debug)]
+pub struct PgnModel {
+    g: f64,
+    c: f64,
+    cic: f64,
+    dark: f64,
+    exposure_s: f64,
+    sigma: f64,
+    q: f64,
+}
+
+impl PgnModel {
+    /// Builds the model at a given exposure (for the dark-current term).
+    pub fn new(em_gain: f64, e_per_dn: f64, cic_e: f64, dark_e_per_s: f64, exposure_s: f64, read_sigma_dn: f64, q: f64) -> Result<PgnModel, Error> {
+        if !(em_gain >= 1.0 && e_per_dn > 0.0 && cic_e >= 0.0 && dark_e_per_s >= 0.0 && exposure_s >= 0.0 && read_sigma_dn >= 0.0 && q >= 0.0) {
+            return Err(Error::Parameter(format!(
+                "pgn: need G ≥ 1, e/DN > 0 and non-negative rates (G={em_gain}, c={e_per_dn})"
+            )));
+        }
+        Ok(PgnModel { g: em_gain, c: e_per_dn, cic: cic_e, dark: dark_e_per_s, exposure_s, sigma: read_sigma_dn, q })
+    }
+
+    /// Builds the model from a profile's `[pgn]` section.
+    pub fn from_profile(p: &CameraProfile, exposure_s: f64) -> Result<PgnModel, Error> {
+        let m = p.pgn.as_ref().ok_or_else(|| Error::Parameter("the profile has no [pgn] parameters".into()))?;
+        PgnModel::new(m.em_gain, m.e_per_dn, m.cic_e, m.dark_e_per_s, exposure_s, m.read_sigma_dn, p.quantization_dn)
+    }
+
+    fn background_e(&self) -> f64 {
+        self.dark * self.exposure_s + self.cic
+    }
+}
+
+/// One EM-register output for `n` input electrons: Gamma(n, G), 0 for n = 0.
+#[inline]
+pub fn em_register<R: Rng + ?Sized>(rng: &mut R, n: f64, gain: f64) -> f64 {
+    if n <= 0.0 {
+        0.0
+    } else {
+        Gamma::new(n, gain).map(|d| d.sample(rng)).unwrap_or(0.0)
+    }
+}
+
+impl NoiseModel for PgnModel {
+    fn name(&self) -> &'static str {
+        "pgn"
+    }
+
+    fn synthesize(&self, clean: &[f32], width: usize, out: &mut [f32], seed: u64) {
+        check_frame(clean, width, out);
+        let bg = self.background_e();
+        let offset = self.g * bg / self.c;
+        out.par_chunks_mut(width).zip(clean.par_chunks(width)).enumerate().for_each(|(y, (o, c))| {
+            let mut rng = stream(seed, y as u64, 3);
+            for (o, &s) in o.iter_mut().zip(c) {
+                let lambda = s.max(0.0) as f64 * self.c / self.g + bg;
+                let n = poisson(&mut rng, lambda);
+                let m = em_register(&mut rng, n, self.g);
+                let v = m / self.c + self.sigma * normal(&mut rng) - offset + self.q * (rng.random::<f64>() - 0.5);
+                *o = v as f32;
+            }
+        });
+    }
+
+    fn moments(&self, signal_dn: f64, _pixel: usize) -> Moments {
+        // Compound Poisson of Exp(G) summands: cumulants κ_r = λ·E[X^r] = λ·r!·G^r.
+        let lambda = signal_dn.max(0.0) * self.c / self.g + self.background_e();
+        let (g, c) = (self.g, self.c);
+        Moments {
+            mean: signal_dn.max(0.0),
+            var: 2.0 * g * g * lambda / (c * c) + self.sigma * self.sigma + self.q * self.q / 12.0,
+            third: 6.0 * g.powi(3) * lambda / c.powi(3),
+        }
+    }
+}
