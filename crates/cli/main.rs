@@ -1,1 +1,75 @@
-fn main(){}
+//! `emccd`: the command-line front end. Glue only: parsing, progress bars, messages and exit
+//! codes; the work is done by the library crates under `crates/`.
+
+mod commands;
+mod common;
+
+use clap::{Parser, Subcommand};
+
+/// Physics-based noise modeling for EMCCD cameras: calibrate a camera, simulate it, synthesize
+/// noisy/clean training pairs, and read the files it writes (TIFF/BigTIFF, Andor SIF, FITS).
+#[derive(Parser, Debug)]
+#[command(name = "emccd", version, about, long_about = None, propagate_version = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Print what an image file holds: size, frames, pixel type and camera metadata.
+    Info(commands::info::Args),
+    /// Show or create camera profiles.
+    #[command(subcommand)]
+    Profile(commands::profile::Cmd),
+    /// Run the virtual camera: write a calibration acquisition or noisy/clean pairs.
+    #[command(subcommand)]
+    Simulate(commands::simulate::Cmd),
+    /// Add noise from one of the noise models to clean images (training-pair synthesis).
+    Synthesize(commands::synthesize::Args),
+    /// Measure synthesis throughput (and compare with emccd-detect where installed).
+    Bench(commands::bench::Args),
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Info(a) => commands::info::run(a),
+        Command::Profile(c) => commands::profile::run(c),
+        Command::Simulate(c) => commands::simulate::run(c),
+        Command::Synthesize(a) => commands::synthesize::run(a),
+        Command::Bench(a) => commands::bench::run(a),
+    };
+    if let Err(e) = result {
+        // A closed pipe (e.g. `emccd info f --json | head`) is not a failure.
+        if e.chain().any(|c| c.downcast_ref::<std::io::Error>().is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)) {
+            std::process::exit(0);
+        }
+        eprintln!("error: {e}");
+        for cause in e.chain().skip(1) {
+            eprintln!("  caused by: {cause}");
+        }
+        std::process::exit(2);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_subcommand_parses() {
+        for args in [
+            vec!["emccd", "info", "x.tif", "--json"],
+            vec!["emccd", "profile", "show", "default", "--json"],
+            vec!["emccd", "profile", "init-default", "out"],
+            vec!["emccd", "simulate", "calibration", "-o", "cal", "--crop", "64x48", "--frames", "5"],
+            vec!["emccd", "simulate", "pairs", "--clean", "a.png", "--photons", "10", "--photons", "100", "-o", "p"],
+            vec!["emccd", "synthesize", "a.png", "-o", "n.tif", "--model", "pgn", "--signal-dn", "500"],
+            vec!["emccd", "bench", "--frames", "3"],
+        ] {
+            Cli::try_parse_from(&args).unwrap_or_else(|e| panic!("{args:?}: {e}"));
+        }
+        assert!(Cli::try_parse_from(["emccd", "simulate", "calibration", "--crop", "64"]).is_err());
+    }
+}

@@ -313,6 +313,7 @@ pub fn temp_beside(path: &Path) -> std::io::Result<tempfile::NamedTempFile> {
 
 /// Flushes a finished temporary file to disk and renames it to `target`.
 pub fn persist(tmp: tempfile::NamedTempFile, target: &Path) -> Result<()> {
+    readable(tmp.as_file()).map_err(|e| Error::from(e).with_path(target))?;
     tmp.as_file().sync_all().map_err(|e| Error::from(e).with_path(target))?;
     tmp.persist(target).map_err(|e| Error::from(e.error).with_path(target))?;
     Ok(())
@@ -330,4 +331,16 @@ pub fn write_atomic(path: impl AsRef<Path>, bytes: &[u8]) -> Result<()> {
 /// Writes one frame as an 8-bit grayscale PNG, mapping `lo..=hi` to 0..=255 (for previews).
 pub fn write_png_preview(path: impl AsRef<Path>, width: usize, height: usize, data: &[f32], lo: f32, hi: f32) -> Result<()> {
     png_io::write_gray8(path.as_ref(), width, height, data, lo, hi)
+}
+
+/// Temporary files are created owner-only; finished outputs get the usual 0644.
+pub fn readable(f: &std::fs::File) -> std::io::Result<()> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        f.set_permissions(std::fs::Permissions::from_mode(0o644))?;
+    }
+    #[cfg(not(unix))]
+    let _ = f;
+    Ok(())
 }

@@ -187,6 +187,12 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         .tempfile_in(dir)
         .map_err(|e| Error::from(e).at(path))?;
     tmp.write_all(bytes).map_err(|e| Error::from(e).at(path))?;
+    #[cfg(unix)]
+    {
+        // Temporary files are owner-only; a saved profile is readable like any other output.
+        use std::os::unix::fs::PermissionsExt;
+        tmp.as_file().set_permissions(std::fs::Permissions::from_mode(0o644)).map_err(|e| Error::from(e).at(path))?;
+    }
     tmp.as_file().sync_all().map_err(|e| Error::from(e).at(path))?;
     tmp.persist(path).map_err(|e| Error::from(e.error).at(path))?;
     Ok(())

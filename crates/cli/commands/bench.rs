@@ -1,0 +1,94 @@
+//! `emccd bench`: synthesis throughput on 512² frames, against emccd-detect where installed.
+
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::Result;
+use emccd_camera::{Ablation, NoiseModel, OursModel, PgnModel, VirtualCamera};
+
+/// Measure synthesis throughput in Mpix/s on 512×512 frames of the default camera, and the same
+/// frames through the Python `emccd-detect` package (EMCCDDetect.sim_sub_frame) where it is
+/// installed, printing the ratio.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Frames per measurement (after one warm-up frame).
+    #[arg(long, default_value_t = 20)]
+    pub frames: usize,
+    /// Mean photoelectrons per pixel of the test frame.
+    #[arg(long, default_value_t = 20.0)]
+    pub electrons: f64,
+    /// Skip the emccd-detect comparison.
+    #[arg(long)]
+    pub no_python: bool,
+}
+
+fn time_frames(frames: usize, mut f: impl FnMut(u64)) -> f64 {
+    f(0);
+    let t = Instant::now();
+    for k in 0..frames {
+        f(k as u64 + 1);
+    }
+    t.elapsed().as_secs_f64() / frames as f64
+}
+
+const PY: &str = r#"
+import sys, time, warnings
+warnings.filterwarnings("ignore")
+import numpy as np
+from emccd_detect.emccd_detect import EMCCDDetect
+frames, electrons = int(sys.argv[1]), float(sys.argv[2])
+d = EMCCDDetect(em_gain=300.0, full_well_image=78000.0, full_well_serial=105000.0, dark_current=0.001,
+                cic=0.005, read_noise=90.0, bias=180.0, qe=0.9, cr_rate=0.0, pixel_pitch=16e-6,
+                eperdn=29.8, nbits=16, numel_gain_register=604)
+flux = np.full((512, 512), electrons / 0.9 / 0.01)
+d.sim_sub_frame(flux, 0.01)
+t = time.perf_counter()
+for _ in range(frames):
+    d.sim_sub_frame(flux, 0.01)
+print((time.perf_counter() - t) / frames)
+"#;
+
+pub fn run(a: Args) -> Result<()> {
+    let frames = a.frames.max(1);
+    let cam = VirtualCamera::default_camera();
+    let n = cam.profile.len();
+    let mpix = n as f64 / 1e6;
+    let threads = rayon::current_num_threads();
+    let k_qe = cam.k_dn() * cam.physics.qe;
+    let clean = vec![(a.electrons * k_qe) as f32; n];
+    let photons = vec![(a.electrons / cam.physics.qe) as f32; n];
+    let mut out = vec![0f32; n];
+
+    let ours = OursModel::from_profile(&cam.profile, Ablation::default());
+    let t_ours = time_frames(frames, |s| ours.synthesize(&clean, 512, &mut out, s));
+    let pgn = PgnModel::from_profile(&cam.profile, 0.01)?;
+    let t_pgn = time_frames(frames, |s| pgn.synthesize(&clean, 512, &mut out, s));
+    let e = cam.exposure(0.01);
+    let t_cam = time_frames(frames, |s| e.frame(&photons, s, &mut out));
+
+    println!("synthesis throughput, 512×512 frames, {} e⁻/pixel, {frames} frames, {threads} threads", a.electrons);
+    println!("{:<44} {:>10} {:>10}", "method", "ms/frame", "Mpix/s");
+    let row = |name: &str, t: f64| println!("{:<44} {:>10.2} {:>10.1}", name, t * 1e3, mpix / t);
+    row("emccd ours (eq. 5, training pairs)", t_ours);
+    row("emccd pgn (Poisson-Gamma-Normal)", t_pgn);
+    row("emccd virtual camera (full eq. 1 + ADC)", t_cam);
+    if a.no_python {
+        return Ok(());
+    }
+    let py = Command::new("python3").arg("-c").arg(PY).arg(frames.min(10).to_string()).arg(a.electrons.to_string()).output();
+    match py {
+        Ok(o) if o.status.success() => {
+            let t_py: f64 = String::from_utf8_lossy(&o.stdout).trim().parse().unwrap_or(f64::NAN);
+            row("emccd-detect sim_sub_frame (Python)", t_py);
+            println!();
+            println!("ratio vs emccd-detect: ours {:.1}×, virtual camera {:.1}×  (same physics: PGN + read noise + ADC)", t_py / t_ours, t_py / t_cam);
+        }
+        Ok(o) => {
+            let err = String::from_utf8_lossy(&o.stderr);
+            let last = err.lines().last().unwrap_or("").to_string();
+            println!("\nemccd-detect comparison skipped: {last}  (pip install emccd-detect)");
+        }
+        Err(e) => println!("\nemccd-detect comparison skipped: python3 not runnable ({e})"),
+    }
+    Ok(())
+}

@@ -1,0 +1,372 @@
+//! `emccd simulate calibration|pairs`: the virtual camera.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use emccd_camera::{preprocess, PhysicalParams, VirtualCamera};
+use emccd_io::{Metadata, SampleFormat, StackWriter};
+use serde::Serialize;
+
+use crate::common::{center_crop, expand_inputs, exposure_tag, load_profile, parse_size, progress, psnr, read_scene};
+
+/// Options shared by both simulations: the camera's truth.
+#[derive(clap::Args, Debug, Clone)]
+pub struct CameraOpts {
+    /// Truth profile: a profile directory or `default` (the bundled iXon Ultra 897 model).
+    #[arg(long, default_value = "default")]
+    pub profile: String,
+    /// Simulate only the top-left WIDTHxHEIGHT region of the sensor (e.g. 128x128).
+    #[arg(long, value_parser = parse_size)]
+    pub crop: Option<(usize, usize)>,
+    /// Quantum efficiency.
+    #[arg(long, default_value_t = 0.9)]
+    pub qe: f64,
+    /// Clock-induced charge, e⁻ per pixel per frame.
+    #[arg(long, default_value_t = 0.005)]
+    pub cic: f64,
+    /// Dark current, e⁻ per pixel per second.
+    #[arg(long, default_value_t = 0.001)]
+    pub dark: f64,
+    /// Fraction of hot pixels (dark current `--hot-dark`).
+    #[arg(long, default_value_t = 2e-4)]
+    pub hot_fraction: f64,
+    /// Dark current of hot pixels, e⁻ per pixel per second.
+    #[arg(long, default_value_t = 50.0)]
+    pub hot_dark: f64,
+    /// Random seed (same seed, same files).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+impl CameraOpts {
+    fn camera(&self, roi: Option<(usize, usize)>) -> Result<VirtualCamera> {
+        let mut p = load_profile(&self.profile)?;
+        if let Some((w, h)) = roi.or(self.crop) {
+            p = p.crop(0, 0, w.min(p.width), h.min(p.height))?;
+        }
+        let phys = PhysicalParams {
+            qe: self.qe,
+            dark_e_per_s: self.dark,
+            cic_e: self.cic,
+            hot_fraction: self.hot_fraction,
+            hot_dark_e_per_s: self.hot_dark,
+            seed: self.seed ^ 0x5eed,
+        };
+        Ok(VirtualCamera::new(p, phys)?)
+    }
+}
+
+/// Run the virtual camera.
+#[derive(clap::Subcommand, Debug)]
+pub enum Cmd {
+    /// Write a calibration acquisition (bias, flat and blooming stacks), its manifest
+    /// `calibration.toml`, and the truth (`truth.toml` plus the truth profile in `truth/`).
+    Calibration {
+        /// Output directory.
+        #[arg(short, long)]
+        out: PathBuf,
+        /// Frames per stack.
+        #[arg(long, default_value_t = 20)]
+        frames: usize,
+        /// Bias exposures in seconds (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "1e-5,1e-4,1e-3,0.003,0.006,0.01,0.02,0.05,0.1,0.2,0.5,1")]
+        bias_exposures: Vec<f64>,
+        /// Flat-field signal levels in DN above bias (comma-separated), at 10 ms.
+        #[arg(long, value_delimiter = ',', default_value = "20,50,120,300,700,1500,3500,8000")]
+        flat_levels: Vec<f64>,
+        /// Blooming-frame exposures in seconds (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "0.001,0.002,0.005,0.01,0.02,0.05,0.1")]
+        blooming_exposures: Vec<f64>,
+        #[command(flatten)]
+        camera: CameraOpts,
+    },
+    /// Write noisy raw frames of clean scenes with their ground truth (photo-signal in DN above
+    /// bias), a `pairs.toml` manifest, and side-by-side previews (preprocessed noisy | truth).
+    Pairs {
+        /// Clean scenes: PNG/TIFF/FITS files or directories of them.
+        #[arg(long, required = true, num_args = 1..)]
+        clean: Vec<PathBuf>,
+        /// Photon level: expected photons at the scene's brightest value (repeatable).
+        #[arg(long, default_values_t = vec![20.0])]
+        photons: Vec<f64>,
+        /// Exposure time of the noisy frames, seconds.
+        #[arg(long, default_value_t = 0.01)]
+        exposure_s: f64,
+        /// Noisy frames per pair (written as one stack).
+        #[arg(long, default_value_t = 1)]
+        frames: usize,
+        /// Output directory.
+        #[arg(short, long)]
+        out: PathBuf,
+        #[command(flatten)]
+        camera: CameraOpts,
+    },
+}
+
+pub fn run(c: Cmd) -> Result<()> {
+    match c {
+        Cmd::Calibration { out, frames, bias_exposures, flat_levels, blooming_exposures, camera } => {
+            calibration(&out, frames, &bias_exposures, &flat_levels, &blooming_exposures, &camera)
+        }
+        Cmd::Pairs { clean, photons, exposure_s, frames, out, camera } => pairs(&clean, &photons, exposure_s, frames, &out, &camera),
+    }
+}
+
+fn check_positive(name: &str, v: &[f64]) -> Result<()> {
+    if let Some(x) = v.iter().find(|x| !(x.is_finite() && **x > 0.0)) {
+        bail!("--{name}: every value must be a positive number, got {x}");
+    }
+    Ok(())
+}
+
+fn write_stack(
+    path: &Path,
+    cam: &VirtualCamera,
+    exposure_s: f64,
+    photons: &[f32],
+    frames: usize,
+    seed: u64,
+    pb: &indicatif::ProgressBar,
+) -> Result<()> {
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let e = cam.exposure(exposure_s);
+    let mut w = StackWriter::create(path, cam.width(), cam.height(), SampleFormat::U16, Some(frames))?;
+    w.set_metadata(&Metadata {
+        exposure_s: Some(exposure_s),
+        em_gain: Some(cam.em_gain),
+        camera_model: Some("virtual-897".into()),
+        ..Default::default()
+    });
+    let mut buf = vec![0f32; cam.profile.len()];
+    for k in 0..frames {
+        e.frame(photons, seed.wrapping_mul(1_000_003).wrapping_add(k as u64), &mut buf);
+        w.write_frame(&buf)?;
+        pb.inc(1);
+    }
+    w.finish()?;
+    Ok(())
+}
+
+#[derive(Serialize)]
+struct ManifestEntry {
+    file: String,
+    exposure_s: f64,
+}
+
+#[derive(Serialize)]
+struct Manifest {
+    camera: String,
+    em_gain: f64,
+    bias: Vec<ManifestEntry>,
+    flat: Vec<ManifestEntry>,
+    blooming: Vec<ManifestEntry>,
+}
+
+fn calibration(out: &Path, frames: usize, bias: &[f64], flats: &[f64], bloom: &[f64], opts: &CameraOpts) -> Result<()> {
+    if frames < 2 {
+        bail!("--frames must be at least 2 (temporal statistics need two frames)");
+    }
+    check_positive("bias-exposures", bias)?;
+    check_positive("flat-levels", flats)?;
+    check_positive("blooming-exposures", bloom)?;
+    let cam = opts.camera(None)?;
+    let (w, h) = (cam.width(), cam.height());
+    let n = w * h;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let total = (frames * (bias.len() + flats.len() + bloom.len())) as u64;
+    let pb = progress(total, "frames");
+    let k_qe = cam.k_dn() * cam.physics.qe;
+    let mut manifest = Manifest { camera: "virtual-897".into(), em_gain: cam.em_gain, bias: vec![], flat: vec![], blooming: vec![] };
+    let zeros = vec![0f32; n];
+    for (i, &t) in bias.iter().enumerate() {
+        let file = format!("bias/bias_{}.tif", exposure_tag(t));
+        write_stack(&out.join(&file), &cam, t, &zeros, frames, opts.seed ^ (100 + i as u64), &pb)?;
+        manifest.bias.push(ManifestEntry { file, exposure_s: t });
+    }
+    let flat_t = 0.01;
+    for (i, &level) in flats.iter().enumerate() {
+        let photons = vec![(level / k_qe) as f32; n];
+        let file = format!("flat/flat_{:02}.tif", i + 1);
+        write_stack(&out.join(&file), &cam, flat_t, &photons, frames, opts.seed ^ (200 + i as u64), &pb)?;
+        manifest.flat.push(ManifestEntry { file, exposure_s: flat_t });
+    }
+    // Bright source in the bottom-left quadrant, faint stray light elsewhere; constant flux, so
+    // the signal grows with exposure (20 000 DN at the longest exposure).
+    let t_max = bloom.iter().copied().fold(0.0, f64::max);
+    let rate = 20000.0 / k_qe / t_max;
+    for (i, &t) in bloom.iter().enumerate() {
+        let mut photons = vec![(0.002 * rate * t) as f32; n];
+        for y in h / 2..h {
+            for x in 0..w / 2 {
+                photons[y * w + x] = (rate * t) as f32;
+            }
+        }
+        let file = format!("blooming/bloom_{}.tif", exposure_tag(t));
+        write_stack(&out.join(&file), &cam, t, &photons, frames, opts.seed ^ (300 + i as u64), &pb)?;
+        manifest.blooming.push(ManifestEntry { file, exposure_s: t });
+    }
+    pb.finish_and_clear();
+    let text = format!(
+        "# Calibration acquisition written by `emccd simulate calibration`; paths are relative to this file.\n{}",
+        toml::to_string_pretty(&manifest)?
+    );
+    emccd_io::write_atomic(out.join("calibration.toml"), text.as_bytes())?;
+    write_truth(out, &cam, bias, flats, flat_t, bloom)?;
+    eprintln!(
+        "wrote {} bias, {} flat and {} blooming stacks of {frames} frames ({w}×{h}) to {}",
+        bias.len(),
+        flats.len(),
+        bloom.len(),
+        out.display()
+    );
+    Ok(())
+}
+
+fn write_truth(out: &Path, cam: &VirtualCamera, bias: &[f64], flats: &[f64], flat_t: f64, bloom: &[f64]) -> Result<()> {
+    cam.profile.save(out.join("truth")).context("writing the truth profile")?;
+    let p = &cam.profile;
+    let mut s = String::new();
+    writeln!(s, "# The virtual camera's true parameters. The full truth profile (maps) is in truth/.")?;
+    writeln!(s, "# Raw model: D = round(B[m/c + FPN_t] + N(0, σ²)), m ~ Gamma(Poisson(QE·φ + dark·t + CIC), G).")?;
+    writeln!(s, "profile = \"truth\"")?;
+    writeln!(s, "width = {}\nheight = {}", p.width, p.height)?;
+    writeln!(s, "em_gain = {}", cam.em_gain)?;
+    writeln!(s, "e_per_dn = {}", cam.e_per_dn)?;
+    writeln!(s, "k_dn_per_e = {}  # G / c", cam.k_dn())?;
+    writeln!(s, "ptc_slope_dn = {}  # 2G/c: the EM register's f² = 2", p.ptc_slope_dn)?;
+    writeln!(s, "qe = {}\ncic_e = {}\ndark_e_per_s = {}", cam.physics.qe, cam.physics.cic_e, cam.physics.dark_e_per_s)?;
+    writeln!(s, "hot_pixels = {}  # dark current {} e-/s", cam.hot_pixels.len(), cam.physics.hot_dark_e_per_s)?;
+    writeln!(s, "hot_pixel_indices = {:?}", &cam.hot_pixels[..cam.hot_pixels.len().min(1000)])?;
+    writeln!(s, "bias_dn = {}  # median FPN at {} s", p.bias_dn(), p.fpn.base_exposure_s)?;
+    writeln!(s, "read_noise_dn = {}  # median read-noise std", p.read_noise_dn())?;
+    writeln!(s, "fpn_form = \"{:?}\"\nfpn_shared_theta = {:?}", p.fpn.form, p.fpn.shared_theta)?;
+    writeln!(s, "blooming_a = {}\nblooming_b = {}", p.blooming.a, p.blooming.b)?;
+    writeln!(s, "bias_exposures_s = {bias:?}")?;
+    let levels: Vec<f64> = flats.to_vec();
+    writeln!(s, "flat_signal_dn = {levels:?}  # photo-signal above bias at {flat_t} s")?;
+    writeln!(s, "\n[blooming_factor]  # x_t per blooming exposure")?;
+    for &t in bloom {
+        writeln!(s, "\"{t}\" = {}", p.blooming_factor(t))?;
+    }
+    emccd_io::write_atomic(out.join("truth.toml"), s.as_bytes())?;
+    Ok(())
+}
+
+#[derive(Serialize)]
+struct Pair {
+    scene: String,
+    noisy: String,
+    clean: String,
+    preview: String,
+    exposure_s: f64,
+    photons: f64,
+    frames: usize,
+    width: usize,
+    height: usize,
+    psnr_input_db: f64,
+}
+
+#[derive(Serialize)]
+struct PairsManifest {
+    camera: String,
+    profile: String,
+    em_gain: f64,
+    k_dn_per_e: f64,
+    qe: f64,
+    note: String,
+    pair: Vec<Pair>,
+}
+
+fn pairs(clean: &[PathBuf], photons: &[f64], exposure_s: f64, frames: usize, out: &Path, opts: &CameraOpts) -> Result<()> {
+    check_positive("photons", photons)?;
+    check_positive("exposure-s", &[exposure_s])?;
+    if frames == 0 {
+        bail!("--frames must be at least 1");
+    }
+    let scenes = expand_inputs(clean)?;
+    for d in ["noisy", "clean", "preview"] {
+        std::fs::create_dir_all(out.join(d)).with_context(|| format!("creating {}", out.join(d).display()))?;
+    }
+    let full = opts.camera(None)?;
+    let pb = progress((scenes.len() * photons.len()) as u64, "pairs");
+    let mut manifest = PairsManifest {
+        camera: "virtual-897".into(),
+        profile: opts.profile.clone(),
+        em_gain: full.em_gain,
+        k_dn_per_e: full.k_dn(),
+        qe: full.physics.qe,
+        note: "noisy: raw 16-bit frames; clean: photo-signal in DN above bias (K·QE·photons), float32. \
+               psnr_input_db: preprocessed noisy frame (eq. 4 with the true FPN and blooming) against clean, \
+               data range = the clean frame's peak."
+            .into(),
+        pair: vec![],
+    };
+    for (si, scene) in scenes.iter().enumerate() {
+        let (sw, sh, img) = read_scene(scene).with_context(|| format!("reading scene {}", scene.display()))?;
+        let (w, h) = (sw.min(full.width()), sh.min(full.height()));
+        let cam = if (w, h) == (full.width(), full.height()) { full.clone() } else { opts.camera(Some((w, h)))? };
+        let img = center_crop(&img, sw, sh, w, h);
+        let stem = scene.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| format!("scene{si}"));
+        for (pi, &level) in photons.iter().enumerate() {
+            let phot: Vec<f32> = img.iter().map(|&v| (v as f64 * level) as f32).collect();
+            let e = cam.exposure(exposure_s);
+            let truth = e.ground_truth(&phot);
+            let name = format!("{stem}_p{level}");
+            let noisy_rel = format!("noisy/{name}.tif");
+            let clean_rel = format!("clean/{name}.tif");
+            let preview_rel = format!("preview/{name}.png");
+            let seed = opts.seed.wrapping_mul(7919) ^ ((si as u64) << 20) ^ pi as u64;
+            let mut wr = StackWriter::create(out.join(&noisy_rel), w, h, SampleFormat::U16, Some(frames))?;
+            wr.set_metadata(&Metadata { exposure_s: Some(exposure_s), em_gain: Some(cam.em_gain), camera_model: Some("virtual-897".into()), ..Default::default() });
+            let mut raw = vec![0f32; w * h];
+            let mut first = Vec::new();
+            for k in 0..frames {
+                e.frame(&phot, seed.wrapping_mul(1_000_003).wrapping_add(k as u64), &mut raw);
+                wr.write_frame(&raw)?;
+                if k == 0 {
+                    first = raw.clone();
+                }
+            }
+            wr.finish()?;
+            let mut cw = StackWriter::create(out.join(&clean_rel), w, h, SampleFormat::F32, Some(1))?;
+            cw.set_metadata(&Metadata { exposure_s: Some(exposure_s), ..Default::default() });
+            cw.write_frame(&truth)?;
+            cw.finish()?;
+            // Preview and input PSNR use the preprocessed frame (true FPN and blooming removed).
+            preprocess(&mut first, w, e.blooming_x, &e.fpn);
+            let peak = truth.iter().copied().fold(0f32, f32::max).max(1.0);
+            let p_in = psnr(&first, &truth, peak as f64);
+            let mut side = vec![0f32; 2 * w * h];
+            for y in 0..h {
+                side[y * 2 * w..y * 2 * w + w].copy_from_slice(&first[y * w..(y + 1) * w]);
+                side[y * 2 * w + w..(y + 1) * 2 * w].copy_from_slice(&truth[y * w..(y + 1) * w]);
+            }
+            emccd_io::write_png_preview(out.join(&preview_rel), 2 * w, h, &side, 0.0, peak)?;
+            manifest.pair.push(Pair {
+                scene: scene.display().to_string(),
+                noisy: noisy_rel,
+                clean: clean_rel,
+                preview: preview_rel,
+                exposure_s,
+                photons: level,
+                frames,
+                width: w,
+                height: h,
+                psnr_input_db: (p_in * 100.0).round() / 100.0,
+            });
+            pb.inc(1);
+        }
+    }
+    pb.finish_and_clear();
+    let text = format!("# Noisy/clean pairs written by `emccd simulate pairs`; paths are relative to this file.\n{}", toml::to_string_pretty(&manifest)?);
+    emccd_io::write_atomic(out.join("pairs.toml"), text.as_bytes())?;
+    println!("{:<40} {:>9} {:>12}", "pair", "photons", "PSNR in (dB)");
+    for p in &manifest.pair {
+        println!("{:<40} {:>9} {:>12.2}", p.noisy, p.photons, p.psnr_input_db);
+    }
+    eprintln!("wrote {} pairs to {} (previews: preprocessed noisy | ground truth)", manifest.pair.len(), out.display());
+    Ok(())
+}

@@ -1,0 +1,116 @@
+//! Helpers shared by subcommands: the bundled default profile, progress bars, parsing.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use emccd_profile::CameraProfile;
+use indicatif::{ProgressBar, ProgressStyle};
+
+/// Where the bundled default profile lives in the source tree.
+pub fn bundled_profile_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("profiles").join("default")
+}
+
+/// Loads `--profile`: a directory, or `default` for the bundled profile (read from the source
+/// tree when present, otherwise regenerated from its seed: the two are identical).
+pub fn load_profile(arg: &str) -> Result<CameraProfile> {
+    if arg == "default" {
+        let dir = bundled_profile_dir();
+        if dir.join("profile.toml").exists() {
+            return CameraProfile::load(&dir).context("loading the bundled default profile");
+        }
+        return Ok(emccd_profile::default_profile());
+    }
+    CameraProfile::load(arg).with_context(|| format!("loading profile {arg}"))
+}
+
+/// A progress bar for `len` items of `what`; hidden when stderr is not a terminal.
+pub fn progress(len: u64, what: &str) -> ProgressBar {
+    let pb = ProgressBar::new(len);
+    pb.set_style(
+        ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} {per_sec} ETA {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    pb.set_message(what.to_string());
+    pb
+}
+
+/// Parses `WxH` (e.g. `128x96`).
+pub fn parse_size(s: &str) -> Result<(usize, usize), String> {
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("expected WIDTHxHEIGHT, got '{s}'"))?;
+    let w: usize = w.trim().parse().map_err(|_| format!("bad width in '{s}'"))?;
+    let h: usize = h.trim().parse().map_err(|_| format!("bad height in '{s}'"))?;
+    if w == 0 || h == 0 {
+        return Err(format!("size must be positive, got '{s}'"));
+    }
+    Ok((w, h))
+}
+
+/// Full-scale value of a clean scene's pixel type (to normalize it to 0..1).
+pub fn full_scale(t: emccd_io::PixelType) -> f32 {
+    match t {
+        emccd_io::PixelType::U8 => 255.0,
+        emccd_io::PixelType::U16 => 65535.0,
+        _ => 1.0,
+    }
+}
+
+/// Reads one clean scene as luminance normalized to 0..1 (float files are scaled by their max).
+pub fn read_scene(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
+    let (info, frames) = emccd_io::read_all(path)?;
+    let mut img = frames.into_iter().next().context("the file holds no frame")?;
+    let mut scale = full_scale(info.pixel_type);
+    if scale == 1.0 {
+        scale = img.iter().copied().fold(0f32, f32::max).max(f32::MIN_POSITIVE);
+    }
+    for v in &mut img {
+        *v = (*v / scale).clamp(0.0, 1.0);
+    }
+    Ok((info.width, info.height, img))
+}
+
+/// Expands directories into the image files they contain (sorted), keeping files as given.
+pub fn expand_inputs(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    for p in inputs {
+        if p.is_dir() {
+            let mut v: Vec<PathBuf> = std::fs::read_dir(p)
+                .with_context(|| format!("reading directory {}", p.display()))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|q| matches!(emccd_io::Format::from_extension(q), Some(f) if f != emccd_io::Format::Sif))
+                .collect();
+            v.sort();
+            if v.is_empty() {
+                bail!("{}: no PNG, TIFF or FITS images inside", p.display());
+            }
+            out.extend(v);
+        } else if p.exists() {
+            out.push(p.clone());
+        } else {
+            bail!("{}: no such file or directory", p.display());
+        }
+    }
+    Ok(out)
+}
+
+/// Center crop of a row-major image.
+pub fn center_crop(img: &[f32], w: usize, h: usize, cw: usize, ch: usize) -> Vec<f32> {
+    let (x0, y0) = ((w - cw) / 2, (h - ch) / 2);
+    let mut out = Vec::with_capacity(cw * ch);
+    for y in y0..y0 + ch {
+        out.extend_from_slice(&img[y * w + x0..y * w + x0 + cw]);
+    }
+    out
+}
+
+/// Formats an exposure for file names: `0.01s`, `1e-05s`.
+pub fn exposure_tag(t: f64) -> String {
+    format!("{t}s")
+}
+
+/// PSNR in dB of `x` against `reference` with the given data range.
+pub fn psnr(x: &[f32], reference: &[f32], data_range: f64) -> f64 {
+    let mse = x.iter().zip(reference).map(|(&a, &b)| (a as f64 - b as f64).powi(2)).sum::<f64>() / x.len() as f64;
+    10.0 * (data_range * data_range / mse.max(1e-30)).log10()
+}
