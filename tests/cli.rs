@@ -1,1 +1,151 @@
+//! End-to-end tests: the built `emccd` binary in a fresh temporary directory.
 
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn emccd(args: &[&str], cwd: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_emccd")).args(args).current_dir(cwd).output().expect("run emccd")
+}
+
+fn ok(o: &Output) -> String {
+    assert!(o.status.success(), "exit {:?}\nstdout: {}\nstderr: {}", o.status, String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn shared(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data").join(rel)
+}
+
+#[test]
+fn profile_show_json_has_the_documented_keys() {
+    let dir = tempfile::tempdir().unwrap();
+    let v: serde_json::Value = serde_json::from_str(&ok(&emccd(&["profile", "show", "default", "--json"], dir.path()))).unwrap();
+    assert_eq!(v["ptc_slope_dn"], 20.14);
+    assert_eq!(v["width"], 512);
+    assert_eq!(v["height"], 512);
+    let bias = v["bias_dn"].as_f64().unwrap();
+    assert!((160.0..195.0).contains(&bias), "{bias}");
+    let rn = v["read_noise_dn"].as_f64().unwrap();
+    assert!((2.8..3.2).contains(&rn), "{rn}");
+    assert_eq!(v["exposures_s"].as_array().unwrap().len(), 20);
+}
+
+#[test]
+fn bundled_profile_files_match_the_generator() {
+    let shipped = emccd_profile::CameraProfile::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("profiles/default")).unwrap();
+    let generated = emccd_profile::default_profile();
+    assert_eq!(shipped.to_toml_string(), generated.to_toml_string());
+    // The maps agree to float precision (libm may differ in the last bit across platforms).
+    let close = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-5 * x.abs().max(1.0));
+    assert!(close(&shipped.maps.fpn_base, &generated.maps.fpn_base));
+    assert!(close(&shipped.maps.fpn_theta, &generated.maps.fpn_theta));
+    for (a, b) in shipped.maps.read_noise.iter().zip(&generated.maps.read_noise) {
+        assert!(close(a, b));
+    }
+}
+
+#[test]
+fn simulate_calibration_writes_manifest_stacks_and_truth() {
+    let dir = tempfile::tempdir().unwrap();
+    ok(&emccd(&["simulate", "calibration", "-o", "cal", "--crop", "64x48", "--frames", "4", "--bias-exposures", "1e-5,0.01,0.1", "--flat-levels", "100,1000", "--blooming-exposures", "0.001,0.01"], dir.path()));
+    let cal = dir.path().join("cal");
+    let m: toml::Value = toml::from_str(&std::fs::read_to_string(cal.join("calibration.toml")).unwrap()).unwrap();
+    assert_eq!(m["camera"].as_str(), Some("virtual-897"));
+    assert_eq!(m["bias"].as_array().unwrap().len(), 3);
+    assert_eq!(m["flat"].as_array().unwrap().len(), 2);
+    assert_eq!(m["blooming"].as_array().unwrap().len(), 2);
+    for kind in ["bias", "flat", "blooming"] {
+        for e in m[kind].as_array().unwrap() {
+            let f = cal.join(e["file"].as_str().unwrap());
+            let info = emccd_io::open(&f).unwrap().info().clone();
+            assert_eq!((info.width, info.height, info.frames), (64, 48, 4), "{}", f.display());
+            assert_eq!(info.metadata.exposure_s, e["exposure_s"].as_float());
+        }
+    }
+    let truth: toml::Value = toml::from_str(&std::fs::read_to_string(cal.join("truth.toml")).unwrap()).unwrap();
+    assert_eq!(truth["ptc_slope_dn"].as_float(), Some(20.14));
+    let p = emccd_profile::CameraProfile::load(cal.join("truth")).unwrap();
+    assert_eq!((p.width, p.height), (64, 48));
+    // Flat at 1000 DN: temporal mean of the stack minus the bias stack ≈ 1000 (+ blooming share).
+    let (_, flat) = emccd_io::read_all(cal.join("flat/flat_02.tif")).unwrap();
+    let (_, bias) = emccd_io::read_all(cal.join("bias/bias_0.01s.tif")).unwrap();
+    let mean = |fs: &Vec<Vec<f32>>| fs.iter().flatten().map(|&v| v as f64).sum::<f64>() / (fs.len() * fs[0].len()) as f64;
+    let x = p.blooming_factor(0.01);
+    let signal = mean(&flat) - mean(&bias);
+    // Blooming adds x·colmean to every pixel: signal·(1+x). Tolerance: shot noise of 4·64·48
+    // samples at s·S variance (σ_mean ≈ sqrt(20·1000/12288) ≈ 1.3 DN) → 5σ ≈ 7 DN.
+    assert!((signal - 1000.0 * (1.0 + x)).abs() < 7.0, "flat signal {signal}");
+}
+
+#[test]
+fn simulate_pairs_and_info() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = shared("clean/microscopy/fmd-confocal-bpae/field2-avg50.png");
+    let out = ok(&emccd(&["simulate", "pairs", "--clean", scene.to_str().unwrap(), "--photons", "50", "--crop", "128x96", "-o", "pairs"], dir.path()));
+    assert!(out.contains("PSNR"), "{out}");
+    let p = dir.path().join("pairs");
+    let m: toml::Value = toml::from_str(&std::fs::read_to_string(p.join("pairs.toml")).unwrap()).unwrap();
+    let pair = &m["pair"].as_array().unwrap()[0];
+    assert_eq!(pair["photons"].as_float(), Some(50.0));
+    let noisy = p.join(pair["noisy"].as_str().unwrap());
+    let v: serde_json::Value = serde_json::from_str(&ok(&emccd(&["info", noisy.to_str().unwrap(), "--json"], dir.path()))).unwrap();
+    assert_eq!((v["width"].as_u64(), v["height"].as_u64(), v["frames"].as_u64()), (Some(128), Some(96), Some(1)));
+    assert_eq!(v["exposure_s"], 0.01);
+    assert_eq!(v["em_gain"], 300.0);
+    let (ci, clean) = emccd_io::read_all(p.join(pair["clean"].as_str().unwrap())).unwrap();
+    assert_eq!(ci.pixel_type, emccd_io::PixelType::F32);
+    assert!(clean[0].iter().all(|&v| v >= 0.0));
+    assert!(p.join(pair["preview"].as_str().unwrap()).exists());
+}
+
+#[test]
+fn info_json_on_real_sif_and_nulls_for_unknowns() {
+    let dir = tempfile::tempdir().unwrap();
+    let sif = shared("emccd-real/andor-sif/ixon897_binned_gain56.sif");
+    let v: serde_json::Value = serde_json::from_str(&ok(&emccd(&["info", sif.to_str().unwrap(), "--json"], dir.path()))).unwrap();
+    assert_eq!(v["width"], 256);
+    assert_eq!(v["frames"], 1);
+    assert_eq!(v["em_gain"], 56.0);
+    assert_eq!(v["exposure_s"], 0.01457);
+    let png = shared("clean/natural/Kodak24/kodim03.png");
+    let v: serde_json::Value = serde_json::from_str(&ok(&emccd(&["info", png.to_str().unwrap(), "--json"], dir.path()))).unwrap();
+    assert!(v["exposure_s"].is_null() && v["em_gain"].is_null());
+}
+
+#[test]
+fn bad_input_fails_clearly_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("junk.tif"), b"II*\0garbage").unwrap();
+    let o = emccd(&["info", "junk.tif"], dir.path());
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("junk.tif"), "{err}");
+
+    let o = emccd(&["synthesize", "junk.tif", "-o", "out.tif"], dir.path());
+    assert!(!o.status.success());
+    assert!(!dir.path().join("out.tif").exists());
+
+    let o = emccd(&["profile", "show", "no-such-profile"], dir.path());
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no-such-profile"));
+
+    let o = emccd(&["simulate", "calibration", "-o", "c", "--frames", "1"], dir.path());
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("at least 2"));
+    // Nothing but the junk file (no temporaries, no partial outputs).
+    let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(names.len(), 1, "{names:?}");
+}
+
+#[test]
+fn synthesize_each_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = shared("clean/natural/BSD68/test001.png");
+    for m in ["ours", "eld", "pgn"] {
+        let out = format!("{m}.tif");
+        ok(&emccd(&["synthesize", scene.to_str().unwrap(), "-o", &out, "--model", m, "--frames", "2"], dir.path()));
+        let (info, f) = emccd_io::read_all(dir.path().join(&out)).unwrap();
+        assert_eq!(info.frames, 2);
+        assert_ne!(f[0], f[1]);
+    }
+}
