@@ -225,7 +225,15 @@ impl FitsStackWriter {
     fn write_header(&mut self) -> Result<()> {
         let mut cards: Vec<[u8; 80]> = vec![
             card("SIMPLE", "T", "conforms to FITS standard"),
-            card("BITPIX", if self.sample == SampleFormat::U16 { "16" } else { "-32" }, "array data type"),
+            card(
+                "BITPIX",
+                match self.sample {
+                    SampleFormat::U8 => "8",
+                    SampleFormat::U16 => "16",
+                    SampleFormat::F32 => "-32",
+                },
+                "array data type",
+            ),
             card("NAXIS", "3", "width, height, frames"),
             card("NAXIS1", &self.width.to_string(), ""),
             card("NAXIS2", &self.height.to_string(), ""),
@@ -263,6 +271,11 @@ impl FitsStackWriter {
         }
         self.bytes.clear();
         match self.sample {
+            SampleFormat::U8 => {
+                for &x in frame {
+                    self.bytes.push(if x.is_nan() { 0 } else { x.round().clamp(0.0, 255.0) as u8 });
+                }
+            }
             SampleFormat::U16 => {
                 for &x in frame {
                     let v = if x.is_nan() { 0.0 } else { x.round().clamp(0.0, 65535.0) };
@@ -310,7 +323,7 @@ mod tests {
     #[test]
     fn fits_roundtrip_u16_and_f32() {
         let dir = tempfile::tempdir().unwrap();
-        for (sample, frames) in [(SampleFormat::U16, 3usize), (SampleFormat::F32, 1)] {
+        for (sample, frames) in [(SampleFormat::U16, 3usize), (SampleFormat::F32, 1), (SampleFormat::U8, 2)] {
             let p = dir.path().join(format!("x{frames}.fits"));
             let (w, h) = (9, 4);
             let data: Vec<Vec<f32>> =
@@ -328,7 +341,11 @@ mod tests {
             assert_eq!(info.metadata.em_gain, Some(300.0));
             for (a, b) in got.iter().zip(&data) {
                 for (x, y) in a.iter().zip(b) {
-                    let want = if sample == SampleFormat::U16 { y.round().min(65535.0) } else { *y };
+                    let want = match sample {
+                        SampleFormat::U16 => y.round().min(65535.0),
+                        SampleFormat::U8 => y.round().min(255.0),
+                        SampleFormat::F32 => *y,
+                    };
                     assert_eq!(*x, want);
                 }
             }

@@ -192,6 +192,8 @@ pub fn read_all(path: impl AsRef<Path>) -> Result<(StackInfo, Vec<Vec<f32>>)> {
 /// Sample type written by a [`StackWriter`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SampleFormat {
+    /// Unsigned 8-bit: values are rounded and clipped to 0..=255.
+    U8,
     /// Unsigned 16-bit: values are rounded and clipped to 0..=65535 (raw camera frames).
     U16,
     /// 32-bit float (processed frames, ground truth).

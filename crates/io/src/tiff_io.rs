@@ -175,6 +175,7 @@ pub(crate) struct TiffStackWriter {
     sample: SampleFormat,
     description: Option<String>,
     u16buf: Vec<u16>,
+    u8buf: Vec<u8>,
     pages: usize,
 }
 
@@ -201,6 +202,7 @@ impl TiffStackWriter {
             sample,
             description,
             u16buf: Vec::new(),
+            u8buf: Vec::new(),
             pages: 0,
         })
     }
@@ -217,6 +219,17 @@ impl TiffStackWriter {
         macro_rules! page {
             ($enc:expr) => {{
                 match self.sample {
+                    SampleFormat::U8 => {
+                        self.u8buf.clear();
+                        self.u8buf.extend(frame.iter().map(|&x| {
+                            if x.is_nan() { 0 } else { x.round().clamp(0.0, 255.0) as u8 }
+                        }));
+                        let mut img = $enc.new_image::<colortype::Gray8>(w, h)?;
+                        if let Some(d) = &desc {
+                            img.encoder().write_tag(Tag::ImageDescription, d.as_str())?;
+                        }
+                        img.write_data(&self.u8buf)?;
+                    }
                     SampleFormat::U16 => {
                         self.u16buf.clear();
                         self.u16buf.extend(frame.iter().map(|&x| {
@@ -319,6 +332,19 @@ mod tests {
     #[test]
     fn tiff_f32_roundtrip() {
         roundtrip("tif", SampleFormat::F32);
+    }
+
+    #[test]
+    fn tiff_u8_roundtrip() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("b.tif");
+        let mut wr = StackWriter::create(&p, 3, 1, SampleFormat::U8, Some(2)).unwrap();
+        wr.write_frame(&[0.0, 127.6, 300.0]).unwrap();
+        wr.write_frame(&[1.0, 2.0, 3.0]).unwrap();
+        wr.finish().unwrap();
+        let (info, f) = crate::read_all(&p).unwrap();
+        assert_eq!((info.pixel_type, info.frames), (PixelType::U8, 2));
+        assert_eq!(f, vec![vec![0.0, 128.0, 255.0], vec![1.0, 2.0, 3.0]]);
     }
 
     #[test]
