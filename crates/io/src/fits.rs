@@ -133,9 +133,7 @@ impl FrameReader for FitsReader {
         if self.next >= self.info.frames {
             return Ok(false);
         }
-        if out.len() != self.info.frame_len() {
-            return Err(Error::Usage(format!("buffer holds {} pixels, frame has {}", out.len(), self.info.frame_len())));
-        }
+        crate::check_buffer(out, &self.info)?;
         self.file
             .read_exact(&mut self.bytes)
             .map_err(|e| Error::Format(format!("frame {}: {e}", self.next)))?;

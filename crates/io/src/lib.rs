@@ -127,6 +127,14 @@ pub trait FrameReader: Send {
     fn read_frame(&mut self, buf: &mut [f32]) -> Result<bool>;
 }
 
+/// The error every reader gives for a caller's buffer of the wrong size.
+pub(crate) fn check_buffer(out: &[f32], info: &StackInfo) -> Result<()> {
+    if out.len() != info.frame_len() {
+        return Err(Error::Usage(format!("buffer holds {} pixels, frame has {}", out.len(), info.frame_len())));
+    }
+    Ok(())
+}
+
 /// Opens an image or stack, choosing the reader from the file's first bytes.
 ///
 /// Errors name the file. A truncated SIF opens with the whole frames it holds and a warning in

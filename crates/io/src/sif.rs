@@ -124,9 +124,7 @@ impl FrameReader for SifReader {
         if self.next >= self.info.frames {
             return Ok(false);
         }
-        if out.len() != self.info.frame_len() {
-            return Err(Error::Usage(format!("buffer holds {} pixels, frame has {}", out.len(), self.info.frame_len())));
-        }
+        crate::check_buffer(out, &self.info)?;
         self.file.read_exact(&mut self.bytes).map_err(|e| {
             Error::Format(format!("frame {}: {e} (file changed while reading?)", self.next + 1))
         })?;
@@ -272,7 +270,7 @@ fn find_structure(w: &[u8]) -> Option<(usize, usize, usize, usize)> {
             let end = w[i..].iter().position(|&b| b == b'\n').map(|p| i + p);
             if let Some(end) = end {
                 let text = std::str::from_utf8(&w[i..end]).ok();
-                let v: Option<Vec<u64>> = text.map(|t| t.split(' ').map(|s| s.parse().ok()).collect()).flatten();
+                let v: Option<Vec<u64>> = text.and_then(|t| t.split(' ').map(|s| s.parse().ok()).collect());
                 if let Some(v) = v {
                     if v.len() == 9 {
                         let (frames, subs, total, len) = (v[5], v[6], v[7], v[8]);

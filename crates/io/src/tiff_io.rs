@@ -120,13 +120,7 @@ impl FrameReader for TiffReader {
         if self.next >= self.info.frames {
             return Ok(false);
         }
-        if out.len() != self.info.frame_len() {
-            return Err(Error::Usage(format!(
-                "buffer holds {} pixels, frame has {}",
-                out.len(),
-                self.info.frame_len()
-            )));
-        }
+        crate::check_buffer(out, &self.info)?;
         if self.next > 0 {
             self.decoder.next_image()?;
         }
