@@ -40,11 +40,21 @@ pub struct CameraOpts {
 }
 
 impl CameraOpts {
-    fn camera(&self, roi: Option<(usize, usize)>) -> Result<VirtualCamera> {
-        let mut p = load_profile(&self.profile)?;
-        if let Some((w, h)) = roi.or(self.crop) {
-            p = p.crop(0, 0, w.min(p.width), h.min(p.height))?;
-        }
+    /// The truth profile (`--profile`, cut to `--crop`), loaded once per run.
+    fn profile(&self) -> Result<emccd_profile::CameraProfile> {
+        let p = load_profile(&self.profile)?;
+        Ok(match self.crop {
+            Some((w, h)) => p.crop(0, 0, w.min(p.width), h.min(p.height))?,
+            None => p,
+        })
+    }
+
+    /// A camera over `profile` (or its top-left `roi`) with the physics flags.
+    fn camera(&self, profile: &emccd_profile::CameraProfile, roi: Option<(usize, usize)>) -> Result<VirtualCamera> {
+        let p = match roi {
+            Some((w, h)) => profile.crop(0, 0, w, h)?,
+            None => profile.clone(),
+        };
         let phys = PhysicalParams {
             qe: self.qe,
             dark_e_per_s: self.dark,
@@ -172,7 +182,7 @@ fn calibration(out: &Path, frames: usize, bias: &[f64], flats: &[f64], bloom: &[
     check_positive("bias-exposures", bias)?;
     check_positive("flat-levels", flats)?;
     check_positive("blooming-exposures", bloom)?;
-    let cam = opts.camera(None)?;
+    let cam = opts.camera(&opts.profile()?, None)?;
     let (w, h) = (cam.width(), cam.height());
     let n = w * h;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
@@ -290,7 +300,8 @@ fn pairs(clean: &[PathBuf], photons: &[f64], exposure_s: f64, frames: usize, out
     for d in ["noisy", "clean", "preview"] {
         std::fs::create_dir_all(out.join(d)).with_context(|| format!("creating {}", out.join(d).display()))?;
     }
-    let full = opts.camera(None)?;
+    let truth = opts.profile()?;
+    let full = opts.camera(&truth, None)?;
     let pb = progress((scenes.len() * photons.len()) as u64, "pairs");
     let mut manifest = PairsManifest {
         camera: "virtual-897".into(),
@@ -307,12 +318,12 @@ fn pairs(clean: &[PathBuf], photons: &[f64], exposure_s: f64, frames: usize, out
     for (si, scene) in scenes.iter().enumerate() {
         let (sw, sh, img) = read_scene(scene).with_context(|| format!("reading scene {}", scene.display()))?;
         let (w, h) = (sw.min(full.width()), sh.min(full.height()));
-        let cam = if (w, h) == (full.width(), full.height()) { full.clone() } else { opts.camera(Some((w, h)))? };
+        let cam = if (w, h) == (full.width(), full.height()) { full.clone() } else { opts.camera(&truth, Some((w, h)))? };
         let img = center_crop(&img, sw, sh, w, h);
         let stem = scene.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| format!("scene{si}"));
+        let e = cam.exposure(exposure_s);
         for (pi, &level) in photons.iter().enumerate() {
             let phot: Vec<f32> = img.iter().map(|&v| (v as f64 * level) as f32).collect();
-            let e = cam.exposure(exposure_s);
             let truth = e.ground_truth(&phot);
             let name = format!("{stem}_p{level}");
             let noisy_rel = format!("noisy/{name}.tif");
