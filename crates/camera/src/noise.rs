@@ -124,14 +124,10 @@ pub struct OursModel {
 
 impl OursModel {
     /// Builds the model from a profile's slope, f range, quantization and read-noise maps.
-    pub fn from_profile(p: &CameraProfile, ablation: Ablation) -> OursModel {
-        OursModel {
-            slope: p.ptc_slope_dn,
-            f_range: p.f_range,
-            q: p.quantization_dn,
-            read_noise: Arc::new(p.maps.read_noise.clone()),
-            ablation,
-        }
+    /// Fails when the profile lacks a slope or read-noise maps (a partial calibration).
+    pub fn from_profile(p: &CameraProfile, ablation: Ablation) -> Result<OursModel, Error> {
+        p.require_complete().map_err(|e| Error::Parameter(e.to_string()))?;
+        OursModel::new(p.slope().unwrap_or(f64::NAN), p.f_range, p.quantization_dn, p.maps.read_noise.clone(), ablation)
     }
 
     /// Builds the model from explicit parameters (one or more read-noise maps).

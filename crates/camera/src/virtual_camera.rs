@@ -74,12 +74,13 @@ impl VirtualCamera {
     /// Builds a camera whose truth is `profile`, with the physics in `physics`.
     pub fn new(profile: CameraProfile, physics: PhysicalParams) -> Result<VirtualCamera, Error> {
         profile.validate().map_err(|e| Error::Parameter(e.to_string()))?;
+        profile.require_complete().map_err(|e| Error::Parameter(format!("virtual camera: {e}")))?;
         let p = &physics;
         if !(p.qe > 0.0 && p.qe <= 1.0 && p.dark_e_per_s >= 0.0 && p.cic_e >= 0.0 && (0.0..1.0).contains(&p.hot_fraction) && p.hot_dark_e_per_s >= 0.0) {
             return Err(Error::Parameter(format!("virtual camera: invalid physics {p:?}")));
         }
         let g = profile.em_gain.max(1.0);
-        let c = 2.0 * g / profile.ptc_slope_dn;
+        let c = 2.0 * g / profile.slope().map_err(|e| Error::Parameter(e.to_string()))?;
         let n = profile.len();
         let mut rng = stream(p.seed, 0x407, 0);
         let mut dark_map = vec![p.dark_e_per_s as f32; n];

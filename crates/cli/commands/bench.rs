@@ -59,7 +59,7 @@ pub fn run(a: Args) -> Result<()> {
     let photons = vec![(a.electrons / cam.physics.qe) as f32; n];
     let mut out = vec![0f32; n];
 
-    let ours = OursModel::from_profile(&cam.profile, Ablation::default());
+    let ours = OursModel::from_profile(&cam.profile, Ablation::default())?;
     let t_ours = time_frames(frames, |s| ours.synthesize(&clean, 512, &mut out, s));
     let pgn = PgnModel::from_profile(&cam.profile, 0.01)?;
     let t_pgn = time_frames(frames, |s| pgn.synthesize(&clean, 512, &mut out, s));

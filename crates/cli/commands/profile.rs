@@ -36,13 +36,27 @@ pub fn run(c: Cmd) -> Result<()> {
             }
             println!("{}  ({})", s.camera, s.provenance.source);
             println!("  sensor            {} × {} px, EM gain {}", s.width, s.height, s.em_gain);
-            println!("  PTC slope s=K·f²  {:.3} DN", s.ptc_slope_dn);
-            println!("  noise factor f    {:.3} – {:.3}  (K = {:.3} – {:.3} DN/e⁻)", s.f_range[0], s.f_range[1], s.k_range_dn[0], s.k_range_dn[1]);
+            const NONE: &str = "not calibrated";
+            match (s.ptc_slope_dn, s.k_range_dn) {
+                (Some(slope), Some(k)) => {
+                    println!("  PTC slope s=K·f²  {slope:.3} DN");
+                    println!("  noise factor f    {:.3} – {:.3}  (K = {:.3} – {:.3} DN/e⁻)", s.f_range[0], s.f_range[1], k[0], k[1]);
+                }
+                _ => println!("  PTC slope s=K·f²  {NONE} (no flat fields)"),
+            }
             println!("  quantization q    {} DN", s.quantization_dn);
-            println!("  bias (FPN median) {:.2} DN at {} s", s.bias_dn, p.fpn.base_exposure_s);
-            println!("  read noise        {:.3} DN (median over pixels and exposures)", s.read_noise_dn);
-            println!("  FPN form          {:?}, shared θ = {:?}", s.fpn_form, s.fpn_shared_theta);
-            println!("  blooming x(t)     {:.4e} · t^{:.4}   (x(10 ms) = {:.4})", s.blooming_a, s.blooming_b, p.blooming_factor(0.01));
+            match (s.bias_dn, s.read_noise_dn) {
+                (Some(b), Some(r)) => {
+                    println!("  bias (FPN median) {b:.2} DN at {} s", p.fpn.base_exposure_s);
+                    println!("  read noise        {r:.3} DN (median over pixels and exposures)");
+                    println!("  FPN form          {:?}, shared θ = {:?}", s.fpn_form, s.fpn_shared_theta);
+                }
+                _ => println!("  bias, read noise  {NONE} (no bias frames)"),
+            }
+            match (s.blooming_a, s.blooming_b) {
+                (Some(a), Some(b)) => println!("  blooming x(t)     {a:.4e} · t^{b:.4}   (x(10 ms) = {:.4})", p.blooming_factor(0.01)),
+                _ => println!("  blooming x(t)     {NONE} (no blooming frames; preprocessing removes none)"),
+            }
             let e = &s.exposures_s;
             println!("  exposures         {} read-noise maps, {} s – {} s", e.len(), e.first().unwrap_or(&0.0), e.last().unwrap_or(&0.0));
             if let Some(eld) = &s.eld {

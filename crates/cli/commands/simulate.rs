@@ -246,14 +246,16 @@ fn write_truth(out: &Path, cam: &VirtualCamera, bias: &[f64], flats: &[f64], fla
     writeln!(s, "em_gain = {}", cam.em_gain)?;
     writeln!(s, "e_per_dn = {}", cam.e_per_dn)?;
     writeln!(s, "k_dn_per_e = {}  # G / c", cam.k_dn())?;
-    writeln!(s, "ptc_slope_dn = {}  # 2G/c: the EM register's f² = 2", p.ptc_slope_dn)?;
+    writeln!(s, "ptc_slope_dn = {}  # 2G/c: the EM register's f² = 2", p.slope()?)?;
     writeln!(s, "qe = {}\ncic_e = {}\ndark_e_per_s = {}", cam.physics.qe, cam.physics.cic_e, cam.physics.dark_e_per_s)?;
     writeln!(s, "hot_pixels = {}  # dark current {} e-/s", cam.hot_pixels.len(), cam.physics.hot_dark_e_per_s)?;
     writeln!(s, "hot_pixel_indices = {:?}", &cam.hot_pixels[..cam.hot_pixels.len().min(1000)])?;
     writeln!(s, "bias_dn = {}  # median FPN at {} s", p.bias_dn(), p.fpn.base_exposure_s)?;
     writeln!(s, "read_noise_dn = {}  # median read-noise std", p.read_noise_dn())?;
     writeln!(s, "fpn_form = \"{:?}\"\nfpn_shared_theta = {:?}", p.fpn.form, p.fpn.shared_theta)?;
-    writeln!(s, "blooming_a = {}\nblooming_b = {}", p.blooming.a, p.blooming.b)?;
+    if let Some(b) = p.blooming {
+        writeln!(s, "blooming_a = {}\nblooming_b = {}", b.a, b.b)?;
+    }
     writeln!(s, "bias_exposures_s = {bias:?}")?;
     let levels: Vec<f64> = flats.to_vec();
     writeln!(s, "flat_signal_dn = {levels:?}  # photo-signal above bias at {flat_t} s")?;

@@ -74,7 +74,7 @@ pub fn run(a: Args) -> Result<()> {
         bail!("{}: {w}×{h} is larger than the profile's {}×{} sensor", a.input.display(), p.width, p.height);
     };
     let (kind, model): (NoiseModelKind, Box<dyn NoiseModel>) = match a.model {
-        ModelArg::Ours => (NoiseModelKind::Ours, Box::new(OursModel::from_profile(&prof, ab))),
+        ModelArg::Ours => (NoiseModelKind::Ours, Box::new(OursModel::from_profile(&prof, ab)?)),
         ModelArg::Eld => (NoiseModelKind::Eld, Box::new(EldModel::from_profile(&prof)?)),
         ModelArg::Pgn => (NoiseModelKind::Pgn, Box::new(PgnModel::from_profile(&prof, a.exposure_s)?)),
     };

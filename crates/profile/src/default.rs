@@ -74,12 +74,12 @@ pub fn default_profile() -> CameraProfile {
         em_gain: g,
         width: w,
         height: h,
-        ptc_slope_dn: s,
+        ptc_slope_dn: Some(s),
         f_range: [1.3, std::f64::consts::SQRT_2],
         quantization_dn: 1.0,
         adc_max_dn: 65535.0,
         fpn: FpnFit { form: FpnForm::PerPixel, base_exposure_s: t0, shared_theta: shared },
-        blooming: BloomingFit { a: 1.5e-4, b: -0.9621 },
+        blooming: Some(BloomingFit { a: 1.5e-4, b: -0.9621 }),
         exposures_s,
         eld: Some(EldParams { k_dn: s, tukey_lambda: 0.14, // Scale chosen so the read-noise std is 3 DN: Var = scale²·v(λ), v(0.14) = 2.1103.
             tukey_scale_dn: 2.065_14, row_sigma_dn: 0.3 }),
@@ -111,14 +111,14 @@ mod tests {
         let p = default_profile();
         p.validate().unwrap();
         assert_eq!((p.width, p.height), (512, 512));
-        assert_eq!(p.ptc_slope_dn, 20.14);
+        assert_eq!(p.ptc_slope_dn, Some(20.14));
         // FPN rises top to bottom from about 160 to 195 DN.
         let row_mean = |y: usize| p.maps.fpn_base[y * 512..(y + 1) * 512].iter().map(|&v| v as f64).sum::<f64>() / 512.0;
         assert!((row_mean(0) - 160.0).abs() < 1.0 && (row_mean(511) - 195.0).abs() < 1.0);
         assert_eq!(p.exposures_s.len(), 20);
         assert!((p.exposures_s[0] - 1e-3).abs() < 1e-12 && (p.exposures_s[19] - 0.2).abs() < 1e-12);
         assert!((p.read_noise_dn() - 3.0).abs() < 0.1, "{}", p.read_noise_dn());
-        assert!((p.blooming.b + 0.9621).abs() < 1e-12);
+        assert!((p.blooming.unwrap().b + 0.9621).abs() < 1e-12);
         // Per-pixel and shared forms agree at the base exposure and stay close at 100 ms.
         let mut a = vec![0f32; p.len()];
         let mut b = vec![0f32; p.len()];

@@ -111,8 +111,9 @@ pub struct CameraProfile {
     pub width: usize,
     /// Sensor height in pixels.
     pub height: usize,
-    /// Photon-transfer slope `s = K·f²`, DN per DN of signal.
-    pub ptc_slope_dn: f64,
+    /// Photon-transfer slope `s = K·f²`, DN per DN of signal; `None` when no flat fields were
+    /// calibrated.
+    pub ptc_slope_dn: Option<f64>,
     /// Range of the excess noise factor drawn during synthesis.
     pub f_range: [f64; 2],
     /// Quantization step q, DN.
@@ -121,9 +122,11 @@ pub struct CameraProfile {
     pub adc_max_dn: f64,
     /// Fixed-pattern fit.
     pub fpn: FpnFit,
-    /// Blooming fit.
-    pub blooming: BloomingFit,
-    /// Exposures (s) at which read-noise maps were measured, ascending.
+    /// Blooming fit; `None` when no blooming frames were calibrated (preprocessing then skips
+    /// blooming removal).
+    pub blooming: Option<BloomingFit>,
+    /// Exposures (s) at which read-noise maps were measured, ascending; empty (with an empty
+    /// `fpn_base`) when no bias frames were calibrated.
     pub exposures_s: Vec<f64>,
     /// ELD comparison-model parameters.
     pub eld: Option<EldParams>,
@@ -146,26 +149,26 @@ pub struct ProfileSummary {
     pub width: usize,
     /// Height in pixels.
     pub height: usize,
-    /// Photon-transfer slope s = K·f², DN.
-    pub ptc_slope_dn: f64,
+    /// Photon-transfer slope s = K·f², DN (null if not calibrated).
+    pub ptc_slope_dn: Option<f64>,
     /// Excess-noise-factor range.
     pub f_range: [f64; 2],
-    /// System gain range K = s/f², DN per photoelectron.
-    pub k_range_dn: [f64; 2],
+    /// System gain range K = s/f², DN per photoelectron (null if not calibrated).
+    pub k_range_dn: Option<[f64; 2]>,
     /// Quantization step, DN.
     pub quantization_dn: f64,
-    /// Median of the FPN map at the shortest exposure, DN.
-    pub bias_dn: f64,
-    /// Median read-noise std over pixels and exposures, DN.
-    pub read_noise_dn: f64,
+    /// Median of the FPN map at the shortest exposure, DN (null without bias frames).
+    pub bias_dn: Option<f64>,
+    /// Median read-noise std over pixels and exposures, DN (null without bias frames).
+    pub read_noise_dn: Option<f64>,
     /// FPN form used by preprocessing.
     pub fpn_form: FpnForm,
     /// Shared FPN coefficients.
     pub fpn_shared_theta: [f64; 4],
-    /// Blooming prefactor a.
-    pub blooming_a: f64,
-    /// Blooming exponent b.
-    pub blooming_b: f64,
+    /// Blooming prefactor a (null if not calibrated).
+    pub blooming_a: Option<f64>,
+    /// Blooming exponent b (null if not calibrated).
+    pub blooming_b: Option<f64>,
     /// Calibrated exposures, s.
     pub exposures_s: Vec<f64>,
     /// ELD parameters, if calibrated.
@@ -206,23 +209,52 @@ impl CameraProfile {
         self.len() == 0
     }
 
-    /// System gain `K = s/f²` for a given excess noise factor.
+    /// The photon-transfer slope, or an error saying which acquisition provides it.
+    pub fn slope(&self) -> Result<f64> {
+        self.ptc_slope_dn.ok_or_else(|| {
+            Error::Parameter("the profile has no photon-transfer slope: calibrate it with flat-field stacks".into())
+        })
+    }
+
+    /// Whether bias frames were calibrated (FPN and read-noise maps exist).
+    pub fn has_bias(&self) -> bool {
+        !self.exposures_s.is_empty()
+    }
+
+    /// Checks that every part synthesis and simulation need is present.
+    pub fn require_complete(&self) -> Result<()> {
+        self.slope()?;
+        if !self.has_bias() {
+            return Err(Error::Parameter(
+                "the profile has no FPN or read-noise maps: calibrate it with bias stacks".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// System gain `K = s/f²` for a given excess noise factor (NaN without a slope).
     pub fn k_dn(&self, f: f64) -> f64 {
-        self.ptc_slope_dn / (f * f)
+        self.ptc_slope_dn.unwrap_or(f64::NAN) / (f * f)
     }
 
-    /// The blooming factor `x_t`.
+    /// The blooming factor `x_t` (0 when blooming was not calibrated: nothing is removed).
     pub fn blooming_factor(&self, exposure_s: f64) -> f64 {
-        self.blooming.factor(exposure_s)
+        self.blooming.map_or(0.0, |b| b.factor(exposure_s))
     }
 
-    /// Median of the base FPN map (the camera's bias level), DN.
+    /// Median of the base FPN map (the camera's bias level), DN; NaN without bias frames.
     pub fn bias_dn(&self) -> f64 {
+        if self.maps.fpn_base.is_empty() {
+            return f64::NAN;
+        }
         median(self.maps.fpn_base.iter().copied())
     }
 
-    /// Median read-noise std over all pixels and exposures, DN.
+    /// Median read-noise std over all pixels and exposures, DN; NaN without bias frames.
     pub fn read_noise_dn(&self) -> f64 {
+        if self.maps.read_noise.is_empty() {
+            return f64::NAN;
+        }
         median(self.maps.read_noise.iter().flat_map(|m| m.iter().copied()))
     }
 
@@ -258,14 +290,14 @@ impl CameraProfile {
             height: self.height,
             ptc_slope_dn: self.ptc_slope_dn,
             f_range: self.f_range,
-            k_range_dn: [self.k_dn(self.f_range[1]), self.k_dn(self.f_range[0])],
+            k_range_dn: self.ptc_slope_dn.map(|_| [self.k_dn(self.f_range[1]), self.k_dn(self.f_range[0])]),
             quantization_dn: self.quantization_dn,
-            bias_dn: self.bias_dn(),
-            read_noise_dn: self.read_noise_dn(),
+            bias_dn: Some(self.bias_dn()).filter(|v| v.is_finite()),
+            read_noise_dn: Some(self.read_noise_dn()).filter(|v| v.is_finite()),
             fpn_form: self.fpn.form,
             fpn_shared_theta: self.fpn.shared_theta,
-            blooming_a: self.blooming.a,
-            blooming_b: self.blooming.b,
+            blooming_a: self.blooming.map(|b| b.a),
+            blooming_b: self.blooming.map(|b| b.b),
             exposures_s: self.exposures_s.clone(),
             eld: self.eld.clone(),
             pgn: self.pgn.clone(),
@@ -325,8 +357,15 @@ impl CameraProfile {
         if n == 0 {
             return bad("the profile has no pixels".into());
         }
-        if !(self.ptc_slope_dn > 0.0) {
-            return bad(format!("ptc_slope_dn must be positive, got {}", self.ptc_slope_dn));
+        if let Some(s) = self.ptc_slope_dn {
+            if !(s > 0.0) {
+                return bad(format!("ptc_slope_dn must be positive, got {s}"));
+            }
+        }
+        if let Some(b) = self.blooming {
+            if !(b.a >= 0.0 && b.a.is_finite() && b.b.is_finite()) {
+                return bad(format!("blooming fit must have a ≥ 0 and finite b, got a={} b={}", b.a, b.b));
+            }
         }
         if !(self.f_range[0] >= 1.0 && self.f_range[1] >= self.f_range[0]) {
             return bad(format!("f_range must satisfy 1 ≤ lo ≤ hi, got {:?}", self.f_range));
@@ -336,6 +375,13 @@ impl CameraProfile {
         }
         if !(self.fpn.base_exposure_s > 0.0) {
             return bad("fpn.base_exposure_s must be positive".into());
+        }
+        let no_bias = self.exposures_s.is_empty() && self.maps.fpn_base.is_empty();
+        if no_bias {
+            if !self.maps.fpn_theta.is_empty() || !self.maps.read_noise.is_empty() {
+                return bad("FPN coefficients or read-noise maps without a base FPN map".into());
+            }
+            return Ok(());
         }
         if self.maps.fpn_base.len() != n {
             return bad(format!("fpn_base has {} values, expected {n}", self.maps.fpn_base.len()));

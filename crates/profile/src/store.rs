@@ -23,18 +23,22 @@ struct TomlProfile {
     em_gain: f64,
     width: usize,
     height: usize,
-    /// Photon-transfer slope s = K·f² in DN.
-    ptc_slope_dn: f64,
+    /// Photon-transfer slope s = K·f² in DN (absent: not calibrated).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    ptc_slope_dn: Option<f64>,
     f_range: [f64; 2],
     quantization_dn: f64,
     adc_max_dn: f64,
     /// Informational: median of the base FPN map (recomputed from the maps on load).
-    bias_dn: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    bias_dn: Option<f64>,
     /// Informational: median read-noise std (recomputed from the maps on load).
-    read_noise_dn: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    read_noise_dn: Option<f64>,
     exposures_s: Vec<f64>,
     fpn: FpnFit,
-    blooming: BloomingFit,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    blooming: Option<BloomingFit>,
     #[serde(skip_serializing_if = "Option::is_none")]
     eld: Option<EldParams>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -72,8 +76,8 @@ impl CameraProfile {
             f_range: self.f_range,
             quantization_dn: self.quantization_dn,
             adc_max_dn: self.adc_max_dn,
-            bias_dn: (self.bias_dn() * 1000.0).round() / 1000.0,
-            read_noise_dn: (self.read_noise_dn() * 1000.0).round() / 1000.0,
+            bias_dn: Some((self.bias_dn() * 1000.0).round() / 1000.0).filter(|v| v.is_finite()),
+            read_noise_dn: Some((self.read_noise_dn() * 1000.0).round() / 1000.0).filter(|v| v.is_finite()),
             exposures_s: self.exposures_s.clone(),
             fpn: self.fpn.clone(),
             blooming: self.blooming,
@@ -104,10 +108,12 @@ impl CameraProfile {
         for m in &self.maps.read_noise {
             rn.extend_from_slice(&f32_bytes(m));
         }
-        let mut tensors: Vec<(&str, TensorView<'_>)> = vec![
-            ("fpn_base", TensorView::new(Dtype::F32, vec![h, w], &base).map_err(st_err)?),
-            ("read_noise_std", TensorView::new(Dtype::F32, vec![e, h, w], &rn).map_err(st_err)?),
-        ];
+        let mut tensors: Vec<(&str, TensorView<'_>)> = Vec::new();
+        // A profile without bias frames has no maps at all (an empty tensor would be misread).
+        if !self.maps.fpn_base.is_empty() {
+            tensors.push(("fpn_base", TensorView::new(Dtype::F32, vec![h, w], &base).map_err(st_err)?));
+            tensors.push(("read_noise_std", TensorView::new(Dtype::F32, vec![e, h, w], &rn).map_err(st_err)?));
+        }
         if !self.maps.fpn_theta.is_empty() {
             tensors.push(("fpn_theta", TensorView::new(Dtype::F32, vec![4, h, w], &theta).map_err(st_err)?));
         }
@@ -145,14 +151,19 @@ impl CameraProfile {
             let v = st.tensor(name).map_err(|_| Error::Format(format!("missing tensor {name}")))?;
             tensor_f32(&v, name, shape)
         };
-        let fpn_base = get("fpn_base", &[h, w]).map_err(|e| e.at(&mpath))?;
-        let fpn_theta = if st.names().contains(&"fpn_theta") {
+        let has = |name: &str| st.names().contains(&name);
+        let fpn_base = if has("fpn_base") || e > 0 { get("fpn_base", &[h, w]).map_err(|e| e.at(&mpath))? } else { Vec::new() };
+        let fpn_theta = if has("fpn_theta") {
             get("fpn_theta", &[4, h, w]).map_err(|e| e.at(&mpath))?
         } else {
             Vec::new()
         };
-        let rn = get("read_noise_std", &[e, h, w]).map_err(|e| e.at(&mpath))?;
-        let read_noise = rn.chunks(h * w).map(|c| c.to_vec()).collect();
+        let read_noise = if e > 0 {
+            let rn = get("read_noise_std", &[e, h, w]).map_err(|e| e.at(&mpath))?;
+            rn.chunks(h * w).map(|c| c.to_vec()).collect()
+        } else {
+            Vec::new()
+        };
         let p = CameraProfile {
             camera: t.camera,
             em_gain: t.em_gain,
