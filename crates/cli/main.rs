@@ -19,6 +19,8 @@ struct Cli {
 enum Command {
     /// Print what an image file holds: size, frames, pixel type and camera metadata.
     Info(commands::info::Args),
+    /// Calibrate a camera from its bias, flat, blooming and gain-series stacks.
+    Calibrate(commands::calibrate::Args),
     /// Show or create camera profiles.
     #[command(subcommand)]
     Profile(commands::profile::Cmd),
@@ -35,6 +37,7 @@ fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Info(a) => commands::info::run(a),
+        Command::Calibrate(a) => commands::calibrate::run(a),
         Command::Profile(c) => commands::profile::run(c),
         Command::Simulate(c) => commands::simulate::run(c),
         Command::Synthesize(a) => commands::synthesize::run(a),
@@ -62,6 +65,7 @@ mod tests {
         for args in [
             vec!["emccd", "info", "x.tif", "--json"],
             vec!["emccd", "profile", "show", "default", "--json"],
+            vec!["emccd", "calibrate", "cal/calibration.toml", "-o", "prof", "--report", "rep"],
             vec!["emccd", "profile", "init-default", "out"],
             vec!["emccd", "simulate", "calibration", "-o", "cal", "--crop", "64x48", "--frames", "5"],
             vec!["emccd", "simulate", "pairs", "--clean", "a.png", "--photons", "10", "--photons", "100", "-o", "p"],

@@ -1,6 +1,7 @@
 //! One module per subcommand: an `Args` struct (the `--help` text) and a `run`.
 
 pub mod bench;
+pub mod calibrate;
 pub mod info;
 pub mod profile;
 pub mod simulate;

@@ -79,7 +79,7 @@ pub fn default_profile() -> CameraProfile {
         quantization_dn: 1.0,
         adc_max_dn: 65535.0,
         fpn: FpnFit { form: FpnForm::PerPixel, base_exposure_s: t0, shared_theta: shared },
-        blooming: Some(BloomingFit { a: 1.5e-4, b: -0.9621 }),
+        blooming: Some(BloomingFit { a: 1.5e-4, b: -0.9621, range_s: Some([1e-3, 0.1]) }),
         exposures_s,
         eld: Some(EldParams { k_dn: s, tukey_lambda: 0.14, // Scale chosen so the read-noise std is 3 DN: Var = scale²·v(λ), v(0.14) = 2.1103.
             tukey_scale_dn: 2.065_14, row_sigma_dn: 0.3 }),

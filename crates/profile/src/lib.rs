@@ -30,12 +30,21 @@ pub struct BloomingFit {
     pub a: f64,
     /// Exponent `b`.
     pub b: f64,
+    /// Exposures (s) the law was measured over. Outside them `x` stays at the nearest end's
+    /// value: a power law with `b ≈ −1` extrapolated to 10 µs would claim the column mean is
+    /// added ten times over.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub range_s: Option<[f64; 2]>,
 }
 
 impl BloomingFit {
     /// The blooming factor at exposure `t` seconds.
     pub fn factor(&self, exposure_s: f64) -> f64 {
-        self.a * exposure_s.powf(self.b)
+        let t = match self.range_s {
+            Some([lo, hi]) => exposure_s.clamp(lo, hi),
+            None => exposure_s,
+        };
+        self.a * t.powf(self.b)
     }
 }
 
