@@ -45,6 +45,9 @@ pub struct BiasLevel {
     pub median_dn: f64,
     /// Median of the read-noise std map, DN.
     pub read_noise_median_dn: f64,
+    /// √(mean per-pixel variance), DN: unbiased in σ² for any frame count, where the median of
+    /// per-pixel stds runs low for few frames (×0.67 for two).
+    pub read_noise_rms_dn: f64,
     /// Pixel-wise mean (FPN_t), DN.
     #[serde(skip)]
     pub mean: Vec<f32>,
@@ -239,6 +242,7 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
             frames: st.frames,
             median_dn: emccd_profile::median(mean.iter().copied()),
             read_noise_median_dn: emccd_profile::median(std.iter().copied()),
+            read_noise_rms_dn: (std.iter().map(|&v| (v as f64).powi(2)).sum::<f64>() / std.len().max(1) as f64).sqrt(),
             mean,
             std,
         });
@@ -362,6 +366,17 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
         None => None,
         Some(gs) => Some(run_gain_series(gs, opts, progress)?),
     };
+    let (width, height) = match (&gain_series, width) {
+        (Some(g), 0) => {
+            missing.retain(|m| !m.starts_with("photon-transfer slope"));
+            missing.push(format!(
+                "flat fields: none; the photon-transfer slope comes from the gain series at the setting nearest EM gain {} (s = (2 − 1/G)·G/c)",
+                m.em_gain
+            ));
+            g.sensor
+        }
+        _ => (width, height),
+    };
 
     Ok(Calibration {
         camera: m.camera.clone(),
@@ -430,7 +445,7 @@ fn run_gain_series(gs: &crate::manifest::GainSeries, opts: &Options, progress: &
         }
         None => None,
     };
-    gain_series::fit(data, pixels, reference)
+    gain_series::fit(data, pixels, (w, h), reference)
 }
 
 impl Calibration {
@@ -438,7 +453,7 @@ impl Calibration {
     /// blooming stacks: a gain series alone does not describe a sensor).
     pub fn profile(&self) -> Result<CameraProfile> {
         if self.width == 0 {
-            return Err(Error::Fit("no bias, flat or blooming stacks: nothing to build a profile from".into()));
+            return Err(Error::Fit("no stacks with a frame size: nothing to build a profile from".into()));
         }
         let n = self.width * self.height;
         let (fpn_fit, fpn_base, fpn_theta) = match (self.bias.first(), &self.fpn) {
@@ -477,7 +492,7 @@ impl Calibration {
             em_gain: self.em_gain,
             width: self.width,
             height: self.height,
-            ptc_slope_dn: self.ptc.as_ref().map(|p| p.fit.slope),
+            ptc_slope_dn: self.ptc.as_ref().map(|p| p.fit.slope).or_else(|| self.gain_series.as_ref().map(|g| g.slope_at(self.em_gain))),
             f_range: [1.3, std::f64::consts::SQRT_2],
             quantization_dn: 1.0,
             adc_max_dn: self.adc_max_dn,

@@ -100,6 +100,21 @@ pub struct GainSeriesResult {
     pub pixels: Vec<(usize, usize)>,
     /// Histogram and model at the highest setting for the first pixel.
     pub example: Example,
+    /// Frame size of the gain-series stacks.
+    pub sensor: (usize, usize),
+}
+
+impl GainSeriesResult {
+    /// Photon-transfer slope implied at the setting nearest `em_gain`: `s = F²·G/c` with
+    /// `F² = 2 − 1/G`.
+    pub fn slope_at(&self, em_gain: f64) -> f64 {
+        let s = self
+            .settings
+            .iter()
+            .min_by(|a, b| (a.nominal - em_gain).abs().total_cmp(&(b.nominal - em_gain).abs()))
+            .expect("a gain series has settings");
+        (2.0 - 1.0 / s.gain) * s.gain / self.e_per_dn
+    }
 }
 
 /// One setting × pixel likelihood, with its FFT plan and buffers.
@@ -249,7 +264,7 @@ fn fit_pixel(data: &[SettingData], p: usize, anchor: usize) -> (f64, f64, Vec<f6
 }
 
 /// Fits every pixel (in parallel) and summarizes over pixels.
-pub fn fit(mut data: Vec<SettingData>, pixels: Vec<(usize, usize)>, reference: Option<f64>) -> Result<GainSeriesResult> {
+pub fn fit(mut data: Vec<SettingData>, pixels: Vec<(usize, usize)>, sensor: (usize, usize), reference: Option<f64>) -> Result<GainSeriesResult> {
     if data.len() < 2 {
         return Err(Error::Fit("a gain series needs at least two settings".into()));
     }
@@ -309,6 +324,7 @@ pub fn fit(mut data: Vec<SettingData>, pixels: Vec<(usize, usize)>, reference: O
         reference_e_per_dn: reference,
         pixels,
         example: Example { setting: top, pixel: 0, x0: lo, bin, counts, model },
+        sensor,
     })
 }
 
