@@ -20,6 +20,68 @@ pub struct Args {
     /// Skip the emccd-detect comparison.
     #[arg(long)]
     pub no_python: bool,
+    /// Instead, measure calibration streaming: per-pixel mean/variance over a generated stack of
+    /// this many 512×512 16-bit frames (read from the page cache), with the peak memory.
+    #[arg(long, value_name = "FRAMES")]
+    pub calibration: Option<usize>,
+}
+
+/// Peak resident memory of this process (Linux), MiB.
+fn peak_rss_mib() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+fn calibration_bench(frames: usize) -> Result<()> {
+    use std::io::Read;
+    let (w, h) = (512usize, 512usize);
+    let dir = tempfile::tempdir()?;
+    let path = dir.path().join("stack.tif");
+    let mut wr = emccd_io::StackWriter::create(&path, w, h, emccd_io::SampleFormat::U16, Some(frames))?;
+    let mut f = vec![0f32; w * h];
+    for k in 0..frames {
+        for (i, v) in f.iter_mut().enumerate() {
+            *v = 500.0 + ((i * 7919 + k * 104729) % 23) as f32;
+        }
+        wr.write_frame(&f)?;
+    }
+    wr.finish()?;
+    let bytes = std::fs::metadata(&path)?.len() as f64;
+    let rss_before = peak_rss_mib().unwrap_or(f64::NAN);
+    // Reference: reading the same bytes from the page cache and doing nothing with them.
+    let t = Instant::now();
+    let mut file = std::fs::File::open(&path)?;
+    let mut buf = vec![0u8; 1 << 20];
+    let mut sink = 0u64;
+    loop {
+        let n = file.read(&mut buf)?;
+        if n == 0 {
+            break;
+        }
+        sink = sink.wrapping_add(buf[n - 1] as u64);
+    }
+    let t_ref = t.elapsed().as_secs_f64();
+    std::hint::black_box(sink);
+    let t = Instant::now();
+    let (_, st) = emccd_calib::stats::accumulate(&path, None, 2, &[], None, &emccd_calib::Silent)?;
+    let t_cal = t.elapsed().as_secs_f64();
+    std::hint::black_box(st.mean());
+    let threads = rayon::current_num_threads();
+    println!("calibration streaming: {frames} frames of {w}×{h} u16 ({:.0} MB TIFF, page cache), {threads} threads", bytes / 1e6);
+    println!("{:<46} {:>9} {:>9}", "pass", "s", "GB/s");
+    println!("{:<46} {:>9.3} {:>9.2}", "reference: read the bytes, no decoding", t_ref, bytes / t_ref / 1e9);
+    println!("{:<46} {:>9.3} {:>9.2}", "emccd: decode + per-pixel mean and variance", t_cal, bytes / t_cal / 1e9);
+    println!();
+    println!("ratio to the reference read: {:.2}  (target ≥ 1 GB/s: {})", t_ref / t_cal, if bytes / t_cal >= 1e9 { "met" } else { "not met" });
+    println!(
+        "peak memory: {:.1} MiB (before reading the stack: {:.1} MiB; the stack itself is {:.0} MiB)",
+        peak_rss_mib().unwrap_or(f64::NAN),
+        rss_before,
+        bytes / (1 << 20) as f64
+    );
+    Ok(())
 }
 
 fn time_frames(frames: usize, mut f: impl FnMut(u64)) -> f64 {
@@ -49,6 +111,9 @@ print((time.perf_counter() - t) / frames)
 "#;
 
 pub fn run(a: Args) -> Result<()> {
+    if let Some(frames) = a.calibration {
+        return calibration_bench(frames.max(2));
+    }
     let frames = a.frames.max(1);
     let cam = VirtualCamera::default_camera();
     let n = cam.profile.len();

@@ -89,7 +89,8 @@ fn print_summary(c: &emccd_calib::Calibration) {
     if let Some(b) = c.bias.first() {
         println!("  bias (FPN median)    {:.2} DN at {} s", b.median_dn, b.exposure_s);
         let rn: Vec<f32> = c.bias.iter().flat_map(|b| b.std.iter().copied()).collect();
-        println!("  read noise           {:.3} DN (median over pixels and {} exposures)", emccd_profile::median(rn), c.bias.len());
+        let rms = (c.bias.iter().map(|b| b.read_noise_rms_dn.powi(2)).sum::<f64>() / c.bias.len() as f64).sqrt();
+        println!("  read noise           {:.3} DN median std, {rms:.3} DN rms (over pixels and {} exposures)", emccd_profile::median(rn), c.bias.len());
     }
     if let Some(f) = &c.fpn {
         let mid: Vec<&emccd_calib::fpn::FpnError> = f.errors.iter().filter(|e| e.exposure_s >= 0.006 && e.exposure_s <= 0.1).collect();
