@@ -1,0 +1,94 @@
+//! A denoising model on disk: safetensors weights plus metadata (architecture and its
+//! configuration, noise model, the profile it was trained for, the recipe and step count).
+//! Loading reads tensors and strings only; nothing in a model file is executed.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use burn::prelude::*;
+use burn_store::{ModuleSnapshot, SafetensorsStore};
+use serde::{Deserialize, Serialize};
+
+use crate::unet::{UNet, UNetConfig};
+use crate::{Error, Result};
+
+/// Everything a model file says about itself.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ModelMeta {
+    /// Architecture name (`unet`).
+    pub arch: String,
+    /// U-Net size.
+    pub unet: UNetConfig,
+    /// Noise model the training pairs were synthesized with.
+    pub noise_model: String,
+    /// Ablated components (empty for the full model).
+    pub ablate: Vec<String>,
+    /// Fingerprint (hex) of the profile used in training.
+    pub profile_fingerprint: String,
+    /// Optimizer steps taken.
+    pub steps: u64,
+    /// Free text: data, batch, crop, learning-rate schedule, seed.
+    pub recipe: String,
+}
+
+const META_KEY: &str = "emccd_model";
+
+/// A network with its metadata.
+#[derive(Debug)]
+pub struct Denoiser {
+    /// The network.
+    pub net: UNet,
+    /// Its description.
+    pub meta: ModelMeta,
+}
+
+impl Denoiser {
+    /// A freshly initialized model.
+    pub fn new(meta: ModelMeta, device: &Device) -> Result<Denoiser> {
+        if meta.arch != "unet" {
+            return Err(Error::Model(format!("unknown architecture {:?} (this build has: unet)", meta.arch)));
+        }
+        Ok(Denoiser { net: meta.unet.init(device), meta })
+    }
+
+    /// Writes the model atomically (temporary file, then rename).
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(path, e))?;
+        let tmp = emccd_io::temp_beside(path).map_err(|e| Error::io(path, e))?;
+        let meta = serde_json::to_string(&self.meta).map_err(|e| Error::Model(e.to_string()))?;
+        let mut store = SafetensorsStore::from_file(tmp.path()).metadata(META_KEY, meta).overwrite(true);
+        self.net.save_into(&mut store).map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
+        emccd_io::persist(tmp, path).map_err(|e| Error::Model(e.to_string()))?;
+        Ok(())
+    }
+
+    /// Reads only the metadata of a model file.
+    pub fn read_meta(path: &Path) -> Result<ModelMeta> {
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        meta_of(&bytes, path)
+    }
+
+    /// Loads a model onto `device`.
+    pub fn load(path: &Path, device: &Device) -> Result<Denoiser> {
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let meta = meta_of(&bytes, path)?;
+        let mut d = Denoiser::new(meta, device)?;
+        let mut store = SafetensorsStore::from_bytes(Some(bytes));
+        let r = d.net.load_from(&mut store).map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
+        if !r.missing.is_empty() {
+            return Err(Error::Model(format!("{}: weights missing for {:?}", path.display(), r.missing)));
+        }
+        Ok(d)
+    }
+}
+
+fn meta_of(bytes: &[u8], path: &Path) -> Result<ModelMeta> {
+    let (_, header) = safetensors::SafeTensors::read_metadata(bytes)
+        .map_err(|e| Error::Model(format!("{}: not a safetensors model file ({e})", path.display())))?;
+    let map: HashMap<String, String> = header.metadata().clone().unwrap_or_default();
+    let text = map
+        .get(META_KEY)
+        .ok_or_else(|| Error::Model(format!("{}: safetensors file without emccd model metadata", path.display())))?;
+    serde_json::from_str(text).map_err(|e| Error::Model(format!("{}: model metadata: {e}", path.display())))
+}

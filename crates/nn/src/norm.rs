@@ -1,0 +1,41 @@
+//! Camera-independent network input. A preprocessed frame (DN above bias, blooming and FPN
+//! removed) is divided by the photon-transfer slope `s`, so that its noise variance is
+//! `x + σ_r²/s²` whatever the camera; then by a per-frame scale so values are O(1). The second
+//! channel is the per-pixel noise level in the same units, `σ(x) = √(max(x, 0) + σ_r²/s²)`,
+//! so one network serves any calibrated camera.
+
+/// Inputs for the network and how to undo the scaling.
+#[derive(Clone, Debug)]
+pub struct Prepared {
+    /// Channel-major [2, H, W]: normalized frame, noise level.
+    pub input: Vec<f32>,
+    /// Output DN = network output × `to_dn`.
+    pub to_dn: f32,
+}
+
+/// The per-frame scale: the 99.5th percentile of the slope-normalized frame, floored so that
+/// an almost empty frame is not blown up.
+pub fn frame_scale(x_norm: &[f32]) -> f32 {
+    let mut v: Vec<f32> = x_norm.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return 1.0;
+    }
+    let k = ((v.len() as f64 * 0.995) as usize).min(v.len() - 1);
+    let (_, p, _) = v.select_nth_unstable_by(k, f32::total_cmp);
+    p.max(4.0)
+}
+
+/// Prepares a preprocessed frame `dn` (DN above bias) with the slope `s` and read-noise std map.
+pub fn prepare(dn: &[f32], slope: f64, read_noise: &[f32]) -> Prepared {
+    let n = dn.len();
+    let s = slope as f32;
+    let x: Vec<f32> = dn.iter().map(|v| v / s).collect();
+    let scale = frame_scale(&x);
+    let mut input = vec![0f32; 2 * n];
+    for i in 0..n {
+        let r = read_noise[i] / s;
+        input[i] = x[i] / scale;
+        input[n + i] = (x[i].max(0.0) + r * r).sqrt() / scale;
+    }
+    Prepared { input, to_dn: scale * s }
+}

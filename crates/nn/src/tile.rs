@@ -1,0 +1,97 @@
+//! Inference on frames of any size: reflect-pad to the network's multiple, run overlapping tiles,
+//! and blend them with weights that ramp down linearly across the overlap, so no seam shows.
+
+use burn::prelude::*;
+
+use crate::unet::UNet;
+
+/// Tiling parameters.
+#[derive(Clone, Copy, Debug)]
+pub struct Tiling {
+    /// Tile side, px (a multiple of the network's multiple).
+    pub tile: usize,
+    /// Overlap between neighbouring tiles, px.
+    pub overlap: usize,
+}
+
+impl Default for Tiling {
+    fn default() -> Tiling {
+        Tiling { tile: 256, overlap: 32 }
+    }
+}
+
+fn reflect(i: isize, n: usize) -> usize {
+    let n = n as isize;
+    let mut i = i;
+    if n == 1 {
+        return 0;
+    }
+    while i < 0 || i >= n {
+        i = if i < 0 { -i } else { 2 * (n - 1) - i };
+    }
+    i as usize
+}
+
+/// Tile origins covering `len` with tiles of `t` overlapping by at least `o`.
+fn starts(len: usize, t: usize, o: usize) -> Vec<usize> {
+    if len <= t {
+        return vec![0];
+    }
+    let step = t - o;
+    let mut v: Vec<usize> = (0..).map(|k| k * step).take_while(|&s| s + t < len).collect();
+    v.push(len - t);
+    v
+}
+
+/// Weight of position `i` in a tile of `t` starting at `s` in a frame of `len`: ramps over the
+/// overlap except at the frame's own edges.
+fn ramp(i: usize, s: usize, t: usize, o: usize, len: usize) -> f32 {
+    let o = o.max(1) as f32;
+    let lo = if s == 0 { 1.0 } else { ((i as f32 + 0.5) / o).min(1.0) };
+    let hi = if s + t >= len { 1.0 } else { (((t - i) as f32 - 0.5) / o).min(1.0) };
+    lo.min(hi).max(1e-3)
+}
+
+/// Runs `net` on a [C, H, W] channel-major input; returns the [H, W] output.
+pub fn run(net: &UNet, input: &[f32], channels: usize, width: usize, height: usize, multiple: usize, tiling: Tiling, device: &Device) -> Vec<f32> {
+    let round_up = |v: usize| v.div_ceil(multiple) * multiple;
+    let (pw, ph) = (round_up(width), round_up(height));
+    let t = round_up(tiling.tile.max(multiple));
+    let (tw, th) = (t.min(pw), t.min(ph));
+    let o = tiling.overlap.min(tw / 2).min(th / 2);
+    let mut acc = vec![0f32; pw * ph];
+    let mut wsum = vec![0f32; pw * ph];
+    for &y0 in &starts(ph, th, o) {
+        for &x0 in &starts(pw, tw, o) {
+            let mut tile = vec![0f32; channels * tw * th];
+            for c in 0..channels {
+                for y in 0..th {
+                    let sy = reflect((y0 + y) as isize, height);
+                    for x in 0..tw {
+                        let sx = reflect((x0 + x) as isize, width);
+                        tile[(c * th + y) * tw + x] = input[(c * height + sy) * width + sx];
+                    }
+                }
+            }
+            let x = Tensor::<4>::from_data(TensorData::new(tile, [1, channels, th, tw]), device);
+            let out: Vec<f32> = net.forward(x).into_data().convert::<f32>().try_into_vec::<f32>().unwrap_or_default();
+            for y in 0..th {
+                let wy = ramp(y, y0, th, o, ph);
+                for x in 0..tw {
+                    let w = wy * ramp(x, x0, tw, o, pw);
+                    let i = (y0 + y) * pw + x0 + x;
+                    acc[i] += w * out[y * tw + x];
+                    wsum[i] += w;
+                }
+            }
+        }
+    }
+    let mut res = Vec::with_capacity(width * height);
+    for y in 0..height {
+        for x in 0..width {
+            let i = y * pw + x;
+            res.push(acc[i] / wsum[i]);
+        }
+    }
+    res
+}
