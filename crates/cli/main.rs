@@ -29,6 +29,10 @@ enum Command {
     Simulate(commands::simulate::Cmd),
     /// Add noise from one of the noise models to clean images (training-pair synthesis).
     Synthesize(commands::synthesize::Args),
+    /// Denoise raw EMCCD frames with a camera profile and a network.
+    Denoise(commands::denoise::Args),
+    /// Train or fine-tune a denoising network on pairs synthesized on the fly.
+    Train(commands::train::Args),
     /// Measure synthesis throughput (and compare with emccd-detect where installed).
     Bench(commands::bench::Args),
 }
@@ -41,6 +45,8 @@ fn main() {
         Command::Profile(c) => commands::profile::run(c),
         Command::Simulate(c) => commands::simulate::run(c),
         Command::Synthesize(a) => commands::synthesize::run(a),
+        Command::Train(a) => commands::train::run(a),
+        Command::Denoise(a) => commands::denoise::run(a),
         Command::Bench(a) => commands::bench::run(a),
     };
     if let Err(e) = result {
@@ -71,6 +77,8 @@ mod tests {
             vec!["emccd", "simulate", "pairs", "--clean", "a.png", "--photons", "10", "--photons", "100", "-o", "p"],
             vec!["emccd", "synthesize", "a.png", "-o", "n.tif", "--model", "pgn", "--signal-dn", "500"],
             vec!["emccd", "bench", "--frames", "3"],
+            vec!["emccd", "train", "--clean", "dir", "--steps", "10", "-o", "m.safetensors"],
+            vec!["emccd", "denoise", "a.tif", "b.sif", "-o", "outdir", "--exposure-s", "0.01"],
         ] {
             Cli::try_parse_from(&args).unwrap_or_else(|e| panic!("{args:?}: {e}"));
         }

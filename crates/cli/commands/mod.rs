@@ -2,7 +2,9 @@
 
 pub mod bench;
 pub mod calibrate;
+pub mod denoise;
 pub mod info;
 pub mod profile;
 pub mod simulate;
 pub mod synthesize;
+pub mod train;

@@ -106,6 +106,10 @@ pub enum Cmd {
         /// Noisy frames per pair (written as one stack).
         #[arg(long, default_value_t = 1)]
         frames: usize,
+        /// Also denoise each pair's first frame with this model (`default` = the bundled one):
+        /// writes denoised/*.tif, a noisy | denoised | truth preview and the PSNR after.
+        #[arg(long, value_name = "MODEL")]
+        denoise: Option<String>,
         /// Output directory.
         #[arg(short, long)]
         out: PathBuf,
@@ -119,7 +123,7 @@ pub fn run(c: Cmd) -> Result<()> {
         Cmd::Calibration { out, frames, bias_exposures, flat_levels, blooming_exposures, camera } => {
             calibration(&out, frames, &bias_exposures, &flat_levels, &blooming_exposures, &camera)
         }
-        Cmd::Pairs { clean, photons, exposure_s, frames, out, camera } => pairs(&clean, &photons, exposure_s, frames, &out, &camera),
+        Cmd::Pairs { clean, photons, exposure_s, frames, denoise, out, camera } => pairs(&clean, &photons, exposure_s, frames, denoise.as_deref(), &out, &camera),
     }
 }
 
@@ -279,6 +283,10 @@ struct Pair {
     width: usize,
     height: usize,
     psnr_input_db: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    denoised: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    psnr_denoised_db: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -292,14 +300,16 @@ struct PairsManifest {
     pair: Vec<Pair>,
 }
 
-fn pairs(clean: &[PathBuf], photons: &[f64], exposure_s: f64, frames: usize, out: &Path, opts: &CameraOpts) -> Result<()> {
+fn pairs(clean: &[PathBuf], photons: &[f64], exposure_s: f64, frames: usize, denoise: Option<&str>, out: &Path, opts: &CameraOpts) -> Result<()> {
+    let model = denoise.map(crate::commands::denoise::load_model).transpose()?;
     check_positive("photons", photons)?;
     check_positive("exposure-s", &[exposure_s])?;
     if frames == 0 {
         bail!("--frames must be at least 1");
     }
     let scenes = expand_inputs(clean)?;
-    for d in ["noisy", "clean", "preview"] {
+    let dirs: &[&str] = if model.is_some() { &["noisy", "clean", "preview", "denoised"] } else { &["noisy", "clean", "preview"] };
+    for d in dirs {
         std::fs::create_dir_all(out.join(d)).with_context(|| format!("creating {}", out.join(d).display()))?;
     }
     let truth = opts.profile()?;
@@ -348,16 +358,35 @@ fn pairs(clean: &[PathBuf], photons: &[f64], exposure_s: f64, frames: usize, out
             cw.set_metadata(&Metadata { exposure_s: Some(exposure_s), ..Default::default() });
             cw.write_frame(&truth)?;
             cw.finish()?;
+            let raw_first = first.clone();
             // Preview and input PSNR use the preprocessed frame (true FPN and blooming removed).
             preprocess(&mut first, w, e.blooming_x, &e.fpn);
             let peak = truth.iter().copied().fold(0f32, f32::max).max(1.0);
             let p_in = psnr(&first, &truth, peak as f64);
-            let mut side = vec![0f32; 2 * w * h];
-            for y in 0..h {
-                side[y * 2 * w..y * 2 * w + w].copy_from_slice(&first[y * w..(y + 1) * w]);
-                side[y * 2 * w + w..(y + 1) * 2 * w].copy_from_slice(&truth[y * w..(y + 1) * w]);
+            let mut panels: Vec<&[f32]> = vec![&first];
+            let mut denoised_out = None;
+            let den;
+            if let Some(m) = &model {
+                // The profile the camera was built from, as a user's calibrated profile.
+                let prof = cam.profile.clone();
+                let pipe = emccd_nn::pipeline::Pipeline { model: m, profile: &prof, tiling: Default::default(), device: emccd_nn::cpu() };
+                den = pipe.denoise_raw(&raw_first, exposure_s)?;
+                let rel = format!("denoised/{name}.tif");
+                let mut dw = StackWriter::create(out.join(&rel), w, h, SampleFormat::F32, Some(1))?;
+                dw.write_frame(&den)?;
+                dw.finish()?;
+                denoised_out = Some((rel, (psnr(&den, &truth, peak as f64) * 100.0).round() / 100.0));
+                panels.push(&den);
             }
-            emccd_io::write_png_preview(out.join(&preview_rel), 2 * w, h, &side, 0.0, peak)?;
+            panels.push(&truth);
+            let np = panels.len();
+            let mut side = vec![0f32; np * w * h];
+            for y in 0..h {
+                for (k, p) in panels.iter().enumerate() {
+                    side[y * np * w + k * w..y * np * w + (k + 1) * w].copy_from_slice(&p[y * w..(y + 1) * w]);
+                }
+            }
+            emccd_io::write_png_preview(out.join(&preview_rel), np * w, h, &side, 0.0, peak)?;
             manifest.pair.push(Pair {
                 scene: scene.display().to_string(),
                 noisy: noisy_rel,
@@ -369,6 +398,8 @@ fn pairs(clean: &[PathBuf], photons: &[f64], exposure_s: f64, frames: usize, out
                 width: w,
                 height: h,
                 psnr_input_db: (p_in * 100.0).round() / 100.0,
+                denoised: denoised_out.as_ref().map(|d| d.0.clone()),
+                psnr_denoised_db: denoised_out.map(|d| d.1),
             });
             pb.inc(1);
         }
@@ -376,10 +407,12 @@ fn pairs(clean: &[PathBuf], photons: &[f64], exposure_s: f64, frames: usize, out
     pb.finish_and_clear();
     let text = format!("# Noisy/clean pairs written by `emccd simulate pairs`; paths are relative to this file.\n{}", toml::to_string_pretty(&manifest)?);
     emccd_io::write_atomic(out.join("pairs.toml"), text.as_bytes())?;
-    println!("{:<40} {:>9} {:>12}", "pair", "photons", "PSNR in (dB)");
+    println!("{:<40} {:>9} {:>12} {:>14}", "pair", "photons", "PSNR in (dB)", "denoised (dB)");
     for p in &manifest.pair {
-        println!("{:<40} {:>9} {:>12.2}", p.noisy, p.photons, p.psnr_input_db);
+        let d = p.psnr_denoised_db.map_or("–".to_string(), |v| format!("{v:.2}"));
+        println!("{:<40} {:>9} {:>12.2} {:>14}", p.noisy, p.photons, p.psnr_input_db, d);
     }
-    eprintln!("wrote {} pairs to {} (previews: preprocessed noisy | ground truth)", manifest.pair.len(), out.display());
+    let what = if model.is_some() { "preprocessed noisy | denoised | ground truth" } else { "preprocessed noisy | ground truth" };
+    eprintln!("wrote {} pairs to {} (previews: {what})", manifest.pair.len(), out.display());
     Ok(())
 }

@@ -10,7 +10,9 @@
 mod error;
 pub mod model;
 pub mod norm;
+pub mod pipeline;
 pub mod tile;
+pub mod train;
 pub mod unet;
 
 pub use error::{Error, Result};

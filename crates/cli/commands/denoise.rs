@@ -1,0 +1,126 @@
+//! `emccd denoise`: raw EMCCD recordings → denoised photo-signal.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use emccd_nn::pipeline::Pipeline;
+use emccd_nn::tile::Tiling;
+use emccd_nn::Denoiser;
+
+use crate::common::{load_profile, progress};
+
+/// Output units.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Units {
+    /// DN above bias (the photo-signal, blooming and fixed pattern removed).
+    Dn,
+    /// Photo-electrons: DN / K with K = s/2 (the EM register's f² = 2).
+    Electrons,
+}
+
+/// Denoise raw EMCCD frames: remove blooming and the fixed pattern with the camera profile (paper
+/// eq. 4), then run the network on overlapping tiles. TIFF/BigTIFF, SIF and FITS in (stacks are
+/// streamed frame by frame); float32 TIFF or FITS out (by the output's extension), in DN above
+/// bias by default. The exposure comes from the file header (SIF, emccd TIFF) or --exposure-s.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Raw frames or stacks.
+    #[arg(required = true, num_args = 1..)]
+    pub inputs: Vec<PathBuf>,
+    /// Output file (one input) or directory (several; each written as NAME_denoised.tif).
+    #[arg(short, long)]
+    pub out: PathBuf,
+    /// Camera profile (`default` = the bundled iXon 897 model).
+    #[arg(long, default_value = "default")]
+    pub profile: String,
+    /// Model file; `default` = the bundled model.
+    #[arg(long, default_value = "default")]
+    pub model: String,
+    /// Exposure in seconds, where the file header does not record it.
+    #[arg(long)]
+    pub exposure_s: Option<f64>,
+    /// Output units.
+    #[arg(long, value_enum, default_value = "dn")]
+    pub units: Units,
+    /// Tile side for large frames, px.
+    #[arg(long, default_value_t = 256)]
+    pub tile: usize,
+    /// Overlap between tiles, px.
+    #[arg(long, default_value_t = 32)]
+    pub overlap: usize,
+}
+
+/// The bundled model's path.
+pub fn bundled_model() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("models").join("default-unet.safetensors")
+}
+
+pub fn load_model(arg: &str) -> Result<Denoiser> {
+    let path = if arg == "default" { bundled_model() } else { PathBuf::from(arg) };
+    if !path.is_file() {
+        bail!("{}: model not found{}", path.display(), if arg == "default" { " (the bundled model ships in models/; train one with `emccd train`)" } else { "" });
+    }
+    Ok(Denoiser::load(&path, &emccd_nn::cpu())?)
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let profile = load_profile(&a.profile)?;
+    let model = load_model(&a.model)?;
+    let fp = format!("{:016x}", profile.fingerprint());
+    if model.meta.profile_fingerprint != fp {
+        eprintln!(
+            "warning: the model was trained for profile {} and is applied through profile {fp}; the network input is camera-independent, but fine-tuning on this camera (`emccd train --init`) may gain a little",
+            model.meta.profile_fingerprint
+        );
+    }
+    let pipe = Pipeline { model: &model, profile: &profile, tiling: Tiling { tile: a.tile, overlap: a.overlap }, device: emccd_nn::cpu() };
+    let several = a.inputs.len() > 1;
+    if several {
+        std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    }
+    let to_units = match a.units {
+        Units::Dn => 1.0f32,
+        Units::Electrons => (2.0 / profile.slope()?) as f32,
+    };
+    for input in &a.inputs {
+        let out = if several {
+            let stem = input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "frame".into());
+            a.out.join(format!("{stem}_denoised.tif"))
+        } else {
+            a.out.clone()
+        };
+        let mut r = emccd_io::open(input)?;
+        let info = r.info().clone();
+        for w in &info.metadata.warnings {
+            eprintln!("warning: {}: {w}", input.display());
+        }
+        let exposure = a
+            .exposure_s
+            .or(info.metadata.exposure_s)
+            .with_context(|| format!("{}: the header records no exposure; pass --exposure-s", input.display()))?;
+        if (info.width, info.height) != (profile.width, profile.height) {
+            bail!("{}: frames are {}×{}, the profile's sensor is {}×{}", input.display(), info.width, info.height, profile.width, profile.height);
+        }
+        if !profile.exposure_in_range(exposure) {
+            eprintln!("warning: {}: exposure {exposure} s is outside the calibrated range; the FPN is the model's extrapolation", input.display());
+        }
+        let mut w = emccd_io::StackWriter::create(&out, info.width, info.height, emccd_io::SampleFormat::F32, Some(info.frames))?;
+        let pb = progress(info.frames as u64, "frames");
+        let mut buf = vec![0f32; info.frame_len()];
+        while r.read_frame(&mut buf)? {
+            if let Some(i) = buf.iter().position(|v| !v.is_finite()) {
+                bail!("{}: frame {} has a non-finite value at pixel ({}, {})", input.display(), w.frames_written() + 1, i % info.width, i / info.width);
+            }
+            let mut d = pipe.denoise_raw(&buf, exposure)?;
+            if to_units != 1.0 {
+                d.iter_mut().for_each(|v| *v *= to_units);
+            }
+            w.write_frame(&d)?;
+            pb.inc(1);
+        }
+        w.finish()?;
+        pb.finish_and_clear();
+        eprintln!("{} → {} ({} frames)", input.display(), out.display(), info.frames);
+    }
+    Ok(())
+}

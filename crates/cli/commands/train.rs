@@ -1,0 +1,158 @@
+//! `emccd train`: train or fine-tune a denoising network on pairs synthesized on the fly.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+use emccd_nn::train::{train, Image, NoiseKind, RunPaths, TrainConfig};
+use emccd_nn::{ModelMeta, UNetConfig};
+
+use crate::common::{expand_inputs, load_profile, read_scene};
+
+/// Noise model for synthesis.
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub enum NoiseArg {
+    /// The paper's EMCCD model (eq. 5).
+    Ours,
+    /// ELD (CMOS).
+    Eld,
+    /// Poisson–Gamma–Normal.
+    Pgn,
+}
+
+/// Train a denoising network on noisy/clean pairs synthesized on the fly from clean images and a
+/// camera profile (random crops, 8-way flips/rotations, random photon level), with AdamW,
+/// warm-up + cosine decay and the Charbonnier loss. A checkpoint (model, optimizer state, step)
+/// is written to OUT.ckpt/ every --checkpoint-every steps; --resume continues from it.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Camera profile (`default` = the bundled iXon 897 model).
+    #[arg(long, default_value = "default")]
+    pub profile: String,
+    /// Clean images: PNG/TIFF/FITS files or directories (repeatable).
+    #[arg(long, required = true, num_args = 1..)]
+    pub clean: Vec<PathBuf>,
+    /// Held-out validation images; default: every 10th clean image is held out.
+    #[arg(long, num_args = 1..)]
+    pub val: Vec<PathBuf>,
+    /// Architecture.
+    #[arg(long, default_value = "unet")]
+    pub arch: String,
+    /// U-Net channels at full resolution.
+    #[arg(long, default_value_t = 16)]
+    pub base: usize,
+    /// U-Net levels.
+    #[arg(long, default_value_t = 4)]
+    pub levels: usize,
+    /// Noise model of the synthesized pairs.
+    #[arg(long, value_enum, default_value = "ours")]
+    pub noise_model: NoiseArg,
+    /// Components to switch off: multiplicative, readout, quantization (synthesis); fpn, blooming
+    /// (recorded in the model: its denoising pipeline then skips that correction).
+    #[arg(long, value_delimiter = ',')]
+    pub ablate: Vec<String>,
+    /// Optimizer steps.
+    #[arg(long, default_value_t = 20000)]
+    pub steps: u64,
+    /// Crops per step.
+    #[arg(long, default_value_t = 4)]
+    pub batch: usize,
+    /// Crop side, px.
+    #[arg(long, default_value_t = 128)]
+    pub crop: usize,
+    /// Peak learning rate.
+    #[arg(long, default_value_t = 2e-4)]
+    pub lr: f64,
+    /// Warm-up steps.
+    #[arg(long, default_value_t = 500)]
+    pub warmup: u64,
+    /// Validate (and checkpoint) every this many steps.
+    #[arg(long, default_value_t = 250)]
+    pub checkpoint_every: u64,
+    /// Seed.
+    #[arg(long, default_value_t = 897)]
+    pub seed: u64,
+    /// Fine-tune from this model.
+    #[arg(long)]
+    pub init: Option<PathBuf>,
+    /// Continue the run whose checkpoint is in OUT.ckpt/.
+    #[arg(long)]
+    pub resume: bool,
+    /// Output model file (.safetensors).
+    #[arg(short, long)]
+    pub out: PathBuf,
+}
+
+fn load_images(paths: &[PathBuf]) -> Result<Vec<(PathBuf, Image)>> {
+    expand_inputs(paths)?
+        .into_iter()
+        .map(|p| {
+            let (w, h, data) = read_scene(&p).with_context(|| format!("reading {}", p.display()))?;
+            Ok((p, Image { width: w, height: h, data }))
+        })
+        .collect()
+}
+
+pub fn run(a: Args) -> Result<()> {
+    if a.arch != "unet" {
+        bail!("--arch {}: this build trains `unet` (Uformer is not built yet)", a.arch);
+    }
+    let profile = load_profile(&a.profile)?;
+    let all = load_images(&a.clean)?;
+    let (train_imgs, val_imgs): (Vec<Image>, Vec<Image>) = if a.val.is_empty() {
+        let (t, v): (Vec<_>, Vec<_>) = all.into_iter().enumerate().partition(|(i, _)| i % 10 != 9);
+        (t.into_iter().map(|(_, x)| x.1).collect(), v.into_iter().map(|(_, x)| x.1).collect())
+    } else {
+        (all.into_iter().map(|x| x.1).collect(), load_images(&a.val)?.into_iter().map(|x| x.1).collect())
+    };
+    let noise = match a.noise_model {
+        NoiseArg::Ours => NoiseKind::Ours,
+        NoiseArg::Eld => NoiseKind::Eld,
+        NoiseArg::Pgn => NoiseKind::Pgn,
+    };
+    let cfg = TrainConfig {
+        steps: a.steps,
+        batch: a.batch,
+        crop: a.crop,
+        lr: a.lr,
+        warmup: a.warmup.min(a.steps / 5),
+        noise,
+        ablate: a.ablate.clone(),
+        seed: a.seed,
+        val_every: a.checkpoint_every,
+        checkpoint_every: a.checkpoint_every,
+        ..TrainConfig::default()
+    };
+    let meta = ModelMeta {
+        arch: "unet".into(),
+        unet: UNetConfig { base: a.base, levels: a.levels, in_channels: 2 },
+        noise_model: noise.name().into(),
+        ablate: a.ablate.clone(),
+        profile_fingerprint: format!("{:016x}", profile.fingerprint()),
+        steps: 0,
+        recipe: format!(
+            "{} train / {} val images; batch {} × {}²; AdamW lr {} wd {} warm-up {} + cosine; Charbonnier; electrons {:?}; seed {}",
+            train_imgs.len(),
+            val_imgs.len(),
+            cfg.batch,
+            cfg.crop,
+            cfg.lr,
+            cfg.weight_decay,
+            cfg.warmup,
+            cfg.electrons,
+            cfg.seed
+        ),
+    };
+    let ckpt = PathBuf::from(format!("{}.ckpt", a.out.display()));
+    let paths = RunPaths { out: a.out.clone(), checkpoint: ckpt };
+    let pb = indicatif::ProgressBar::new(a.steps);
+    pb.set_style(indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} steps {msg} ETA {eta}").expect("template").progress_chars("=> "));
+    let mut report = |r: &emccd_nn::train::StepReport| {
+        pb.set_position(r.step);
+        let v = r.val_psnr.map_or(String::new(), |(o, i)| format!(" val PSNR {o:.2} dB (input {i:.2})"));
+        pb.set_message(format!("loss {:.5}{v}", r.loss));
+    };
+    let model = train(train_imgs, val_imgs, &profile, cfg, meta, a.init.as_deref(), a.resume, &paths, &mut report)?;
+    pb.finish();
+    eprintln!("model written to {} ({} steps, {} parameters)", a.out.display(), model.meta.steps, burn::module::Module::num_params(&model.net));
+    Ok(())
+}

@@ -1,0 +1,53 @@
+//! Denoising a raw frame: preprocess with the profile (paper eq. 4: `B⁻¹(D) − FPN_t`), build the
+//! camera-independent input, run the network tiled, and return the photo-signal in DN above bias.
+
+use burn::prelude::*;
+use emccd_profile::CameraProfile;
+
+use crate::model::Denoiser;
+use crate::norm::prepare;
+use crate::tile::{run, Tiling};
+use crate::{Error, Result};
+
+/// A model ready for inference with the profile it is applied through.
+pub struct Pipeline<'a> {
+    /// Network (inference copy).
+    pub model: &'a Denoiser,
+    /// Camera profile.
+    pub profile: &'a CameraProfile,
+    /// Tiling.
+    pub tiling: Tiling,
+    /// Device.
+    pub device: Device,
+}
+
+impl Pipeline<'_> {
+    /// The preprocessed frame (DN above bias) at `exposure_s`: blooming and FPN removed.
+    pub fn preprocess(&self, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+        let p = self.profile;
+        if raw.len() != p.len() {
+            return Err(Error::Data(format!("frame has {} pixels, the profile's sensor {}×{} = {}", raw.len(), p.width, p.height, p.len())));
+        }
+        let mut fpn = vec![0f32; p.len()];
+        p.fpn_at(exposure_s, &mut fpn);
+        let mut d = raw.to_vec();
+        emccd_camera::preprocess(&mut d, p.width, p.blooming_factor(exposure_s), &fpn);
+        Ok(d)
+    }
+
+    /// Denoises a preprocessed frame (DN above bias) of the profile's size.
+    pub fn denoise_preprocessed(&self, dn: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+        let p = self.profile;
+        let slope = p.slope().map_err(|e| Error::Data(e.to_string()))?;
+        let prep = prepare(dn, slope, p.read_noise_near(exposure_s));
+        let multiple = 1usize << self.model.meta.unet.levels;
+        let out = run(&self.model.net, &prep.input, 2, p.width, p.height, multiple, self.tiling, &self.device);
+        Ok(out.into_iter().map(|v| v * prep.to_dn).collect())
+    }
+
+    /// Preprocesses and denoises a raw frame.
+    pub fn denoise_raw(&self, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+        let d = self.preprocess(raw, exposure_s)?;
+        self.denoise_preprocessed(&d, exposure_s)
+    }
+}

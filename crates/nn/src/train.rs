@@ -1,0 +1,364 @@
+//! Training on pairs synthesized on the fly: random crops of clean images, 8-way flips and
+//! rotations, a random photon level, noise from a camera model; AdamW with linear warm-up and
+//! cosine decay, Charbonnier loss; validation PSNR on held-out images; checkpoints that resume.
+//!
+//! Every batch is a pure function of (seed, step), so a resumed run sees the same data as an
+//! uninterrupted one. Batches are synthesized on a second thread while the step runs.
+
+use std::path::{Path, PathBuf};
+use std::sync::mpsc;
+
+use burn::optim::{AdamWConfig, GradientsParams};
+use burn::prelude::*;
+use emccd_camera::{Ablation, EldModel, NoiseModel, OursModel, PgnModel};
+use emccd_profile::CameraProfile;
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::model::{Denoiser, ModelMeta};
+use crate::norm::prepare;
+use crate::{Error, Result};
+
+/// A clean training image, values in [0, 1].
+#[derive(Clone, Debug)]
+pub struct Image {
+    /// Width.
+    pub width: usize,
+    /// Height.
+    pub height: usize,
+    /// Row-major pixels.
+    pub data: Vec<f32>,
+}
+
+/// Which noise model synthesizes the pairs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NoiseKind {
+    /// The paper's model (eq. 5).
+    Ours,
+    /// ELD (CMOS).
+    Eld,
+    /// Poisson–Gamma–Normal.
+    Pgn,
+}
+
+impl NoiseKind {
+    /// Lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            NoiseKind::Ours => "ours",
+            NoiseKind::Eld => "eld",
+            NoiseKind::Pgn => "pgn",
+        }
+    }
+}
+
+/// The recipe.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct TrainConfig {
+    /// Optimizer steps.
+    pub steps: u64,
+    /// Crops per step.
+    pub batch: usize,
+    /// Crop side, px.
+    pub crop: usize,
+    /// Peak learning rate.
+    pub lr: f64,
+    /// AdamW weight decay.
+    pub weight_decay: f64,
+    /// Linear warm-up steps.
+    pub warmup: u64,
+    /// Photo-electrons at a scene's full scale, drawn log-uniformly from this range.
+    pub electrons: [f64; 2],
+    /// Noise model.
+    pub noise: NoiseKind,
+    /// Synthesis components switched off (`multiplicative`, `readout`, `quantization`).
+    pub ablate: Vec<String>,
+    /// Seed of everything random.
+    pub seed: u64,
+    /// Validate every this many steps.
+    pub val_every: u64,
+    /// Checkpoint every this many steps.
+    pub checkpoint_every: u64,
+}
+
+impl Default for TrainConfig {
+    fn default() -> TrainConfig {
+        TrainConfig {
+            steps: 20_000,
+            batch: 4,
+            crop: 128,
+            lr: 2e-4,
+            weight_decay: 0.02,
+            warmup: 500,
+            electrons: [3.0, 3000.0],
+            noise: NoiseKind::Ours,
+            ablate: Vec::new(),
+            seed: 897,
+            val_every: 250,
+            checkpoint_every: 250,
+        }
+    }
+}
+
+impl TrainConfig {
+    /// Learning rate at `step`: linear warm-up, then cosine decay to 1 % of the peak.
+    pub fn lr_at(&self, step: u64) -> f64 {
+        let w = self.warmup.max(1);
+        if step < w {
+            return self.lr * (step + 1) as f64 / w as f64;
+        }
+        let p = (step - w) as f64 / (self.steps.saturating_sub(w).max(1)) as f64;
+        self.lr * (0.01 + 0.99 * 0.5 * (1.0 + (std::f64::consts::PI * p.min(1.0)).cos()))
+    }
+}
+
+/// One batch: network inputs [B, 2, c, c] and targets [B, 1, c, c] in the same units, plus the
+/// noisy channel's PSNR reference data for validation.
+struct Batch {
+    input: Vec<f32>,
+    target: Vec<f32>,
+}
+
+/// Synthesizes one training pair from `img` (a crop, augmented) in the network's units.
+fn synth_sample(img: &Image, profile: &CameraProfile, cfg: &TrainConfig, abl: Ablation, seed: u64) -> Result<(Vec<f32>, Vec<f32>)> {
+    let c = cfg.crop;
+    let mut rng = Pcg64::seed_from_u64(seed);
+    let (w, h) = (img.width, img.height);
+    let x0 = rng.random_range(0..=w - c);
+    let y0 = rng.random_range(0..=h - c);
+    let mode = rng.random_range(0..8u8);
+    let mut crop = vec![0f32; c * c];
+    for y in 0..c {
+        for x in 0..c {
+            // 8-way: optional transpose, then optional flips.
+            let (mut u, mut v) = if mode & 4 != 0 { (y, x) } else { (x, y) };
+            if mode & 1 != 0 {
+                u = c - 1 - u;
+            }
+            if mode & 2 != 0 {
+                v = c - 1 - v;
+            }
+            crop[y * c + x] = img.data[(y0 + v) * w + x0 + u];
+        }
+    }
+    let [lo, hi] = cfg.electrons;
+    let peak_e = (lo.ln() + rng.random::<f64>() * (hi.ln() - lo.ln())).exp();
+    let slope = profile.slope().map_err(|e| Error::Data(e.to_string()))?;
+    let k_mean = slope / 2.0;
+    let clean: Vec<f32> = crop.iter().map(|&v| (v as f64 * peak_e * k_mean) as f32).collect();
+    // A random read-noise map of the profile, cut to the crop.
+    let m = &profile.maps.read_noise[rng.random_range(0..profile.maps.read_noise.len())];
+    let (mx, my) = (rng.random_range(0..=profile.width - c), rng.random_range(0..=profile.height - c));
+    let rn: Vec<f32> = (0..c * c).map(|i| m[(my + i / c) * profile.width + mx + i % c]).collect();
+    let mut noisy = vec![0f32; c * c];
+    let noise_seed = rng.random::<u64>();
+    match cfg.noise {
+        NoiseKind::Ours => {
+            let model = OursModel::new(slope, profile.f_range, profile.quantization_dn, vec![rn.clone()], abl).map_err(|e| Error::Data(e.to_string()))?;
+            model.synthesize(&clean, c, &mut noisy, noise_seed);
+        }
+        NoiseKind::Eld => EldModel::from_profile(profile).map_err(|e| Error::Data(e.to_string()))?.synthesize(&clean, c, &mut noisy, noise_seed),
+        NoiseKind::Pgn => PgnModel::from_profile(profile, 0.01).map_err(|e| Error::Data(e.to_string()))?.synthesize(&clean, c, &mut noisy, noise_seed),
+    }
+    let p = prepare(&noisy, slope, &rn);
+    let target = clean.iter().map(|v| v / p.to_dn).collect();
+    Ok((p.input, target))
+}
+
+fn make_batch(images: &[Image], profile: &CameraProfile, cfg: &TrainConfig, abl: Ablation, seed: u64) -> Result<Batch> {
+    let c = cfg.crop;
+    let samples: Vec<(Vec<f32>, Vec<f32>)> = (0..cfg.batch)
+        .into_par_iter()
+        .map(|b| {
+            let s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(b as u64 + 1);
+            let img = &images[(Pcg64::seed_from_u64(s ^ 0xA5A5).random::<u64>() % images.len() as u64) as usize];
+            synth_sample(img, profile, cfg, abl, s)
+        })
+        .collect::<Result<_>>()?;
+    let mut input = Vec::with_capacity(cfg.batch * 2 * c * c);
+    let mut target = Vec::with_capacity(cfg.batch * c * c);
+    for (i, t) in samples {
+        input.extend(i);
+        target.extend(t);
+    }
+    Ok(Batch { input, target })
+}
+
+/// Progress of a run, reported after every step.
+#[derive(Clone, Debug)]
+pub struct StepReport {
+    /// Steps done.
+    pub step: u64,
+    /// Of.
+    pub steps: u64,
+    /// Smoothed training loss.
+    pub loss: f64,
+    /// Latest validation PSNR (output, input), dB.
+    pub val_psnr: Option<(f64, f64)>,
+}
+
+/// Where and how a run is saved.
+#[derive(Clone, Debug)]
+pub struct RunPaths {
+    /// Final model file.
+    pub out: PathBuf,
+    /// Checkpoint directory (model, optimizer state, progress).
+    pub checkpoint: PathBuf,
+}
+
+#[derive(Serialize, Deserialize)]
+struct CkptState {
+    step: u64,
+    config: TrainConfig,
+    loss: f64,
+}
+
+/// Validation PSNR (dB, peak = clean maximum) of the network output and of the noisy input,
+/// averaged over the fixed validation batch.
+fn validate(model: &Denoiser, val: &Batch, n: usize, c: usize, device: &Device) -> (f64, f64) {
+    let net = model.net.valid();
+    let x = Tensor::<4>::from_data(TensorData::new(val.input.clone(), [n, 2, c, c]), device);
+    let out: Vec<f32> = net.forward(x).into_data().convert::<f32>().try_into_vec::<f32>().unwrap_or_default();
+    let mut po = 0.0;
+    let mut pi = 0.0;
+    for b in 0..n {
+        let t = &val.target[b * c * c..(b + 1) * c * c];
+        let o = &out[b * c * c..(b + 1) * c * c];
+        let i = &val.input[b * 2 * c * c..(b * 2 + 1) * c * c];
+        let peak = t.iter().copied().fold(0f32, f32::max).max(1e-6) as f64;
+        let psnr = |a: &[f32]| {
+            let mse = a.iter().zip(t).map(|(x, y)| ((x - y) as f64).powi(2)).sum::<f64>() / t.len() as f64;
+            10.0 * (peak * peak / mse.max(1e-20)).log10()
+        };
+        po += psnr(o);
+        pi += psnr(i);
+    }
+    (po / n as f64, pi / n as f64)
+}
+
+/// Trains (or fine-tunes from `init`, or resumes from the checkpoint directory) and writes the
+/// model to `paths.out`. `report` is called after every step.
+#[allow(clippy::too_many_arguments)]
+pub fn train(
+    train_images: Vec<Image>,
+    val_images: Vec<Image>,
+    profile: &CameraProfile,
+    cfg: TrainConfig,
+    meta: ModelMeta,
+    init: Option<&Path>,
+    resume: bool,
+    paths: &RunPaths,
+    report: &mut dyn FnMut(&StepReport),
+) -> Result<Denoiser> {
+    profile.require_complete().map_err(|e| Error::Data(e.to_string()))?;
+    let c = cfg.crop;
+    if train_images.is_empty() {
+        return Err(Error::Data("no training images".into()));
+    }
+    for im in train_images.iter().chain(&val_images) {
+        if im.width < c || im.height < c {
+            return Err(Error::Data(format!("a {}×{} image is smaller than the {c}-px crop", im.width, im.height)));
+        }
+    }
+    let mut abl = Ablation::default();
+    for a in &cfg.ablate {
+        match a.as_str() {
+            "multiplicative" => abl.multiplicative = false,
+            "readout" => abl.readout = false,
+            "quantization" => abl.quantization = false,
+            "fpn" => abl.fpn = false,
+            "blooming" => abl.blooming = false,
+            other => return Err(Error::Data(format!("unknown ablation {other:?}"))),
+        }
+    }
+    let device = crate::cpu().autodiff();
+    let state_path = paths.checkpoint.join("state.json");
+    let (mut model, mut optim, start, mut loss_ema) = if resume && state_path.is_file() {
+        let st: CkptState = serde_json::from_str(&std::fs::read_to_string(&state_path).map_err(|e| Error::io(&state_path, e))?)
+            .map_err(|e| Error::Model(format!("{}: {e}", state_path.display())))?;
+        let m = Denoiser::load(&paths.checkpoint.join("model.safetensors"), &device)?;
+        let o = AdamWConfig::new()
+            .with_weight_decay(cfg.weight_decay as f32)
+            .init()
+            .load(paths.checkpoint.join("optim.bin"))
+            .map_err(|e| Error::Model(format!("optimizer state: {e:?}")))?;
+        (m, o, st.step, st.loss)
+    } else {
+        let m = match init {
+            Some(p) => {
+                let mut m = Denoiser::load(p, &device)?;
+                m.meta = ModelMeta { steps: m.meta.steps, ..meta.clone() };
+                m
+            }
+            None => Denoiser::new(meta.clone(), &device)?,
+        };
+        (m, AdamWConfig::new().with_weight_decay(cfg.weight_decay as f32).init(), 0, f64::NAN)
+    };
+    let base_steps = model.meta.steps.saturating_sub(start);
+    // Fixed validation batch: 2 crops per image (at most 8 images), one low and one high level.
+    let val = if val_images.is_empty() {
+        None
+    } else {
+        let vcfg = TrainConfig { batch: (2 * val_images.len()).min(16), ..cfg.clone() };
+        Some(make_batch(&val_images, profile, &vcfg, abl, cfg.seed ^ 0x7A11D)?)
+    };
+    let nval = (2 * val_images.len()).min(16);
+    let mut val_psnr = None;
+
+    // Producer: batches for steps start.. on another thread.
+    let (tx, rx) = mpsc::sync_channel::<Result<Batch>>(2);
+    let (imgs, prof, pcfg) = (train_images, profile.clone(), cfg.clone());
+    let producer = std::thread::spawn(move || {
+        for step in start..pcfg.steps {
+            let b = make_batch(&imgs, &prof, &pcfg, abl, pcfg.seed.wrapping_add(step.wrapping_mul(7919)));
+            if tx.send(b).is_err() {
+                break;
+            }
+        }
+    });
+    let save_ckpt = |model: &Denoiser, optim: &burn::optim::ModuleOptimizer, step: u64, loss: f64| -> Result<()> {
+        std::fs::create_dir_all(&paths.checkpoint).map_err(|e| Error::io(&paths.checkpoint, e))?;
+        model.save(&paths.checkpoint.join("model.safetensors"))?;
+        let opath = paths.checkpoint.join("optim.bin");
+        let tmp = emccd_io::temp_beside(&opath).map_err(|e| Error::io(&opath, e))?;
+        optim.save(tmp.path()).map_err(|e| Error::Model(format!("saving optimizer state: {e:?}")))?;
+        emccd_io::persist(tmp, &opath).map_err(|e| Error::Model(e.to_string()))?;
+        crate::model::make_readable(&opath)?;
+        // The state file is written last: it is what makes the checkpoint count.
+        let st = serde_json::to_string_pretty(&CkptState { step, config: cfg.clone(), loss }).map_err(|e| Error::Model(e.to_string()))?;
+        emccd_io::write_atomic(&state_path, st.as_bytes()).map_err(|e| Error::Model(e.to_string()))?;
+        Ok(())
+    };
+    for step in start..cfg.steps {
+        let batch = rx.recv().map_err(|_| Error::Data("the pair synthesizer stopped".into()))??;
+        let x = Tensor::<4>::from_data(TensorData::new(batch.input, [cfg.batch, 2, c, c]), &device);
+        let y = Tensor::<4>::from_data(TensorData::new(batch.target, [cfg.batch, 1, c, c]), &device);
+        let d = model.net.forward(x) - y;
+        let loss = (d.clone() * d + 1e-6).sqrt().mean();
+        let lv = loss.clone().into_data().convert::<f64>().try_into_vec::<f64>().map(|v| v[0]).unwrap_or(f64::NAN);
+        if !lv.is_finite() {
+            return Err(Error::Data(format!("training diverged at step {step} (loss {lv})")));
+        }
+        loss_ema = if loss_ema.is_nan() { lv } else { 0.98 * loss_ema + 0.02 * lv };
+        let grads = GradientsParams::from_grads(loss.backward(), &model.net);
+        model.net = optim.step(cfg.lr_at(step), model.net, grads);
+        let done = step + 1;
+        model.meta.steps = base_steps + done;
+        if let Some(v) = &val {
+            if done % cfg.val_every.max(1) == 0 || done == cfg.steps {
+                val_psnr = Some(validate(&model, v, nval, c, &device));
+            }
+        }
+        if done % cfg.checkpoint_every.max(1) == 0 || done == cfg.steps {
+            save_ckpt(&model, &optim, done, loss_ema)?;
+        }
+        report(&StepReport { step: done, steps: cfg.steps, loss: loss_ema, val_psnr });
+    }
+    drop(rx);
+    let _ = producer.join();
+    model.save(&paths.out)?;
+    Ok(model)
+}
