@@ -146,10 +146,19 @@ pub fn run(a: Args) -> Result<()> {
     let paths = RunPaths { out: a.out.clone(), checkpoint: ckpt };
     let pb = indicatif::ProgressBar::new(a.steps);
     pb.set_style(indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} steps {msg} ETA {eta}").expect("template").progress_chars("=> "));
+    let every = a.checkpoint_every.max(1);
     let mut report = |r: &emccd_nn::train::StepReport| {
         pb.set_position(r.step);
         let v = r.val_psnr.map_or(String::new(), |(o, i)| format!(" val PSNR {o:.2} dB (input {i:.2})"));
         pb.set_message(format!("loss {:.5}{v}", r.loss));
+        if !pb.is_hidden() {
+            return true;
+        }
+        // Without a terminal the bar is hidden: log a line at every checkpoint instead.
+        if r.step % every == 0 || r.step == r.steps {
+            eprintln!("step {}/{}: loss {:.5}{v}", r.step, r.steps, r.loss);
+        }
+        true
     };
     let model = train(train_imgs, val_imgs, &profile, cfg, meta, a.init.as_deref(), a.resume, &paths, &mut report)?;
     pb.finish();

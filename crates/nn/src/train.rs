@@ -214,6 +214,26 @@ struct CkptState {
     step: u64,
     config: TrainConfig,
     loss: f64,
+    meta: ModelMeta,
+}
+
+/// The optimizer's state is keyed by parameter identity, which safetensors does not carry; the
+/// checkpoint's weights are therefore also kept as burnpack, which does.
+fn save_net_with_ids(model: &Denoiser, path: &Path) -> Result<()> {
+    use burn_store::{BurnpackStore, ModuleSnapshot};
+    let tmp = emccd_io::temp_beside(path).map_err(|e| Error::io(path, e))?;
+    let mut store = BurnpackStore::from_file(tmp.path()).overwrite(true);
+    model.net.save_into(&mut store).map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
+    emccd_io::persist(tmp, path).map_err(|e| Error::Model(e.to_string()))?;
+    crate::model::make_readable(path)
+}
+
+fn load_net_with_ids(meta: ModelMeta, path: &Path, device: &Device) -> Result<Denoiser> {
+    use burn_store::{BurnpackStore, ModuleSnapshot};
+    let mut d = Denoiser::new(meta, device)?;
+    let mut store = BurnpackStore::from_file(path);
+    d.net.load_from(&mut store).map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
+    Ok(d)
 }
 
 /// Validation PSNR (dB, peak = clean maximum) of the network output and of the noisy input,
@@ -240,7 +260,8 @@ fn validate(model: &Denoiser, val: &Batch, n: usize, c: usize, device: &Device) 
 }
 
 /// Trains (or fine-tunes from `init`, or resumes from the checkpoint directory) and writes the
-/// model to `paths.out`. `report` is called after every step.
+/// model to `paths.out`. `report` is called after every step; returning `false` stops the run
+/// there (as an interruption would: the last checkpoint stays, no final model is written).
 #[allow(clippy::too_many_arguments)]
 pub fn train(
     train_images: Vec<Image>,
@@ -251,7 +272,7 @@ pub fn train(
     init: Option<&Path>,
     resume: bool,
     paths: &RunPaths,
-    report: &mut dyn FnMut(&StepReport),
+    report: &mut dyn FnMut(&StepReport) -> bool,
 ) -> Result<Denoiser> {
     profile.require_complete().map_err(|e| Error::Data(e.to_string()))?;
     let c = cfg.crop;
@@ -279,7 +300,7 @@ pub fn train(
     let (mut model, mut optim, start, mut loss_ema) = if resume && state_path.is_file() {
         let st: CkptState = serde_json::from_str(&std::fs::read_to_string(&state_path).map_err(|e| Error::io(&state_path, e))?)
             .map_err(|e| Error::Model(format!("{}: {e}", state_path.display())))?;
-        let m = Denoiser::load(&paths.checkpoint.join("model.safetensors"), &device)?;
+        let m = load_net_with_ids(st.meta.clone(), &paths.checkpoint.join("net.bpk"), &device)?;
         let o = AdamWConfig::new()
             .with_weight_decay(cfg.weight_decay as f32)
             .init()
@@ -293,7 +314,11 @@ pub fn train(
                 m.meta = ModelMeta { steps: m.meta.steps, ..meta.clone() };
                 m
             }
-            None => Denoiser::new(meta.clone(), &device)?,
+            None => {
+                // Seeded initialization: the same seed gives the same network.
+                device.seed(cfg.seed);
+                Denoiser::new(meta.clone(), &device)?
+            }
         };
         (m, AdamWConfig::new().with_weight_decay(cfg.weight_decay as f32).init(), 0, f64::NAN)
     };
@@ -322,13 +347,14 @@ pub fn train(
     let save_ckpt = |model: &Denoiser, optim: &burn::optim::ModuleOptimizer, step: u64, loss: f64| -> Result<()> {
         std::fs::create_dir_all(&paths.checkpoint).map_err(|e| Error::io(&paths.checkpoint, e))?;
         model.save(&paths.checkpoint.join("model.safetensors"))?;
+        save_net_with_ids(model, &paths.checkpoint.join("net.bpk"))?;
         let opath = paths.checkpoint.join("optim.bin");
         let tmp = emccd_io::temp_beside(&opath).map_err(|e| Error::io(&opath, e))?;
         optim.save(tmp.path()).map_err(|e| Error::Model(format!("saving optimizer state: {e:?}")))?;
         emccd_io::persist(tmp, &opath).map_err(|e| Error::Model(e.to_string()))?;
         crate::model::make_readable(&opath)?;
         // The state file is written last: it is what makes the checkpoint count.
-        let st = serde_json::to_string_pretty(&CkptState { step, config: cfg.clone(), loss }).map_err(|e| Error::Model(e.to_string()))?;
+        let st = serde_json::to_string_pretty(&CkptState { step, config: cfg.clone(), loss, meta: model.meta.clone() }).map_err(|e| Error::Model(e.to_string()))?;
         emccd_io::write_atomic(&state_path, st.as_bytes()).map_err(|e| Error::Model(e.to_string()))?;
         Ok(())
     };
@@ -355,7 +381,11 @@ pub fn train(
         if done % cfg.checkpoint_every.max(1) == 0 || done == cfg.steps {
             save_ckpt(&model, &optim, done, loss_ema)?;
         }
-        report(&StepReport { step: done, steps: cfg.steps, loss: loss_ema, val_psnr });
+        if !report(&StepReport { step: done, steps: cfg.steps, loss: loss_ema, val_psnr }) {
+            drop(rx);
+            let _ = producer.join();
+            return Ok(model);
+        }
     }
     drop(rx);
     let _ = producer.join();
