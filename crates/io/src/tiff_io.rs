@@ -20,6 +20,8 @@ pub struct TiffReader {
     info: StackInfo,
     next: usize,
     buf: DecodingResult,
+    /// Samples per pixel: 1 (grayscale) or 3 (RGB, read as BT.601 luminance like PNG).
+    channels: usize,
 }
 
 impl TiffReader {
@@ -40,7 +42,7 @@ impl TiffReader {
             Some(v) => v.into_string().ok(),
             None => None,
         };
-        let pixel_type = page_pixel_type(&mut decoder, ct)?;
+        let (pixel_type, channels) = page_pixel_type(&mut decoder, ct)?;
         // Walk the IFD chain to count pages; every page must match the first.
         let mut frames = 1;
         while decoder.more_images() {
@@ -63,22 +65,24 @@ impl TiffReader {
             format: if big { Format::BigTiff } else { Format::Tiff },
             metadata,
         };
-        Ok(TiffReader { decoder, info, next: 0, buf: DecodingResult::U16(Vec::new()) })
+        Ok(TiffReader { decoder, info, next: 0, buf: DecodingResult::U16(Vec::new()), channels })
     }
 }
 
-fn page_pixel_type(decoder: &mut Decoder<BufReader<File>>, ct: ColorType) -> Result<PixelType> {
-    let bits = match ct {
-        ColorType::Gray(b) => b,
+fn page_pixel_type(decoder: &mut Decoder<BufReader<File>>, ct: ColorType) -> Result<(PixelType, usize)> {
+    // Colour images (clean training scenes such as McMaster) are read as luminance.
+    let (bits, channels) = match ct {
+        ColorType::Gray(b) => (b, 1),
+        ColorType::RGB(b) => (b, 3),
         other => {
             return Err(Error::Unsupported(format!(
-                "TIFF colour type {other:?}; EMCCD stacks are single-channel grayscale"
+                "TIFF colour type {other:?}; EMCCD stacks are single-channel grayscale (RGB is read as luminance)"
             )))
         }
     };
     // SampleFormat: 1 = unsigned, 2 = signed, 3 = IEEE float.
     let fmt = decoder.find_tag_unsigned::<u16>(Tag::SampleFormat)?.unwrap_or(1);
-    Ok(match (fmt, bits) {
+    Ok((match (fmt, bits) {
         (1, 8) => PixelType::U8,
         (1, 16) => PixelType::U16,
         (2, 16) => PixelType::I16,
@@ -91,7 +95,7 @@ fn page_pixel_type(decoder: &mut Decoder<BufReader<File>>, ct: ColorType) -> Res
                 "TIFF samples of {bits} bits with SampleFormat {fmt}"
             )))
         }
-    })
+    }, channels))
 }
 
 /// Reads `key=value` lines of an ImageJ-style description.
@@ -130,13 +134,20 @@ impl FrameReader for TiffReader {
             .map_err(|e| Error::from(e))
             .map_err(|e| Error::Format(format!("page {page}: {e}")))?;
         let n = out.len();
+        let ch = self.channels;
         macro_rules! conv {
             ($v:expr) => {{
-                if $v.len() < n {
-                    return Err(Error::Format(format!("page {page} holds {} samples, expected {n}", $v.len())));
+                if $v.len() < n * ch {
+                    return Err(Error::Format(format!("page {page} holds {} samples, expected {}", $v.len(), n * ch)));
                 }
-                for (o, &x) in out.iter_mut().zip($v.iter()) {
-                    *o = x as f32;
+                if ch == 3 {
+                    for (o, p) in out.iter_mut().zip($v.chunks_exact(3)) {
+                        *o = 0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32;
+                    }
+                } else {
+                    for (o, &x) in out.iter_mut().zip($v.iter()) {
+                        *o = x as f32;
+                    }
                 }
             }};
         }

@@ -150,3 +150,17 @@ fn unknown_and_missing_files_are_clear_errors() {
     let e = open(dir.path().join("missing.tif")).err().unwrap().to_string();
     assert!(e.contains("missing.tif"), "{e}");
 }
+
+#[test]
+fn rgb_tiff_reads_as_bt601_luminance() {
+    let path = data("clean/natural/McMaster/1.tif");
+    let (info, frames) = emccd_io::read_all(&path).unwrap();
+    assert_eq!((info.width, info.height, info.frames), (500, 500, 1));
+    // Independent decode of the same pixel's RGB with the tiff crate.
+    let mut dec = tiff::decoder::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap())).unwrap();
+    let tiff::decoder::DecodingResult::U8(rgb) = dec.read_image().unwrap() else { panic!("8-bit RGB expected") };
+    for i in [0usize, 1234, 250 * 500 + 250, 500 * 500 - 1] {
+        let want = 0.299 * rgb[3 * i] as f32 + 0.587 * rgb[3 * i + 1] as f32 + 0.114 * rgb[3 * i + 2] as f32;
+        assert!((frames[0][i] - want).abs() < 1e-3, "pixel {i}: {} vs {want}", frames[0][i]);
+    }
+}
