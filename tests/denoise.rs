@@ -1,0 +1,60 @@
+//! `emccd train` and `emccd denoise` end to end with a tiny network (the real model's quality is
+//! measured by `emccd bench --denoise`, not here).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn emccd(args: &[&str], cwd: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_emccd")).args(args).current_dir(cwd).output().expect("run emccd")
+}
+
+fn ok(o: &Output) -> String {
+    assert!(o.status.success(), "exit {:?}\nstdout: {}\nstderr: {}", o.status, String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn shared(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data").join(rel)
+}
+
+#[test]
+fn train_then_denoise_a_stack_and_refuse_bad_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let clean = shared("clean/microscopy/fmd-confocal-bpae");
+    let err = ok(&emccd(
+        &["train", "--clean", clean.to_str().unwrap(), "--steps", "3", "--batch", "2", "--crop", "32", "--base", "4", "--levels", "2", "--checkpoint-every", "3", "-o", "m.safetensors"],
+        d,
+    ));
+    assert!(err.contains("3 steps"), "{err}");
+    assert!(d.join("m.safetensors").is_file() && d.join("m.safetensors.ckpt/state.json").is_file());
+    // A 3-frame raw stack from the virtual camera, with its exposure in the TIFF description.
+    ok(&emccd(&["simulate", "pairs", "--clean", clean.join("field1-avg50.png").to_str().unwrap(), "--frames", "3", "-o", "pairs"], d));
+    let noisy = "pairs/noisy/field1-avg50_p20.tif";
+    ok(&emccd(&["denoise", noisy, "-o", "den.tif", "--model", "m.safetensors"], d));
+    let (info, frames) = emccd_io::read_all(d.join("den.tif")).unwrap();
+    assert_eq!((info.width, info.height, info.frames), (512, 512, 3));
+    assert!(frames.iter().all(|f| f.iter().all(|v| v.is_finite())));
+    // In electrons the values scale by 2/s.
+    ok(&emccd(&["denoise", noisy, "-o", "den_e.fits", "--model", "m.safetensors", "--units", "electrons"], d));
+    let (_, fe) = emccd_io::read_all(d.join("den_e.fits")).unwrap();
+    let k = 20.14f32 / 2.0;
+    assert!((fe[0][1000] * k - frames[0][1000]).abs() < 1e-2 * frames[0][1000].abs().max(1.0));
+    // The pairs command can denoise too, and reports the PSNR after.
+    let out = emccd(&["simulate", "pairs", "--clean", clean.join("field2-avg50.png").to_str().unwrap(), "--denoise", "m.safetensors", "-o", "p2"], d);
+    ok(&out);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("denoised (dB)"));
+    assert!(d.join("p2/denoised/field2-avg50_p20.tif").is_file());
+
+    // Bad input: a frame of another size than the profile's sensor, a missing model.
+    let mut w = emccd_io::StackWriter::create(d.join("small.tif"), 64, 64, emccd_io::SampleFormat::U16, Some(1)).unwrap();
+    w.write_frame(&vec![500.0; 64 * 64]).unwrap();
+    w.finish().unwrap();
+    let o = emccd(&["denoise", "small.tif", "-o", "x.tif", "--model", "m.safetensors", "--exposure-s", "0.01"], d);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("64×64"), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!d.join("x.tif").exists());
+    let o = emccd(&["denoise", "small.tif", "-o", "x.tif", "--model", "absent.safetensors"], d);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("absent.safetensors"));
+}
