@@ -5,6 +5,8 @@
 
 #![deny(missing_docs)]
 
+pub mod bm3d;
+
 use rayon::prelude::*;
 
 /// Peak signal-to-noise ratio in dB for data range `r`: `10·log10(r² / MSE)`.
