@@ -18,6 +18,16 @@ pub enum Units {
     Electrons,
 }
 
+/// Denoising method.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// The network (--model).
+    Network,
+    /// BM3D after the generalized Anscombe transform (gain = the profile's slope, Gaussian σ =
+    /// its read noise), with the exact unbiased inverse.
+    Bm3d,
+}
+
 /// Denoise raw EMCCD frames: remove blooming and the fixed pattern with the camera profile (paper
 /// eq. 4), then run the network on overlapping tiles. TIFF/BigTIFF, SIF and FITS in (stacks are
 /// streamed frame by frame); float32 TIFF or FITS out (by the output's extension), in DN above
@@ -36,6 +46,9 @@ pub struct Args {
     /// Model file; `default` = the bundled model.
     #[arg(long, default_value = "default")]
     pub model: String,
+    /// Denoiser.
+    #[arg(long, value_enum, default_value = "network")]
+    pub method: Method,
     /// Exposure in seconds, where the file header does not record it.
     #[arg(long)]
     pub exposure_s: Option<f64>,
@@ -65,15 +78,18 @@ pub fn load_model(arg: &str) -> Result<Denoiser> {
 
 pub fn run(a: Args) -> Result<()> {
     let profile = load_profile(&a.profile)?;
-    let model = load_model(&a.model)?;
+    let model = match a.method {
+        Method::Network => Some(load_model(&a.model)?),
+        Method::Bm3d => None,
+    };
     let fp = format!("{:016x}", profile.fingerprint());
-    if model.meta.profile_fingerprint != fp {
+    if let Some(model) = model.as_ref().filter(|m| m.meta.profile_fingerprint != fp) {
         eprintln!(
             "warning: the model was trained for profile {} and is applied through profile {fp}; the network input is camera-independent, but fine-tuning on this camera (`emccd train --init`) may gain a little",
             model.meta.profile_fingerprint
         );
     }
-    let pipe = Pipeline { model: &model, profile: &profile, tiling: Tiling { tile: a.tile, overlap: a.overlap }, device: emccd_nn::cpu() };
+    let tiling = Tiling { tile: a.tile, overlap: a.overlap };
     let several = a.inputs.len() > 1;
     if several {
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
@@ -111,7 +127,10 @@ pub fn run(a: Args) -> Result<()> {
             if let Some(i) = buf.iter().position(|v| !v.is_finite()) {
                 bail!("{}: frame {} has a non-finite value at pixel ({}, {})", input.display(), w.frames_written() + 1, i % info.width, i / info.width);
             }
-            let mut d = pipe.denoise_raw(&buf, exposure)?;
+            let mut d = match &model {
+                Some(m) => Pipeline { model: m, profile: &profile, tiling, device: emccd_nn::cpu() }.denoise_raw(&buf, exposure)?,
+                None => bm3d_frame(&profile, &buf, exposure)?,
+            };
             if to_units != 1.0 {
                 d.iter_mut().for_each(|v| *v *= to_units);
             }
@@ -123,4 +142,12 @@ pub fn run(a: Args) -> Result<()> {
         eprintln!("{} → {} ({} frames)", input.display(), out.display(), info.frames);
     }
     Ok(())
+}
+
+/// BM3D with variance stabilization on one raw frame, through the profile's preprocessing.
+pub fn bm3d_frame(p: &emccd_profile::CameraProfile, raw: &[f32], exposure: f64) -> Result<Vec<f32>> {
+    let pre = emccd_nn::pipeline::preprocess(p, raw, exposure)?;
+    let rn = emccd_profile::median(p.read_noise_near(exposure).iter().copied());
+    let pg = emccd_eval::vst::PoissonGaussian { alpha: p.slope()?, sigma: (rn * rn + p.quantization_dn.powi(2) / 12.0).sqrt(), mu: 0.0 };
+    Ok(emccd_eval::vst::bm3d_poisson_gaussian(&pre, p.width, p.height, pg))
 }

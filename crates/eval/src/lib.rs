@@ -6,6 +6,7 @@
 #![deny(missing_docs)]
 
 pub mod bm3d;
+pub mod vst;
 
 use rayon::prelude::*;
 

@@ -21,10 +21,9 @@ pub struct Pipeline<'a> {
     pub device: Device,
 }
 
-impl Pipeline<'_> {
-    /// The preprocessed frame (DN above bias) at `exposure_s`: blooming and FPN removed.
-    pub fn preprocess(&self, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
-        let p = self.profile;
+/// The preprocessed frame (DN above bias) at `exposure_s`: blooming and FPN removed.
+pub fn preprocess(p: &CameraProfile, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+    {
         if raw.len() != p.len() {
             return Err(Error::Data(format!("frame has {} pixels, the profile's sensor {}×{} = {}", raw.len(), p.width, p.height, p.len())));
         }
@@ -33,6 +32,13 @@ impl Pipeline<'_> {
         let mut d = raw.to_vec();
         emccd_camera::preprocess(&mut d, p.width, p.blooming_factor(exposure_s), &fpn);
         Ok(d)
+    }
+}
+
+impl Pipeline<'_> {
+    /// The preprocessed frame (DN above bias) at `exposure_s`: blooming and FPN removed.
+    pub fn preprocess(&self, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+        preprocess(self.profile, raw, exposure_s)
     }
 
     /// Denoises a preprocessed frame (DN above bias) of the profile's size.
