@@ -31,6 +31,8 @@ enum Command {
     Synthesize(commands::synthesize::Args),
     /// Denoise raw EMCCD frames with a camera profile and a network.
     Denoise(commands::denoise::Args),
+    /// PSNR/SSIM of denoisers (input, BM3D, models) on virtual-camera pairs.
+    Evaluate(commands::evaluate::Args),
     /// Train or fine-tune a denoising network on pairs synthesized on the fly.
     Train(commands::train::Args),
     /// Measure synthesis throughput (and compare with emccd-detect where installed).
@@ -47,6 +49,7 @@ fn main() {
         Command::Synthesize(a) => commands::synthesize::run(a),
         Command::Train(a) => commands::train::run(a),
         Command::Denoise(a) => commands::denoise::run(a),
+        Command::Evaluate(a) => commands::evaluate::run(a),
         Command::Bench(a) => commands::bench::run(a),
     };
     if let Err(e) = result {
@@ -79,6 +82,7 @@ mod tests {
             vec!["emccd", "bench", "--frames", "3"],
             vec!["emccd", "train", "--clean", "dir", "--steps", "10", "-o", "m.safetensors"],
             vec!["emccd", "denoise", "a.tif", "b.sif", "-o", "outdir", "--exposure-s", "0.01"],
+            vec!["emccd", "evaluate", "pairs", "--method", "input", "--method", "bm3d", "--json", "--out", "ev"],
         ] {
             Cli::try_parse_from(&args).unwrap_or_else(|e| panic!("{args:?}: {e}"));
         }

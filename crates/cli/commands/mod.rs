@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod calibrate;
 pub mod denoise;
+pub mod evaluate;
 pub mod info;
 pub mod profile;
 pub mod simulate;
