@@ -138,27 +138,62 @@ fn block(img: &[f64], w: usize, x: usize, y: usize) -> [f64; N1 * N1] {
     b
 }
 
+/// Where block distances are measured: pixels of an image, or (for σ > 40) 2-D DCT coefficients
+/// hard-thresholded at 2σ, one vector per block position — the paper's prefiltered matching.
+enum Space<'a> {
+    Pixels(&'a [f64]),
+    Coeffs(&'a [[f32; N1 * N1]], usize),
+}
+
+/// Thresholded DCT coefficients of every block position (row stride `w − 7`).
+fn prefiltered(img: &[f64], w: usize, h: usize, thr: f64, m: &[[f64; N1]; N1]) -> Vec<[f32; N1 * N1]> {
+    let bw = w - N1 + 1;
+    (0..(h - N1 + 1) * bw)
+        .into_par_iter()
+        .map(|i| {
+            let mut c = [0.0; N1 * N1];
+            dct2(&block(img, w, i % bw, i / bw), m, &mut c);
+            c.map(|v| if v.abs() < thr { 0.0 } else { v as f32 })
+        })
+        .collect()
+}
+
 /// The up-to-`max` most similar blocks to the one at (x, y) within the search window, by mean
-/// squared difference on `img`, including the reference itself; truncated to a power of two.
-fn matches(img: &[f64], w: usize, h: usize, x: usize, y: usize, p: StageParams) -> Vec<(usize, usize)> {
-    let r = block(img, w, x, y);
+/// squared difference, including the reference itself; truncated to a power of two.
+fn matches(space: &Space<'_>, w: usize, h: usize, x: usize, y: usize, p: StageParams) -> Vec<(usize, usize)> {
     let mut cand: Vec<(f64, usize, usize)> = Vec::with_capacity(1600);
     let (x0, x1) = ((x as isize - SEARCH).max(0) as usize, ((x as isize + SEARCH) as usize).min(w - N1));
     let (y0, y1) = ((y as isize - SEARCH).max(0) as usize, ((y as isize + SEARCH) as usize).min(h - N1));
     let lim = p.tau * (N1 * N1) as f64;
-    for cy in y0..=y1 {
-        for cx in x0..=x1 {
-            let mut d = 0.0;
-            for row in 0..N1 {
-                let a = &img[(cy + row) * w + cx..(cy + row) * w + cx + N1];
-                let b = &r[row * N1..(row + 1) * N1];
-                d += a.iter().zip(b).map(|(p, q)| (p - q) * (p - q)).sum::<f64>();
-                if d > lim {
-                    break;
+    match space {
+        Space::Pixels(img) => {
+            let r = block(img, w, x, y);
+            for cy in y0..=y1 {
+                for cx in x0..=x1 {
+                    let mut d = 0.0;
+                    for row in 0..N1 {
+                        let a = &img[(cy + row) * w + cx..(cy + row) * w + cx + N1];
+                        let b = &r[row * N1..(row + 1) * N1];
+                        d += a.iter().zip(b).map(|(p, q)| (p - q) * (p - q)).sum::<f64>();
+                        if d > lim {
+                            break;
+                        }
+                    }
+                    if d <= lim {
+                        cand.push((d, cx, cy));
+                    }
                 }
             }
-            if d <= lim {
-                cand.push((d, cx, cy));
+        }
+        Space::Coeffs(c, bw) => {
+            let r = &c[y * bw + x];
+            for cy in y0..=y1 {
+                for cx in x0..=x1 {
+                    let d: f64 = c[cy * bw + cx].iter().zip(r).map(|(a, b)| ((a - b) * (a - b)) as f64).sum();
+                    if d <= lim {
+                        cand.push((d, cx, cy));
+                    }
+                }
             }
         }
     }
@@ -212,11 +247,11 @@ pub fn bm3d(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -> V
         num.iter().zip(&den).zip(&z).map(|((n, d), zz)| if *d > 0.0 { n / d } else { *zz }).collect()
     };
 
-    // Stage 1. For σ > 40 matching uses 2-D prefiltered blocks; a mild Gaussian prefilter of the
-    // noisy image plays that role here.
-    let match_img: Vec<f64> = if high { box3(&z, w, h) } else { z.clone() };
+    // Stage 1. For σ > 40 blocks are compared after hard-thresholding their 2-D spectra at 2σ.
+    let coeffs = if high { prefiltered(&z, w, h, 2.0 * s, &m) } else { Vec::new() };
+    let space1 = if high { Space::Coeffs(&coeffs, w - N1 + 1) } else { Space::Pixels(&z) };
     let basic = aggregate(&|x, y, num: &mut [f64], den: &mut [f64]| {
-        let group = matches(&match_img, w, h, x, y, p1);
+        let group = matches(&space1, w, h, x, y, p1);
         let mut g: Vec<[f64; N1 * N1]> = group.iter().map(|&(bx, by)| {
             let mut c = [0.0; N1 * N1];
             dct2(&block(&z, w, bx, by), &m, &mut c);
@@ -252,7 +287,7 @@ pub fn bm3d(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -> V
 
     // Stage 2.
     let fin = aggregate(&|x, y, num: &mut [f64], den: &mut [f64]| {
-        let group = matches(&basic, w, h, x, y, p2);
+        let group = matches(&Space::Pixels(&basic), w, h, x, y, p2);
         let tf = |img: &[f64]| -> Vec<[f64; N1 * N1]> {
             let mut g: Vec<[f64; N1 * N1]> = group.iter().map(|&(bx, by)| {
                 let mut c = [0.0; N1 * N1];
@@ -288,25 +323,6 @@ pub fn bm3d(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -> V
         }
     });
     fin.into_iter().map(|v| (v / scale) as f32).collect()
-}
-
-/// 3×3 box filter (edges replicated), the matching prefilter for very noisy images.
-fn box3(img: &[f64], w: usize, h: usize) -> Vec<f64> {
-    let mut out = vec![0.0; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let mut s = 0.0;
-            for dy in -1isize..=1 {
-                for dx in -1isize..=1 {
-                    let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
-                    let xx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
-                    s += img[yy * w + xx];
-                }
-            }
-            out[y * w + x] = s / 9.0;
-        }
-    }
-    out
 }
 
 #[cfg(test)]
