@@ -287,7 +287,7 @@ pub fn bm3d(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -> V
     let s = sigma * scale;
     let z: Vec<f64> = noisy.iter().map(|&v| v as f64 * scale).collect();
     let high = s > 40.0;
-    let p1 = StageParams { max_group: 16, tau: if high { 5000.0 } else { 3000.0 } };
+    let p1 = StageParams { max_group: if high { 32 } else { 16 }, tau: if high { 5000.0 } else { 3000.0 } };
     let p2 = StageParams { max_group: 32, tau: if high { 3500.0 } else { 400.0 } };
     let lambda = if high { 2.8 } else { 2.7 };
     let m = Transform::new(dct_matrix());
