@@ -29,13 +29,13 @@ enum Command {
     Simulate(commands::simulate::Cmd),
     /// Add noise from one of the noise models to clean images (training-pair synthesis).
     Synthesize(commands::synthesize::Args),
-    /// Denoise raw EMCCD frames with a camera profile and a network.
+    /// Denoise raw EMCCD frames: profile preprocessing, then a network (or BM3D).
     Denoise(commands::denoise::Args),
     /// PSNR/SSIM of denoisers (input, BM3D, models) on virtual-camera pairs.
     Evaluate(commands::evaluate::Args),
     /// Train or fine-tune a denoising network on pairs synthesized on the fly.
     Train(commands::train::Args),
-    /// Measure synthesis throughput (and compare with emccd-detect where installed).
+    /// Benchmarks: synthesis (vs emccd-detect), calibration streaming, denoising, BM3D on BSD68.
     Bench(commands::bench::Args),
 }
 

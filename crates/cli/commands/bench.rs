@@ -6,9 +6,10 @@ use std::time::Instant;
 use anyhow::Result;
 use emccd_camera::{Ablation, NoiseModel, OursModel, PgnModel, VirtualCamera};
 
-/// Measure synthesis throughput in Mpix/s on 512×512 frames of the default camera, and the same
-/// frames through the Python `emccd-detect` package (EMCCDDetect.sim_sub_frame) where it is
-/// installed, printing the ratio.
+/// Benchmarks. By default: synthesis throughput in Mpix/s on 512×512 frames of the default
+/// camera, and the same frames through the Python `emccd-detect` package
+/// (EMCCDDetect.sim_sub_frame) where it is installed, printing the ratio. --calibration,
+/// --denoise and --bm3d measure the other stages instead.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Frames per measurement (after one warm-up frame).
