@@ -27,7 +27,7 @@ pub struct Args {
     pub calibration: Option<usize>,
     /// Instead, measure a denoising model (`default` = the bundled one): seconds per 512×512
     /// frame, and its PSNR on virtual-camera test pairs (the six microscopy fields at 20 and 200
-    /// photons, 10 ms, default camera) against the input's.
+    /// photons, 10 ms, default camera) beside the input's and BM3D's (with the same VST).
     #[arg(long, value_name = "MODEL")]
     pub denoise: Option<String>,
     /// Instead, validate BM3D on BSD68 with additive Gaussian noise of these σ (8-bit units,
@@ -85,8 +85,8 @@ fn denoise_bench(model_arg: &str, frames: usize) -> Result<()> {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/clean/microscopy/fmd-confocal-bpae");
     let scenes = crate::common::expand_inputs(&[dir])?;
     let e = cam.exposure(0.01);
-    let (mut pin, mut pout, mut n, mut secs, mut timed) = (0.0, 0.0, 0usize, 0.0, 0usize);
-    println!("{:<28} {:>8} {:>10} {:>10}", "scene", "photons", "input dB", "model dB");
+    let (mut pin, mut pout, mut pbm, mut n, mut secs, mut timed) = (0.0, 0.0, 0.0, 0usize, 0.0, 0usize);
+    println!("{:<28} {:>8} {:>10} {:>10} {:>10}", "scene", "photons", "input dB", "BM3D dB", "model dB");
     for (si, sc) in scenes.iter().enumerate() {
         let (w, h, img) = crate::common::read_scene(sc)?;
         if (w, h) != (cam.width(), cam.height()) {
@@ -105,17 +105,21 @@ fn denoise_bench(model_arg: &str, frames: usize) -> Result<()> {
                 timed += 1;
             }
             let peak = truth.iter().copied().fold(0f32, f32::max).max(1.0) as f64;
+            let bm = crate::commands::denoise::bm3d_frame(&profile, &raw, 0.01)?;
             let (a, b) = (crate::common::psnr(&pre, &truth, peak), crate::common::psnr(&den, &truth, peak));
-            println!("{:<28} {:>8} {:>10.2} {:>10.2}", sc.file_name().unwrap_or_default().to_string_lossy(), level, a, b);
+            let c = crate::common::psnr(&bm, &truth, peak);
+            println!("{:<28} {:>8} {:>10.2} {:>10.2} {:>10.2}", sc.file_name().unwrap_or_default().to_string_lossy(), level, a, c, b);
             pin += a;
             pout += b;
+            pbm += c;
             n += 1;
         }
     }
     let nparams = burn::module::Module::num_params(&model.net);
     println!();
     println!("model {} ({} params, {} steps, noise model {})", model.meta.arch, nparams, model.meta.steps, model.meta.noise_model);
-    println!("mean PSNR over {n} pairs: input {:.2} dB → model {:.2} dB", pin / n.max(1) as f64, pout / n.max(1) as f64);
+    let nn = n.max(1) as f64;
+    println!("mean PSNR over {n} pairs: input {:.2} dB, BM3D (GAT) {:.2} dB, model {:.2} dB", pin / nn, pbm / nn, pout / nn);
     println!("time per 512×512 frame: {:.3} s ({} threads, flex CPU backend)", secs / timed.max(1) as f64, rayon::current_num_threads());
     Ok(())
 }
