@@ -90,7 +90,8 @@ fn bior15_matrix() -> [[f64; N1]; N1] {
     ]
 }
 
-/// Orthonormal 8-point DCT-II matrix, row k = basis k.
+/// Orthonormal 8-point DCT-II matrix, row k = basis k (the tests check the fixed-size path with it).
+#[cfg(test)]
 fn dct_matrix() -> [[f64; N1]; N1] {
     let mut m = [[0.0; N1]; N1];
     for (k, row) in m.iter_mut().enumerate() {
@@ -290,7 +291,6 @@ pub fn bm3d(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -> V
     let p1 = StageParams { max_group: if high { 32 } else { 16 }, tau: if high { 5000.0 } else { 3000.0 } };
     let p2 = StageParams { max_group: 32, tau: if high { 3500.0 } else { 400.0 } };
     let lambda = if high { 2.8 } else { 2.7 };
-    let m = Transform::new(dct_matrix());
     let ht = Transform::new(bior15_matrix());
     let win = kaiser();
     let (xs, ys) = (positions(w), positions(h));
@@ -357,44 +357,186 @@ pub fn bm3d(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -> V
         }
     });
 
-    // Stage 2.
-    let fin = aggregate(&|x, y, num: &mut [f64], den: &mut [f64]| {
-        let group = matches(&Space::Pixels(&basic), w, h, x, y, p2);
-        let tf = |img: &[f64]| -> Vec<[f64; N1 * N1]> {
-            let mut g: Vec<[f64; N1 * N1]> = group.iter().map(|&(bx, by)| {
-                let mut c = [0.0; N1 * N1];
-                dct2(&block(img, w, bx, by), &m, &mut c);
-                c
-            }).collect();
-            haar(&mut g, false);
-            g
-        };
-        let gb = tf(&basic);
-        let mut gn = tf(&z);
-        let mut wsum = 0.0;
-        for (cn, cb) in gn.iter_mut().zip(&gb) {
-            for (vn, vb) in cn.iter_mut().zip(cb) {
-                let wf = vb * vb / (vb * vb + s * s);
-                *vn *= wf;
-                wsum += wf * wf;
-            }
+    // Stage 2: 8×8 blocks every 3 px; for σ > 40 the reference's 11×11 blocks every 6 px.
+    let (n2, step2) = if high { (11, 6) } else { (N1, STEP) };
+    let fin = wiener_stage(&z, &basic, w, h, s, n2, step2, p2);
+    fin.into_iter().map(|v| (v / scale) as f32).collect()
+}
+
+/// Orthonormal n-point DCT-II, row-major n×n (row k = basis k).
+fn dct_n(n: usize) -> Vec<f64> {
+    let mut m = vec![0.0; n * n];
+    for k in 0..n {
+        let a = if k == 0 { (1.0 / n as f64).sqrt() } else { (2.0 / n as f64).sqrt() };
+        for j in 0..n {
+            m[k * n + j] = a * (std::f64::consts::PI * (2 * j + 1) as f64 * k as f64 / (2 * n) as f64).cos();
         }
-        haar(&mut gn, true);
-        let wt = 1.0 / (s * s * wsum.max(1e-12));
-        for (c, &(bx, by)) in gn.iter().zip(&group) {
-            let mut b = [0.0; N1 * N1];
-            idct2(c, &m, &mut b);
-            for r in 0..N1 {
-                for q in 0..N1 {
-                    let i = (by + r) * w + bx + q;
-                    let k = wt * win[r * N1 + q];
-                    num[i] += k * b[r * N1 + q];
-                    den[i] += k;
+    }
+    m
+}
+
+/// Kaiser window (β = 2) of side n, row-major.
+fn kaiser_n(n: usize) -> Vec<f64> {
+    fn i0(x: f64) -> f64 {
+        let (mut s, mut t) = (1.0, 1.0);
+        for k in 1..30 {
+            t *= (x / 2.0) / k as f64;
+            s += t * t;
+        }
+        s
+    }
+    let w1: Vec<f64> = (0..n).map(|j| {
+        let r = 2.0 * j as f64 / (n - 1) as f64 - 1.0;
+        i0(2.0 * (1.0 - r * r).max(0.0).sqrt()) / i0(2.0)
+    }).collect();
+    (0..n * n).map(|i| w1[i / n] * w1[i % n]).collect()
+}
+
+/// `m · B · mᵀ` (forward) or `mᵀ · C · m` (inverse) for an orthonormal n×n `m`.
+fn sep2(b: &[f64], m: &[f64], n: usize, inverse: bool) -> Vec<f64> {
+    let at = |k: usize, j: usize| if inverse { m[j * n + k] } else { m[k * n + j] };
+    let mut tmp = vec![0.0; n * n];
+    for y in 0..n {
+        for k in 0..n {
+            tmp[y * n + k] = (0..n).map(|j| at(k, j) * b[y * n + j]).sum();
+        }
+    }
+    let mut out = vec![0.0; n * n];
+    for k in 0..n {
+        for x in 0..n {
+            out[k * n + x] = (0..n).map(|j| at(k, j) * tmp[j * n + x]).sum();
+        }
+    }
+    out
+}
+
+/// Orthonormal Haar along the group for blocks of any size.
+fn haar_vec(g: &mut [Vec<f64>], inverse: bool) {
+    let n = g.len();
+    let s = std::f64::consts::FRAC_1_SQRT_2;
+    let mut tmp = g.to_vec();
+    if !inverse {
+        let mut len = n;
+        while len > 1 {
+            let h = len / 2;
+            for i in 0..h {
+                for c in 0..g[0].len() {
+                    let (a, b) = (g[2 * i][c], g[2 * i + 1][c]);
+                    tmp[i][c] = (a + b) * s;
+                    tmp[h + i][c] = (a - b) * s;
                 }
             }
+            g[..len].clone_from_slice(&tmp[..len]);
+            len = h;
         }
-    });
-    fin.into_iter().map(|v| (v / scale) as f32).collect()
+    } else {
+        let mut len = 2;
+        while len <= n {
+            let h = len / 2;
+            for i in 0..h {
+                for c in 0..g[0].len() {
+                    let (a, d) = (g[i][c], g[h + i][c]);
+                    tmp[2 * i][c] = (a + d) * s;
+                    tmp[2 * i + 1][c] = (a - d) * s;
+                }
+            }
+            g[..len].clone_from_slice(&tmp[..len]);
+            len *= 2;
+        }
+    }
+}
+
+/// The Wiener stage with n×n blocks every `step` px, matching on the basic estimate.
+#[allow(clippy::too_many_arguments)]
+fn wiener_stage(z: &[f64], basic: &[f64], w: usize, h: usize, s: f64, n: usize, step: usize, p: StageParams) -> Vec<f64> {
+    let m = dct_n(n);
+    let win = kaiser_n(n);
+    let pos = |len: usize| -> Vec<usize> {
+        let last = len - n;
+        let mut v: Vec<usize> = (0..=last).step_by(step).collect();
+        if *v.last().unwrap_or(&0) != last {
+            v.push(last);
+        }
+        v
+    };
+    let (xs, ys) = (pos(w), pos(h));
+    let refs: Vec<(usize, usize)> = ys.iter().flat_map(|&y| xs.iter().map(move |&x| (x, y))).collect();
+    let blk = |img: &[f64], x: usize, y: usize| -> Vec<f64> { (0..n).flat_map(|r| img[(y + r) * w + x..(y + r) * w + x + n].iter().copied()).collect() };
+    let lim = p.tau * (n * n) as f64;
+    let (num, den) = refs
+        .par_chunks(32)
+        .fold(
+            || (vec![0.0; w * h], vec![0.0; w * h]),
+            |(mut num, mut den), chunk| {
+                for &(x, y) in chunk {
+                    // Matching on the basic estimate.
+                    let r = blk(basic, x, y);
+                    let (x0, x1) = ((x as isize - SEARCH).max(0) as usize, ((x as isize + SEARCH) as usize).min(w - n));
+                    let (y0, y1) = ((y as isize - SEARCH).max(0) as usize, ((y as isize + SEARCH) as usize).min(h - n));
+                    let mut cand: Vec<(f64, usize, usize)> = Vec::new();
+                    for cy in y0..=y1 {
+                        for cx in x0..=x1 {
+                            let mut d = 0.0;
+                            for row in 0..n {
+                                let a = &basic[(cy + row) * w + cx..(cy + row) * w + cx + n];
+                                d += a.iter().zip(&r[row * n..(row + 1) * n]).map(|(p, q)| (p - q) * (p - q)).sum::<f64>();
+                                if d > lim {
+                                    break;
+                                }
+                            }
+                            if d <= lim {
+                                cand.push((d, cx, cy));
+                            }
+                        }
+                    }
+                    cand.sort_by(|a, b| a.0.total_cmp(&b.0));
+                    cand.truncate(p.max_group);
+                    let k = if cand.is_empty() { 1 } else { 1usize << (usize::BITS - 1 - cand.len().leading_zeros()) };
+                    let mut group: Vec<(usize, usize)> = cand.into_iter().take(k).map(|c| (c.1, c.2)).collect();
+                    if group.is_empty() {
+                        group.push((x, y));
+                    }
+                    let tf = |img: &[f64]| -> Vec<Vec<f64>> {
+                        let mut g: Vec<Vec<f64>> = group.iter().map(|&(bx, by)| sep2(&blk(img, bx, by), &m, n, false)).collect();
+                        haar_vec(&mut g, false);
+                        g
+                    };
+                    let gb = tf(basic);
+                    let mut gn = tf(z);
+                    let mut wsum = 0.0;
+                    for (cn, cb) in gn.iter_mut().zip(&gb) {
+                        for (vn, vb) in cn.iter_mut().zip(cb) {
+                            let wf = vb * vb / (vb * vb + s * s);
+                            *vn *= wf;
+                            wsum += wf * wf;
+                        }
+                    }
+                    haar_vec(&mut gn, true);
+                    let wt = 1.0 / (s * s * wsum.max(1e-12));
+                    for (c, &(bx, by)) in gn.iter().zip(&group) {
+                        let b = sep2(c, &m, n, true);
+                        for rr in 0..n {
+                            for q in 0..n {
+                                let i = (by + rr) * w + bx + q;
+                                let kk = wt * win[rr * n + q];
+                                num[i] += kk * b[rr * n + q];
+                                den[i] += kk;
+                            }
+                        }
+                    }
+                }
+                (num, den)
+            },
+        )
+        .reduce(
+            || (vec![0.0; w * h], vec![0.0; w * h]),
+            |(mut a, mut b), (c, d)| {
+                a.iter_mut().zip(&c).for_each(|(x, y)| *x += y);
+                b.iter_mut().zip(&d).for_each(|(x, y)| *x += y);
+                (a, b)
+            },
+        );
+    num.iter().zip(&den).zip(basic).map(|((nn, d), b)| if *d > 0.0 { nn / d } else { *b }).collect()
 }
 
 #[cfg(test)]
@@ -415,6 +557,15 @@ mod tests {
         dct2(&b, &m, &mut c);
         idct2(&c, &m, &mut r);
         assert!(b.iter().zip(&r).all(|(a, b)| (a - b).abs() < 1e-9));
+        let v: Vec<f64> = (0..121).map(|i| (i * 13 % 17) as f64).collect();
+        let d11 = dct_n(11);
+        let back = sep2(&sep2(&v, &d11, 11, false), &d11, 11, true);
+        assert!(v.iter().zip(&back).all(|(a, b)| (a - b).abs() < 1e-9));
+        let mut gv: Vec<Vec<f64>> = (0..4).map(|k| (0..121).map(|i| ((i + k) % 5) as f64).collect()).collect();
+        let ov = gv.clone();
+        haar_vec(&mut gv, false);
+        haar_vec(&mut gv, true);
+        assert!(gv.iter().flatten().zip(ov.iter().flatten()).all(|(a, b)| (a - b).abs() < 1e-9));
         let mut g: Vec<[f64; 64]> = (0..8).map(|k| std::array::from_fn(|i| ((i + 3 * k) % 7) as f64)).collect();
         let orig = g.clone();
         haar(&mut g, false);
