@@ -55,8 +55,8 @@ pub struct Args {
     /// Output units.
     #[arg(long, value_enum, default_value = "dn")]
     pub units: Units,
-    /// Tile side for large frames, px.
-    #[arg(long, default_value_t = 256)]
+    /// Tile side for large frames, px (a 512×512 frame runs in one piece).
+    #[arg(long, default_value_t = 512)]
     pub tile: usize,
     /// Overlap between tiles, px.
     #[arg(long, default_value_t = 32)]

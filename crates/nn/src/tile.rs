@@ -16,7 +16,7 @@ pub struct Tiling {
 
 impl Default for Tiling {
     fn default() -> Tiling {
-        Tiling { tile: 256, overlap: 32 }
+        Tiling { tile: 512, overlap: 32 }
     }
 }
 
