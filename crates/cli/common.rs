@@ -58,8 +58,7 @@ pub fn full_scale(t: emccd_io::PixelType) -> f32 {
 
 /// Reads one clean scene as luminance normalized to 0..1 (float files are scaled by their max).
 pub fn read_scene(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
-    let (info, frames) = emccd_io::read_all(path)?;
-    let mut img = frames.into_iter().next().context("the file holds no frame")?;
+    let (info, mut img) = emccd_io::read_first(path)?;
     let mut scale = full_scale(info.pixel_type);
     if scale == 1.0 {
         scale = img.iter().copied().fold(0f32, f32::max).max(f32::MIN_POSITIVE);

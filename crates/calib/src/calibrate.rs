@@ -192,13 +192,8 @@ fn unbloom(bias: &mut [BiasLevel], raw: &[Vec<f32>], law: &emccd_profile::Bloomi
 
 /// Reads a single-image map (the first frame of a file).
 fn read_map(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
-    let mut r = emccd_io::open(path).map_err(|e| Error::io(path, e))?;
-    let (w, h) = (r.info().width, r.info().height);
-    let mut buf = vec![0f32; w * h];
-    if !r.read_frame(&mut buf).map_err(|e| Error::io(path, e))? {
-        return Err(Error::input(path, "holds no image"));
-    }
-    Ok((w, h, buf))
+    let (info, buf) = emccd_io::read_first(path).map_err(|e| Error::io(path, e))?;
+    Ok((info.width, info.height, buf))
 }
 
 /// Runs the whole calibration. Nothing is written; see [`Calibration::profile`] and

@@ -72,13 +72,8 @@ struct Summary {
 }
 
 fn read_first(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
-    let mut r = emccd_io::open(path)?;
-    let (w, h) = (r.info().width, r.info().height);
-    let mut buf = vec![0f32; w * h];
-    if !r.read_frame(&mut buf)? {
-        bail!("{}: no frame", path.display());
-    }
-    Ok((w, h, buf))
+    let (info, buf) = emccd_io::read_first(path)?;
+    Ok((info.width, info.height, buf))
 }
 
 pub fn run(a: Args) -> Result<()> {

@@ -197,6 +197,18 @@ pub fn read_all(path: impl AsRef<Path>) -> Result<(StackInfo, Vec<Vec<f32>>)> {
     Ok((info, frames))
 }
 
+/// Reads only the first frame of a file (a map, a scene, the first frame of a stack).
+pub fn read_first(path: impl AsRef<Path>) -> Result<(StackInfo, Vec<f32>)> {
+    let path = path.as_ref();
+    let mut r = open(path)?;
+    let info = r.info().clone();
+    let mut buf = vec![0f32; info.frame_len()];
+    if !r.read_frame(&mut buf).map_err(|e| e.with_path(path))? {
+        return Err(Error::Format("the file holds no frame".into()).with_path(path));
+    }
+    Ok((info, buf))
+}
+
 /// Sample type written by a [`StackWriter`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SampleFormat {

@@ -23,16 +23,14 @@ pub struct Pipeline<'a> {
 
 /// The preprocessed frame (DN above bias) at `exposure_s`: blooming and FPN removed.
 pub fn preprocess(p: &CameraProfile, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
-    {
-        if raw.len() != p.len() {
-            return Err(Error::Data(format!("frame has {} pixels, the profile's sensor {}×{} = {}", raw.len(), p.width, p.height, p.len())));
-        }
-        let mut fpn = vec![0f32; p.len()];
-        p.fpn_at(exposure_s, &mut fpn);
-        let mut d = raw.to_vec();
-        emccd_camera::preprocess(&mut d, p.width, p.blooming_factor(exposure_s), &fpn);
-        Ok(d)
+    if raw.len() != p.len() {
+        return Err(Error::Data(format!("frame has {} pixels, the profile's sensor {}×{} = {}", raw.len(), p.width, p.height, p.len())));
     }
+    let mut fpn = vec![0f32; p.len()];
+    p.fpn_at(exposure_s, &mut fpn);
+    let mut d = raw.to_vec();
+    emccd_camera::preprocess(&mut d, p.width, p.blooming_factor(exposure_s), &fpn);
+    Ok(d)
 }
 
 impl Pipeline<'_> {
