@@ -1,20 +1,10 @@
 //! End-to-end tests: the built `emccd` binary in a fresh temporary directory.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
 
-fn emccd(args: &[&str], cwd: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_emccd")).args(args).current_dir(cwd).output().expect("run emccd")
-}
+use std::path::Path;
 
-fn ok(o: &Output) -> String {
-    assert!(o.status.success(), "exit {:?}\nstdout: {}\nstderr: {}", o.status, String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn shared(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data").join(rel)
-}
+use common::{emccd, ok, shared};
 
 #[test]
 fn profile_show_json_has_the_documented_keys() {

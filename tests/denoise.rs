@@ -1,31 +1,21 @@
 //! `emccd train` and `emccd denoise` end to end with a tiny network (the real model's quality is
 //! measured by `emccd bench --denoise`, not here).
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
 
-fn emccd(args: &[&str], cwd: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_emccd")).args(args).current_dir(cwd).output().expect("run emccd")
-}
-
-fn ok(o: &Output) -> String {
-    assert!(o.status.success(), "exit {:?}\nstdout: {}\nstderr: {}", o.status, String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-fn shared(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data").join(rel)
-}
+use common::{emccd, ok, shared};
 
 #[test]
 fn train_then_denoise_a_stack_and_refuse_bad_input() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let clean = shared("clean/microscopy/fmd-confocal-bpae");
-    let err = ok(&emccd(
+    let o = emccd(
         &["train", "--clean", clean.to_str().unwrap(), "--steps", "3", "--batch", "2", "--crop", "32", "--base", "4", "--levels", "2", "--checkpoint-every", "3", "-o", "m.safetensors"],
         d,
-    ));
+    );
+    ok(&o);
+    let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("3 steps"), "{err}");
     assert!(d.join("m.safetensors").is_file() && d.join("m.safetensors.ckpt/state.json").is_file());
     // A 3-frame raw stack from the virtual camera, with its exposure in the TIFF description.

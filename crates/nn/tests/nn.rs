@@ -2,26 +2,10 @@
 
 use burn::prelude::*;
 use emccd_nn::tile::{run, Tiling};
-use emccd_nn::{Denoiser, ModelMeta, UNetConfig};
+mod common;
 
-fn meta(base: usize, levels: usize) -> ModelMeta {
-    ModelMeta {
-        arch: "unet".into(),
-        unet: UNetConfig { base, levels, in_channels: 2 },
-        noise_model: "ours".into(),
-        ablate: vec![],
-        profile_fingerprint: "0".into(),
-        steps: 0,
-        recipe: "test".into(),
-    }
-}
-
-fn scene(w: usize, h: usize) -> Vec<f32> {
-    (0..w * h).map(|i| {
-        let (x, y) = ((i % w) as f32, (i / w) as f32);
-        0.5 + 0.4 * ((x / 9.0).sin() * (y / 13.0).cos())
-    }).collect()
-}
+use common::{meta, scene};
+use emccd_nn::Denoiser;
 
 #[test]
 fn tiled_and_untiled_outputs_agree_in_the_interior() {

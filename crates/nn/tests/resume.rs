@@ -4,26 +4,10 @@
 
 use burn::prelude::*;
 use emccd_nn::train::{train, Image, NoiseKind, RunPaths, TrainConfig};
-use emccd_nn::{Denoiser, ModelMeta, UNetConfig};
+mod common;
 
-fn meta(base: usize, levels: usize) -> ModelMeta {
-    ModelMeta {
-        arch: "unet".into(),
-        unet: UNetConfig { base, levels, in_channels: 2 },
-        noise_model: "ours".into(),
-        ablate: vec![],
-        profile_fingerprint: "0".into(),
-        steps: 0,
-        recipe: "test".into(),
-    }
-}
-
-fn scene(w: usize, h: usize) -> Vec<f32> {
-    (0..w * h).map(|i| {
-        let (x, y) = ((i % w) as f32, (i / w) as f32);
-        0.5 + 0.4 * ((x / 9.0).sin() * (y / 13.0).cos())
-    }).collect()
-}
+use common::{meta, scene};
+use emccd_nn::Denoiser;
 
 fn images() -> Vec<Image> {
     (0..3).map(|k| Image { width: 48, height: 40, data: scene(48, 40).into_iter().map(|v| (v * (0.6 + 0.2 * k as f32)).min(1.0)).collect() }).collect()

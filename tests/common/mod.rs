@@ -1,0 +1,26 @@
+//! Helpers shared by the end-to-end tests: run the built binary, require success, find data.
+#![allow(dead_code)] // each test binary uses its own subset
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// Runs `emccd ARGS` in `cwd`.
+pub fn emccd(args: &[&str], cwd: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_emccd")).args(args).current_dir(cwd).output().expect("run emccd")
+}
+
+/// Requires success; returns stdout.
+pub fn ok(o: &Output) -> String {
+    assert!(o.status.success(), "exit {:?}\nstdout: {}\nstderr: {}", o.status, String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// A path under the repository root.
+pub fn repo(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
+}
+
+/// A path under ../shared/data.
+pub fn shared(rel: &str) -> PathBuf {
+    repo("../shared/data").join(rel)
+}
