@@ -18,6 +18,13 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("3 steps"), "{err}");
     assert!(d.join("m.safetensors").is_file() && d.join("m.safetensors.ckpt/state.json").is_file());
+    // Outputs are readable like any other file, including those burn-store wrote under the
+    // temporary name.
+    #[cfg(unix)]
+    for f in ["m.safetensors", "m.safetensors.ckpt/optim.bin", "m.safetensors.ckpt/net.bpk", "m.safetensors.ckpt/model.safetensors"] {
+        use std::os::unix::fs::PermissionsExt;
+        assert_eq!(std::fs::metadata(d.join(f)).unwrap().permissions().mode() & 0o777, 0o644, "{f}");
+    }
     // A 3-frame raw stack from the virtual camera, with its exposure in the TIFF description.
     ok(&emccd(&["simulate", "pairs", "--clean", clean.join("field1-avg50.png").to_str().unwrap(), "--frames", "3", "-o", "pairs"], d));
     let noisy = "pairs/noisy/field1-avg50_p20.tif";

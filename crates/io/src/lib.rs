@@ -333,10 +333,11 @@ pub fn temp_beside(path: &Path) -> std::io::Result<tempfile::NamedTempFile> {
     tempfile::Builder::new().prefix(&format!(".{name}.")).suffix(".tmp").tempfile_in(dir)
 }
 
-/// Flushes a finished temporary file to disk and renames it to `target`.
+/// Flushes a finished temporary file to disk and renames it to `target`. Works by the temporary
+/// path, so it also covers a writer that replaced the file under that name (burn-store does).
 pub fn persist(tmp: tempfile::NamedTempFile, target: &Path) -> Result<()> {
-    readable(tmp.as_file()).map_err(|e| Error::from(e).with_path(target))?;
-    tmp.as_file().sync_all().map_err(|e| Error::from(e).with_path(target))?;
+    readable(tmp.path()).map_err(|e| Error::from(e).with_path(target))?;
+    std::fs::File::open(tmp.path()).and_then(|f| f.sync_all()).map_err(|e| Error::from(e).with_path(target))?;
     tmp.persist(target).map_err(|e| Error::from(e.error).with_path(target))?;
     Ok(())
 }
@@ -356,13 +357,13 @@ pub fn write_png_preview(path: impl AsRef<Path>, width: usize, height: usize, da
 }
 
 /// Temporary files are created owner-only; finished outputs get the usual 0644.
-pub fn readable(f: &std::fs::File) -> std::io::Result<()> {
+pub fn readable(path: &Path) -> std::io::Result<()> {
     #[cfg(unix)]
     {
         use std::os::unix::fs::PermissionsExt;
-        f.set_permissions(std::fs::Permissions::from_mode(0o644))?;
+        std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o644))?;
     }
     #[cfg(not(unix))]
-    let _ = f;
+    let _ = path;
     Ok(())
 }

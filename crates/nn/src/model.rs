@@ -59,8 +59,7 @@ impl Denoiser {
         let meta = serde_json::to_string(&self.meta).map_err(|e| Error::Model(e.to_string()))?;
         let mut store = SafetensorsStore::from_file(tmp.path()).metadata(META_KEY, meta).overwrite(true);
         self.net.save_into(&mut store).map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
-        emccd_io::persist(tmp, path).map_err(|e| Error::Model(e.to_string()))?;
-        make_readable(path)
+        emccd_io::persist(tmp, path).map_err(|e| Error::Model(e.to_string()))
     }
 
     /// Reads only the metadata of a model file.
@@ -91,15 +90,4 @@ fn meta_of(bytes: &[u8], path: &Path) -> Result<ModelMeta> {
         .get(META_KEY)
         .ok_or_else(|| Error::Model(format!("{}: safetensors file without emccd model metadata", path.display())))?;
     serde_json::from_str(text).map_err(|e| Error::Model(format!("{}: model metadata: {e}", path.display())))
-}
-
-/// burn-store rewrites the temporary file under its own (owner-only) mode; a model is an output
-/// like any other, readable by the group and others.
-pub(crate) fn make_readable(path: &Path) -> Result<()> {
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o644)).map_err(|e| Error::io(path, e))?;
-    }
-    Ok(())
 }

@@ -224,8 +224,7 @@ fn save_net_with_ids(model: &Denoiser, path: &Path) -> Result<()> {
     let tmp = emccd_io::temp_beside(path).map_err(|e| Error::io(path, e))?;
     let mut store = BurnpackStore::from_file(tmp.path()).overwrite(true);
     model.net.save_into(&mut store).map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
-    emccd_io::persist(tmp, path).map_err(|e| Error::Model(e.to_string()))?;
-    crate::model::make_readable(path)
+    emccd_io::persist(tmp, path).map_err(|e| Error::Model(e.to_string()))
 }
 
 fn load_net_with_ids(meta: ModelMeta, path: &Path, device: &Device) -> Result<Denoiser> {
@@ -352,7 +351,6 @@ pub fn train(
         let tmp = emccd_io::temp_beside(&opath).map_err(|e| Error::io(&opath, e))?;
         optim.save(tmp.path()).map_err(|e| Error::Model(format!("saving optimizer state: {e:?}")))?;
         emccd_io::persist(tmp, &opath).map_err(|e| Error::Model(e.to_string()))?;
-        crate::model::make_readable(&opath)?;
         // The state file is written last: it is what makes the checkpoint count.
         let st = serde_json::to_string_pretty(&CkptState { step, config: cfg.clone(), loss, meta: model.meta.clone() }).map_err(|e| Error::Model(e.to_string()))?;
         emccd_io::write_atomic(&state_path, st.as_bytes()).map_err(|e| Error::Model(e.to_string()))?;
