@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use emccd_nn::train::{train, Image, NoiseKind, RunPaths, TrainConfig};
-use emccd_nn::{ModelMeta, UNetConfig};
+use emccd_nn::{ModelMeta, UNetConfig, UformerConfig};
 
 use crate::common::{expand_inputs, load_profile, read_scene};
 
@@ -34,8 +34,10 @@ pub struct Args {
     /// Held-out validation images; default: every 10th clean image is held out.
     #[arg(long, num_args = 1..)]
     pub val: Vec<PathBuf>,
-    /// Architecture.
-    #[arg(long, default_value = "unet")]
+    /// Architecture: `unet` (the CPU default, ≈ 2.5 M parameters), or the paper's Uformer in its
+    /// three sizes `uformer-t` (5.3 M), `uformer-s` (20.7 M), `uformer-b` (50.9 M; crops must be
+    /// multiples of 128 px). With --init the initial model's architecture is kept.
+    #[arg(long, default_value = "unet", value_parser = clap::builder::PossibleValuesParser::new(emccd_nn::model::ARCHS))]
     pub arch: String,
     /// U-Net channels at full resolution.
     #[arg(long, default_value_t = 16)]
@@ -93,8 +95,8 @@ fn load_images(paths: &[PathBuf]) -> Result<Vec<(PathBuf, Image)>> {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    if a.arch != "unet" {
-        bail!("--arch {}: this build trains `unet` (Uformer is not built yet)", a.arch);
+    if !emccd_nn::model::ARCHS.contains(&a.arch.as_str()) {
+        bail!("--arch {}: this build has {}", a.arch, emccd_nn::model::ARCHS.join(", "));
     }
     let profile = load_profile(&a.profile)?;
     let all = load_images(&a.clean)?;
@@ -123,8 +125,9 @@ pub fn run(a: Args) -> Result<()> {
         ..TrainConfig::default()
     };
     let meta = ModelMeta {
-        arch: "unet".into(),
-        unet: UNetConfig { base: a.base, levels: a.levels, in_channels: 2 },
+        arch: a.arch.clone(),
+        unet: (a.arch == "unet").then_some(UNetConfig { base: a.base, levels: a.levels, in_channels: 2 }),
+        uformer: UformerConfig::by_name(&a.arch),
         noise_model: noise.name().into(),
         ablate: a.ablate.clone(),
         profile_fingerprint: format!("{:016x}", profile.fingerprint()),

@@ -13,10 +13,12 @@ pub mod norm;
 pub mod pipeline;
 pub mod tile;
 pub mod train;
+pub mod uformer;
 pub mod unet;
 
 pub use error::{Error, Result};
-pub use model::{Denoiser, ModelMeta};
+pub use model::{Denoiser, ModelMeta, Net};
+pub use uformer::{Uformer, UformerConfig};
 pub use unet::{UNet, UNetConfig};
 
 use burn::prelude::Device;

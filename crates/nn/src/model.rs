@@ -9,16 +9,44 @@ use burn::prelude::*;
 use burn_store::{ModuleSnapshot, SafetensorsStore};
 use serde::{Deserialize, Serialize};
 
+use crate::uformer::{Uformer, UformerConfig};
 use crate::unet::{UNet, UNetConfig};
 use crate::{Error, Result};
+
+/// Architectures this build knows.
+pub const ARCHS: [&str; 4] = ["unet", "uformer-t", "uformer-s", "uformer-b"];
+
+/// A network of any architecture this build has.
+#[derive(Module, Debug)]
+pub enum Net {
+    /// The convolutional U-Net.
+    UNet(UNet),
+    /// The paper's transformer.
+    Uformer(Uformer),
+}
+
+impl Net {
+    /// `x`: [N, 2, H, W] (normalized frame, noise level), H and W multiples of
+    /// [`ModelMeta::multiple`]; returns the denoised [N, 1, H, W].
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        match self {
+            Net::UNet(n) => n.forward(x),
+            Net::Uformer(n) => n.forward(x),
+        }
+    }
+}
 
 /// Everything a model file says about itself.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ModelMeta {
-    /// Architecture name (`unet`).
+    /// Architecture name: `unet`, `uformer-t`, `uformer-s` or `uformer-b`.
     pub arch: String,
-    /// U-Net size.
-    pub unet: UNetConfig,
+    /// U-Net size (U-Net models).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unet: Option<UNetConfig>,
+    /// Uformer size (Uformer models).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uformer: Option<UformerConfig>,
     /// Noise model the training pairs were synthesized with.
     pub noise_model: String,
     /// Ablated components (empty for the full model).
@@ -31,13 +59,24 @@ pub struct ModelMeta {
     pub recipe: String,
 }
 
+impl ModelMeta {
+    /// Frame sides the network accepts are multiples of this (frames are padded to it).
+    pub fn multiple(&self) -> usize {
+        match (self.unet, self.uformer) {
+            (Some(u), _) if self.arch == "unet" => 1 << u.levels,
+            (_, Some(u)) => u.multiple(),
+            _ => 1,
+        }
+    }
+}
+
 const META_KEY: &str = "emccd_model";
 
 /// A network with its metadata.
 #[derive(Debug)]
 pub struct Denoiser {
     /// The network.
-    pub net: UNet,
+    pub net: Net,
     /// Its description.
     pub meta: ModelMeta,
 }
@@ -45,10 +84,15 @@ pub struct Denoiser {
 impl Denoiser {
     /// A freshly initialized model.
     pub fn new(meta: ModelMeta, device: &Device) -> Result<Denoiser> {
-        if meta.arch != "unet" {
-            return Err(Error::Model(format!("unknown architecture {:?} (this build has: unet)", meta.arch)));
-        }
-        Ok(Denoiser { net: meta.unet.init(device), meta })
+        let net = match (meta.arch.as_str(), meta.unet, meta.uformer) {
+            ("unet", Some(c), _) => Net::UNet(c.init(device)),
+            (a, _, Some(c)) if a.starts_with("uformer") => Net::Uformer(c.init(device)),
+            (a, _, _) if ARCHS.contains(&a) => {
+                return Err(Error::Model(format!("model metadata names architecture {a:?} but not its configuration")));
+            }
+            (a, _, _) => return Err(Error::Model(format!("unknown architecture {a:?} (this build has: {})", ARCHS.join(", ")))),
+        };
+        Ok(Denoiser { net, meta })
     }
 
     /// Writes the model atomically (temporary file, then rename).

@@ -44,7 +44,7 @@ impl Pipeline<'_> {
         let p = self.profile;
         let slope = p.slope().map_err(|e| Error::Data(e.to_string()))?;
         let prep = prepare(dn, slope, p.read_noise_near(exposure_s));
-        let multiple = 1usize << self.model.meta.unet.levels;
+        let multiple = self.model.meta.multiple();
         let out = run(&self.model.net, &prep.input, 2, p.width, p.height, multiple, self.tiling, &self.device);
         Ok(out.into_iter().map(|v| v * prep.to_dn).collect())
     }

@@ -3,7 +3,7 @@
 
 use burn::prelude::*;
 
-use crate::unet::UNet;
+use crate::model::Net;
 
 /// Tiling parameters.
 #[derive(Clone, Copy, Debug)]
@@ -53,7 +53,7 @@ fn ramp(i: usize, s: usize, t: usize, o: usize, len: usize) -> f32 {
 }
 
 /// Runs `net` on a [C, H, W] channel-major input; returns the [H, W] output.
-pub fn run(net: &UNet, input: &[f32], channels: usize, width: usize, height: usize, multiple: usize, tiling: Tiling, device: &Device) -> Vec<f32> {
+pub fn run(net: &Net, input: &[f32], channels: usize, width: usize, height: usize, multiple: usize, tiling: Tiling, device: &Device) -> Vec<f32> {
     let round_up = |v: usize| v.div_ceil(multiple) * multiple;
     let (pw, ph) = (round_up(width), round_up(height));
     let t = round_up(tiling.tile.max(multiple));

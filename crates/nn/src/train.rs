@@ -310,7 +310,8 @@ pub fn train(
         let m = match init {
             Some(p) => {
                 let mut m = Denoiser::load(p, &device)?;
-                m.meta = ModelMeta { steps: m.meta.steps, ..meta.clone() };
+                // The architecture is the initial model's; the rest describes this run.
+                m.meta = ModelMeta { steps: m.meta.steps, arch: m.meta.arch.clone(), unet: m.meta.unet, uformer: m.meta.uformer, ..meta.clone() };
                 m
             }
             None => {
@@ -321,6 +322,9 @@ pub fn train(
         };
         (m, AdamWConfig::new().with_weight_decay(cfg.weight_decay as f32).init(), 0, f64::NAN)
     };
+    if c % model.meta.multiple() != 0 {
+        return Err(Error::Data(format!("the crop ({c} px) must be a multiple of {} px for {}", model.meta.multiple(), model.meta.arch)));
+    }
     let base_steps = model.meta.steps.saturating_sub(start);
     // Fixed validation batch: 2 crops per image (at most 8 images), one low and one high level.
     let val = if val_images.is_empty() {

@@ -7,7 +7,8 @@ use emccd_nn::{ModelMeta, UNetConfig};
 pub fn meta(base: usize, levels: usize) -> ModelMeta {
     ModelMeta {
         arch: "unet".into(),
-        unet: UNetConfig { base, levels, in_channels: 2 },
+        unet: Some(UNetConfig { base, levels, in_channels: 2 }),
+        uformer: None,
         noise_model: "ours".into(),
         ablate: vec![],
         profile_fingerprint: "0".into(),
