@@ -25,11 +25,18 @@ pub struct Args {
     /// this many 512×512 16-bit frames (read from the page cache), with the peak memory.
     #[arg(long, value_name = "FRAMES")]
     pub calibration: Option<usize>,
-    /// Instead, measure a denoising model (`default` = the bundled one): seconds per 512×512
-    /// frame, and its PSNR on virtual-camera test pairs (the six microscopy fields at 20 and 200
-    /// photons, 10 ms, default camera) beside the input's and BM3D's (with the same VST).
-    #[arg(long, value_name = "MODEL")]
-    pub denoise: Option<String>,
+    /// Instead, measure denoising models (comma-separated; `default` = the bundled one): seconds
+    /// per 512×512 frame, and PSNR on virtual-camera test pairs (--scenes at 20 and 200 photons,
+    /// 10 ms) beside the input's and BM3D's (with the same VST).
+    #[arg(long, value_delimiter = ',', value_name = "MODELS")]
+    pub denoise: Vec<String>,
+    /// With --denoise: the virtual camera's truth profile, also used to denoise.
+    #[arg(long, default_value = "default")]
+    pub profile: String,
+    /// With --denoise: test scenes (files or directories) the camera's size; default: the six
+    /// microscopy fields in ../shared/data/clean/microscopy/fmd-confocal-bpae.
+    #[arg(long, num_args = 1..)]
+    pub scenes: Vec<std::path::PathBuf>,
     /// Instead, validate BM3D on BSD68 with additive Gaussian noise of these σ (8-bit units,
     /// comma-separated), against the published 31.07 / 28.57 / 25.62 dB at σ = 15 / 25 / 50.
     #[arg(long, value_delimiter = ',', value_name = "SIGMAS")]
@@ -76,20 +83,32 @@ fn bm3d_bench(sigmas: &[f64], limit: Option<usize>) -> Result<()> {
     Ok(())
 }
 
-fn denoise_bench(model_arg: &str, frames: usize) -> Result<()> {
+fn denoise_bench(model_args: &[String], profile_arg: &str, scene_args: &[std::path::PathBuf], frames: usize) -> Result<()> {
     use emccd_nn::pipeline::Pipeline;
-    let model = crate::commands::denoise::load_model(model_arg)?;
-    let cam = VirtualCamera::default_camera();
-    let profile = cam.profile.clone();
-    let pipe = Pipeline { model: &model, profile: &profile, tiling: Default::default(), device: emccd_nn::cpu() };
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/clean/microscopy/fmd-confocal-bpae");
-    let scenes = crate::common::expand_inputs(&[dir])?;
+    let models = model_args.iter().map(|m| crate::commands::denoise::load_model(m)).collect::<Result<Vec<_>>>()?;
+    let profile = crate::common::load_profile(profile_arg)?;
+    let cam = VirtualCamera::new(profile.clone(), Default::default())?;
+    let scenes = if scene_args.is_empty() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/clean/microscopy/fmd-confocal-bpae");
+        crate::common::expand_inputs(&[dir])?
+    } else {
+        crate::common::expand_inputs(scene_args)?
+    };
+    let pipes: Vec<Pipeline> = models.iter().map(|m| Pipeline { model: m, profile: &profile, tiling: Default::default(), device: emccd_nn::cpu() }).collect();
     let e = cam.exposure(0.01);
-    let (mut pin, mut pout, mut pbm, mut n, mut secs, mut timed) = (0.0, 0.0, 0.0, 0usize, 0.0, 0usize);
-    println!("{:<28} {:>8} {:>10} {:>10} {:>10}", "scene", "photons", "input dB", "BM3D dB", "model dB");
+    let k = models.len();
+    let (mut pin, mut pbm, mut n) = (0.0, 0.0, 0usize);
+    let (mut pout, mut secs, mut timed) = (vec![0.0; k], vec![0.0; k], vec![0usize; k]);
+    println!("camera: {} (slope {:.2} DN, read noise {:.2} DN), 10 ms", profile.camera, profile.slope()?, profile.read_noise_dn());
+    print!("{:<28} {:>8} {:>10} {:>10}", "scene", "photons", "input dB", "BM3D dB");
+    for i in 0..k {
+        print!(" {:>10}", format!("model {}", i + 1));
+    }
+    println!();
     for (si, sc) in scenes.iter().enumerate() {
         let (w, h, img) = crate::common::read_scene(sc)?;
         if (w, h) != (cam.width(), cam.height()) {
+            eprintln!("skipping {}: {w}×{h}, the camera is {}×{}", sc.display(), cam.width(), cam.height());
             continue;
         }
         for (li, &level) in [20.0f64, 200.0].iter().enumerate() {
@@ -97,30 +116,46 @@ fn denoise_bench(model_arg: &str, frames: usize) -> Result<()> {
             let truth = e.ground_truth(&phot);
             let mut raw = vec![0f32; w * h];
             e.frame(&phot, 1000 + (si * 2 + li) as u64, &mut raw);
-            let pre = pipe.preprocess(&raw, 0.01)?;
-            let t = Instant::now();
-            let den = pipe.denoise_preprocessed(&pre, 0.01)?;
-            if timed < frames.max(1) {
-                secs += t.elapsed().as_secs_f64();
-                timed += 1;
-            }
             let peak = truth.iter().copied().fold(0f32, f32::max).max(1.0) as f64;
+            let pre = emccd_nn::pipeline::preprocess(&profile, &raw, 0.01)?;
             let bm = crate::commands::denoise::bm3d_frame(&profile, &raw, 0.01)?;
-            let (a, b) = (crate::common::psnr(&pre, &truth, peak), crate::common::psnr(&den, &truth, peak));
-            let c = crate::common::psnr(&bm, &truth, peak);
-            println!("{:<28} {:>8} {:>10.2} {:>10.2} {:>10.2}", sc.file_name().unwrap_or_default().to_string_lossy(), level, a, c, b);
+            let (a, c) = (crate::common::psnr(&pre, &truth, peak), crate::common::psnr(&bm, &truth, peak));
+            print!("{:<28} {:>8} {:>10.2} {:>10.2}", sc.file_name().unwrap_or_default().to_string_lossy(), level, a, c);
+            for (mi, pipe) in pipes.iter().enumerate() {
+                let t = Instant::now();
+                let den = pipe.denoise_preprocessed(&pre, 0.01)?;
+                if timed[mi] < frames.max(1) {
+                    secs[mi] += t.elapsed().as_secs_f64();
+                    timed[mi] += 1;
+                }
+                let b = crate::common::psnr(&den, &truth, peak);
+                print!(" {b:>10.2}");
+                pout[mi] += b;
+            }
+            println!();
             pin += a;
-            pout += b;
             pbm += c;
             n += 1;
         }
     }
-    let nparams = burn::module::Module::num_params(&model.net);
-    println!();
-    println!("model {} ({} params, {} steps, noise model {})", model.meta.arch, nparams, model.meta.steps, model.meta.noise_model);
     let nn = n.max(1) as f64;
-    println!("mean PSNR over {n} pairs: input {:.2} dB, BM3D (GAT) {:.2} dB, model {:.2} dB", pin / nn, pbm / nn, pout / nn);
-    println!("time per 512×512 frame: {:.3} s ({} threads, flex CPU backend)", secs / timed.max(1) as f64, rayon::current_num_threads());
+    println!();
+    println!("mean PSNR over {n} pairs: input {:.2} dB, BM3D (GAT) {:.2} dB", pin / nn, pbm / nn);
+    for (i, m) in models.iter().enumerate() {
+        let nparams = burn::module::Module::num_params(&m.net);
+        println!(
+            "model {}: {} ({} params, {} steps, noise model {}): {:.2} dB ({:+.2} vs BM3D), {:.3} s per 512×512 frame",
+            i + 1,
+            model_args[i],
+            nparams,
+            m.meta.steps,
+            m.meta.noise_model,
+            pout[i] / nn,
+            pout[i] / nn - pbm / nn,
+            secs[i] / timed[i].max(1) as f64
+        );
+    }
+    println!("({} threads, flex CPU backend)", rayon::current_num_threads());
     Ok(())
 }
 
@@ -212,8 +247,8 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(frames) = a.calibration {
         return calibration_bench(frames.max(2));
     }
-    if let Some(m) = &a.denoise {
-        return denoise_bench(m, a.frames);
+    if !a.denoise.is_empty() {
+        return denoise_bench(&a.denoise, &a.profile, &a.scenes, a.frames);
     }
     if !a.bm3d.is_empty() {
         return bm3d_bench(&a.bm3d, a.images);

@@ -18,10 +18,17 @@ pub enum Cmd {
         #[arg(long)]
         json: bool,
     },
-    /// Write the bundled default profile (iXon Ultra 897 model) into a directory.
+    /// Write the bundled default profile (iXon Ultra 897 model) into a directory; with
+    /// --em-gain or --read-noise-scale, a variant of it (a second camera for experiments).
     InitDefault {
         /// Output directory.
         dir: PathBuf,
+        /// EM gain of the variant (the default runs at 300): the photon-transfer slope scales with it.
+        #[arg(long)]
+        em_gain: Option<f64>,
+        /// Multiply the read-noise maps by this factor.
+        #[arg(long, default_value_t = 1.0)]
+        read_noise_scale: f64,
     },
 }
 
@@ -71,8 +78,11 @@ pub fn run(c: Cmd) -> Result<()> {
             }
             Ok(())
         }
-        Cmd::InitDefault { dir } => {
-            let p = emccd_profile::default_profile();
+        Cmd::InitDefault { dir, em_gain, read_noise_scale } => {
+            let mut p = emccd_profile::default_profile();
+            if em_gain.is_some() || read_noise_scale != 1.0 {
+                p = p.variant(em_gain.unwrap_or(p.em_gain), read_noise_scale)?;
+            }
             p.save(&dir).with_context(|| format!("writing {}", dir.display()))?;
             eprintln!("wrote the default profile to {} (fingerprint {:016x})", dir.display(), p.fingerprint());
             Ok(())

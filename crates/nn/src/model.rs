@@ -16,7 +16,8 @@ use crate::{Error, Result};
 /// Architectures this build knows.
 pub const ARCHS: [&str; 4] = ["unet", "uformer-t", "uformer-s", "uformer-b"];
 
-/// A network of any architecture this build has.
+/// A network of any architecture this build has. Model files name tensors without the
+/// variant (`enc.0.c1.weight`, not `UNet.enc.0.c1.weight`): the metadata says which it is.
 #[derive(Module, Debug)]
 pub enum Net {
     /// The convolutional U-Net.
@@ -101,7 +102,7 @@ impl Denoiser {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(path, e))?;
         let tmp = emccd_io::temp_beside(path).map_err(|e| Error::io(path, e))?;
         let meta = serde_json::to_string(&self.meta).map_err(|e| Error::Model(e.to_string()))?;
-        let mut store = SafetensorsStore::from_file(tmp.path()).metadata(META_KEY, meta).overwrite(true);
+        let mut store = SafetensorsStore::from_file(tmp.path()).metadata(META_KEY, meta).overwrite(true).skip_enum_variants(true);
         self.net.save_into(&mut store).map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
         emccd_io::persist(tmp, path).map_err(|e| Error::Model(e.to_string()))
     }
@@ -117,7 +118,7 @@ impl Denoiser {
         let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
         let meta = meta_of(&bytes, path)?;
         let mut d = Denoiser::new(meta, device)?;
-        let mut store = SafetensorsStore::from_bytes(Some(bytes));
+        let mut store = SafetensorsStore::from_bytes(Some(bytes)).skip_enum_variants(true);
         let r = d.net.load_from(&mut store).map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
         if !r.missing.is_empty() {
             return Err(Error::Model(format!("{}: weights missing for {:?}", path.display(), r.missing)));

@@ -136,4 +136,17 @@ mod tests {
     fn default_profile_is_deterministic() {
         assert_eq!(default_profile().fingerprint(), default_profile().fingerprint());
     }
+
+    #[test]
+    fn a_variant_scales_slope_and_read_noise() {
+        let a = default_profile();
+        let b = a.variant(100.0, 2.0).unwrap();
+        assert!((b.slope().unwrap() - 20.14 / 3.0).abs() < 1e-9);
+        assert!((b.read_noise_dn() - 2.0 * a.read_noise_dn()).abs() < 1e-3);
+        // PGN stays self-consistent: s = 2G/c.
+        let q = b.pgn.as_ref().unwrap();
+        assert!((2.0 * q.em_gain / q.e_per_dn - b.slope().unwrap()).abs() < 1e-9);
+        assert_ne!(a.fingerprint(), b.fingerprint());
+        assert!(a.variant(0.0, 1.0).is_err());
+    }
 }

@@ -290,6 +290,34 @@ impl CameraProfile {
         exposure_s >= lo * (1.0 - 1e-9) && exposure_s <= hi * (1.0 + 1e-9)
     }
 
+    /// The same sensor at EM gain `em_gain` read out through an amplifier `read_noise_scale`
+    /// times noisier: the photon-transfer slope and the model parameters that follow from it
+    /// scale with the gain, the read-noise maps (and the ELD/PGN read noise) with the factor.
+    /// Used to build a second, different camera for experiments.
+    pub fn variant(&self, em_gain: f64, read_noise_scale: f64) -> Result<CameraProfile> {
+        if !(em_gain > 0.0 && read_noise_scale > 0.0) {
+            return Err(Error::Parameter(format!("EM gain ({em_gain}) and read-noise scale ({read_noise_scale}) must be positive")));
+        }
+        let g = em_gain / self.em_gain;
+        let mut p = self.clone();
+        p.camera = format!("{} at EM gain {em_gain}, read noise ×{read_noise_scale}", self.camera);
+        p.em_gain = em_gain;
+        p.ptc_slope_dn = self.ptc_slope_dn.map(|s| s * g);
+        for m in &mut p.maps.read_noise {
+            m.iter_mut().for_each(|v| *v *= read_noise_scale as f32);
+        }
+        if let Some(e) = &mut p.eld {
+            e.k_dn *= g;
+            e.tukey_scale_dn *= read_noise_scale;
+        }
+        if let Some(q) = &mut p.pgn {
+            q.em_gain = em_gain;
+            q.read_sigma_dn *= read_noise_scale;
+        }
+        p.provenance.notes = format!("{} Variant: EM gain {em_gain}, read noise ×{read_noise_scale}.", self.provenance.notes);
+        Ok(p)
+    }
+
     /// The summary printed by `emccd profile show`.
     pub fn summary(&self) -> ProfileSummary {
         ProfileSummary {
