@@ -61,6 +61,14 @@ pub struct Args {
     /// Crop side, px.
     #[arg(long, default_value_t = 128)]
     pub crop: usize,
+    /// Multiply the profile's read noise by a factor drawn log-uniformly from LO,HI for every
+    /// pair (noise model `ours`), so the model learns many read-noise-to-gain ratios and serves
+    /// other cameras too. 1,1: the profile's own read noise only.
+    #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [1.0, 1.0], value_name = "LO,HI")]
+    pub read_noise_scale: Vec<f64>,
+    /// Photo-electrons at a scene's brightest pixel, drawn log-uniformly from LO,HI.
+    #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [3.0, 3000.0], value_name = "LO,HI")]
+    pub electrons: Vec<f64>,
     /// Peak learning rate.
     #[arg(long, default_value_t = 2e-4)]
     pub lr: f64,
@@ -119,6 +127,8 @@ pub fn run(a: Args) -> Result<()> {
         warmup: a.warmup.min(a.steps / 5),
         noise,
         ablate: a.ablate.clone(),
+        read_noise_scale: [a.read_noise_scale[0], a.read_noise_scale[1]],
+        electrons: [a.electrons[0], a.electrons[1]],
         seed: a.seed,
         val_every: a.checkpoint_every,
         checkpoint_every: a.checkpoint_every,
@@ -133,7 +143,7 @@ pub fn run(a: Args) -> Result<()> {
         profile_fingerprint: format!("{:016x}", profile.fingerprint()),
         steps: 0,
         recipe: format!(
-            "{} train / {} val images; batch {} × {}²; AdamW lr {} wd {} warm-up {} + cosine; Charbonnier; electrons {:?}; seed {}",
+            "{} train / {} val images; batch {} × {}²; AdamW lr {} wd {} warm-up {} + cosine; Charbonnier; electrons {:?}; read noise ×{:?}; seed {}",
             train_imgs.len(),
             val_imgs.len(),
             cfg.batch,
@@ -142,6 +152,7 @@ pub fn run(a: Args) -> Result<()> {
             cfg.weight_decay,
             cfg.warmup,
             cfg.electrons,
+            cfg.read_noise_scale,
             cfg.seed
         ),
     };

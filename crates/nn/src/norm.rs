@@ -27,10 +27,16 @@ pub fn frame_scale(x_norm: &[f32]) -> f32 {
 
 /// Prepares a preprocessed frame `dn` (DN above bias) with the slope `s` and read-noise std map.
 pub fn prepare(dn: &[f32], slope: f64, read_noise: &[f32]) -> Prepared {
+    let s = slope as f32;
+    let x: Vec<f32> = dn.iter().map(|v| v / s).collect();
+    prepare_scaled(dn, slope, read_noise, frame_scale(&x))
+}
+
+/// [`prepare`] with the per-frame scale given (training crops take their whole frame's).
+pub fn prepare_scaled(dn: &[f32], slope: f64, read_noise: &[f32], scale: f32) -> Prepared {
     let n = dn.len();
     let s = slope as f32;
     let x: Vec<f32> = dn.iter().map(|v| v / s).collect();
-    let scale = frame_scale(&x);
     let mut input = vec![0f32; 2 * n];
     for i in 0..n {
         let r = read_noise[i] / s;

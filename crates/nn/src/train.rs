@@ -18,7 +18,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::model::{Denoiser, ModelMeta};
-use crate::norm::prepare;
+use crate::norm::{frame_scale, prepare_scaled};
 use crate::{Error, Result};
 
 /// A clean training image, values in [0, 1].
@@ -72,6 +72,11 @@ pub struct TrainConfig {
     pub warmup: u64,
     /// Photo-electrons at a scene's full scale, drawn log-uniformly from this range.
     pub electrons: [f64; 2],
+    /// The profile's read noise is multiplied by a factor drawn log-uniformly from this range
+    /// (model `ours`): training on many read-noise-to-gain ratios is what lets one model serve
+    /// cameras other than the training profile. `[1, 1]`: the profile's own.
+    #[serde(default = "unit_range")]
+    pub read_noise_scale: [f64; 2],
     /// Noise model.
     pub noise: NoiseKind,
     /// Synthesis components switched off (`multiplicative`, `readout`, `quantization`).
@@ -94,6 +99,7 @@ impl Default for TrainConfig {
             weight_decay: 0.02,
             warmup: 500,
             electrons: [3.0, 3000.0],
+            read_noise_scale: [1.0, 1.0],
             noise: NoiseKind::Ours,
             ablate: Vec::new(),
             seed: 897,
@@ -101,6 +107,10 @@ impl Default for TrainConfig {
             checkpoint_every: 250,
         }
     }
+}
+
+fn unit_range() -> [f64; 2] {
+    [1.0, 1.0]
 }
 
 impl TrainConfig {
@@ -123,6 +133,11 @@ struct Batch {
 }
 
 /// Synthesizes one training pair from `img` (a crop, augmented) in the network's units.
+///
+/// The noise is synthesized over the whole image and the crop cut from it afterwards, so that
+/// the normalizing scale is the whole frame's, as it is when a recorded frame is denoised: a
+/// crop of dark background is then scaled like the background of a frame with bright
+/// structure elsewhere, not blown up to its own 99.5th percentile.
 fn synth_sample(img: &Image, profile: &CameraProfile, cfg: &TrainConfig, abl: Ablation, seed: u64) -> Result<(Vec<f32>, Vec<f32>)> {
     let c = cfg.crop;
     let mut rng = Pcg64::seed_from_u64(seed);
@@ -130,41 +145,48 @@ fn synth_sample(img: &Image, profile: &CameraProfile, cfg: &TrainConfig, abl: Ab
     let x0 = rng.random_range(0..=w - c);
     let y0 = rng.random_range(0..=h - c);
     let mode = rng.random_range(0..8u8);
-    let mut crop = vec![0f32; c * c];
-    for y in 0..c {
-        for x in 0..c {
-            // 8-way: optional transpose, then optional flips.
-            let (mut u, mut v) = if mode & 4 != 0 { (y, x) } else { (x, y) };
-            if mode & 1 != 0 {
-                u = c - 1 - u;
-            }
-            if mode & 2 != 0 {
-                v = c - 1 - v;
-            }
-            crop[y * c + x] = img.data[(y0 + v) * w + x0 + u];
-        }
-    }
     let [lo, hi] = cfg.electrons;
     let peak_e = (lo.ln() + rng.random::<f64>() * (hi.ln() - lo.ln())).exp();
     let slope = profile.slope().map_err(|e| Error::Data(e.to_string()))?;
     let k_mean = slope / 2.0;
-    let clean: Vec<f32> = crop.iter().map(|&v| (v as f64 * peak_e * k_mean) as f32).collect();
-    // A random read-noise map of the profile, cut to the crop.
+    let clean: Vec<f32> = img.data.iter().map(|&v| (v as f64 * peak_e * k_mean) as f32).collect();
+    // A random read-noise map of the profile at a random offset, repeated to the image's size.
     let m = &profile.maps.read_noise[rng.random_range(0..profile.maps.read_noise.len())];
-    let (mx, my) = (rng.random_range(0..=profile.width - c), rng.random_range(0..=profile.height - c));
-    let rn: Vec<f32> = (0..c * c).map(|i| m[(my + i / c) * profile.width + mx + i % c]).collect();
-    let mut noisy = vec![0f32; c * c];
+    let (pw, ph) = (profile.width, profile.height);
+    let (mx, my) = (rng.random_range(0..pw), rng.random_range(0..ph));
+    let [rlo, rhi] = cfg.read_noise_scale;
+    let rs = if rhi > rlo { (rlo.ln() + rng.random::<f64>() * (rhi.ln() - rlo.ln())).exp() as f32 } else { rlo as f32 };
+    let rn: Vec<f32> = (0..w * h).map(|i| rs * m[((my + i / w) % ph) * pw + (mx + i % w) % pw]).collect();
+    let mut noisy = vec![0f32; w * h];
     let noise_seed = rng.random::<u64>();
     match cfg.noise {
         NoiseKind::Ours => {
             let model = OursModel::new(slope, profile.f_range, profile.quantization_dn, vec![rn.clone()], abl).map_err(|e| Error::Data(e.to_string()))?;
-            model.synthesize(&clean, c, &mut noisy, noise_seed);
+            model.synthesize(&clean, w, &mut noisy, noise_seed);
         }
-        NoiseKind::Eld => EldModel::from_profile(profile).map_err(|e| Error::Data(e.to_string()))?.synthesize(&clean, c, &mut noisy, noise_seed),
-        NoiseKind::Pgn => PgnModel::from_profile(profile, 0.01).map_err(|e| Error::Data(e.to_string()))?.synthesize(&clean, c, &mut noisy, noise_seed),
+        NoiseKind::Eld => EldModel::from_profile(profile).map_err(|e| Error::Data(e.to_string()))?.synthesize(&clean, w, &mut noisy, noise_seed),
+        NoiseKind::Pgn => PgnModel::from_profile(profile, 0.01).map_err(|e| Error::Data(e.to_string()))?.synthesize(&clean, w, &mut noisy, noise_seed),
     }
-    let p = prepare(&noisy, slope, &rn);
-    let target = clean.iter().map(|v| v / p.to_dn).collect();
+    let scale = frame_scale(&noisy.iter().map(|v| v / slope as f32).collect::<Vec<f32>>());
+    // The crop, 8-way augmented: optional transpose, then optional flips.
+    let cut = |src: &[f32]| -> Vec<f32> {
+        let mut out = vec![0f32; c * c];
+        for y in 0..c {
+            for x in 0..c {
+                let (mut u, mut v) = if mode & 4 != 0 { (y, x) } else { (x, y) };
+                if mode & 1 != 0 {
+                    u = c - 1 - u;
+                }
+                if mode & 2 != 0 {
+                    v = c - 1 - v;
+                }
+                out[y * c + x] = src[(y0 + v) * w + x0 + u];
+            }
+        }
+        out
+    };
+    let p = prepare_scaled(&cut(&noisy), slope, &cut(&rn), scale);
+    let target = cut(&clean).iter().map(|v| v / p.to_dn).collect();
     Ok((p.input, target))
 }
 
@@ -281,6 +303,11 @@ pub fn train(
     for im in train_images.iter().chain(&val_images) {
         if im.width < c || im.height < c {
             return Err(Error::Data(format!("a {}×{} image is smaller than the {c}-px crop", im.width, im.height)));
+        }
+    }
+    for (name, [lo, hi]) in [("electrons", cfg.electrons), ("read-noise scale", cfg.read_noise_scale)] {
+        if !(lo > 0.0 && hi >= lo && hi.is_finite()) {
+            return Err(Error::Data(format!("{name} range {lo}–{hi}: must be positive and increasing")));
         }
     }
     let mut abl = Ablation::default();
