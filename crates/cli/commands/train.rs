@@ -64,10 +64,10 @@ pub struct Args {
     /// Multiply the profile's read noise by a factor drawn log-uniformly from LO,HI for every
     /// pair (noise model `ours`), so the model learns many read-noise-to-gain ratios and serves
     /// other cameras too. 1,1: the profile's own read noise only.
-    #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [1.0, 1.0], value_name = "LO,HI")]
+    #[arg(long, value_delimiter = ',', default_values_t = [1.0, 1.0], value_name = "LO,HI")]
     pub read_noise_scale: Vec<f64>,
     /// Photo-electrons at a scene's brightest pixel, drawn log-uniformly from LO,HI.
-    #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [3.0, 3000.0], value_name = "LO,HI")]
+    #[arg(long, value_delimiter = ',', default_values_t = [3.0, 3000.0], value_name = "LO,HI")]
     pub electrons: Vec<f64>,
     /// Peak learning rate.
     #[arg(long, default_value_t = 2e-4)]
@@ -105,6 +105,11 @@ fn load_images(paths: &[PathBuf]) -> Result<Vec<(PathBuf, Image)>> {
 pub fn run(a: Args) -> Result<()> {
     if !emccd_nn::model::ARCHS.contains(&a.arch.as_str()) {
         bail!("--arch {}: this build has {}", a.arch, emccd_nn::model::ARCHS.join(", "));
+    }
+    for (name, v) in [("--read-noise-scale", &a.read_noise_scale), ("--electrons", &a.electrons)] {
+        if v.len() != 2 {
+            bail!("{name} takes two comma-separated numbers, LO,HI");
+        }
     }
     let profile = load_profile(&a.profile)?;
     let all = load_images(&a.clean)?;
