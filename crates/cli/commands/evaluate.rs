@@ -47,6 +47,8 @@ struct PairEntry {
     clean: String,
     exposure_s: f64,
     photons: f64,
+    #[serde(default)]
+    exposure_ratio: Option<f64>,
 }
 
 /// One method on one pair.
@@ -65,6 +67,8 @@ struct Score {
 struct Summary {
     method: String,
     photons: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    exposure_ratio: Option<f64>,
     pairs: usize,
     psnr_db: f64,
     psnr_paper_db: f64,
@@ -135,9 +139,11 @@ pub fn run(a: Args) -> Result<()> {
         for lvl in std::iter::once(None).chain(levels.iter().map(|&l| Some(l))) {
             let s: Vec<&Score> = scores.iter().filter(|s| &s.method == m && lvl.is_none_or(|l| s.photons == l)).collect();
             let n = s.len().max(1) as f64;
+            let ratio = lvl.and_then(|l| pf.pair.iter().find(|p| p.photons == l).and_then(|p| p.exposure_ratio));
             summaries.push(Summary {
                 method: m.clone(),
                 photons: lvl,
+                exposure_ratio: ratio,
                 pairs: s.len(),
                 psnr_db: s.iter().map(|x| x.psnr_db).sum::<f64>() / n,
                 psnr_paper_db: s.iter().map(|x| x.psnr_paper_db).sum::<f64>() / n,
@@ -158,7 +164,11 @@ pub fn run(a: Args) -> Result<()> {
         println!("| method | photons | pairs | PSNR (dB) | PSNR paper conv. (dB) | SSIM |");
         println!("|---|---:|---:|---:|---:|---:|");
         for s in &summaries {
-            let l = s.photons.map_or("all".to_string(), |v| format!("{v}"));
+            let l = match (s.photons, s.exposure_ratio) {
+                (None, _) => "all".to_string(),
+                (Some(p), Some(r)) => format!("{p:.4} (ratio {r})"),
+                (Some(p), None) => format!("{p}"),
+            };
             println!("| {} | {l} | {} | {:.2} | {:.2} | {:.4} |", s.method, s.pairs, s.psnr_db, s.psnr_paper_db, s.ssim);
         }
     }

@@ -103,6 +103,16 @@ pub enum Cmd {
         /// Exposure time of the noisy frames, seconds.
         #[arg(long, default_value_t = 0.01)]
         exposure_s: f64,
+        /// Instead of --photons/--exposure-s: short exposures at these ratios to a long reference
+        /// exposure (the paper's 30–1600), each with the reference's photons divided by the ratio.
+        #[arg(long, value_delimiter = ',', conflicts_with = "photons")]
+        exposure_ratio: Vec<f64>,
+        /// With --exposure-ratio: the reference exposure, seconds.
+        #[arg(long, default_value_t = 1.6)]
+        reference_exposure_s: f64,
+        /// With --exposure-ratio: photons at the scene's brightest value in the reference exposure.
+        #[arg(long, default_value_t = 16000.0)]
+        reference_photons: f64,
         /// Noisy frames per pair (written as one stack).
         #[arg(long, default_value_t = 1)]
         frames: usize,
@@ -123,7 +133,22 @@ pub fn run(c: Cmd) -> Result<()> {
         Cmd::Calibration { out, frames, bias_exposures, flat_levels, blooming_exposures, camera } => {
             calibration(&out, frames, &bias_exposures, &flat_levels, &blooming_exposures, &camera)
         }
-        Cmd::Pairs { clean, photons, exposure_s, frames, denoise, out, camera } => pairs(&clean, &photons, exposure_s, frames, denoise.as_deref(), &out, &camera),
+        Cmd::Pairs { clean, photons, exposure_s, exposure_ratio, reference_exposure_s, reference_photons, frames, denoise, out, camera } => {
+            check_positive("photons", &photons)?;
+            check_positive("exposure-s", &[exposure_s])?;
+            check_positive("exposure-ratio", &exposure_ratio)?;
+            check_positive("reference-exposure-s", &[reference_exposure_s])?;
+            check_positive("reference-photons", &[reference_photons])?;
+            let levels: Vec<Level> = if exposure_ratio.is_empty() {
+                photons.iter().map(|&p| Level { exposure_s, photons: p, ratio: None }).collect()
+            } else {
+                exposure_ratio
+                    .iter()
+                    .map(|&r| Level { exposure_s: reference_exposure_s / r, photons: reference_photons / r, ratio: Some(r) })
+                    .collect()
+            };
+            pairs(&clean, &levels, frames, denoise.as_deref(), &out, &camera)
+        }
     }
 }
 
@@ -279,6 +304,8 @@ struct Pair {
     preview: String,
     exposure_s: f64,
     photons: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    exposure_ratio: Option<f64>,
     frames: usize,
     width: usize,
     height: usize,
@@ -300,10 +327,15 @@ struct PairsManifest {
     pair: Vec<Pair>,
 }
 
-fn pairs(clean: &[PathBuf], photons: &[f64], exposure_s: f64, frames: usize, denoise: Option<&str>, out: &Path, opts: &CameraOpts) -> Result<()> {
+/// One photon level of the test pairs: an exposure and the photons it collects at the peak.
+struct Level {
+    exposure_s: f64,
+    photons: f64,
+    ratio: Option<f64>,
+}
+
+fn pairs(clean: &[PathBuf], levels: &[Level], frames: usize, denoise: Option<&str>, out: &Path, opts: &CameraOpts) -> Result<()> {
     let model = denoise.map(crate::commands::denoise::load_model).transpose()?;
-    check_positive("photons", photons)?;
-    check_positive("exposure-s", &[exposure_s])?;
     if frames == 0 {
         bail!("--frames must be at least 1");
     }
@@ -314,7 +346,7 @@ fn pairs(clean: &[PathBuf], photons: &[f64], exposure_s: f64, frames: usize, den
     }
     let truth = opts.profile()?;
     let full = opts.camera(&truth, None)?;
-    let pb = progress((scenes.len() * photons.len()) as u64, "pairs");
+    let pb = progress((scenes.len() * levels.len()) as u64, "pairs");
     let mut manifest = PairsManifest {
         camera: "virtual-897".into(),
         profile: opts.profile.clone(),
@@ -333,11 +365,15 @@ fn pairs(clean: &[PathBuf], photons: &[f64], exposure_s: f64, frames: usize, den
         let cam = if (w, h) == (full.width(), full.height()) { full.clone() } else { opts.camera(&truth, Some((w, h)))? };
         let img = center_crop(&img, sw, sh, w, h);
         let stem = scene.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| format!("scene{si}"));
-        let e = cam.exposure(exposure_s);
-        for (pi, &level) in photons.iter().enumerate() {
+        for (pi, lv) in levels.iter().enumerate() {
+            let (level, exposure_s) = (lv.photons, lv.exposure_s);
+            let e = cam.exposure(exposure_s);
             let phot: Vec<f32> = img.iter().map(|&v| (v as f64 * level) as f32).collect();
             let truth = e.ground_truth(&phot);
-            let name = format!("{stem}_p{level}");
+            let name = match lv.ratio {
+                Some(r) => format!("{stem}_r{r}"),
+                None => format!("{stem}_p{level}"),
+            };
             let noisy_rel = format!("noisy/{name}.tif");
             let clean_rel = format!("clean/{name}.tif");
             let preview_rel = format!("preview/{name}.png");
@@ -394,6 +430,7 @@ fn pairs(clean: &[PathBuf], photons: &[f64], exposure_s: f64, frames: usize, den
                 preview: preview_rel,
                 exposure_s,
                 photons: level,
+                exposure_ratio: lv.ratio,
                 frames,
                 width: w,
                 height: h,

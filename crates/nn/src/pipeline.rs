@@ -23,20 +23,35 @@ pub struct Pipeline<'a> {
 
 /// The preprocessed frame (DN above bias) at `exposure_s`: blooming and FPN removed.
 pub fn preprocess(p: &CameraProfile, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+    preprocess_ablated(p, raw, exposure_s, &[])
+}
+
+/// [`preprocess`] without the corrections named in `ablate` (the paper's ablations): `fpn`
+/// subtracts the bias frame of the shortest exposure instead of the exposure's modeled fixed
+/// pattern; `blooming` leaves the blooming in.
+pub fn preprocess_ablated(p: &CameraProfile, raw: &[f32], exposure_s: f64, ablate: &[String]) -> Result<Vec<f32>> {
     if raw.len() != p.len() {
         return Err(Error::Data(format!("frame has {} pixels, the profile's sensor {}×{} = {}", raw.len(), p.width, p.height, p.len())));
     }
-    let mut fpn = vec![0f32; p.len()];
-    p.fpn_at(exposure_s, &mut fpn);
+    let off = |name: &str| ablate.iter().any(|a| a == name);
+    let fpn = if off("fpn") {
+        p.maps.fpn_base.clone()
+    } else {
+        let mut f = vec![0f32; p.len()];
+        p.fpn_at(exposure_s, &mut f);
+        f
+    };
+    let x = if off("blooming") { 0.0 } else { p.blooming_factor(exposure_s) };
     let mut d = raw.to_vec();
-    emccd_camera::preprocess(&mut d, p.width, p.blooming_factor(exposure_s), &fpn);
+    emccd_camera::preprocess(&mut d, p.width, x, &fpn);
     Ok(d)
 }
 
 impl Pipeline<'_> {
-    /// The preprocessed frame (DN above bias) at `exposure_s`: blooming and FPN removed.
+    /// The preprocessed frame (DN above bias) at `exposure_s`: blooming and FPN removed, unless
+    /// the model was made for an ablation that skips them.
     pub fn preprocess(&self, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
-        preprocess(self.profile, raw, exposure_s)
+        preprocess_ablated(self.profile, raw, exposure_s, &self.model.meta.ablate)
     }
 
     /// Denoises a preprocessed frame (DN above bias) of the profile's size.
