@@ -94,7 +94,7 @@ fn denoise_bench(model_args: &[String], profile_arg: &str, scene_args: &[std::pa
     } else {
         crate::common::expand_inputs(scene_args)?
     };
-    let pipes: Vec<Pipeline> = models.iter().map(|m| Pipeline { model: m, profile: &profile, tiling: Default::default(), device: emccd_nn::cpu() }).collect();
+    let pipes: Vec<Pipeline> = models.iter().map(|m| Pipeline { model: m, profile: &profile, tiling: Default::default(), device: emccd_nn::device() }).collect();
     let e = cam.exposure(0.01);
     let k = models.len();
     let (mut pin, mut pbm, mut n) = (0.0, 0.0, 0usize);
@@ -155,7 +155,7 @@ fn denoise_bench(model_args: &[String], profile_arg: &str, scene_args: &[std::pa
             secs[i] / timed[i].max(1) as f64
         );
     }
-    println!("({} threads, flex CPU backend)", rayon::current_num_threads());
+    println!("({} CPU threads; network on {})", rayon::current_num_threads(), emccd_nn::device_name(&emccd_nn::device()));
     Ok(())
 }
 

@@ -73,7 +73,7 @@ pub fn load_model(arg: &str) -> Result<Denoiser> {
     if !path.is_file() {
         bail!("{}: model not found{}", path.display(), if arg == "default" { " (the bundled model ships in models/; train one with `emccd train`)" } else { "" });
     }
-    Ok(Denoiser::load(&path, &emccd_nn::cpu())?)
+    Ok(Denoiser::load(&path, &emccd_nn::device())?)
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -128,7 +128,7 @@ pub fn run(a: Args) -> Result<()> {
                 bail!("{}: frame {} has a non-finite value at pixel ({}, {})", input.display(), w.frames_written() + 1, i % info.width, i / info.width);
             }
             let mut d = match &model {
-                Some(m) => Pipeline { model: m, profile: &profile, tiling, device: emccd_nn::cpu() }.denoise_raw(&buf, exposure)?,
+                Some(m) => Pipeline { model: m, profile: &profile, tiling, device: emccd_nn::device() }.denoise_raw(&buf, exposure)?,
                 None => bm3d_frame(&profile, &buf, exposure)?,
             };
             if to_units != 1.0 {

@@ -109,7 +109,7 @@ pub fn run(a: Args) -> Result<()> {
             let out = match m.as_str() {
                 "input" => emccd_nn::pipeline::preprocess(&prof, &raw, p.exposure_s)?,
                 "bm3d" => crate::commands::denoise::bm3d_frame(&prof, &raw, p.exposure_s)?,
-                other => Pipeline { model: &models[other], profile: &prof, tiling: Default::default(), device: emccd_nn::cpu() }
+                other => Pipeline { model: &models[other], profile: &prof, tiling: Default::default(), device: emccd_nn::device() }
                     .denoise_raw(&raw, p.exposure_s)?,
             };
             scores.push(Score {

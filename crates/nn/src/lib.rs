@@ -3,7 +3,8 @@
 //! pairs synthesized on the fly from the camera model.
 //!
 //! Network code has no backend type: burn 0.22 tensors carry their backend in their `Device`.
-//! The pure-Rust `flex` CPU backend is the default feature.
+//! The pure-Rust `flex` CPU backend is the default feature; `vulkan`/`wgpu` add burn's wgpu
+//! GPU backend (no build-time downloads), picked by [`device`] when present.
 
 #![deny(missing_docs)]
 
@@ -23,7 +24,34 @@ pub use unet::{UNet, UNetConfig};
 
 use burn::prelude::Device;
 
-/// The device inference and training run on: the flex CPU backend.
+/// The flex CPU backend.
 pub fn cpu() -> Device {
     Device::flex()
+}
+
+/// The device inference and training run on: the GPU when the binary was built with a GPU
+/// backend (`--features vulkan` or `wgpu`), else the flex CPU backend. `BURN_DEVICE=flex`
+/// (or `vulkan`, `wgpu`) overrides the choice at run time.
+pub fn device() -> Device {
+    #[cfg(any(feature = "vulkan", feature = "wgpu"))]
+    {
+        Device::default()
+    }
+    #[cfg(not(any(feature = "vulkan", feature = "wgpu")))]
+    {
+        if std::env::var("BURN_DEVICE").is_ok_and(|v| v != "flex") {
+            eprintln!("warning: BURN_DEVICE is set but this build has only the flex CPU backend");
+        }
+        Device::flex()
+    }
+}
+
+/// A short name of `device`'s backend, for reports.
+pub fn device_name(device: &Device) -> String {
+    let d = format!("{device:?}");
+    if d.contains("Flex") {
+        "flex CPU backend".into()
+    } else {
+        d.chars().take(60).collect()
+    }
 }

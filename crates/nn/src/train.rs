@@ -321,7 +321,7 @@ pub fn train(
             other => return Err(Error::Data(format!("unknown ablation {other:?}"))),
         }
     }
-    let device = crate::cpu().autodiff();
+    let device = crate::device().autodiff();
     let state_path = paths.checkpoint.join("state.json");
     let (mut model, mut optim, start, mut loss_ema) = if resume && state_path.is_file() {
         let st: CkptState = serde_json::from_str(&std::fs::read_to_string(&state_path).map_err(|e| Error::io(&state_path, e))?)
