@@ -89,6 +89,29 @@ fn simulate_pairs_and_info() {
 }
 
 #[test]
+fn exposure_ratio_pairs_and_their_evaluation() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = shared("clean/microscopy/fmd-confocal-bpae/field3-avg50.png");
+    ok(&emccd(&["simulate", "pairs", "--clean", scene.to_str().unwrap(), "--exposure-ratio", "30,1600", "--crop", "64x64", "-o", "r"], dir.path()));
+    let m: toml::Value = toml::from_str(&std::fs::read_to_string(dir.path().join("r/pairs.toml")).unwrap()).unwrap();
+    let pairs = m["pair"].as_array().unwrap();
+    assert_eq!(pairs.len(), 2);
+    // Exposure = 1.6 s / ratio, photons = 16000 / ratio.
+    for (p, r) in pairs.iter().zip([30.0, 1600.0]) {
+        assert_eq!(p["exposure_ratio"].as_float(), Some(r));
+        assert!((p["exposure_s"].as_float().unwrap() - 1.6 / r).abs() < 1e-12);
+        assert!((p["photons"].as_float().unwrap() - 16000.0 / r).abs() < 1e-9);
+    }
+    let out = ok(&emccd(&["evaluate", "r", "--method", "input", "--method", "bm3d", "--json"], dir.path()));
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let rows = v["summary"].as_array().unwrap();
+    let get = |m: &str, r: f64| rows.iter().find(|x| x["method"] == m && x["exposure_ratio"].as_f64() == Some(r)).unwrap()["psnr_db"].as_f64().unwrap();
+    // A 53× longer exposure collects 53× the light: the input is far cleaner, and BM3D helps at both.
+    assert!(get("input", 30.0) > get("input", 1600.0) + 10.0);
+    assert!(get("bm3d", 1600.0) > get("input", 1600.0) && get("bm3d", 30.0) > get("input", 30.0));
+}
+
+#[test]
 fn info_json_on_real_sif_and_nulls_for_unknowns() {
     let dir = tempfile::tempdir().unwrap();
     let sif = shared("emccd-real/andor-sif/ixon897_binned_gain56.sif");

@@ -43,7 +43,8 @@ pub struct Args {
     /// Camera profile (`default` = the bundled iXon 897 model).
     #[arg(long, default_value = "default")]
     pub profile: String,
-    /// Model file; `default` = the bundled model.
+    /// Model file, or a bundled model: `default` (trained on natural images) or `microscopy`
+    /// (fine-tuned on fluorescence microscopy).
     #[arg(long, default_value = "default")]
     pub model: String,
     /// Denoiser.
@@ -63,15 +64,19 @@ pub struct Args {
     pub overlap: usize,
 }
 
-/// The bundled model's path.
-pub fn bundled_model() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("models").join("default-unet.safetensors")
-}
+/// Models that ship in `models/`, by the name `--model` accepts: `default` (natural images, the
+/// default profile) and `microscopy` (the default fine-tuned on fluorescence microscopy).
+pub const BUNDLED: [(&str, &str); 2] = [("default", "default-unet.safetensors"), ("microscopy", "microscopy-unet.safetensors")];
 
+/// Loads a model file, or a bundled model by name.
 pub fn load_model(arg: &str) -> Result<Denoiser> {
-    let path = if arg == "default" { bundled_model() } else { PathBuf::from(arg) };
+    let bundled = BUNDLED.iter().find(|b| b.0 == arg);
+    let path = match bundled {
+        Some(b) => Path::new(env!("CARGO_MANIFEST_DIR")).join("models").join(b.1),
+        None => PathBuf::from(arg),
+    };
     if !path.is_file() {
-        bail!("{}: model not found{}", path.display(), if arg == "default" { " (the bundled model ships in models/; train one with `emccd train`)" } else { "" });
+        bail!("{}: model not found{}", path.display(), if bundled.is_some() { " (bundled models ship in models/; train one with `emccd train`)" } else { "" });
     }
     Ok(Denoiser::load(&path, &emccd_nn::device())?)
 }

@@ -116,7 +116,7 @@ pub enum Cmd {
         /// Noisy frames per pair (written as one stack).
         #[arg(long, default_value_t = 1)]
         frames: usize,
-        /// Also denoise each pair's first frame with this model (`default` = the bundled one):
+        /// Also denoise each pair's first frame with this model (a file, or the bundled `default` or `microscopy`):
         /// writes denoised/*.tif, a noisy | denoised | truth preview and the PSNR after.
         #[arg(long, value_name = "MODEL")]
         denoise: Option<String>,
