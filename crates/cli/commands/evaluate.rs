@@ -30,7 +30,7 @@ pub struct Args {
     /// Print JSON instead of Markdown.
     #[arg(long)]
     pub json: bool,
-    /// Write results.csv and PNG panels here.
+    /// Write results.csv, results.json and PNG panels here.
     #[arg(long)]
     pub out: Option<PathBuf>,
 }
@@ -151,13 +151,16 @@ pub fn run(a: Args) -> Result<()> {
             });
         }
     }
+    let v = serde_json::json!({
+        "psnr_data_range": "ground-truth peak per pair; psnr_paper_db: images / 65535, range 1 (the paper's convention)",
+        "lpips": "not computed: its network weights cannot be obtained offline",
+        "summary": summaries,
+        "pairs": scores,
+    });
+    if let Some(o) = &a.out {
+        emccd_io::write_atomic(o.join("results.json"), serde_json::to_string_pretty(&v)?.as_bytes())?;
+    }
     if a.json {
-        let v = serde_json::json!({
-            "psnr_data_range": "ground-truth peak per pair; psnr_paper_db: images / 65535, range 1 (the paper's convention)",
-            "lpips": "not computed: its network weights cannot be obtained offline",
-            "summary": summaries,
-            "pairs": scores,
-        });
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         println!("PSNR data range: the ground truth's peak; \"paper\": images / 65535 with range 1. LPIPS: not computed (no weights offline).\n");
