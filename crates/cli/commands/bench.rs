@@ -97,7 +97,7 @@ fn denoise_bench(model_args: &[String], profile_arg: &str, scene_args: &[std::pa
     let pipes: Vec<Pipeline> = models.iter().map(|m| Pipeline { model: m, profile: &profile, tiling: Default::default(), device: emccd_nn::device() }).collect();
     let e = cam.exposure(0.01);
     let k = models.len();
-    let (mut pin, mut pbm, mut n) = (0.0, 0.0, 0usize);
+    let (mut pin, mut pbm, mut n, mut bm_secs) = (0.0, 0.0, 0usize, 0.0);
     let (mut pout, mut secs, mut timed) = (vec![0.0; k], vec![0.0; k], vec![0usize; k]);
     println!("camera: {} (slope {:.2} DN, read noise {:.2} DN), 10 ms", profile.camera, profile.slope()?, profile.read_noise_dn());
     print!("{:<28} {:>8} {:>10} {:>10}", "scene", "photons", "input dB", "BM3D dB");
@@ -118,7 +118,9 @@ fn denoise_bench(model_args: &[String], profile_arg: &str, scene_args: &[std::pa
             e.frame(&phot, 1000 + (si * 2 + li) as u64, &mut raw);
             let peak = truth.iter().copied().fold(0f32, f32::max).max(1.0) as f64;
             let pre = emccd_nn::pipeline::preprocess(&profile, &raw, 0.01)?;
+            let t = Instant::now();
             let bm = crate::commands::denoise::bm3d_frame(&profile, &raw, 0.01)?;
+            bm_secs += t.elapsed().as_secs_f64();
             let (a, c) = (crate::common::psnr(&pre, &truth, peak), crate::common::psnr(&bm, &truth, peak));
             print!("{:<28} {:>8} {:>10.2} {:>10.2}", sc.file_name().unwrap_or_default().to_string_lossy(), level, a, c);
             for (mi, pipe) in pipes.iter().enumerate() {
@@ -140,7 +142,7 @@ fn denoise_bench(model_args: &[String], profile_arg: &str, scene_args: &[std::pa
     }
     let nn = n.max(1) as f64;
     println!();
-    println!("mean PSNR over {n} pairs: input {:.2} dB, BM3D (GAT) {:.2} dB", pin / nn, pbm / nn);
+    println!("mean PSNR over {n} pairs: input {:.2} dB, BM3D (GAT) {:.2} dB ({:.2} s per frame)", pin / nn, pbm / nn, bm_secs / nn);
     for (i, m) in models.iter().enumerate() {
         let nparams = burn::module::Module::num_params(&m.net);
         println!(
