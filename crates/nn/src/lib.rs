@@ -51,6 +51,8 @@ pub fn device_name(device: &Device) -> String {
     let d = format!("{device:?}");
     if d.contains("Flex") {
         "flex CPU backend".into()
+    } else if d.contains("Wgpu") {
+        "wgpu GPU backend".into()
     } else {
         d.chars().take(60).collect()
     }
