@@ -84,7 +84,7 @@ pub fn run(c: Cmd) -> Result<()> {
                 p = p.variant(em_gain.unwrap_or(p.em_gain), read_noise_scale)?;
             }
             p.save(&dir).with_context(|| format!("writing {}", dir.display()))?;
-            eprintln!("wrote the default profile to {} (fingerprint {:016x})", dir.display(), p.fingerprint());
+            eprintln!("wrote {} to {} (fingerprint {:016x})", p.camera, dir.display(), p.fingerprint());
             Ok(())
         }
     }
