@@ -46,37 +46,9 @@ impl Transform {
         Transform { n, t: f.clone(), f }
     }
 
-    /// A general invertible transform (Gauss–Jordan inverse; bior1.5 has condition number 1.42).
-    fn invertible(f: Vec<f64>, n: usize) -> Transform {
-        let mut m = f.clone();
-        let mut inv = vec![0.0; n * n];
-        for i in 0..n {
-            inv[i * n + i] = 1.0;
-        }
-        for c in 0..n {
-            let p = (c..n).max_by(|&i, &j| m[i * n + c].abs().total_cmp(&m[j * n + c].abs())).unwrap_or(c);
-            for k in 0..n {
-                m.swap(c * n + k, p * n + k);
-                inv.swap(c * n + k, p * n + k);
-            }
-            let d = m[c * n + c];
-            for k in 0..n {
-                m[c * n + k] /= d;
-                inv[c * n + k] /= d;
-            }
-            for r in 0..n {
-                if r != c {
-                    let g = m[r * n + c];
-                    for k in 0..n {
-                        m[r * n + k] -= g * m[c * n + k];
-                        inv[r * n + k] -= g * inv[c * n + k];
-                    }
-                }
-            }
-        }
-        // The inverse's columns are the synthesis basis: store them as rows.
-        let t = (0..n * n).map(|i| inv[(i % n) * n + i / n]).collect();
-        Transform { n, f, t }
+    /// The biorthogonal 1.5 wavelet transform of 8 samples with its dual basis.
+    fn bior15() -> Transform {
+        Transform { n: 8, f: bior15_matrix(), t: bior15_synthesis() }
     }
 
     /// Forward `F·B·Fᵀ`, or inverse `Tᵀ·C·T`, of an n×n block.
@@ -115,6 +87,23 @@ fn bior15_matrix() -> Vec<f64> {
         0.0, 0.0, b, -b, 0.0, 0.0, 0.0, 0.0, //
         0.0, 0.0, 0.0, 0.0, b, -b, 0.0, 0.0, //
         0.0, 0.0, 0.0, 0.0, 0.0, 0.0, b, -b,
+    ]
+}
+
+/// The synthesis basis of [`bior15_matrix`] (its inverse, transposed: the dual wavelets at
+/// the same normalization), rows as there; `transforms_invert` checks it against the analysis rows.
+fn bior15_synthesis() -> Vec<f64> {
+    let (a, b) = (0.3535533905932738, 0.7071067811865476);
+    let (r, m, e) = (0.3738589410626687, 0.5145585562523474, 0.12153397801643778);
+    vec![
+        a, a, a, a, a, a, a, a, //
+        r, r, r, r, -r, -r, -r, -r, //
+        m, m, -m, -m, 0.0, 0.0, 0.0, 0.0, //
+        0.0, 0.0, 0.0, 0.0, m, m, -m, -m, //
+        b, -b, e, e, 0.0, 0.0, -e, -e, //
+        -e, -e, b, -b, e, e, 0.0, 0.0, //
+        0.0, 0.0, -e, -e, b, -b, e, e, //
+        e, e, 0.0, 0.0, -e, -e, b, -b,
     ]
 }
 
@@ -314,7 +303,7 @@ pub fn bm3d(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -> V
     let lambda = if high { 2.8 } else { 2.7 };
 
     // Stage 1: hard thresholding.
-    let ht = Transform::invertible(bior15_matrix(), N1);
+    let ht = Transform::bior15();
     let win1 = kaiser(N1);
     let basic = aggregate(w, h, p1, &z, &|x, y, num: &mut [f64], den: &mut [f64]| {
         let group = matches(&z, w, h, x, y, p1);
@@ -360,7 +349,7 @@ mod tests {
     #[test]
     fn transforms_invert() {
         for (t, n) in [
-            (Transform::invertible(bior15_matrix(), 8), 8),
+            (Transform::bior15(), 8),
             (Transform::orthonormal(dct_matrix(8), 8), 8),
             (Transform::orthonormal(dct_matrix(11), 11), 11),
         ] {
