@@ -1,34 +1,16 @@
 //! Network layer: tiling without seams, model files, and resumable, deterministic training.
 
 use burn::prelude::*;
-use emccd_nn::tile::{run, Tiling};
+use emccd_nn::tile::Tiling;
 mod common;
 
-use common::{meta, scene};
+use common::{meta, scene, tiling_mismatch};
 use emccd_nn::Denoiser;
 
 #[test]
 fn tiled_and_untiled_outputs_agree_in_the_interior() {
-    let dev = emccd_nn::cpu();
-    let m = Denoiser::new(meta(8, 3), &dev).unwrap();
-    let (w, h) = (200, 168);
-    let img = scene(w, h);
-    let mut input = img.clone();
-    input.extend(img.iter().map(|v| v.sqrt() * 0.1));
-    let whole = run(&m.net, &input, 2, w, h, 8, Tiling { tile: 256, overlap: 0 }, &dev);
-    let tiled = run(&m.net, &input, 2, w, h, 8, Tiling { tile: 96, overlap: 48 }, &dev);
-    // Compare the network's correction (output − noisy input) away from the frame border, where
-    // both runs see the same surroundings up to the tiles' own context.
-    let (mut num, mut den) = (0.0f64, 0.0f64);
-    for y in 24..h - 24 {
-        for x in 24..w - 24 {
-            let i = y * w + x;
-            let (a, b) = ((whole[i] - img[i]) as f64, (tiled[i] - img[i]) as f64);
-            num += (a - b).powi(2);
-            den += a * a;
-        }
-    }
-    let rel = (num / den).sqrt();
+    let m = Denoiser::new(meta(8, 3), &emccd_nn::cpu()).unwrap();
+    let (_, rel) = tiling_mismatch(&m.net, 200, 168, 8, Tiling { tile: 96, overlap: 48 }, 24);
     assert!(rel < 0.1, "tiled vs untiled correction differs by {rel:.3} (relative rms)");
 }
 
