@@ -109,6 +109,11 @@ impl Default for TrainConfig {
     }
 }
 
+/// The value at `u` ∈ [0, 1) of a log-uniform draw from `[lo, hi]`.
+fn log_uniform(u: f64, [lo, hi]: [f64; 2]) -> f64 {
+    (lo.ln() + u * (hi.ln() - lo.ln())).exp()
+}
+
 fn unit_range() -> [f64; 2] {
     [1.0, 1.0]
 }
@@ -146,7 +151,7 @@ fn synth_sample(img: &Image, profile: &CameraProfile, cfg: &TrainConfig, abl: Ab
     let y0 = rng.random_range(0..=h - c);
     let mode = rng.random_range(0..8u8);
     let [lo, hi] = cfg.electrons;
-    let peak_e = (lo.ln() + rng.random::<f64>() * (hi.ln() - lo.ln())).exp();
+    let peak_e = log_uniform(rng.random(), [lo, hi]);
     let slope = profile.slope().map_err(|e| Error::Data(e.to_string()))?;
     let k_mean = slope / 2.0;
     let clean: Vec<f32> = img.data.iter().map(|&v| (v as f64 * peak_e * k_mean) as f32).collect();
@@ -155,7 +160,8 @@ fn synth_sample(img: &Image, profile: &CameraProfile, cfg: &TrainConfig, abl: Ab
     let (pw, ph) = (profile.width, profile.height);
     let (mx, my) = (rng.random_range(0..pw), rng.random_range(0..ph));
     let [rlo, rhi] = cfg.read_noise_scale;
-    let rs = if rhi > rlo { (rlo.ln() + rng.random::<f64>() * (rhi.ln() - rlo.ln())).exp() as f32 } else { rlo as f32 };
+    // A fixed factor draws nothing, so runs without randomization keep their random sequence.
+    let rs = if rhi > rlo { log_uniform(rng.random(), [rlo, rhi]) as f32 } else { rlo as f32 };
     let rn: Vec<f32> = (0..w * h).map(|i| rs * m[((my + i / w) % ph) * pw + (mx + i % w) % pw]).collect();
     let mut noisy = vec![0f32; w * h];
     let noise_seed = rng.random::<u64>();
