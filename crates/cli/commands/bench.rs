@@ -124,8 +124,16 @@ fn denoise_bench(model_args: &[String], profile_arg: &str, scene_args: &[std::pa
             let (a, c) = (crate::common::psnr(&pre, &truth, peak), crate::common::psnr(&bm, &truth, peak));
             print!("{:<28} {:>8} {:>10.2} {:>10.2}", sc.file_name().unwrap_or_default().to_string_lossy(), level, a, c);
             for (mi, pipe) in pipes.iter().enumerate() {
+                // A model made for an ablation has its own preprocessing.
+                let own;
+                let input = if pipe.model.meta.ablate.is_empty() {
+                    &pre
+                } else {
+                    own = pipe.preprocess(&raw, 0.01)?;
+                    &own
+                };
                 let t = Instant::now();
-                let den = pipe.denoise_preprocessed(&pre, 0.01)?;
+                let den = pipe.denoise_preprocessed(input, 0.01)?;
                 if timed[mi] < frames.max(1) {
                     secs[mi] += t.elapsed().as_secs_f64();
                     timed[mi] += 1;
