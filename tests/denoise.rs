@@ -37,6 +37,16 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
     let (_, fe) = emccd_io::read_all(d.join("den_e.fits")).unwrap();
     let k = 20.14f32 / 2.0;
     assert!((fe[0][1000] * k - frames[0][1000]).abs() < 1e-2 * frames[0][1000].abs().max(1.0));
+    // The geometric self-ensemble: the same frame, averaged over two orientations — close to
+    // the plain output (same network) but not identical (the network is not flip-equivariant).
+    ok(&emccd(&["denoise", noisy, "-o", "den2.tif", "--model", "m.safetensors", "--ensemble", "2"], d));
+    let (_, f2) = emccd_io::read_all(d.join("den2.tif")).unwrap();
+    let rms = |a: &[f32], b: &[f32]| (a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum::<f64>() / a.len() as f64).sqrt();
+    let (diff, spread) = (rms(&f2[0], &frames[0]), rms(&frames[0], &frames[1]));
+    assert!(diff > 0.0 && diff < spread, "ensemble vs plain rms {diff}, frame-to-frame {spread}");
+    let o = emccd(&["evaluate", "pairs", "--method", "m.safetensors@9"], d);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("1 to 8"), "{}", String::from_utf8_lossy(&o.stderr));
     // The pairs command can denoise too, and reports the PSNR after.
     let out = emccd(&["simulate", "pairs", "--clean", clean.join("field2-avg50.png").to_str().unwrap(), "--denoise", "m.safetensors", "-o", "p2"], d);
     ok(&out);

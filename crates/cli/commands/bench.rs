@@ -25,7 +25,8 @@ pub struct Args {
     /// this many 512×512 16-bit frames (read from the page cache), with the peak memory.
     #[arg(long, value_name = "FRAMES")]
     pub calibration: Option<usize>,
-    /// Instead, measure denoising models (comma-separated files, or `default`, `microscopy`): seconds
+    /// Instead, measure denoising models (comma-separated files, or `default`, `microscopy`;
+    /// `MODEL@8` = averaged over 8 flips/transposes): seconds
     /// per 512×512 frame, and PSNR on virtual-camera test pairs (--scenes at 20 and 200 photons,
     /// 10 ms) beside the input's and BM3D's (with the same VST).
     #[arg(long, value_delimiter = ',', value_name = "MODELS")]
@@ -85,7 +86,8 @@ fn bm3d_bench(sigmas: &[f64], limit: Option<usize>) -> Result<()> {
 
 fn denoise_bench(model_args: &[String], profile_arg: &str, scene_args: &[std::path::PathBuf], frames: usize) -> Result<()> {
     use emccd_nn::pipeline::Pipeline;
-    let models = model_args.iter().map(|m| crate::commands::denoise::load_model(m)).collect::<Result<Vec<_>>>()?;
+    let specs = model_args.iter().map(|m| crate::commands::denoise::model_spec(m)).collect::<Result<Vec<_>>>()?;
+    let models = specs.iter().map(|s| crate::commands::denoise::load_model(s.0)).collect::<Result<Vec<_>>>()?;
     let profile = crate::common::load_profile(profile_arg)?;
     let cam = VirtualCamera::new(profile.clone(), Default::default())?;
     let scenes = if scene_args.is_empty() {
@@ -94,7 +96,11 @@ fn denoise_bench(model_args: &[String], profile_arg: &str, scene_args: &[std::pa
     } else {
         crate::common::expand_inputs(scene_args)?
     };
-    let pipes: Vec<Pipeline> = models.iter().map(|m| Pipeline { model: m, profile: &profile, tiling: Default::default(), device: emccd_nn::device() }).collect();
+    let pipes: Vec<Pipeline> = models
+        .iter()
+        .zip(&specs)
+        .map(|(m, s)| Pipeline { model: m, profile: &profile, tiling: Default::default(), ensemble: s.1, device: emccd_nn::device() })
+        .collect();
     let e = cam.exposure(0.01);
     let k = models.len();
     let (mut pin, mut pbm, mut n, mut bm_secs) = (0.0, 0.0, 0usize, 0.0);

@@ -24,7 +24,8 @@ pub struct Args {
     /// Camera profile used for preprocessing and BM3D's noise parameters.
     #[arg(long, default_value = "default")]
     pub profile: String,
-    /// Methods: `input`, `bm3d`, or a model file (`default` = the bundled model); repeatable.
+    /// Methods: `input`, `bm3d`, or a model file (`default`, `microscopy` = the bundled models);
+    /// repeatable. `MODEL@8` averages the model over 8 flips/transposes (self-ensemble; 2, 4, 8).
     #[arg(long = "method", required = true, num_args = 1..)]
     pub methods: Vec<String>,
     /// Print JSON instead of Markdown.
@@ -88,7 +89,8 @@ pub fn run(a: Args) -> Result<()> {
     let mut models = BTreeMap::new();
     for m in &a.methods {
         if m != "input" && m != "bm3d" {
-            models.insert(m.clone(), crate::commands::denoise::load_model(m)?);
+            let (name, k) = crate::commands::denoise::model_spec(m)?;
+            models.insert(m.clone(), (crate::commands::denoise::load_model(name)?, k));
         }
     }
     if let Some(o) = &a.out {
@@ -109,7 +111,7 @@ pub fn run(a: Args) -> Result<()> {
             let out = match m.as_str() {
                 "input" => emccd_nn::pipeline::preprocess(&prof, &raw, p.exposure_s)?,
                 "bm3d" => crate::commands::denoise::bm3d_frame(&prof, &raw, p.exposure_s)?,
-                other => Pipeline { model: &models[other], profile: &prof, tiling: Default::default(), device: emccd_nn::device() }
+                other => Pipeline { model: &models[other].0, profile: &prof, tiling: Default::default(), ensemble: models[other].1, device: emccd_nn::device() }
                     .denoise_raw(&raw, p.exposure_s)?,
             };
             scores.push(Score {

@@ -405,7 +405,7 @@ fn pairs(clean: &[PathBuf], levels: &[Level], frames: usize, denoise: Option<&st
             if let Some(m) = &model {
                 // The profile the camera was built from, as a user's calibrated profile.
                 let prof = cam.profile.clone();
-                let pipe = emccd_nn::pipeline::Pipeline { model: m, profile: &prof, tiling: Default::default(), device: emccd_nn::device() };
+                let pipe = emccd_nn::pipeline::Pipeline { model: m, profile: &prof, tiling: Default::default(), ensemble: 1, device: emccd_nn::device() };
                 den = pipe.denoise_raw(&raw_first, exposure_s)?;
                 let rel = format!("denoised/{name}.tif");
                 let mut dw = StackWriter::create(out.join(&rel), w, h, SampleFormat::F32, Some(1))?;

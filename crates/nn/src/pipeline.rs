@@ -6,7 +6,7 @@ use emccd_profile::CameraProfile;
 
 use crate::model::Denoiser;
 use crate::norm::prepare;
-use crate::tile::{run, Tiling};
+use crate::tile::{run_ensemble, Tiling};
 use crate::{Error, Result};
 
 /// A model ready for inference with the profile it is applied through.
@@ -17,6 +17,8 @@ pub struct Pipeline<'a> {
     pub profile: &'a CameraProfile,
     /// Tiling.
     pub tiling: Tiling,
+    /// Orientations averaged (geometric self-ensemble, 1–8; 1 = plain inference).
+    pub ensemble: usize,
     /// Device.
     pub device: Device,
 }
@@ -60,7 +62,7 @@ impl Pipeline<'_> {
         let slope = p.slope().map_err(|e| Error::Data(e.to_string()))?;
         let prep = prepare(dn, slope, p.read_noise_near(exposure_s));
         let multiple = self.model.meta.multiple();
-        let out = run(&self.model.net, &prep.input, 2, p.width, p.height, multiple, self.tiling, &self.device);
+        let out = run_ensemble(&self.model.net, &prep.input, 2, p.width, p.height, multiple, self.tiling, self.ensemble, &self.device);
         Ok(out.into_iter().map(|v| v * prep.to_dn).collect())
     }
 

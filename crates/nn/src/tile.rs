@@ -1,5 +1,7 @@
 //! Inference on frames of any size: reflect-pad to the network's multiple, run overlapping tiles,
 //! and blend them with weights that ramp down linearly across the overlap, so no seam shows.
+//! Optionally averages the network over flips and transposes of the frame (geometric
+//! self-ensemble), which trades time for a little PSNR.
 
 use burn::prelude::*;
 
@@ -94,4 +96,71 @@ pub fn run(net: &Net, input: &[f32], channels: usize, width: usize, height: usiz
         }
     }
     res
+}
+
+/// Where pixel (x, y) of a `width`×`height` frame lands under dihedral transform `t` (0..8:
+/// bit 2 transposes, then bit 0 flips x and bit 1 flips y); returns the index in the transformed
+/// frame, whose width is `height` when transposed.
+fn dihedral(t: usize, x: usize, y: usize, width: usize, height: usize) -> usize {
+    let (mut tx, mut ty, tw, th) = if t & 4 != 0 { (y, x, height, width) } else { (x, y, width, height) };
+    if t & 1 != 0 {
+        tx = tw - 1 - tx;
+    }
+    if t & 2 != 0 {
+        ty = th - 1 - ty;
+    }
+    ty * tw + tx
+}
+
+/// [`run`] averaged over the first `k` of the eight flips/transposes of the frame (k = 1: plain
+/// `run`; 2: + horizontal flip; 4: + vertical flips; 8: + transposes). The network saw all eight
+/// orientations in training, so each is an equally good estimate with partly independent errors.
+#[allow(clippy::too_many_arguments)]
+pub fn run_ensemble(net: &Net, input: &[f32], channels: usize, width: usize, height: usize, multiple: usize, tiling: Tiling, k: usize, device: &Device) -> Vec<f32> {
+    let k = k.clamp(1, 8);
+    if k == 1 {
+        return run(net, input, channels, width, height, multiple, tiling, device);
+    }
+    let n = width * height;
+    let mut acc = vec![0f32; n];
+    let mut moved = vec![0f32; channels * n];
+    for t in 0..k {
+        for c in 0..channels {
+            for y in 0..height {
+                for x in 0..width {
+                    moved[c * n + dihedral(t, x, y, width, height)] = input[c * n + y * width + x];
+                }
+            }
+        }
+        let (tw, th) = if t & 4 != 0 { (height, width) } else { (width, height) };
+        let out = run(net, &moved, channels, tw, th, multiple, tiling, device);
+        for y in 0..height {
+            for x in 0..width {
+                acc[y * width + x] += out[dihedral(t, x, y, width, height)];
+            }
+        }
+    }
+    acc.iter_mut().for_each(|v| *v /= k as f32);
+    acc
+}
+
+#[cfg(test)]
+mod tests {
+    use super::dihedral;
+
+    #[test]
+    fn dihedral_transforms_are_permutations() {
+        let (w, h) = (5, 3);
+        for t in 0..8 {
+            let mut seen = vec![false; w * h];
+            for y in 0..h {
+                for x in 0..w {
+                    seen[dihedral(t, x, y, w, h)] = true;
+                }
+            }
+            assert!(seen.iter().all(|&s| s), "transform {t} is not a permutation");
+        }
+        // Transpose then flip x: the top-left pixel goes to the top-right of the 3-wide frame.
+        assert_eq!(dihedral(5, 0, 0, w, h), 2);
+    }
 }

@@ -140,9 +140,11 @@ fn relative_index(win: usize) -> Vec<i64> {
     v
 }
 
-/// Additive mask for attention on cyclically shifted windows: tokens that were not neighbours
-/// before the shift (different regions) must not attend to each other. [nW, N, N].
-fn shift_mask(h: usize, w: usize, win: usize, shift: usize) -> Vec<f32> {
+/// Region label of every token of every shifted window, [nW, N]: after a cyclic shift by
+/// `shift`, the last window row and column hold pixels from up to three regions per axis that
+/// were not neighbours before the shift. Only this small table is built on the host; the
+/// [nW, N, N] mask is expanded from it on the device ([`shift_mask`]).
+fn shift_labels(h: usize, w: usize, win: usize, shift: usize) -> Vec<f32> {
     let region = |p: usize, len: usize| {
         if p < len - win {
             0
@@ -153,18 +155,23 @@ fn shift_mask(h: usize, w: usize, win: usize, shift: usize) -> Vec<f32> {
         }
     };
     let (nh, nw, n) = (h / win, w / win, win * win);
-    let mut out = Vec::with_capacity(nh * nw * n * n);
+    let mut out = Vec::with_capacity(nh * nw * n);
     for wy in 0..nh {
         for wx in 0..nw {
-            let label = |i: usize| region(wy * win + i / win, h) * 3 + region(wx * win + i % win, w);
-            for i in 0..n {
-                for j in 0..n {
-                    out.push(if label(i) == label(j) { 0.0 } else { -100.0 });
-                }
-            }
+            out.extend((0..n).map(|i| (region(wy * win + i / win, h) * 3 + region(wx * win + i % win, w)) as f32));
         }
     }
     out
+}
+
+/// Additive attention mask for shifted windows, [nW, N, N]: −100 between tokens of different
+/// regions (they must not attend to each other), 0 elsewhere.
+fn shift_mask(h: usize, w: usize, win: usize, shift: usize, device: &Device) -> Tensor<3> {
+    let (nwin, n) = ((h / win) * (w / win), win * win);
+    let labels = Tensor::<2>::from_data(TensorData::new(shift_labels(h, w, win, shift), [nwin, n]), device);
+    let rows = labels.clone().unsqueeze_dim::<3>(2).expand([nwin, n, n]);
+    let differ = rows.not_equal(labels.unsqueeze_dim::<3>(1).expand([nwin, n, n]));
+    differ.float() * -100.0
 }
 
 /// Locally-enhanced feed-forward: linear ×4, GELU, 3×3 depthwise conv, GELU, linear.
@@ -232,9 +239,7 @@ impl LeWin {
         if let Some(m) = &self.modulator {
             windows = windows + m.val().unsqueeze::<3>();
         }
-        let mask = (shift > 0).then(|| {
-            Tensor::<3>::from_data(TensorData::new(shift_mask(h, w, win, shift), [nh * nw, win * win, win * win]), &x.device())
-        });
+        let mask = (shift > 0).then(|| shift_mask(h, w, win, shift, &x.device()));
         let a = self.attn.forward(windows, mask);
         let mut y = a.reshape([b, nh, nw, win, win, c]).permute([0, 1, 3, 2, 4, 5]).reshape([b, h, w, c]);
         if shift > 0 {
@@ -298,8 +303,9 @@ mod tests {
     #[test]
     fn shift_mask_separates_wrapped_regions() {
         // 16×16 with 8×8 windows shifted by 4: the last window (bottom right) holds four regions.
-        let m = shift_mask(16, 16, 8, 4);
+        let m: Vec<f32> = shift_mask(16, 16, 8, 4, &Device::default()).into_data().try_to_vec::<f32>().unwrap();
         let n = 64;
+        assert_eq!(m.len(), 4 * n * n);
         let last = &m[3 * n * n..];
         // Token 0 (region top-left of that window) and token 63 (wrapped corner) must not mix.
         assert_eq!(last[63], -100.0);

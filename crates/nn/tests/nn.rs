@@ -1,11 +1,11 @@
 //! Network layer: tiling without seams, model files, and resumable, deterministic training.
 
 use burn::prelude::*;
-use emccd_nn::tile::Tiling;
+use emccd_nn::tile::{run, run_ensemble, Tiling};
 mod common;
 
 use common::{meta, scene, tiling_mismatch};
-use emccd_nn::Denoiser;
+use emccd_nn::{Denoiser, Net};
 
 #[test]
 fn tiled_and_untiled_outputs_agree_in_the_interior() {
@@ -38,3 +38,54 @@ fn model_files_round_trip_and_foreign_files_are_refused() {
     assert!(e.contains("not a safetensors model file"), "{e}");
 }
 
+
+#[test]
+fn self_ensemble_averages_the_network_over_flips_and_transposes() {
+    // A non-square frame, so a transform that mixes up width and height cannot pass.
+    let (w, h) = (48, 32);
+    let m = meta(4, 2);
+    let dev = emccd_nn::cpu();
+    let net = Net::UNet(m.unet.unwrap().init(&dev));
+    let img = scene(w, h);
+    let mut input = img.clone();
+    input.extend(img.iter().map(|v| v.sqrt() * 0.1));
+    let tiles = Tiling::default();
+    let got = run_ensemble(&net, &input, 2, w, h, 4, tiles, 8, &dev);
+    // The expectation, written independently: each orientation as a coordinate map from the
+    // original frame, applied to the input and undone on the output.
+    let maps: [fn(usize, usize, usize, usize) -> (usize, usize); 8] = [
+        |x, y, _, _| (x, y),
+        |x, y, w, _| (w - 1 - x, y),
+        |x, y, _, h| (x, h - 1 - y),
+        |x, y, w, h| (w - 1 - x, h - 1 - y),
+        |x, y, _, _| (y, x),
+        |x, y, _, h| (h - 1 - y, x),
+        |x, y, w, _| (y, w - 1 - x),
+        |x, y, w, h| (h - 1 - y, w - 1 - x),
+    ];
+    let mut want = vec![0f32; w * h];
+    for (t, map) in maps.iter().enumerate() {
+        let (tw, th) = if t >= 4 { (h, w) } else { (w, h) };
+        let mut moved = vec![0f32; 2 * w * h];
+        for c in 0..2 {
+            for y in 0..h {
+                for x in 0..w {
+                    let (tx, ty) = map(x, y, w, h);
+                    moved[c * w * h + ty * tw + tx] = input[c * w * h + y * w + x];
+                }
+            }
+        }
+        let out = run(&net, &moved, 2, tw, th, 4, tiles, &dev);
+        for y in 0..h {
+            for x in 0..w {
+                let (tx, ty) = map(x, y, w, h);
+                want[y * w + x] += out[ty * tw + tx] / 8.0;
+            }
+        }
+    }
+    let worst = got.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+    assert!(worst < 1e-5, "self-ensemble differs from the average of the eight orientations by {worst}");
+    // The network is not flip-equivariant, so the average differs from the plain output.
+    let plain = run(&net, &input, 2, w, h, 4, tiles, &dev);
+    assert!(got.iter().zip(&plain).any(|(a, b)| (a - b).abs() > 1e-4));
+}
