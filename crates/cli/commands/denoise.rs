@@ -72,8 +72,9 @@ pub struct Args {
 /// default profile) and `microscopy` (the default fine-tuned on fluorescence microscopy).
 pub const BUNDLED: [(&str, &str); 2] = [("default", "default-unet.safetensors"), ("microscopy", "microscopy-unet.safetensors")];
 
-/// Loads a model file, or a bundled model by name.
-pub fn load_model(arg: &str) -> Result<Denoiser> {
+/// The file of a model argument: a bundled model's by name, else the argument as a path;
+/// an error if it does not exist.
+pub fn model_path(arg: &str) -> Result<PathBuf> {
     let bundled = BUNDLED.iter().find(|b| b.0 == arg);
     let path = match bundled {
         Some(b) => Path::new(env!("CARGO_MANIFEST_DIR")).join("models").join(b.1),
@@ -82,7 +83,12 @@ pub fn load_model(arg: &str) -> Result<Denoiser> {
     if !path.is_file() {
         bail!("{}: model not found{}", path.display(), if bundled.is_some() { " (bundled models ship in models/; train one with `emccd train`)" } else { "" });
     }
-    Ok(Denoiser::load(&path, &emccd_nn::device())?)
+    Ok(path)
+}
+
+/// Loads a model file, or a bundled model by name.
+pub fn load_model(arg: &str) -> Result<Denoiser> {
+    Ok(Denoiser::load(&model_path(arg)?, &emccd_nn::device())?)
 }
 
 /// Splits a model argument of `evaluate`/`bench` into the model and its self-ensemble size:

@@ -81,9 +81,9 @@ pub struct Args {
     /// Seed.
     #[arg(long, default_value_t = 897)]
     pub seed: u64,
-    /// Fine-tune from this model.
+    /// Fine-tune from this model (a file, or the bundled `default` or `microscopy`).
     #[arg(long)]
-    pub init: Option<PathBuf>,
+    pub init: Option<String>,
     /// Continue the run whose checkpoint is in OUT.ckpt/.
     #[arg(long)]
     pub resume: bool,
@@ -179,7 +179,8 @@ pub fn run(a: Args) -> Result<()> {
         }
         true
     };
-    let model = train(train_imgs, val_imgs, &profile, cfg, meta, a.init.as_deref(), a.resume, &paths, &mut report)?;
+    let init = a.init.as_deref().map(crate::commands::denoise::model_path).transpose()?;
+    let model = train(train_imgs, val_imgs, &profile, cfg, meta, init.as_deref(), a.resume, &paths, &mut report)?;
     pb.finish();
     eprintln!("model written to {} ({} steps, {} parameters)", a.out.display(), model.meta.steps, burn::module::Module::num_params(&model.net));
     Ok(())
