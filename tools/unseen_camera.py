@@ -4,7 +4,7 @@ emccd-detect), written in the forms `emccd calibrate` and `emccd evaluate` read.
 
 emccd-detect models the EMCCD differently from emccd's own virtual camera: a stage-by-stage
 gain register (604 stages, clock-induced charge inside the register), its own fixed-pattern
-map (the Roman detector's) plus random row and column offsets every frame, a different gain,
+map (the Roman detector's measured map, the simulator's default `fpn_path`), a different gain,
 read noise and electrons per DN. Hot pixels are added here as a dark-current map that passes
 through the simulator's EM register like any other charge. Frame-transfer smear is switched off
 (`row_read_time = 0`): with it on, the expected signal of a pixel depends on its whole column
