@@ -224,12 +224,23 @@ impl LeWin {
         }
     }
 
-    /// `x`: [B, H, W, C] with H and W multiples of the window.
-    fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+    /// The cyclic shift of this block's windows on an `h`×`w` stage: half a window for a
+    /// shifted block, none for the others or where the stage is no larger than one window
+    /// (nothing to shift across).
+    fn shift(&self, h: usize, w: usize) -> usize {
+        if self.shifted && h > self.win && w > self.win {
+            self.win / 2
+        } else {
+            0
+        }
+    }
+
+    /// `x`: [B, H, W, C] with H and W multiples of the window; `mask`: the stage's
+    /// [`shift_mask`], required when this block shifts.
+    fn forward(&self, x: Tensor<4>, mask: Option<&Tensor<3>>) -> Tensor<4> {
         let [b, h, w, c] = x.dims();
         let win = self.win;
-        // A stage no larger than one window has nothing to shift across.
-        let shift = if self.shifted && h > win && w > win { win / 2 } else { 0 };
+        let shift = self.shift(h, w);
         let mut y = self.norm1.forward(x.clone());
         if shift > 0 {
             y = y.roll(&[-(shift as i64), -(shift as i64)], &[1, 2]);
@@ -239,7 +250,7 @@ impl LeWin {
         if let Some(m) = &self.modulator {
             windows = windows + m.val().unsqueeze::<3>();
         }
-        let mask = (shift > 0).then(|| shift_mask(h, w, win, shift, &x.device()));
+        let mask = (shift > 0).then(|| mask.expect("blocks() builds the mask for a stage with shifted blocks").clone());
         let a = self.attn.forward(windows, mask);
         let mut y = a.reshape([b, nh, nw, win, win, c]).permute([0, 1, 3, 2, 4, 5]).reshape([b, h, w, c]);
         if shift > 0 {
@@ -262,9 +273,13 @@ pub struct Uformer {
     output: Conv2d,
 }
 
+/// Runs a stage's blocks. The shifted-window mask depends only on the stage's size, so it is
+/// built once here for all its shifted blocks.
 fn blocks(stage: &[LeWin], mut x: Tensor<4>) -> Tensor<4> {
+    let [_, h, w, _] = x.dims();
+    let mask = stage.iter().find(|b| b.shift(h, w) > 0).map(|b| shift_mask(h, w, b.win, b.shift(h, w), &x.device()));
     for b in stage {
-        x = b.forward(x);
+        x = b.forward(x, mask.as_ref());
     }
     x
 }
