@@ -294,6 +294,8 @@ pub struct PgnModel {
     exposure_s: f64,
     sigma: f64,
     q: f64,
+    /// Per-pixel read-noise std (DN), replacing `sigma` where given.
+    read_map: Option<Arc<Vec<f32>>>,
 }
 
 impl PgnModel {
@@ -304,7 +306,19 @@ impl PgnModel {
                 "pgn: need G ≥ 1, e/DN > 0 and non-negative rates (G={em_gain}, c={e_per_dn})"
             )));
         }
-        Ok(PgnModel { g: em_gain, c: e_per_dn, cic: cic_e, dark: dark_e_per_s, exposure_s, sigma: read_sigma_dn, q })
+        Ok(PgnModel { g: em_gain, c: e_per_dn, cic: cic_e, dark: dark_e_per_s, exposure_s, sigma: read_sigma_dn, q, read_map: None })
+    }
+
+    /// The same camera with a per-pixel read-noise std map (DN, row-major, the frame's size)
+    /// instead of one σ: real registers read out through pixel-dependent noise, and training
+    /// sees the same map the network's noise-level channel is built from.
+    pub fn with_read_noise_map(mut self, map: Vec<f32>) -> PgnModel {
+        self.read_map = Some(Arc::new(map));
+        self
+    }
+
+    fn sigma_at(&self, pixel: usize) -> f64 {
+        self.read_map.as_ref().and_then(|m| m.get(pixel)).map_or(self.sigma, |&v| v as f64)
     }
 
     /// Builds the model from a profile's `[pgn]` section.
@@ -337,25 +351,29 @@ impl NoiseModel for PgnModel {
         check_frame(clean, width, out);
         let bg = self.background_e();
         let offset = self.g * bg / self.c;
+        if let Some(m) = &self.read_map {
+            assert_eq!(m.len(), clean.len(), "read-noise map size");
+        }
         out.par_chunks_mut(width).zip(clean.par_chunks(width)).enumerate().for_each(|(y, (o, c))| {
             let mut rng = stream(seed, y as u64, 3);
-            for (o, &s) in o.iter_mut().zip(c) {
+            for (x, (o, &s)) in o.iter_mut().zip(c).enumerate() {
                 let lambda = s.max(0.0) as f64 * self.c / self.g + bg;
                 let n = poisson(&mut rng, lambda);
                 let m = em_register(&mut rng, n, self.g);
-                let v = m / self.c + self.sigma * normal(&mut rng) - offset + self.q * (rng.random::<f64>() - 0.5);
+                let sigma = self.sigma_at(y * width + x);
+                let v = m / self.c + sigma * normal(&mut rng) - offset + self.q * (rng.random::<f64>() - 0.5);
                 *o = v as f32;
             }
         });
     }
 
-    fn moments(&self, signal_dn: f64, _pixel: usize) -> Moments {
+    fn moments(&self, signal_dn: f64, pixel: usize) -> Moments {
         // Compound Poisson of Exp(G) summands: cumulants κ_r = λ·E[X^r] = λ·r!·G^r.
         let lambda = signal_dn.max(0.0) * self.c / self.g + self.background_e();
         let (g, c) = (self.g, self.c);
         Moments {
             mean: signal_dn.max(0.0),
-            var: 2.0 * g * g * lambda / (c * c) + self.sigma * self.sigma + self.q * self.q / 12.0,
+            var: 2.0 * g * g * lambda / (c * c) + self.sigma_at(pixel).powi(2) + self.q * self.q / 12.0,
             third: 6.0 * g.powi(3) * lambda / c.powi(3),
         }
     }

@@ -21,15 +21,21 @@ pub enum Units {
 /// Denoising method.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Method {
-    /// The network (--model).
-    Network,
+    /// BM3D + GAT refined by a network (bundled model `hybrid`): the network sees the frame,
+    /// its noise level and BM3D's estimate, and corrects the estimate. The most accurate at
+    /// low light; BM3D's time plus the network's.
+    Hybrid,
+    /// The network alone (bundled models `default`, `microscopy`): the fastest.
+    #[value(alias = "network")]
+    Net,
     /// BM3D after the generalized Anscombe transform (gain = the profile's slope, Gaussian σ =
     /// its read noise), with the exact unbiased inverse.
     Bm3d,
 }
 
 /// Denoise raw EMCCD frames: remove blooming and the fixed pattern with the camera profile (paper
-/// eq. 4), then run the network on overlapping tiles. TIFF/BigTIFF, SIF and FITS in (stacks are
+/// eq. 4), then denoise — by default with the hybrid method (BM3D + GAT, refined by the bundled
+/// `hybrid` network), or with a network alone (`--method net`, fast) or BM3D alone. TIFF/BigTIFF, SIF and FITS in (stacks are
 /// streamed frame by frame); float32 TIFF or FITS out (by the output's extension), in DN above
 /// bias by default. The exposure comes from the file header (SIF, emccd TIFF) or --exposure-s.
 #[derive(clap::Args, Debug)]
@@ -43,13 +49,14 @@ pub struct Args {
     /// Camera profile (`default` = the bundled iXon 897 model).
     #[arg(long, default_value = "default")]
     pub profile: String,
-    /// Model file, or a bundled model: `default` (trained on natural images) or `microscopy`
-    /// (fine-tuned on fluorescence microscopy).
-    #[arg(long, default_value = "default")]
-    pub model: String,
-    /// Denoiser.
-    #[arg(long, value_enum, default_value = "network")]
-    pub method: Method,
+    /// Model file, or a bundled model: `hybrid` (the default method's), `default` (a network
+    /// trained on natural images) or `microscopy` (fine-tuned on fluorescence microscopy).
+    /// Default: `hybrid` for --method hybrid, `default` for --method net.
+    #[arg(long)]
+    pub model: Option<String>,
+    /// Denoiser. Default: hybrid, or what --model was trained for when one is given.
+    #[arg(long, value_enum)]
+    pub method: Option<Method>,
     /// Exposure in seconds, where the file header does not record it.
     #[arg(long)]
     pub exposure_s: Option<f64>,
@@ -70,7 +77,35 @@ pub struct Args {
 
 /// Models that ship in `models/`, by the name `--model` accepts: `default` (natural images, the
 /// default profile) and `microscopy` (the default fine-tuned on fluorescence microscopy).
-pub const BUNDLED: [(&str, &str); 2] = [("default", "default-unet.safetensors"), ("microscopy", "microscopy-unet.safetensors")];
+pub const BUNDLED: [(&str, &str); 3] =
+    [("hybrid", "hybrid-unet.safetensors"), ("default", "default-unet.safetensors"), ("microscopy", "microscopy-unet.safetensors")];
+
+/// The method and model `denoise` runs for its `--method` and `--model` arguments (see
+/// [`Args`]); an error where a model does not fit the method.
+pub fn resolve(method: Option<Method>, model: Option<&str>) -> Result<(Method, Option<Denoiser>)> {
+    let hybrid = |m: &Denoiser| m.meta.inputs == emccd_nn::Inputs::Hybrid;
+    match (method, model) {
+        (Some(Method::Bm3d), Some(m)) => bail!("--model {m}: --method bm3d runs no network"),
+        (Some(Method::Bm3d), None) => Ok((Method::Bm3d, None)),
+        (None, Some(name)) => {
+            let m = load_model(name)?;
+            Ok((if hybrid(&m) { Method::Hybrid } else { Method::Net }, Some(m)))
+        }
+        (method, name) => {
+            let method = method.unwrap_or(Method::Hybrid);
+            let name = name.unwrap_or(if method == Method::Hybrid { "hybrid" } else { "default" });
+            let m = load_model(name)?;
+            if hybrid(&m) != (method == Method::Hybrid) {
+                bail!(
+                    "--model {name}: a {} model, not one for --method {}",
+                    m.meta.inputs.name(),
+                    if method == Method::Hybrid { "hybrid (train one with `emccd train --inputs hybrid`)" } else { "net" }
+                );
+            }
+            Ok((method, Some(m)))
+        }
+    }
+}
 
 /// The file of a model argument: a bundled model's by name, else the argument as a path;
 /// an error if it does not exist.
@@ -105,10 +140,7 @@ pub fn model_spec(arg: &str) -> Result<(&str, usize)> {
 
 pub fn run(a: Args) -> Result<()> {
     let profile = load_profile(&a.profile)?;
-    let model = match a.method {
-        Method::Network => Some(load_model(&a.model)?),
-        Method::Bm3d => None,
-    };
+    let (_, model) = resolve(a.method, a.model.as_deref())?;
     let fp = format!("{:016x}", profile.fingerprint());
     if let Some(model) = model.as_ref().filter(|m| m.meta.profile_fingerprint != fp) {
         eprintln!(
@@ -174,7 +206,5 @@ pub fn run(a: Args) -> Result<()> {
 /// BM3D with variance stabilization on one raw frame, through the profile's preprocessing.
 pub fn bm3d_frame(p: &emccd_profile::CameraProfile, raw: &[f32], exposure: f64) -> Result<Vec<f32>> {
     let pre = emccd_nn::pipeline::preprocess(p, raw, exposure)?;
-    let rn = emccd_profile::median(p.read_noise_near(exposure).iter().copied());
-    let pg = emccd_eval::vst::PoissonGaussian { alpha: p.slope()?, sigma: (rn * rn + p.quantization_dn.powi(2) / 12.0).sqrt(), mu: 0.0 };
-    Ok(emccd_eval::vst::bm3d_poisson_gaussian(&pre, p.width, p.height, pg))
+    Ok(emccd_nn::pipeline::bm3d_estimate(p, &pre, exposure)?)
 }

@@ -3,8 +3,8 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
-use emccd_nn::train::{train, Image, NoiseKind, RunPaths, TrainConfig};
-use emccd_nn::{ModelMeta, UNetConfig, UformerConfig};
+use emccd_nn::train::{train, Image, Loss, NoiseKind, RunPaths, TrainConfig};
+use emccd_nn::{Inputs, ModelMeta, UNetConfig, UformerConfig};
 
 use crate::common::{expand_inputs, load_profile, read_scene};
 
@@ -21,8 +21,9 @@ pub enum NoiseArg {
 
 /// Train a denoising network on noisy/clean pairs synthesized on the fly from clean images and a
 /// camera profile (random crops, 8-way flips/rotations, random photon level), with AdamW,
-/// warm-up + cosine decay and the Charbonnier loss. A checkpoint (model, optimizer state, step)
-/// is written to OUT.ckpt/ every --checkpoint-every steps; --resume continues from it.
+/// warm-up + cosine decay and the Charbonnier (or L2) loss. A checkpoint (model, optimizer
+/// state, step) is written to OUT.ckpt/ every --checkpoint-every steps; --resume continues from
+/// it. `--inputs hybrid` trains the BM3D-refining network of `emccd denoise --method hybrid`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Camera profile (`default` = the bundled iXon 897 model).
@@ -45,6 +46,11 @@ pub struct Args {
     /// U-Net levels.
     #[arg(long, default_value_t = 4)]
     pub levels: usize,
+    /// What the network is given: `noisy` (the frame and its noise level: a denoiser), or
+    /// `hybrid` (also the BM3D + GAT estimate, which the network corrects; its output layer
+    /// starts at zero, so training starts at BM3D's quality; U-Net only).
+    #[arg(long, value_enum, default_value = "noisy")]
+    pub inputs: InputsArg,
     /// Noise model of the synthesized pairs.
     #[arg(long, value_enum, default_value = "ours")]
     pub noise_model: NoiseArg,
@@ -69,6 +75,17 @@ pub struct Args {
     /// Photo-electrons at a scene's brightest pixel, drawn log-uniformly from LO,HI.
     #[arg(long, value_delimiter = ',', default_values_t = [3.0, 3000.0], value_name = "LO,HI")]
     pub electrons: Vec<f64>,
+    /// Instead of --electrons: the scene's mean photo-electrons per pixel, drawn log-uniformly
+    /// from LO,HI (e.g. 0.2,100 for the photon-starved range EMCCDs are used in).
+    #[arg(long, value_delimiter = ',', value_name = "LO,HI")]
+    pub mean_electrons: Option<Vec<f64>>,
+    /// Noise model pgn: clock-induced charge per pixel and frame (e⁻), drawn uniformly from
+    /// LO,HI; default: the profile's.
+    #[arg(long, value_delimiter = ',', value_name = "LO,HI")]
+    pub cic: Option<Vec<f64>>,
+    /// Training loss.
+    #[arg(long, value_enum, default_value = "charbonnier")]
+    pub loss: LossArg,
     /// Peak learning rate.
     #[arg(long, default_value_t = 2e-4)]
     pub lr: f64,
@@ -92,6 +109,24 @@ pub struct Args {
     pub out: PathBuf,
 }
 
+/// Network inputs.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum InputsArg {
+    /// The noisy frame and its noise level.
+    Noisy,
+    /// Also the BM3D + GAT estimate, which the network refines.
+    Hybrid,
+}
+
+/// Training loss.
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub enum LossArg {
+    /// Charbonnier (smooth L1).
+    Charbonnier,
+    /// Mean squared error.
+    L2,
+}
+
 fn load_images(paths: &[PathBuf]) -> Result<Vec<(PathBuf, Image)>> {
     expand_inputs(paths)?
         .into_iter()
@@ -106,7 +141,8 @@ pub fn run(a: Args) -> Result<()> {
     if !emccd_nn::model::ARCHS.contains(&a.arch.as_str()) {
         bail!("--arch {}: this build has {}", a.arch, emccd_nn::model::ARCHS.join(", "));
     }
-    for (name, v) in [("--read-noise-scale", &a.read_noise_scale), ("--electrons", &a.electrons)] {
+    let pairs = [("--read-noise-scale", Some(&a.read_noise_scale)), ("--electrons", Some(&a.electrons)), ("--mean-electrons", a.mean_electrons.as_ref()), ("--cic", a.cic.as_ref())];
+    for (name, v) in pairs.into_iter().filter_map(|(n, v)| v.map(|v| (n, v))) {
         if v.len() != 2 {
             bail!("{name} takes two comma-separated numbers, LO,HI");
         }
@@ -124,6 +160,13 @@ pub fn run(a: Args) -> Result<()> {
         NoiseArg::Eld => NoiseKind::Eld,
         NoiseArg::Pgn => NoiseKind::Pgn,
     };
+    let inputs = match a.inputs {
+        InputsArg::Noisy => Inputs::Noisy,
+        InputsArg::Hybrid => Inputs::Hybrid,
+    };
+    if inputs == Inputs::Hybrid && a.arch != "unet" {
+        bail!("--inputs hybrid: the refinement network is a U-Net in this build (--arch unet)");
+    }
     let cfg = TrainConfig {
         steps: a.steps,
         batch: a.batch,
@@ -134,6 +177,12 @@ pub fn run(a: Args) -> Result<()> {
         ablate: a.ablate.clone(),
         read_noise_scale: [a.read_noise_scale[0], a.read_noise_scale[1]],
         electrons: [a.electrons[0], a.electrons[1]],
+        mean_electrons: a.mean_electrons.as_ref().map(|v| [v[0], v[1]]),
+        cic_e: a.cic.as_ref().map(|v| [v[0], v[1]]),
+        loss: match a.loss {
+            LossArg::Charbonnier => Loss::Charbonnier,
+            LossArg::L2 => Loss::L2,
+        },
         seed: a.seed,
         val_every: a.checkpoint_every,
         checkpoint_every: a.checkpoint_every,
@@ -141,14 +190,20 @@ pub fn run(a: Args) -> Result<()> {
     };
     let meta = ModelMeta {
         arch: a.arch.clone(),
-        unet: (a.arch == "unet").then_some(UNetConfig { base: a.base, levels: a.levels, in_channels: 2 }),
+        unet: (a.arch == "unet").then_some(UNetConfig {
+            base: a.base,
+            levels: a.levels,
+            in_channels: inputs.channels(),
+            residual: if inputs == Inputs::Hybrid { 2 } else { 0 },
+        }),
         uformer: UformerConfig::by_name(&a.arch),
+        inputs,
         noise_model: noise.name().into(),
         ablate: a.ablate.clone(),
         profile_fingerprint: format!("{:016x}", profile.fingerprint()),
         steps: 0,
         recipe: format!(
-            "{} train / {} val images; batch {} × {}²; AdamW lr {} wd {} warm-up {} + cosine; Charbonnier; electrons {:?}; read noise ×{:?}; seed {}",
+            "{} train / {} val images; batch {} × {}²; AdamW lr {} wd {} warm-up {} + cosine; {:?} loss; {}; read noise ×{:?}; CIC {:?}; seed {}",
             train_imgs.len(),
             val_imgs.len(),
             cfg.batch,
@@ -156,8 +211,13 @@ pub fn run(a: Args) -> Result<()> {
             cfg.lr,
             cfg.weight_decay,
             cfg.warmup,
-            cfg.electrons,
+            cfg.loss,
+            match cfg.mean_electrons {
+                Some(r) => format!("mean electrons {r:?}"),
+                None => format!("peak electrons {:?}", cfg.electrons),
+            },
             cfg.read_noise_scale,
+            cfg.cic_e,
             cfg.seed
         ),
     };

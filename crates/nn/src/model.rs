@@ -27,12 +27,45 @@ pub enum Net {
 }
 
 impl Net {
-    /// `x`: [N, 2, H, W] (normalized frame, noise level), H and W multiples of
+    /// `x`: [N, C, H, W] ([`Inputs::channels`]: normalized frame, noise level, and for a
+    /// refinement network the estimate it refines), H and W multiples of
     /// [`ModelMeta::multiple`]; returns the denoised [N, 1, H, W].
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         match self {
             Net::UNet(n) => n.forward(x),
             Net::Uformer(n) => n.forward(x),
+        }
+    }
+}
+
+/// What a network is given, which also fixes how the frame is normalized.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Inputs {
+    /// A denoiser: the frame and its noise level, scaled by the noisy frame's 99.5th percentile
+    /// ([`crate::norm::prepare`]).
+    #[default]
+    Noisy,
+    /// A refinement network: the frame, its noise level and the BM3D + GAT estimate, scaled by
+    /// the estimate's 99.5th percentile ([`crate::norm::prepare_hybrid`]); the output is the
+    /// estimate plus a learned correction.
+    Hybrid,
+}
+
+impl Inputs {
+    /// Input channels the network takes.
+    pub fn channels(self) -> usize {
+        match self {
+            Inputs::Noisy => 2,
+            Inputs::Hybrid => 3,
+        }
+    }
+
+    /// Lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Inputs::Noisy => "noisy",
+            Inputs::Hybrid => "hybrid",
         }
     }
 }
@@ -48,6 +81,9 @@ pub struct ModelMeta {
     /// Uformer size (Uformer models).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub uformer: Option<UformerConfig>,
+    /// What the network is given (files without the key are denoisers).
+    #[serde(default)]
+    pub inputs: Inputs,
     /// Noise model the training pairs were synthesized with.
     pub noise_model: String,
     /// Ablated components (empty for the full model).
@@ -85,6 +121,18 @@ pub struct Denoiser {
 impl Denoiser {
     /// A freshly initialized model.
     pub fn new(meta: ModelMeta, device: &Device) -> Result<Denoiser> {
+        let channels = meta.unet.map(|c| c.in_channels).or(meta.uformer.map(|c| c.in_channels));
+        if channels.is_some_and(|c| c != meta.inputs.channels()) {
+            return Err(Error::Model(format!(
+                "model metadata: a {} network takes {} input channels, its configuration says {}",
+                meta.inputs.name(),
+                meta.inputs.channels(),
+                channels.unwrap_or(0)
+            )));
+        }
+        if meta.inputs == Inputs::Hybrid && meta.arch != "unet" {
+            return Err(Error::Model(format!("a hybrid (BM3D-refining) network is a U-Net in this build, not {}", meta.arch)));
+        }
         let net = match (meta.arch.as_str(), meta.unet, meta.uformer) {
             ("unet", Some(c), _) => Net::UNet(c.init(device)),
             (a, _, Some(c)) if a.starts_with("uformer") => Net::Uformer(c.init(device)),

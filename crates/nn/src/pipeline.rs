@@ -1,11 +1,13 @@
 //! Denoising a raw frame: preprocess with the profile (paper eq. 4: `B⁻¹(D) − FPN_t`), build the
 //! camera-independent input, run the network tiled, and return the photo-signal in DN above bias.
+//! A hybrid network first gets the BM3D + GAT estimate of the frame ([`bm3d_estimate`]) and
+//! refines it.
 
 use burn::prelude::*;
 use emccd_profile::CameraProfile;
 
-use crate::model::Denoiser;
-use crate::norm::prepare;
+use crate::model::{Denoiser, Inputs};
+use crate::norm::{prepare, prepare_hybrid, signal_scale};
 use crate::tile::{run_ensemble, Tiling};
 use crate::{Error, Result};
 
@@ -49,6 +51,24 @@ pub fn preprocess_ablated(p: &CameraProfile, raw: &[f32], exposure_s: f64, ablat
     Ok(d)
 }
 
+/// The Poisson–Gaussian noise of a preprocessed frame for the variance-stabilizing transform:
+/// gain = the photon-transfer slope, Gaussian σ = the median read noise at the exposure with
+/// the quantization's share.
+pub fn vst_params(p: &CameraProfile, exposure_s: f64) -> Result<emccd_eval::vst::PoissonGaussian> {
+    let slope = p.slope().map_err(|e| Error::Data(e.to_string()))?;
+    let rn = emccd_profile::median(p.read_noise_near(exposure_s).iter().copied());
+    Ok(emccd_eval::vst::PoissonGaussian { alpha: slope, sigma: (rn * rn + p.quantization_dn.powi(2) / 12.0).sqrt(), mu: 0.0 })
+}
+
+/// BM3D after the generalized Anscombe transform, with the exact unbiased inverse, on a
+/// preprocessed frame (DN above bias) of the profile's size.
+pub fn bm3d_estimate(p: &CameraProfile, dn: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+    if dn.len() != p.len() {
+        return Err(Error::Data(format!("frame has {} pixels, the profile's sensor {}×{} = {}", dn.len(), p.width, p.height, p.len())));
+    }
+    Ok(emccd_eval::vst::bm3d_poisson_gaussian(dn, p.width, p.height, vst_params(p, exposure_s)?))
+}
+
 impl Pipeline<'_> {
     /// The preprocessed frame (DN above bias) at `exposure_s`: blooming and FPN removed, unless
     /// the model was made for an ablation that skips them.
@@ -60,9 +80,18 @@ impl Pipeline<'_> {
     pub fn denoise_preprocessed(&self, dn: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
         let p = self.profile;
         let slope = p.slope().map_err(|e| Error::Data(e.to_string()))?;
-        let prep = prepare(dn, slope, p.read_noise_near(exposure_s));
+        let rn = p.read_noise_near(exposure_s);
+        let inputs = self.model.meta.inputs;
+        let prep = match inputs {
+            Inputs::Noisy => prepare(dn, slope, rn),
+            Inputs::Hybrid => {
+                let est = bm3d_estimate(p, dn, exposure_s)?;
+                let scale = signal_scale(&est.iter().map(|v| v / slope as f32).collect::<Vec<f32>>());
+                prepare_hybrid(dn, &est, slope, rn, scale)
+            }
+        };
         let multiple = self.model.meta.multiple();
-        let out = run_ensemble(&self.model.net, &prep.input, 2, p.width, p.height, multiple, self.tiling, self.ensemble, &self.device);
+        let out = run_ensemble(&self.model.net, &prep.input, inputs.channels(), p.width, p.height, multiple, self.tiling, self.ensemble, &self.device);
         Ok(out.into_iter().map(|v| v * prep.to_dn).collect())
     }
 

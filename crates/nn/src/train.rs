@@ -1,6 +1,8 @@
 //! Training on pairs synthesized on the fly: random crops of clean images, 8-way flips and
 //! rotations, a random photon level, noise from a camera model; AdamW with linear warm-up and
-//! cosine decay, Charbonnier loss; validation PSNR on held-out images; checkpoints that resume.
+//! cosine decay, Charbonnier or L2 loss; validation PSNR on held-out images; checkpoints that
+//! resume. A hybrid (BM3D-refining) network gets each crop's BM3D + GAT estimate, computed as
+//! the pair is synthesized.
 //!
 //! Every batch is a pure function of (seed, step), so a resumed run sees the same data as an
 //! uninterrupted one. Batches are synthesized on a second thread while the step runs.
@@ -17,8 +19,8 @@ use rand_pcg::Pcg64;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::model::{Denoiser, ModelMeta};
-use crate::norm::{frame_scale, prepare_scaled};
+use crate::model::{Denoiser, Inputs, ModelMeta};
+use crate::norm::{frame_scale, prepare_hybrid, prepare_scaled, signal_scale};
 use crate::{Error, Result};
 
 /// A clean training image, values in [0, 1].
@@ -55,6 +57,17 @@ impl NoiseKind {
     }
 }
 
+/// The training loss on network-unit outputs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Loss {
+    /// `√(d² + 10⁻⁶)`: L1-like, robust.
+    #[default]
+    Charbonnier,
+    /// Mean squared error: what PSNR scores (the posterior mean minimizes it).
+    L2,
+}
+
 /// The recipe.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct TrainConfig {
@@ -72,6 +85,17 @@ pub struct TrainConfig {
     pub warmup: u64,
     /// Photo-electrons at a scene's full scale, drawn log-uniformly from this range.
     pub electrons: [f64; 2],
+    /// Instead of `electrons`: the scene's *mean* photo-electrons per pixel, drawn log-uniformly
+    /// from this range (how EMCCD light levels are quoted, and what the low-light suite uses).
+    #[serde(default)]
+    pub mean_electrons: Option<[f64; 2]>,
+    /// Model `pgn`: clock-induced charge per pixel and frame (e⁻), drawn uniformly from this
+    /// range; `None`: the profile's.
+    #[serde(default)]
+    pub cic_e: Option<[f64; 2]>,
+    /// Loss.
+    #[serde(default)]
+    pub loss: Loss,
     /// The profile's read noise is multiplied by a factor drawn log-uniformly from this range
     /// (model `ours`): training on many read-noise-to-gain ratios is what lets one model serve
     /// cameras other than the training profile. `[1, 1]`: the profile's own.
@@ -99,6 +123,9 @@ impl Default for TrainConfig {
             weight_decay: 0.02,
             warmup: 500,
             electrons: [3.0, 3000.0],
+            mean_electrons: None,
+            cic_e: None,
+            loss: Loss::Charbonnier,
             read_noise_scale: [1.0, 1.0],
             noise: NoiseKind::Ours,
             ablate: Vec::new(),
@@ -143,18 +170,28 @@ struct Batch {
 /// the normalizing scale is the whole frame's, as it is when a recorded frame is denoised: a
 /// crop of dark background is then scaled like the background of a frame with bright
 /// structure elsewhere, not blown up to its own 99.5th percentile.
-fn synth_sample(img: &Image, profile: &CameraProfile, cfg: &TrainConfig, abl: Ablation, seed: u64) -> Result<(Vec<f32>, Vec<f32>)> {
+///
+/// A hybrid sample also gets the BM3D + GAT estimate of the noisy crop (with the VST parameters
+/// a calibrated profile of this synthetic camera would give), and is scaled by the clean frame's
+/// 99.5th percentile, which the estimate's stands in for at inference.
+fn synth_sample(img: &Image, profile: &CameraProfile, cfg: &TrainConfig, inputs: Inputs, abl: Ablation, seed: u64) -> Result<(Vec<f32>, Vec<f32>)> {
     let c = cfg.crop;
     let mut rng = Pcg64::seed_from_u64(seed);
     let (w, h) = (img.width, img.height);
     let x0 = rng.random_range(0..=w - c);
     let y0 = rng.random_range(0..=h - c);
     let mode = rng.random_range(0..8u8);
-    let [lo, hi] = cfg.electrons;
-    let peak_e = log_uniform(rng.random(), [lo, hi]);
     let slope = profile.slope().map_err(|e| Error::Data(e.to_string()))?;
     let k_mean = slope / 2.0;
-    let clean: Vec<f32> = img.data.iter().map(|&v| (v as f64 * peak_e * k_mean) as f32).collect();
+    // Electrons per unit of the clean image (whose values lie in [0, 1]).
+    let per_unit = match cfg.mean_electrons {
+        Some(range) => {
+            let mean = img.data.iter().map(|&v| v as f64).sum::<f64>() / img.data.len().max(1) as f64;
+            log_uniform(rng.random(), range) / mean.max(1e-3)
+        }
+        None => log_uniform(rng.random(), cfg.electrons),
+    };
+    let clean: Vec<f32> = img.data.iter().map(|&v| (v as f64 * per_unit * k_mean) as f32).collect();
     // A random read-noise map of the profile at a random offset, repeated to the image's size.
     let m = &profile.maps.read_noise[rng.random_range(0..profile.maps.read_noise.len())];
     let (pw, ph) = (profile.width, profile.height);
@@ -171,9 +208,23 @@ fn synth_sample(img: &Image, profile: &CameraProfile, cfg: &TrainConfig, abl: Ab
             model.synthesize(&clean, w, &mut noisy, noise_seed);
         }
         NoiseKind::Eld => EldModel::from_profile(profile).map_err(|e| Error::Data(e.to_string()))?.synthesize(&clean, w, &mut noisy, noise_seed),
-        NoiseKind::Pgn => PgnModel::from_profile(profile, 0.01).map_err(|e| Error::Data(e.to_string()))?.synthesize(&clean, w, &mut noisy, noise_seed),
+        NoiseKind::Pgn => {
+            let pgn = profile.pgn.as_ref().ok_or_else(|| Error::Data("the profile has no [pgn] parameters".into()))?;
+            let cic = match cfg.cic_e {
+                Some([lo, hi]) => lo + (hi - lo) * rng.random::<f64>(),
+                None => pgn.cic_e,
+            };
+            // The EM gain and e⁻/DN set the DN per electron; the slope they imply is the profile's.
+            PgnModel::new(pgn.em_gain, 2.0 * pgn.em_gain / slope, cic, pgn.dark_e_per_s, 0.01, pgn.read_sigma_dn, profile.quantization_dn)
+                .map_err(|e| Error::Data(e.to_string()))?
+                .with_read_noise_map(rn.clone())
+                .synthesize(&clean, w, &mut noisy, noise_seed)
+        }
     }
-    let scale = frame_scale(&noisy.iter().map(|v| v / slope as f32).collect::<Vec<f32>>());
+    let scale = match inputs {
+        Inputs::Noisy => frame_scale(&noisy.iter().map(|v| v / slope as f32).collect::<Vec<f32>>()),
+        Inputs::Hybrid => signal_scale(&clean.iter().map(|v| v / slope as f32).collect::<Vec<f32>>()),
+    };
     // The crop, 8-way augmented: optional transpose, then optional flips.
     let cut = |src: &[f32]| -> Vec<f32> {
         let mut out = vec![0f32; c * c];
@@ -191,22 +242,32 @@ fn synth_sample(img: &Image, profile: &CameraProfile, cfg: &TrainConfig, abl: Ab
         }
         out
     };
-    let p = prepare_scaled(&cut(&noisy), slope, &cut(&rn), scale);
+    let (noisy_c, rn_c) = (cut(&noisy), cut(&rn));
+    let p = match inputs {
+        Inputs::Noisy => prepare_scaled(&noisy_c, slope, &rn_c, scale),
+        Inputs::Hybrid => {
+            let rn_med = emccd_profile::median(rn_c.iter().copied());
+            let q = profile.quantization_dn;
+            let vst = emccd_eval::vst::PoissonGaussian { alpha: slope, sigma: (rn_med * rn_med + q * q / 12.0).sqrt(), mu: 0.0 };
+            let est = emccd_eval::vst::bm3d_poisson_gaussian(&noisy_c, c, c, vst);
+            prepare_hybrid(&noisy_c, &est, slope, &rn_c, scale)
+        }
+    };
     let target = cut(&clean).iter().map(|v| v / p.to_dn).collect();
     Ok((p.input, target))
 }
 
-fn make_batch(images: &[Image], profile: &CameraProfile, cfg: &TrainConfig, abl: Ablation, seed: u64) -> Result<Batch> {
+fn make_batch(images: &[Image], profile: &CameraProfile, cfg: &TrainConfig, inputs: Inputs, abl: Ablation, seed: u64) -> Result<Batch> {
     let c = cfg.crop;
     let samples: Vec<(Vec<f32>, Vec<f32>)> = (0..cfg.batch)
         .into_par_iter()
         .map(|b| {
             let s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(b as u64 + 1);
             let img = &images[(Pcg64::seed_from_u64(s ^ 0xA5A5).random::<u64>() % images.len() as u64) as usize];
-            synth_sample(img, profile, cfg, abl, s)
+            synth_sample(img, profile, cfg, inputs, abl, s)
         })
         .collect::<Result<_>>()?;
-    let mut input = Vec::with_capacity(cfg.batch * 2 * c * c);
+    let mut input = Vec::with_capacity(cfg.batch * inputs.channels() * c * c);
     let mut target = Vec::with_capacity(cfg.batch * c * c);
     for (i, t) in samples {
         input.extend(i);
@@ -263,18 +324,24 @@ fn load_net_with_ids(meta: ModelMeta, path: &Path, device: &Device) -> Result<De
     Ok(d)
 }
 
-/// Validation PSNR (dB, peak = clean maximum) of the network output and of the noisy input,
-/// averaged over the fixed validation batch.
+/// Validation PSNR (dB, peak = clean maximum) of the network output and of its residual
+/// channel (the noisy input; for a hybrid network, the BM3D estimate it refines), averaged over
+/// the fixed validation batch.
 fn validate(model: &Denoiser, val: &Batch, n: usize, c: usize, device: &Device) -> (f64, f64) {
     let net = model.net.valid();
-    let x = Tensor::<4>::from_data(TensorData::new(val.input.clone(), [n, 2, c, c]), device);
+    let ch = model.meta.inputs.channels();
+    let base = match model.meta.inputs {
+        Inputs::Noisy => 0,
+        Inputs::Hybrid => 2,
+    };
+    let x = Tensor::<4>::from_data(TensorData::new(val.input.clone(), [n, ch, c, c]), device);
     let out: Vec<f32> = net.forward(x).into_data().convert::<f32>().try_into_vec::<f32>().unwrap_or_default();
     let mut po = 0.0;
     let mut pi = 0.0;
     for b in 0..n {
         let t = &val.target[b * c * c..(b + 1) * c * c];
         let o = &out[b * c * c..(b + 1) * c * c];
-        let i = &val.input[b * 2 * c * c..(b * 2 + 1) * c * c];
+        let i = &val.input[(b * ch + base) * c * c..(b * ch + base + 1) * c * c];
         let peak = t.iter().copied().fold(0f32, f32::max).max(1e-6) as f64;
         let psnr = |a: &[f32]| {
             let mse = a.iter().zip(t).map(|(x, y)| ((x - y) as f64).powi(2)).sum::<f64>() / t.len() as f64;
@@ -311,9 +378,16 @@ pub fn train(
             return Err(Error::Data(format!("a {}×{} image is smaller than the {c}-px crop", im.width, im.height)));
         }
     }
-    for (name, [lo, hi]) in [("electrons", cfg.electrons), ("read-noise scale", cfg.read_noise_scale)] {
+    let mut ranges = vec![("electrons", cfg.electrons), ("read-noise scale", cfg.read_noise_scale)];
+    ranges.extend(cfg.mean_electrons.map(|r| ("mean electrons", r)));
+    for (name, [lo, hi]) in ranges {
         if !(lo > 0.0 && hi >= lo && hi.is_finite()) {
             return Err(Error::Data(format!("{name} range {lo}–{hi}: must be positive and increasing")));
+        }
+    }
+    if let Some([lo, hi]) = cfg.cic_e {
+        if !(lo >= 0.0 && hi >= lo && hi.is_finite()) {
+            return Err(Error::Data(format!("CIC range {lo}–{hi}: must be non-negative and increasing")));
         }
     }
     let mut abl = Ablation::default();
@@ -344,7 +418,7 @@ pub fn train(
             Some(p) => {
                 let mut m = Denoiser::load(p, &device)?;
                 // The architecture is the initial model's; the rest describes this run.
-                m.meta = ModelMeta { steps: m.meta.steps, arch: m.meta.arch.clone(), unet: m.meta.unet, uformer: m.meta.uformer, ..meta.clone() };
+                m.meta = ModelMeta { steps: m.meta.steps, arch: m.meta.arch.clone(), unet: m.meta.unet, uformer: m.meta.uformer, inputs: m.meta.inputs, ..meta.clone() };
                 m
             }
             None => {
@@ -359,12 +433,14 @@ pub fn train(
         return Err(Error::Data(format!("the crop ({c} px) must be a multiple of {} px for {}", model.meta.multiple(), model.meta.arch)));
     }
     let base_steps = model.meta.steps.saturating_sub(start);
+    let inputs = model.meta.inputs;
+    let ch = inputs.channels();
     // Fixed validation batch: 2 crops per image (at most 8 images), one low and one high level.
     let val = if val_images.is_empty() {
         None
     } else {
         let vcfg = TrainConfig { batch: (2 * val_images.len()).min(16), ..cfg.clone() };
-        Some(make_batch(&val_images, profile, &vcfg, abl, cfg.seed ^ 0x7A11D)?)
+        Some(make_batch(&val_images, profile, &vcfg, inputs, abl, cfg.seed ^ 0x7A11D)?)
     };
     let nval = (2 * val_images.len()).min(16);
     let mut val_psnr = None;
@@ -374,7 +450,7 @@ pub fn train(
     let (imgs, prof, pcfg) = (train_images, profile.clone(), cfg.clone());
     let producer = std::thread::spawn(move || {
         for step in start..pcfg.steps {
-            let b = make_batch(&imgs, &prof, &pcfg, abl, pcfg.seed.wrapping_add(step.wrapping_mul(7919)));
+            let b = make_batch(&imgs, &prof, &pcfg, inputs, abl, pcfg.seed.wrapping_add(step.wrapping_mul(7919)));
             if tx.send(b).is_err() {
                 break;
             }
@@ -395,10 +471,13 @@ pub fn train(
     };
     for step in start..cfg.steps {
         let batch = rx.recv().map_err(|_| Error::Data("the pair synthesizer stopped".into()))??;
-        let x = Tensor::<4>::from_data(TensorData::new(batch.input, [cfg.batch, 2, c, c]), &device);
+        let x = Tensor::<4>::from_data(TensorData::new(batch.input, [cfg.batch, ch, c, c]), &device);
         let y = Tensor::<4>::from_data(TensorData::new(batch.target, [cfg.batch, 1, c, c]), &device);
         let d = model.net.forward(x) - y;
-        let loss = (d.clone() * d + 1e-6).sqrt().mean();
+        let loss = match cfg.loss {
+            Loss::Charbonnier => (d.clone() * d + 1e-6).sqrt().mean(),
+            Loss::L2 => (d.clone() * d).mean(),
+        };
         let lv = loss.clone().into_data().convert::<f64>().try_into_vec::<f64>().map(|v| v[0]).unwrap_or(f64::NAN);
         if !lv.is_finite() {
             return Err(Error::Data(format!("training diverged at step {step} (loss {lv})")));

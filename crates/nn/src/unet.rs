@@ -1,8 +1,9 @@
 //! A plain U-Net: two 3×3 convolutions per level, stride-2 convolutions down, 2×2 transposed
-//! convolutions up, skip concatenation, and a global residual on the noisy channel.
+//! convolutions up, skip concatenation, and a global residual on one input channel (the noisy
+//! frame, or for a refinement network the estimate it refines).
 
 use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
-use burn::nn::{LeakyRelu, LeakyReluConfig, PaddingConfig2d};
+use burn::nn::{Initializer, LeakyRelu, LeakyReluConfig, PaddingConfig2d};
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -13,13 +14,19 @@ pub struct UNetConfig {
     pub base: usize,
     /// Levels of down-sampling; frames are padded to a multiple of 2^levels.
     pub levels: usize,
-    /// Input channels (the noisy frame and its noise-level map).
+    /// Input channels (the noisy frame and its noise-level map; a refinement network also
+    /// gets the estimate it refines).
     pub in_channels: usize,
+    /// The input channel the output is added to (the global residual): 0, the noisy frame, for
+    /// a denoiser; the estimate's channel for a refinement network, whose output layer then
+    /// starts at zero so that an untrained network returns the estimate unchanged.
+    #[serde(default)]
+    pub residual: usize,
 }
 
 impl UNetConfig {
     /// The CPU default: 16 channels, 4 levels (≈ 2.5 M parameters).
-    pub const DEFAULT: UNetConfig = UNetConfig { base: 16, levels: 4, in_channels: 2 };
+    pub const DEFAULT: UNetConfig = UNetConfig { base: 16, levels: 4, in_channels: 2, residual: 0 };
 
     /// Builds the network with freshly initialized weights.
     pub fn init(&self, device: &Device) -> UNet {
@@ -40,8 +47,12 @@ impl UNetConfig {
             dec.push(Block::new(ch, ch / 2, device));
             ch /= 2;
         }
-        let out = Conv2dConfig::new([ch, 1], [1, 1]).init(device);
-        UNet { enc, down, bottom, up, dec, out }
+        let out = if self.residual == 0 {
+            Conv2dConfig::new([ch, 1], [1, 1]).init(device)
+        } else {
+            Conv2dConfig::new([ch, 1], [1, 1]).with_initializer(Initializer::Zeros).init(device)
+        };
+        UNet { enc, down, bottom, up, dec, out, residual: self.residual }
     }
 }
 
@@ -74,13 +85,14 @@ pub struct UNet {
     up: Vec<ConvTranspose2d>,
     dec: Vec<Block>,
     out: Conv2d,
+    residual: usize,
 }
 
 impl UNet {
-    /// `x`: [N, C, H, W] with channel 0 the noisy frame; H and W multiples of 2^levels.
-    /// Returns [N, 1, H, W]: the noisy frame plus the predicted correction.
+    /// `x`: [N, C, H, W]; H and W multiples of 2^levels. Returns [N, 1, H, W]: the residual
+    /// channel (the noisy frame, or the estimate refined) plus the predicted correction.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let noisy = x.clone().narrow(1, 0, 1);
+        let base = x.clone().narrow(1, self.residual, 1);
         let mut skips = Vec::with_capacity(self.enc.len());
         let mut h = x;
         for (e, d) in self.enc.iter().zip(&self.down) {
@@ -93,6 +105,6 @@ impl UNet {
             let s = skips.pop().expect("one skip per level");
             h = d.forward(Tensor::cat(vec![u.forward(h), s], 1));
         }
-        noisy + self.out.forward(h)
+        base + self.out.forward(h)
     }
 }

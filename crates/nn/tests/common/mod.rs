@@ -8,8 +8,9 @@ use emccd_nn::{ModelMeta, Net, UNetConfig};
 pub fn meta(base: usize, levels: usize) -> ModelMeta {
     ModelMeta {
         arch: "unet".into(),
-        unet: Some(UNetConfig { base, levels, in_channels: 2 }),
+        unet: Some(UNetConfig { base, levels, in_channels: 2, residual: 0 }),
         uformer: None,
+        inputs: Default::default(),
         noise_model: "ours".into(),
         ablate: vec![],
         profile_fingerprint: "0".into(),
