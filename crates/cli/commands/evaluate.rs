@@ -10,22 +10,29 @@ use serde::{Deserialize, Serialize};
 
 use crate::common::{load_profile, progress};
 
-/// Evaluate denoisers on the pairs `emccd simulate pairs` writes (raw noisy frames, ground truth
-/// in DN above bias, pairs.toml). Prints a Markdown table of PSNR and SSIM per method, overall
-/// and per photon level (JSON with --json); --out also gets results.csv and PNG panels
-/// (input | each method | ground truth). PSNR uses the ground truth's peak as data range; the
-/// paper's convention (images / 65535, range 1) is reported beside it. LPIPS is not computed:
-/// its network weights cannot be obtained here. The input is never aligned or rescaled with the
-/// ground truth's help.
+/// Evaluate denoisers on the pairs `emccd simulate pairs` (or tools/unseen_camera.py) writes:
+/// raw noisy frames, ground truth in DN above bias, pairs.toml. Prints a Markdown table of PSNR,
+/// SSIM and seconds per 512² frame per method, overall and per light level — the mean
+/// photoelectrons per pixel where pairs.toml gives them, else photons at the scene's peak — and,
+/// for several pair directories (cameras), per camera too (JSON with --json); --out also gets
+/// results.csv and PNG panels (input | each method | ground truth). PSNR uses the ground truth's
+/// peak as data range; the paper's convention (images / 65535, range 1) is reported beside it.
+/// LPIPS is not computed: its network weights cannot be obtained here. The input is never
+/// aligned or rescaled with the ground truth's help.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Directory with pairs.toml.
-    pub pairs: PathBuf,
-    /// Camera profile used for preprocessing and BM3D's noise parameters.
-    #[arg(long, default_value = "default")]
-    pub profile: String,
-    /// Methods: `input`, `bm3d`, or a model file (`default`, `microscopy` = the bundled models);
-    /// repeatable. `MODEL@8` averages the model over 8 flips/transposes (self-ensemble; 2, 4, 8).
+    /// Directories with pairs.toml (one per camera).
+    #[arg(required = true, num_args = 1..)]
+    pub pairs: Vec<PathBuf>,
+    /// Camera profile used for preprocessing and BM3D's noise parameters. Default: the
+    /// `profile` that pairs.toml names (`default`, or a directory relative to pairs.toml),
+    /// else the bundled default.
+    #[arg(long)]
+    pub profile: Option<String>,
+    /// Methods: `input`, `bm3d`, `hybrid` (BM3D refined by the bundled hybrid network), or a
+    /// model file (`default`, `microscopy` = the bundled networks; a hybrid model file runs as
+    /// the hybrid method); repeatable. `MODEL@8` averages the model over 8 flips/transposes
+    /// (self-ensemble; 2, 4, 8).
     #[arg(long = "method", required = true, num_args = 1..)]
     pub methods: Vec<String>,
     /// Print JSON instead of Markdown.
@@ -39,6 +46,12 @@ pub struct Args {
 #[derive(Deserialize)]
 struct PairsFile {
     pair: Vec<PairEntry>,
+    /// The camera's name.
+    #[serde(default)]
+    camera: Option<String>,
+    /// The camera's calibrated profile, relative to pairs.toml.
+    #[serde(default)]
+    profile: Option<String>,
 }
 
 #[derive(Deserialize)]
@@ -50,23 +63,42 @@ struct PairEntry {
     photons: f64,
     #[serde(default)]
     exposure_ratio: Option<f64>,
+    /// Mean photoelectrons per pixel, where the pairs were made at fixed mean levels.
+    #[serde(default)]
+    mean_electrons: Option<f64>,
+}
+
+impl PairEntry {
+    /// The light level the pair is grouped by.
+    fn level(&self) -> f64 {
+        self.mean_electrons.unwrap_or(self.photons)
+    }
 }
 
 /// One method on one pair.
 #[derive(Serialize, Clone)]
 struct Score {
     method: String,
+    camera: String,
     scene: String,
     photons: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    mean_electrons: Option<f64>,
     psnr_db: f64,
     psnr_paper_db: f64,
     ssim: f64,
+    /// Seconds the method took on this frame (preprocessing included).
+    seconds: f64,
+    pixels: usize,
 }
 
-/// Averages per method (and photon level).
+/// Averages per method (and light level, and camera).
 #[derive(Serialize)]
 struct Summary {
     method: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    camera: Option<String>,
+    /// The level: photons at the scene's peak, or mean photoelectrons per pixel (`level_unit`).
     photons: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     exposure_ratio: Option<f64>,
@@ -74,6 +106,8 @@ struct Summary {
     psnr_db: f64,
     psnr_paper_db: f64,
     ssim: f64,
+    /// Seconds per 512×512 frame, from the time per pixel on these frames.
+    s_per_512: f64,
 }
 
 fn read_first(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
@@ -81,11 +115,53 @@ fn read_first(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
     Ok((info.width, info.height, buf))
 }
 
-pub fn run(a: Args) -> Result<()> {
-    let mpath = a.pairs.join("pairs.toml");
+struct Camera {
+    dir: PathBuf,
+    name: String,
+    file: PairsFile,
+    profile: emccd_profile::CameraProfile,
+}
+
+fn load_camera(dir: &Path, profile: Option<&str>) -> Result<Camera> {
+    let mpath = dir.join("pairs.toml");
     let text = std::fs::read_to_string(&mpath).with_context(|| format!("reading {}", mpath.display()))?;
-    let pf: PairsFile = toml::from_str(&text).with_context(|| format!("parsing {}", mpath.display()))?;
-    let profile = load_profile(&a.profile)?;
+    let file: PairsFile = toml::from_str(&text).with_context(|| format!("parsing {}", mpath.display()))?;
+    let profile = match (profile, &file.profile) {
+        (Some(p), _) => load_profile(p)?,
+        // `default`, a directory relative to pairs.toml, or (as `simulate pairs` records it) as given.
+        (None, Some(p)) => {
+            let rel = dir.join(p);
+            let p = if p != "default" && rel.is_dir() { rel.to_string_lossy().into_owned() } else { p.clone() };
+            load_profile(&p).with_context(|| format!("the profile {} names", mpath.display()))?
+        }
+        (None, None) => load_profile("default")?,
+    };
+    let name = file.camera.clone().unwrap_or_else(|| dir.display().to_string());
+    Ok(Camera { dir: dir.to_path_buf(), name, file, profile })
+}
+
+fn mean(v: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+    s / n.max(1) as f64
+}
+
+fn summarize(method: &str, camera: Option<&str>, level: Option<f64>, ratio: Option<f64>, scores: &[&Score]) -> Summary {
+    let pixels: usize = scores.iter().map(|x| x.pixels).sum();
+    Summary {
+        method: method.to_string(),
+        camera: camera.map(str::to_string),
+        photons: level,
+        exposure_ratio: ratio,
+        pairs: scores.len(),
+        psnr_db: mean(scores.iter().map(|x| x.psnr_db)),
+        psnr_paper_db: mean(scores.iter().map(|x| x.psnr_paper_db)),
+        ssim: mean(scores.iter().map(|x| x.ssim)),
+        s_per_512: scores.iter().map(|x| x.seconds).sum::<f64>() * (512.0 * 512.0) / pixels.max(1) as f64,
+    }
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let cameras = a.pairs.iter().map(|d| load_camera(d, a.profile.as_deref())).collect::<Result<Vec<_>>>()?;
     let mut models = BTreeMap::new();
     for m in &a.methods {
         if m != "input" && m != "bm3d" {
@@ -96,66 +172,80 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(o) = &a.out {
         std::fs::create_dir_all(o).with_context(|| format!("creating {}", o.display()))?;
     }
-    let pb = progress((pf.pair.len() * a.methods.len()) as u64, "evaluations");
+    let total: usize = cameras.iter().map(|c| c.file.pair.len()).sum();
+    let pb = progress((total * a.methods.len()) as u64, "evaluations");
     let mut scores = Vec::new();
-    for p in &pf.pair {
-        let (w, h, raw) = read_first(&a.pairs.join(&p.noisy))?;
-        let (cw, ch, truth) = read_first(&a.pairs.join(&p.clean))?;
-        if (w, h) != (cw, ch) {
-            bail!("{}: noisy {w}×{h} and clean {cw}×{ch} differ", p.noisy);
-        }
-        let prof = if (w, h) == (profile.width, profile.height) { profile.clone() } else { profile.crop(0, 0, w, h)? };
-        let peak = truth.iter().copied().fold(0f32, f32::max).max(1e-6) as f64;
-        let mut outputs: Vec<(String, Vec<f32>)> = Vec::new();
-        for m in &a.methods {
-            let out = match m.as_str() {
-                "input" => emccd_nn::pipeline::preprocess(&prof, &raw, p.exposure_s)?,
-                "bm3d" => crate::commands::denoise::bm3d_frame(&prof, &raw, p.exposure_s)?,
-                other => Pipeline { model: &models[other].0, profile: &prof, tiling: Default::default(), ensemble: models[other].1, device: emccd_nn::device() }
-                    .denoise_raw(&raw, p.exposure_s)?,
-            };
-            scores.push(Score {
-                method: m.clone(),
-                scene: p.scene.clone(),
-                photons: p.photons,
-                psnr_db: emccd_eval::psnr(&out, &truth, peak),
-                psnr_paper_db: emccd_eval::psnr(&out, &truth, 65535.0),
-                ssim: emccd_eval::ssim(&out, &truth, w, h, peak, Default::default()),
-            });
-            outputs.push((m.clone(), out));
-            pb.inc(1);
-        }
-        if let Some(o) = &a.out {
-            write_panel(o, p, w, h, &outputs, &truth, peak)?;
+    for cam in &cameras {
+        for p in &cam.file.pair {
+            let (w, h, raw) = read_first(&cam.dir.join(&p.noisy))?;
+            let (cw, ch, truth) = read_first(&cam.dir.join(&p.clean))?;
+            if (w, h) != (cw, ch) {
+                bail!("{}: noisy {w}×{h} and clean {cw}×{ch} differ", p.noisy);
+            }
+            let prof = if (w, h) == (cam.profile.width, cam.profile.height) { cam.profile.clone() } else { cam.profile.crop(0, 0, w, h)? };
+            let peak = truth.iter().copied().fold(0f32, f32::max).max(1e-6) as f64;
+            let mut outputs: Vec<(String, Vec<f32>)> = Vec::new();
+            for m in &a.methods {
+                let t = std::time::Instant::now();
+                let out = match m.as_str() {
+                    "input" => emccd_nn::pipeline::preprocess(&prof, &raw, p.exposure_s)?,
+                    "bm3d" => crate::commands::denoise::bm3d_frame(&prof, &raw, p.exposure_s)?,
+                    other => Pipeline { model: &models[other].0, profile: &prof, tiling: Default::default(), ensemble: models[other].1, device: emccd_nn::device() }
+                        .denoise_raw(&raw, p.exposure_s)?,
+                };
+                scores.push(Score {
+                    method: m.clone(),
+                    camera: cam.name.clone(),
+                    scene: p.scene.clone(),
+                    photons: p.photons,
+                    mean_electrons: p.mean_electrons,
+                    psnr_db: emccd_eval::psnr(&out, &truth, peak),
+                    psnr_paper_db: emccd_eval::psnr(&out, &truth, 65535.0),
+                    ssim: emccd_eval::ssim(&out, &truth, w, h, peak, Default::default()),
+                    seconds: t.elapsed().as_secs_f64(),
+                    pixels: w * h,
+                });
+                outputs.push((m.clone(), out));
+                pb.inc(1);
+            }
+            if let Some(o) = &a.out {
+                let stem = if cameras.len() > 1 { format!("{}-", cam.dir.parent().and_then(|d| d.file_name()).or(cam.dir.file_name()).map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()) } else { String::new() };
+                write_panel(o, &stem, p, w, h, &outputs, &truth, peak)?;
+            }
         }
     }
     pb.finish_and_clear();
-    let mut summaries = Vec::new();
+    let all_pairs: Vec<&PairEntry> = cameras.iter().flat_map(|c| &c.file.pair).collect();
+    let by_mean = all_pairs.iter().all(|p| p.mean_electrons.is_some());
+    let level_of = |s: &Score| if by_mean { s.mean_electrons.unwrap_or(s.photons) } else { s.photons };
     let levels: Vec<f64> = {
-        let mut v: Vec<f64> = pf.pair.iter().map(|p| p.photons).collect();
+        let mut v: Vec<f64> = all_pairs.iter().map(|p| if by_mean { p.level() } else { p.photons }).collect();
         v.sort_by(f64::total_cmp);
         v.dedup();
         v
     };
-    for m in &a.methods {
-        for lvl in std::iter::once(None).chain(levels.iter().map(|&l| Some(l))) {
-            let s: Vec<&Score> = scores.iter().filter(|s| &s.method == m && lvl.is_none_or(|l| s.photons == l)).collect();
-            let n = s.len().max(1) as f64;
-            let ratio = lvl.and_then(|l| pf.pair.iter().find(|p| p.photons == l).and_then(|p| p.exposure_ratio));
-            summaries.push(Summary {
-                method: m.clone(),
-                photons: lvl,
-                exposure_ratio: ratio,
-                pairs: s.len(),
-                psnr_db: s.iter().map(|x| x.psnr_db).sum::<f64>() / n,
-                psnr_paper_db: s.iter().map(|x| x.psnr_paper_db).sum::<f64>() / n,
-                ssim: s.iter().map(|x| x.ssim).sum::<f64>() / n,
-            });
+    let ratio_of = |l: f64| all_pairs.iter().find(|p| p.photons == l && !by_mean).and_then(|p| p.exposure_ratio);
+    let mut summaries = Vec::new();
+    let camera_groups: Vec<Option<&str>> =
+        std::iter::once(None).chain(cameras.iter().map(|c| Some(c.name.as_str())).filter(|_| cameras.len() > 1)).collect();
+    for cam in &camera_groups {
+        for m in &a.methods {
+            for lvl in std::iter::once(None).chain(levels.iter().map(|&l| Some(l))) {
+                let s: Vec<&Score> = scores
+                    .iter()
+                    .filter(|s| &s.method == m && cam.is_none_or(|c| s.camera == c) && lvl.is_none_or(|l| level_of(s) == l))
+                    .collect();
+                if !s.is_empty() {
+                    summaries.push(summarize(m, *cam, lvl, lvl.and_then(ratio_of), &s));
+                }
+            }
         }
     }
+    let unit = if by_mean { "mean photoelectrons per pixel" } else { "photons at the scene's brightest pixel" };
     let v = serde_json::json!({
         "psnr_data_range": "ground-truth peak per pair; psnr_paper_db: images / 65535, range 1 (the paper's convention)",
         "lpips": "not computed: its network weights cannot be obtained offline",
+        "level_unit": unit,
         "summary": summaries,
         "pairs": scores,
     });
@@ -165,22 +255,26 @@ pub fn run(a: Args) -> Result<()> {
     if a.json {
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
-        println!("PSNR data range: the ground truth's peak; \"paper\": images / 65535 with range 1. LPIPS: not computed (no weights offline).\n");
-        println!("| method | photons | pairs | PSNR (dB) | PSNR paper conv. (dB) | SSIM |");
-        println!("|---|---:|---:|---:|---:|---:|");
+        println!("PSNR data range: the ground truth's peak; \"paper\": images / 65535 with range 1. LPIPS: not computed (no weights offline).");
+        println!("Level: {unit}. Time: seconds per 512×512 frame on this machine, from the time per pixel.\n");
+        let col = if by_mean { "mean e⁻/px" } else { "photons" };
+        println!("| camera | method | {col} | pairs | PSNR (dB) | PSNR paper conv. (dB) | SSIM | s / 512² |");
+        println!("|---|---|---:|---:|---:|---:|---:|---:|");
         for s in &summaries {
             let l = match (s.photons, s.exposure_ratio) {
                 (None, _) => "all".to_string(),
                 (Some(p), Some(r)) => format!("{p:.4} (ratio {r})"),
                 (Some(p), None) => format!("{p}"),
             };
-            println!("| {} | {l} | {} | {:.2} | {:.2} | {:.4} |", s.method, s.pairs, s.psnr_db, s.psnr_paper_db, s.ssim);
+            let c = s.camera.as_deref().unwrap_or("all");
+            println!("| {c} | {} | {l} | {} | {:.2} | {:.2} | {:.4} | {:.2} |", s.method, s.pairs, s.psnr_db, s.psnr_paper_db, s.ssim, s.s_per_512);
         }
     }
     if let Some(o) = &a.out {
-        let mut csv = String::from("method,scene,photons,psnr_db,psnr_paper_db,ssim\n");
+        let mut csv = String::from("method,camera,scene,photons,mean_electrons,psnr_db,psnr_paper_db,ssim,seconds\n");
         for s in &scores {
-            let _ = writeln!(csv, "{},{},{},{:.4},{:.4},{:.6}", s.method, s.scene, s.photons, s.psnr_db, s.psnr_paper_db, s.ssim);
+            let me = s.mean_electrons.map_or(String::new(), |m| m.to_string());
+            let _ = writeln!(csv, "{},{},{},{},{me},{:.4},{:.4},{:.6},{:.4}", s.method, s.camera, s.scene, s.photons, s.psnr_db, s.psnr_paper_db, s.ssim, s.seconds);
         }
         emccd_io::write_atomic(o.join("results.csv"), csv.as_bytes())?;
     }
@@ -188,7 +282,8 @@ pub fn run(a: Args) -> Result<()> {
 }
 
 /// A 256² crop (the frame's centre) of input | each method | ground truth, side by side.
-fn write_panel(dir: &Path, p: &PairEntry, w: usize, h: usize, outs: &[(String, Vec<f32>)], truth: &[f32], peak: f64) -> Result<()> {
+#[allow(clippy::too_many_arguments)]
+fn write_panel(dir: &Path, prefix: &str, p: &PairEntry, w: usize, h: usize, outs: &[(String, Vec<f32>)], truth: &[f32], peak: f64) -> Result<()> {
     let c = 256.min(w).min(h);
     let (x0, y0) = ((w - c) / 2, (h - c) / 2);
     let panels: Vec<&[f32]> = outs.iter().map(|o| o.1.as_slice()).chain(std::iter::once(truth)).collect();
@@ -202,6 +297,6 @@ fn write_panel(dir: &Path, p: &PairEntry, w: usize, h: usize, outs: &[(String, V
         }
     }
     let stem = Path::new(&p.noisy).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    emccd_io::write_png_preview(dir.join(format!("{stem}.png")), n * c, c, &img, 0.0, peak as f32)?;
+    emccd_io::write_png_preview(dir.join(format!("{prefix}{stem}.png")), n * c, c, &img, 0.0, peak as f32)?;
     Ok(())
 }
