@@ -61,6 +61,13 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("64×64"), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(!d.join("x.tif").exists());
+    // A model that does not fit the method: a denoiser is no BM3D refiner, BM3D runs no model.
+    for (args, want) in [(["--method", "hybrid"], "not one for --method hybrid"), (["--method", "bm3d"], "runs no network")] {
+        let o = emccd(&["denoise", noisy, "-o", "y.tif", "--model", "m.safetensors", args[0], args[1]], d);
+        assert_eq!(o.status.code(), Some(2));
+        assert!(String::from_utf8_lossy(&o.stderr).contains(want), "{}", String::from_utf8_lossy(&o.stderr));
+        assert!(!d.join("y.tif").exists());
+    }
     let o = emccd(&["denoise", "small.tif", "-o", "x.tif", "--model", "absent.safetensors"], d);
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("absent.safetensors"));

@@ -29,7 +29,7 @@ enum Command {
     Simulate(commands::simulate::Cmd),
     /// Add noise from one of the noise models to clean images (training-pair synthesis).
     Synthesize(commands::synthesize::Args),
-    /// Denoise raw EMCCD frames: profile preprocessing, then a network (or BM3D).
+    /// Denoise raw EMCCD frames: profile preprocessing, then BM3D + GAT, a network, or both.
     Denoise(commands::denoise::Args),
     /// PSNR/SSIM of denoisers (input, BM3D, models) on virtual-camera pairs.
     Evaluate(commands::evaluate::Args),

@@ -34,8 +34,10 @@ pub enum Method {
 }
 
 /// Denoise raw EMCCD frames: remove blooming and the fixed pattern with the camera profile (paper
-/// eq. 4), then denoise — by default with the hybrid method (BM3D + GAT, refined by the bundled
-/// `hybrid` network), or with a network alone (`--method net`, fast) or BM3D alone. TIFF/BigTIFF, SIF and FITS in (stacks are
+/// eq. 4), then denoise — by default with BM3D + GAT, the most accurate method this build ships
+/// at low light (measured on the low-light suite, see the README); `--method hybrid` refines
+/// BM3D's estimate with the bundled hybrid network (still in training), `--method net` runs a
+/// network alone (fastest). TIFF/BigTIFF, SIF and FITS in (stacks are
 /// streamed frame by frame); float32 TIFF or FITS out (by the output's extension), in DN above
 /// bias by default. The exposure comes from the file header (SIF, emccd TIFF) or --exposure-s.
 #[derive(clap::Args, Debug)]
@@ -49,12 +51,12 @@ pub struct Args {
     /// Camera profile (`default` = the bundled iXon 897 model).
     #[arg(long, default_value = "default")]
     pub profile: String,
-    /// Model file, or a bundled model: `hybrid` (the default method's), `default` (a network
-    /// trained on natural images) or `microscopy` (fine-tuned on fluorescence microscopy).
-    /// Default: `hybrid` for --method hybrid, `default` for --method net.
+    /// Model file, or a bundled model: `hybrid` (BM3D-refining), `default` (a network trained on
+    /// natural images) or `microscopy` (fine-tuned on fluorescence microscopy). Default:
+    /// `hybrid` for --method hybrid, `default` for --method net.
     #[arg(long)]
     pub model: Option<String>,
-    /// Denoiser. Default: hybrid, or what --model was trained for when one is given.
+    /// Denoiser. Default: bm3d, or the method --model was trained for when one is given.
     #[arg(long, value_enum)]
     pub method: Option<Method>,
     /// Exposure in seconds, where the file header does not record it.
@@ -80,11 +82,17 @@ pub struct Args {
 pub const BUNDLED: [(&str, &str); 3] =
     [("hybrid", "hybrid-unet.safetensors"), ("default", "default-unet.safetensors"), ("microscopy", "microscopy-unet.safetensors")];
 
+/// The method `denoise` runs with neither --method nor --model: the most accurate one shipped on
+/// the low-light suite (README, "Low light"). It becomes `Hybrid` once the bundled hybrid
+/// network beats BM3D at every light level there.
+pub const DEFAULT_METHOD: Method = Method::Bm3d;
+
 /// The method and model `denoise` runs for its `--method` and `--model` arguments (see
 /// [`Args`]); an error where a model does not fit the method.
 pub fn resolve(method: Option<Method>, model: Option<&str>) -> Result<(Method, Option<Denoiser>)> {
     let hybrid = |m: &Denoiser| m.meta.inputs == emccd_nn::Inputs::Hybrid;
     match (method, model) {
+        (None, None) if DEFAULT_METHOD == Method::Bm3d => Ok((Method::Bm3d, None)),
         (Some(Method::Bm3d), Some(m)) => bail!("--model {m}: --method bm3d runs no network"),
         (Some(Method::Bm3d), None) => Ok((Method::Bm3d, None)),
         (None, Some(name)) => {
@@ -92,7 +100,7 @@ pub fn resolve(method: Option<Method>, model: Option<&str>) -> Result<(Method, O
             Ok((if hybrid(&m) { Method::Hybrid } else { Method::Net }, Some(m)))
         }
         (method, name) => {
-            let method = method.unwrap_or(Method::Hybrid);
+            let method = method.unwrap_or(DEFAULT_METHOD);
             let name = name.unwrap_or(if method == Method::Hybrid { "hybrid" } else { "default" });
             let m = load_model(name)?;
             if hybrid(&m) != (method == Method::Hybrid) {
