@@ -22,8 +22,9 @@ pub enum Units {
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Method {
     /// BM3D + GAT refined by a network (bundled model `hybrid`): the network sees the frame,
-    /// its noise level and BM3D's estimate, and corrects the estimate. The most accurate at
-    /// low light; BM3D's time plus the network's.
+    /// its noise level and BM3D's estimate, and corrects the estimate; it starts from BM3D's
+    /// quality and learns to improve on it (still in training: the README gives its figures).
+    /// BM3D's time plus the network's.
     Hybrid,
     /// The network alone (bundled models `default`, `microscopy`): the fastest.
     #[value(alias = "network")]

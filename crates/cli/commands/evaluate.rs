@@ -68,13 +68,6 @@ struct PairEntry {
     mean_electrons: Option<f64>,
 }
 
-impl PairEntry {
-    /// The light level the pair is grouped by.
-    fn level(&self) -> f64 {
-        self.mean_electrons.unwrap_or(self.photons)
-    }
-}
-
 /// One method on one pair.
 #[derive(Serialize, Clone)]
 struct Score {
@@ -217,9 +210,11 @@ pub fn run(a: Args) -> Result<()> {
     pb.finish_and_clear();
     let all_pairs: Vec<&PairEntry> = cameras.iter().flat_map(|c| &c.file.pair).collect();
     let by_mean = all_pairs.iter().all(|p| p.mean_electrons.is_some());
-    let level_of = |s: &Score| if by_mean { s.mean_electrons.unwrap_or(s.photons) } else { s.photons };
+    // The level pairs are grouped by: mean photoelectrons where every pair records them.
+    let level = |mean_electrons: Option<f64>, photons: f64| if by_mean { mean_electrons.unwrap_or(photons) } else { photons };
+    let level_of = |s: &Score| level(s.mean_electrons, s.photons);
     let levels: Vec<f64> = {
-        let mut v: Vec<f64> = all_pairs.iter().map(|p| if by_mean { p.level() } else { p.photons }).collect();
+        let mut v: Vec<f64> = all_pairs.iter().map(|p| level(p.mean_electrons, p.photons)).collect();
         v.sort_by(f64::total_cmp);
         v.dedup();
         v

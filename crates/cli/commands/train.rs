@@ -194,7 +194,7 @@ pub fn run(a: Args) -> Result<()> {
             base: a.base,
             levels: a.levels,
             in_channels: inputs.channels(),
-            residual: if inputs == Inputs::Hybrid { 2 } else { 0 },
+            residual: inputs.residual(),
         }),
         uformer: UformerConfig::by_name(&a.arch),
         inputs,

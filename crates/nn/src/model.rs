@@ -61,6 +61,15 @@ impl Inputs {
         }
     }
 
+    /// The input channel the network's output is a correction to: the noisy frame, or the
+    /// estimate a hybrid refines.
+    pub fn residual(self) -> usize {
+        match self {
+            Inputs::Noisy => 0,
+            Inputs::Hybrid => 2,
+        }
+    }
+
     /// Lower-case name.
     pub fn name(self) -> &'static str {
         match self {

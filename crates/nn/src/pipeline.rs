@@ -56,8 +56,14 @@ pub fn preprocess_ablated(p: &CameraProfile, raw: &[f32], exposure_s: f64, ablat
 /// the quantization's share.
 pub fn vst_params(p: &CameraProfile, exposure_s: f64) -> Result<emccd_eval::vst::PoissonGaussian> {
     let slope = p.slope().map_err(|e| Error::Data(e.to_string()))?;
-    let rn = emccd_profile::median(p.read_noise_near(exposure_s).iter().copied());
-    Ok(emccd_eval::vst::PoissonGaussian { alpha: slope, sigma: (rn * rn + p.quantization_dn.powi(2) / 12.0).sqrt(), mu: 0.0 })
+    Ok(vst_from(slope, p.read_noise_near(exposure_s), p.quantization_dn))
+}
+
+/// [`vst_params`] from the slope, a read-noise std map (DN) and the quantization step: training
+/// uses it with the map it synthesized, so BM3D sees what a calibration would have given.
+pub fn vst_from(slope: f64, read_noise: &[f32], quantization_dn: f64) -> emccd_eval::vst::PoissonGaussian {
+    let rn = emccd_profile::median(read_noise.iter().copied());
+    emccd_eval::vst::PoissonGaussian { alpha: slope, sigma: (rn * rn + quantization_dn.powi(2) / 12.0).sqrt(), mu: 0.0 }
 }
 
 /// BM3D after the generalized Anscombe transform, with the exact unbiased inverse, on a

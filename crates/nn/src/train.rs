@@ -246,9 +246,7 @@ fn synth_sample(img: &Image, profile: &CameraProfile, cfg: &TrainConfig, inputs:
     let p = match inputs {
         Inputs::Noisy => prepare_scaled(&noisy_c, slope, &rn_c, scale),
         Inputs::Hybrid => {
-            let rn_med = emccd_profile::median(rn_c.iter().copied());
-            let q = profile.quantization_dn;
-            let vst = emccd_eval::vst::PoissonGaussian { alpha: slope, sigma: (rn_med * rn_med + q * q / 12.0).sqrt(), mu: 0.0 };
+            let vst = crate::pipeline::vst_from(slope, &rn_c, profile.quantization_dn);
             let est = emccd_eval::vst::bm3d_poisson_gaussian(&noisy_c, c, c, vst);
             prepare_hybrid(&noisy_c, &est, slope, &rn_c, scale)
         }
@@ -330,10 +328,7 @@ fn load_net_with_ids(meta: ModelMeta, path: &Path, device: &Device) -> Result<De
 fn validate(model: &Denoiser, val: &Batch, n: usize, c: usize, device: &Device) -> (f64, f64) {
     let net = model.net.valid();
     let ch = model.meta.inputs.channels();
-    let base = match model.meta.inputs {
-        Inputs::Noisy => 0,
-        Inputs::Hybrid => 2,
-    };
+    let base = model.meta.inputs.residual();
     let x = Tensor::<4>::from_data(TensorData::new(val.input.clone(), [n, ch, c, c]), device);
     let out: Vec<f32> = net.forward(x).into_data().convert::<f32>().try_into_vec::<f32>().unwrap_or_default();
     let mut po = 0.0;

@@ -10,7 +10,7 @@ mod common;
 use common::{meta, scene};
 
 fn hybrid_meta() -> ModelMeta {
-    ModelMeta { unet: Some(UNetConfig { base: 4, levels: 2, in_channels: 3, residual: 2 }), inputs: Inputs::Hybrid, ..meta(4, 2) }
+    ModelMeta { unet: Some(UNetConfig { base: 4, levels: 2, in_channels: 3, residual: Inputs::Hybrid.residual() }), inputs: Inputs::Hybrid, ..meta(4, 2) }
 }
 
 #[test]
