@@ -18,13 +18,38 @@ fn json(path: &Path) -> serde_json::Value {
 fn recovers_the_virtual_camera_truth() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    ok(&emccd(&["simulate", "calibration", "-o", "cal", "--crop", "128x128", "--frames", "50", "--seed", "7"], d));
-    ok(&emccd(&["calibrate", "cal/calibration.toml", "-o", "prof", "--report", "rep"], d));
+    ok(&emccd(
+        &[
+            "simulate",
+            "calibration",
+            "-o",
+            "cal",
+            "--crop",
+            "128x128",
+            "--frames",
+            "50",
+            "--seed",
+            "7",
+        ],
+        d,
+    ));
+    ok(&emccd(
+        &[
+            "calibrate",
+            "cal/calibration.toml",
+            "-o",
+            "prof",
+            "--report",
+            "rep",
+        ],
+        d,
+    ));
     let truth_text = std::fs::read_to_string(d.join("cal/truth.toml")).unwrap();
     let truth: toml::Table = truth_text.parse().unwrap();
     let tp = emccd_profile::CameraProfile::load(d.join("cal/truth")).unwrap();
     let p = emccd_profile::CameraProfile::load(d.join("prof")).unwrap();
-    let show: serde_json::Value = serde_json::from_str(&ok(&emccd(&["profile", "show", "prof", "--json"], d))).unwrap();
+    let show: serde_json::Value =
+        serde_json::from_str(&ok(&emccd(&["profile", "show", "prof", "--json"], d))).unwrap();
 
     // Slope: the regression's own standard error is < 0.1 %; 2 % is the bar.
     let s = show["ptc_slope_dn"].as_f64().unwrap();
@@ -34,7 +59,14 @@ fn recovers_the_virtual_camera_truth() {
     let bias = show["bias_dn"].as_f64().unwrap();
     let tb = truth["bias_dn"].as_float().unwrap();
     assert!((bias - tb).abs() < 1.0, "bias {bias} vs {tb}");
-    let mae = p.maps.fpn_base.iter().zip(&tp.maps.fpn_base).map(|(a, b)| (a - b).abs() as f64).sum::<f64>() / p.len() as f64;
+    let mae = p
+        .maps
+        .fpn_base
+        .iter()
+        .zip(&tp.maps.fpn_base)
+        .map(|(a, b)| (a - b).abs() as f64)
+        .sum::<f64>()
+        / p.len() as f64;
     assert!(mae < 1.0, "mean |FPN error| {mae} DN");
     // Read noise: the measured std includes the ADC's rounding (q²/12), so compare with
     // √(σ² + 1/12); the rest (EM-amplified CIC, the median's small-sample bias) is < 1 %.
@@ -55,12 +87,21 @@ fn recovers_the_virtual_camera_truth() {
     for e in res["fpn"]["errors"].as_array().unwrap() {
         let t = e["exposure_s"].as_f64().unwrap();
         if (0.006..=0.1).contains(&t) {
-            let best = e["per_pixel_mae_dn"].as_f64().unwrap().min(e["shared_mae_dn"].as_f64().unwrap());
+            let best = e["per_pixel_mae_dn"]
+                .as_f64()
+                .unwrap()
+                .min(e["shared_mae_dn"].as_f64().unwrap());
             assert!(best < 1.0, "FPN error {best} DN at {t} s");
         }
     }
     let html = std::fs::read_to_string(d.join("rep/index.html")).unwrap();
-    for needle in ["Variance vs median", "Fixed pattern", "Normal probability plot", "Blooming factor vs exposure", "data:image/png;base64,"] {
+    for needle in [
+        "Variance vs median",
+        "Fixed pattern",
+        "Normal probability plot",
+        "Blooming factor vs exposure",
+        "data:image/png;base64,",
+    ] {
         assert!(html.contains(needle), "report lacks {needle}");
     }
     render_in_chromium(&d.join("rep/index.html"));
@@ -69,18 +110,36 @@ fn recovers_the_virtual_camera_truth() {
 /// Renders the report headless and checks the picture is not blank. Skipped (with a note) where
 /// Chromium is not installed; `.ci/run` installs it.
 fn render_in_chromium(html: &Path) {
-    let Some(bin) = ["chromium", "chromium-browser", "google-chrome"].into_iter().find(|b| Command::new(b).arg("--version").output().is_ok_and(|o| o.status.success())) else {
+    let Some(bin) = ["chromium", "chromium-browser", "google-chrome"]
+        .into_iter()
+        .find(|b| {
+            Command::new(b)
+                .arg("--version")
+                .output()
+                .is_ok_and(|o| o.status.success())
+        })
+    else {
         eprintln!("chromium not installed: report rendering not checked");
         return;
     };
     let png_path = html.with_file_name("render.png");
     let o = Command::new(bin)
-        .args(["--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--window-size=1240,3000"])
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--hide-scrollbars",
+            "--window-size=1240,3000",
+        ])
         .arg(format!("--screenshot={}", png_path.display()))
         .arg(format!("file://{}", html.display()))
         .output()
         .unwrap();
-    assert!(png_path.is_file(), "chromium wrote no screenshot: {}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        png_path.is_file(),
+        "chromium wrote no screenshot: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     let (info, frames) = emccd_io::read_all(&png_path).unwrap();
     assert_eq!((info.width, info.height), (1240, 3000));
     // A rendered report has text, plots and images: many distinct grey levels, not a blank page.
@@ -91,7 +150,11 @@ fn render_in_chromium(html: &Path) {
     }
     let max = f.iter().copied().fold(0.0f32, f32::max);
     let dark = f.iter().filter(|&&v| v < 0.5 * max).count() as f64 / f.len() as f64;
-    assert!(levels.len() > 50 && dark > 0.005, "render looks blank: {} levels, {dark} dark", levels.len());
+    assert!(
+        levels.len() > 50 && dark > 0.005,
+        "render looks blank: {} levels, {dark} dark",
+        levels.len()
+    );
 }
 
 #[test]
@@ -99,7 +162,17 @@ fn gain_series_on_real_lanl_data_matches_the_lab() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let manifest = repo("examples/lanl-gain-series.toml");
-    let out = ok(&emccd(&["calibrate", manifest.to_str().unwrap(), "-o", "prof", "--report", "rep"], d));
+    let out = ok(&emccd(
+        &[
+            "calibrate",
+            manifest.to_str().unwrap(),
+            "-o",
+            "prof",
+            "--report",
+            "rep",
+        ],
+        d,
+    ));
     let res = json(&d.join("rep/results.json"));
     let g = &res["gain_series"];
     let c = g["e_per_dn"].as_f64().unwrap();
@@ -108,11 +181,18 @@ fn gain_series_on_real_lanl_data_matches_the_lab() {
     // The lab's ADU map comes from its own photon-transfer analysis; the MLE's pixel spread is
     // ≈ 0.3 %; 2 % leaves room for the two methods' different models.
     assert!((c / r - 1.0).abs() < 0.02, "e-/DN {c} vs lab {r}\n{out}");
-    let gains: Vec<f64> = g["settings"].as_array().unwrap().iter().map(|s| s["gain"].as_f64().unwrap()).collect();
+    let gains: Vec<f64> = g["settings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["gain"].as_f64().unwrap())
+        .collect();
     assert!(gains.windows(2).all(|w| w[1] > w[0]), "{gains:?}");
     // Each fitted gain is within 25 % of its nominal setting (EM gain dials are approximate).
     for (s, gv) in g["settings"].as_array().unwrap().iter().zip(&gains) {
-        let nominal = s["em_gain"].as_f64().unwrap_or_else(|| s["nominal"].as_f64().unwrap());
+        let nominal = s["em_gain"]
+            .as_f64()
+            .unwrap_or_else(|| s["nominal"].as_f64().unwrap());
         assert!((gv / nominal - 1.0).abs() < 0.25, "{nominal}× → {gv}");
     }
 }
@@ -123,22 +203,49 @@ fn real_ixon_bias_read_noise_matches_an_independent_estimate() {
     let d = dir.path();
     let sif = repo("../shared/data/emccd-real/andor-sif/ixon897_bias_truncated.sif");
     // The exposure is left out: the SIF header records it.
-    std::fs::write(d.join("m.toml"), format!("camera = \"iXon 897\"\nem_gain = 1\n[[bias]]\nfile = \"{}\"\n", sif.display())).unwrap();
-    let out = ok(&emccd(&["calibrate", "m.toml", "-o", "prof", "--report", "rep"], d));
+    std::fs::write(
+        d.join("m.toml"),
+        format!(
+            "camera = \"iXon 897\"\nem_gain = 1\n[[bias]]\nfile = \"{}\"\n",
+            sif.display()
+        ),
+    )
+    .unwrap();
+    let out = ok(&emccd(
+        &["calibrate", "m.toml", "-o", "prof", "--report", "rep"],
+        d,
+    ));
     let res = json(&d.join("rep/results.json"));
     let rms = res["bias"][0]["read_noise_rms_dn"].as_f64().unwrap();
     // Independent: the std of the difference of the two frames, /√2.
     let (_, frames) = emccd_io::read_all(&sif).unwrap();
-    let diff: Vec<f64> = frames[0].iter().zip(&frames[1]).map(|(a, b)| (*a - *b) as f64).collect();
+    let diff: Vec<f64> = frames[0]
+        .iter()
+        .zip(&frames[1])
+        .map(|(a, b)| (*a - *b) as f64)
+        .collect();
     let m = diff.iter().sum::<f64>() / diff.len() as f64;
-    let sd = (diff.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (diff.len() - 1) as f64).sqrt() / 2f64.sqrt();
-    assert!((rms / sd - 1.0).abs() < 0.01, "rms {rms} vs frame difference {sd}\n{out}");
-    assert!(res["warnings"].as_array().unwrap().iter().any(|w| w.as_str().unwrap().contains("missing")), "truncation warning expected");
+    let sd = (diff.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (diff.len() - 1) as f64).sqrt()
+        / 2f64.sqrt();
+    assert!(
+        (rms / sd - 1.0).abs() < 0.01,
+        "rms {rms} vs frame difference {sd}\n{out}"
+    );
+    assert!(
+        res["warnings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("missing")),
+        "truncation warning expected"
+    );
     assert!(out.contains("not calibrated"), "{out}");
 }
 
 fn write_u16(path: &Path, w: usize, h: usize, frames: &[Vec<f32>]) {
-    let mut wr = emccd_io::StackWriter::create(path, w, h, emccd_io::SampleFormat::U16, Some(frames.len())).unwrap();
+    let mut wr =
+        emccd_io::StackWriter::create(path, w, h, emccd_io::SampleFormat::U16, Some(frames.len()))
+            .unwrap();
     for f in frames {
         wr.write_frame(f).unwrap();
     }
@@ -150,24 +257,49 @@ fn expect_failure(d: &Path, manifest: &str, file_hint: &str, message_hint: &str)
     let o = emccd(&["calibrate", "m.toml", "-o", "prof"], d);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "should fail: {err}");
-    assert!(err.contains(file_hint) && err.contains(message_hint), "error should name {file_hint} and say {message_hint}: {err}");
-    assert!(!d.join("prof").exists(), "no profile may be written on error");
+    assert!(
+        err.contains(file_hint) && err.contains(message_hint),
+        "error should name {file_hint} and say {message_hint}: {err}"
+    );
+    assert!(
+        !d.join("prof").exists(),
+        "no profile may be written on error"
+    );
 }
 
 #[test]
 fn bad_input_is_a_clear_error_and_writes_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let noise = |k: usize, n: usize, level: f32| -> Vec<f32> { (0..n).map(|i| level + ((i * 31 + k * 17) % 7) as f32).collect() };
+    let noise = |k: usize, n: usize, level: f32| -> Vec<f32> {
+        (0..n)
+            .map(|i| level + ((i * 31 + k * 17) % 7) as f32)
+            .collect()
+    };
     let good: Vec<Vec<f32>> = (0..4).map(|k| noise(k, 256, 500.0)).collect();
     write_u16(&d.join("good.tif"), 16, 16, &good);
     // A manifest naming a missing file.
-    expect_failure(d, "em_gain = 300\n[[bias]]\nfile = \"absent.tif\"\nexposure_s = 0.01\n", "absent.tif", "not found");
+    expect_failure(
+        d,
+        "em_gain = 300\n[[bias]]\nfile = \"absent.tif\"\nexposure_s = 0.01\n",
+        "absent.tif",
+        "not found",
+    );
     // Fewer than 2 frames.
     write_u16(&d.join("one.tif"), 16, 16, &good[..1]);
-    expect_failure(d, "em_gain = 300\n[[bias]]\nfile = \"one.tif\"\nexposure_s = 0.01\n", "one.tif", "at least 2");
+    expect_failure(
+        d,
+        "em_gain = 300\n[[bias]]\nfile = \"one.tif\"\nexposure_s = 0.01\n",
+        "one.tif",
+        "at least 2",
+    );
     // Stacks of different frame sizes in one calibration.
-    write_u16(&d.join("small.tif"), 8, 8, &[noise(0, 64, 500.0), noise(1, 64, 500.0)]);
+    write_u16(
+        &d.join("small.tif"),
+        8,
+        8,
+        &[noise(0, 64, 500.0), noise(1, 64, 500.0)],
+    );
     expect_failure(
         d,
         "em_gain = 300\n[[bias]]\nfile = \"good.tif\"\nexposure_s = 0.01\n[[bias]]\nfile = \"small.tif\"\nexposure_s = 0.02\n",
@@ -178,13 +310,30 @@ fn bad_input_is_a_clear_error_and_writes_nothing() {
     {
         let f = std::fs::File::create(d.join("mixed.tif")).unwrap();
         let mut enc = tiff::encoder::TiffEncoder::new(std::io::BufWriter::new(f)).unwrap();
-        enc.write_image::<tiff::encoder::colortype::Gray16>(16, 16, &vec![500u16; 256]).unwrap();
-        enc.write_image::<tiff::encoder::colortype::Gray16>(16, 8, &vec![500u16; 128]).unwrap();
+        enc.write_image::<tiff::encoder::colortype::Gray16>(16, 16, &vec![500u16; 256])
+            .unwrap();
+        enc.write_image::<tiff::encoder::colortype::Gray16>(16, 8, &vec![500u16; 128])
+            .unwrap();
     }
-    expect_failure(d, "em_gain = 300\n[[bias]]\nfile = \"mixed.tif\"\nexposure_s = 0.01\n", "mixed.tif", "16×8");
+    expect_failure(
+        d,
+        "em_gain = 300\n[[bias]]\nfile = \"mixed.tif\"\nexposure_s = 0.01\n",
+        "mixed.tif",
+        "16×8",
+    );
     // A flat brighter than the ADC range.
-    write_u16(&d.join("sat.tif"), 16, 16, &[vec![65535.0; 256], vec![65535.0; 256], vec![65535.0; 256]]);
-    expect_failure(d, "em_gain = 300\n[[flat]]\nfile = \"sat.tif\"\nexposure_s = 0.01\n", "sat.tif", "brighter than the ADC range");
+    write_u16(
+        &d.join("sat.tif"),
+        16,
+        16,
+        &[vec![65535.0; 256], vec![65535.0; 256], vec![65535.0; 256]],
+    );
+    expect_failure(
+        d,
+        "em_gain = 300\n[[flat]]\nfile = \"sat.tif\"\nexposure_s = 0.01\n",
+        "sat.tif",
+        "brighter than the ADC range",
+    );
     // A truncated stack.
     let bytes = std::fs::read(d.join("good.tif")).unwrap();
     let big: Vec<Vec<f32>> = (0..6).map(|k| noise(k, 4096, 500.0)).collect();
@@ -192,5 +341,10 @@ fn bad_input_is_a_clear_error_and_writes_nothing() {
     let full = std::fs::read(d.join("big.tif")).unwrap();
     std::fs::write(d.join("cut.tif"), &full[..full.len() / 2]).unwrap();
     let _ = bytes;
-    expect_failure(d, "em_gain = 300\n[[bias]]\nfile = \"cut.tif\"\nexposure_s = 0.01\n", "cut.tif", "");
+    expect_failure(
+        d,
+        "em_gain = 300\n[[bias]]\nfile = \"cut.tif\"\nexposure_s = 0.01\n",
+        "cut.tif",
+        "",
+    );
 }

@@ -9,7 +9,11 @@ use common::{emccd, ok, shared};
 #[test]
 fn profile_show_json_has_the_documented_keys() {
     let dir = tempfile::tempdir().unwrap();
-    let v: serde_json::Value = serde_json::from_str(&ok(&emccd(&["profile", "show", "default", "--json"], dir.path()))).unwrap();
+    let v: serde_json::Value = serde_json::from_str(&ok(&emccd(
+        &["profile", "show", "default", "--json"],
+        dir.path(),
+    )))
+    .unwrap();
     assert_eq!(v["ptc_slope_dn"], 20.14);
     assert_eq!(v["width"], 512);
     assert_eq!(v["height"], 512);
@@ -22,14 +26,26 @@ fn profile_show_json_has_the_documented_keys() {
 
 #[test]
 fn bundled_profile_files_match_the_generator() {
-    let shipped = emccd_profile::CameraProfile::load(Path::new(env!("CARGO_MANIFEST_DIR")).join("profiles/default")).unwrap();
+    let shipped = emccd_profile::CameraProfile::load(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("profiles/default"),
+    )
+    .unwrap();
     let generated = emccd_profile::default_profile();
     assert_eq!(shipped.to_toml_string(), generated.to_toml_string());
     // The maps agree to float precision (libm may differ in the last bit across platforms).
-    let close = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-5 * x.abs().max(1.0));
+    let close = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .all(|(x, y)| (x - y).abs() <= 1e-5 * x.abs().max(1.0))
+    };
     assert!(close(&shipped.maps.fpn_base, &generated.maps.fpn_base));
     assert!(close(&shipped.maps.fpn_theta, &generated.maps.fpn_theta));
-    for (a, b) in shipped.maps.read_noise.iter().zip(&generated.maps.read_noise) {
+    for (a, b) in shipped
+        .maps
+        .read_noise
+        .iter()
+        .zip(&generated.maps.read_noise)
+    {
         assert!(close(a, b));
     }
 }
@@ -37,9 +53,28 @@ fn bundled_profile_files_match_the_generator() {
 #[test]
 fn simulate_calibration_writes_manifest_stacks_and_truth() {
     let dir = tempfile::tempdir().unwrap();
-    ok(&emccd(&["simulate", "calibration", "-o", "cal", "--crop", "64x48", "--frames", "4", "--bias-exposures", "1e-5,0.01,0.1", "--flat-levels", "100,1000", "--blooming-exposures", "0.001,0.01"], dir.path()));
+    ok(&emccd(
+        &[
+            "simulate",
+            "calibration",
+            "-o",
+            "cal",
+            "--crop",
+            "64x48",
+            "--frames",
+            "4",
+            "--bias-exposures",
+            "1e-5,0.01,0.1",
+            "--flat-levels",
+            "100,1000",
+            "--blooming-exposures",
+            "0.001,0.01",
+        ],
+        dir.path(),
+    ));
     let cal = dir.path().join("cal");
-    let m: toml::Value = toml::from_str(&std::fs::read_to_string(cal.join("calibration.toml")).unwrap()).unwrap();
+    let m: toml::Value =
+        toml::from_str(&std::fs::read_to_string(cal.join("calibration.toml")).unwrap()).unwrap();
     assert_eq!(m["camera"].as_str(), Some("virtual-897"));
     assert_eq!(m["bias"].as_array().unwrap().len(), 3);
     assert_eq!(m["flat"].as_array().unwrap().len(), 2);
@@ -48,38 +83,75 @@ fn simulate_calibration_writes_manifest_stacks_and_truth() {
         for e in m[kind].as_array().unwrap() {
             let f = cal.join(e["file"].as_str().unwrap());
             let info = emccd_io::open(&f).unwrap().info().clone();
-            assert_eq!((info.width, info.height, info.frames), (64, 48, 4), "{}", f.display());
+            assert_eq!(
+                (info.width, info.height, info.frames),
+                (64, 48, 4),
+                "{}",
+                f.display()
+            );
             assert_eq!(info.metadata.exposure_s, e["exposure_s"].as_float());
         }
     }
-    let truth: toml::Value = toml::from_str(&std::fs::read_to_string(cal.join("truth.toml")).unwrap()).unwrap();
+    let truth: toml::Value =
+        toml::from_str(&std::fs::read_to_string(cal.join("truth.toml")).unwrap()).unwrap();
     assert_eq!(truth["ptc_slope_dn"].as_float(), Some(20.14));
     let p = emccd_profile::CameraProfile::load(cal.join("truth")).unwrap();
     assert_eq!((p.width, p.height), (64, 48));
     // Flat at 1000 DN: temporal mean of the stack minus the bias stack ≈ 1000 (+ blooming share).
     let (_, flat) = emccd_io::read_all(cal.join("flat/flat_02.tif")).unwrap();
     let (_, bias) = emccd_io::read_all(cal.join("bias/bias_0.01s.tif")).unwrap();
-    let mean = |fs: &Vec<Vec<f32>>| fs.iter().flatten().map(|&v| v as f64).sum::<f64>() / (fs.len() * fs[0].len()) as f64;
+    let mean = |fs: &Vec<Vec<f32>>| {
+        fs.iter().flatten().map(|&v| v as f64).sum::<f64>() / (fs.len() * fs[0].len()) as f64
+    };
     let x = p.blooming_factor(0.01);
     let signal = mean(&flat) - mean(&bias);
     // Blooming adds x·colmean to every pixel: signal·(1+x). Tolerance: shot noise of 4·64·48
     // samples at s·S variance (σ_mean ≈ sqrt(20·1000/12288) ≈ 1.3 DN) → 5σ ≈ 7 DN.
-    assert!((signal - 1000.0 * (1.0 + x)).abs() < 7.0, "flat signal {signal}");
+    assert!(
+        (signal - 1000.0 * (1.0 + x)).abs() < 7.0,
+        "flat signal {signal}"
+    );
 }
 
 #[test]
 fn simulate_pairs_and_info() {
     let dir = tempfile::tempdir().unwrap();
     let scene = shared("clean/microscopy/fmd-confocal-bpae/field2-avg50.png");
-    let out = ok(&emccd(&["simulate", "pairs", "--clean", scene.to_str().unwrap(), "--photons", "50", "--crop", "128x96", "-o", "pairs"], dir.path()));
+    let out = ok(&emccd(
+        &[
+            "simulate",
+            "pairs",
+            "--clean",
+            scene.to_str().unwrap(),
+            "--photons",
+            "50",
+            "--crop",
+            "128x96",
+            "-o",
+            "pairs",
+        ],
+        dir.path(),
+    ));
     assert!(out.contains("PSNR"), "{out}");
     let p = dir.path().join("pairs");
-    let m: toml::Value = toml::from_str(&std::fs::read_to_string(p.join("pairs.toml")).unwrap()).unwrap();
+    let m: toml::Value =
+        toml::from_str(&std::fs::read_to_string(p.join("pairs.toml")).unwrap()).unwrap();
     let pair = &m["pair"].as_array().unwrap()[0];
     assert_eq!(pair["photons"].as_float(), Some(50.0));
     let noisy = p.join(pair["noisy"].as_str().unwrap());
-    let v: serde_json::Value = serde_json::from_str(&ok(&emccd(&["info", noisy.to_str().unwrap(), "--json"], dir.path()))).unwrap();
-    assert_eq!((v["width"].as_u64(), v["height"].as_u64(), v["frames"].as_u64()), (Some(128), Some(96), Some(1)));
+    let v: serde_json::Value = serde_json::from_str(&ok(&emccd(
+        &["info", noisy.to_str().unwrap(), "--json"],
+        dir.path(),
+    )))
+    .unwrap();
+    assert_eq!(
+        (
+            v["width"].as_u64(),
+            v["height"].as_u64(),
+            v["frames"].as_u64()
+        ),
+        (Some(128), Some(96), Some(1))
+    );
     assert_eq!(v["exposure_s"], 0.01);
     assert_eq!(v["em_gain"], 300.0);
     let (ci, clean) = emccd_io::read_all(p.join(pair["clean"].as_str().unwrap())).unwrap();
@@ -92,8 +164,23 @@ fn simulate_pairs_and_info() {
 fn exposure_ratio_pairs_and_their_evaluation() {
     let dir = tempfile::tempdir().unwrap();
     let scene = shared("clean/microscopy/fmd-confocal-bpae/field3-avg50.png");
-    ok(&emccd(&["simulate", "pairs", "--clean", scene.to_str().unwrap(), "--exposure-ratio", "30,1600", "--crop", "64x64", "-o", "r"], dir.path()));
-    let m: toml::Value = toml::from_str(&std::fs::read_to_string(dir.path().join("r/pairs.toml")).unwrap()).unwrap();
+    ok(&emccd(
+        &[
+            "simulate",
+            "pairs",
+            "--clean",
+            scene.to_str().unwrap(),
+            "--exposure-ratio",
+            "30,1600",
+            "--crop",
+            "64x64",
+            "-o",
+            "r",
+        ],
+        dir.path(),
+    ));
+    let m: toml::Value =
+        toml::from_str(&std::fs::read_to_string(dir.path().join("r/pairs.toml")).unwrap()).unwrap();
     let pairs = m["pair"].as_array().unwrap();
     assert_eq!(pairs.len(), 2);
     // Exposure = 1.6 s / ratio, photons = 16000 / ratio.
@@ -102,10 +189,21 @@ fn exposure_ratio_pairs_and_their_evaluation() {
         assert!((p["exposure_s"].as_float().unwrap() - 1.6 / r).abs() < 1e-12);
         assert!((p["photons"].as_float().unwrap() - 16000.0 / r).abs() < 1e-9);
     }
-    let out = ok(&emccd(&["evaluate", "r", "--method", "input", "--method", "bm3d", "--json"], dir.path()));
+    let out = ok(&emccd(
+        &[
+            "evaluate", "r", "--method", "input", "--method", "bm3d", "--json",
+        ],
+        dir.path(),
+    ));
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     let rows = v["summary"].as_array().unwrap();
-    let get = |m: &str, r: f64| rows.iter().find(|x| x["method"] == m && x["exposure_ratio"].as_f64() == Some(r)).unwrap()["psnr_db"].as_f64().unwrap();
+    let get = |m: &str, r: f64| {
+        rows.iter()
+            .find(|x| x["method"] == m && x["exposure_ratio"].as_f64() == Some(r))
+            .unwrap()["psnr_db"]
+            .as_f64()
+            .unwrap()
+    };
     // A 53× longer exposure collects 53× the light: the input is far cleaner, and BM3D helps at both.
     assert!(get("input", 30.0) > get("input", 1600.0) + 10.0);
     assert!(get("bm3d", 1600.0) > get("input", 1600.0) && get("bm3d", 30.0) > get("input", 30.0));
@@ -115,13 +213,21 @@ fn exposure_ratio_pairs_and_their_evaluation() {
 fn info_json_on_real_sif_and_nulls_for_unknowns() {
     let dir = tempfile::tempdir().unwrap();
     let sif = shared("emccd-real/andor-sif/ixon897_binned_gain56.sif");
-    let v: serde_json::Value = serde_json::from_str(&ok(&emccd(&["info", sif.to_str().unwrap(), "--json"], dir.path()))).unwrap();
+    let v: serde_json::Value = serde_json::from_str(&ok(&emccd(
+        &["info", sif.to_str().unwrap(), "--json"],
+        dir.path(),
+    )))
+    .unwrap();
     assert_eq!(v["width"], 256);
     assert_eq!(v["frames"], 1);
     assert_eq!(v["em_gain"], 56.0);
     assert_eq!(v["exposure_s"], 0.01457);
     let png = shared("clean/natural/Kodak24/kodim03.png");
-    let v: serde_json::Value = serde_json::from_str(&ok(&emccd(&["info", png.to_str().unwrap(), "--json"], dir.path()))).unwrap();
+    let v: serde_json::Value = serde_json::from_str(&ok(&emccd(
+        &["info", png.to_str().unwrap(), "--json"],
+        dir.path(),
+    )))
+    .unwrap();
     assert!(v["exposure_s"].is_null() && v["em_gain"].is_null());
 }
 
@@ -142,11 +248,17 @@ fn bad_input_fails_clearly_and_writes_nothing() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("no-such-profile"));
 
-    let o = emccd(&["simulate", "calibration", "-o", "c", "--frames", "1"], dir.path());
+    let o = emccd(
+        &["simulate", "calibration", "-o", "c", "--frames", "1"],
+        dir.path(),
+    );
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("at least 2"));
     // Nothing but the junk file (no temporaries, no partial outputs).
-    let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    let names: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
     assert_eq!(names.len(), 1, "{names:?}");
 }
 
@@ -156,7 +268,19 @@ fn synthesize_each_model() {
     let scene = shared("clean/natural/BSD68/test001.png");
     for m in ["ours", "eld", "pgn"] {
         let out = format!("{m}.tif");
-        ok(&emccd(&["synthesize", scene.to_str().unwrap(), "-o", &out, "--model", m, "--frames", "2"], dir.path()));
+        ok(&emccd(
+            &[
+                "synthesize",
+                scene.to_str().unwrap(),
+                "-o",
+                &out,
+                "--model",
+                m,
+                "--frames",
+                "2",
+            ],
+            dir.path(),
+        ));
         let (info, f) = emccd_io::read_all(dir.path().join(&out)).unwrap();
         assert_eq!(info.frames, 2);
         assert_ne!(f[0], f[1]);

@@ -11,7 +11,25 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
     let d = dir.path();
     let clean = shared("clean/microscopy/fmd-confocal-bpae");
     let o = emccd(
-        &["train", "--clean", clean.to_str().unwrap(), "--steps", "3", "--batch", "2", "--crop", "32", "--base", "4", "--levels", "2", "--checkpoint-every", "3", "-o", "m.safetensors"],
+        &[
+            "train",
+            "--clean",
+            clean.to_str().unwrap(),
+            "--steps",
+            "3",
+            "--batch",
+            "2",
+            "--crop",
+            "32",
+            "--base",
+            "4",
+            "--levels",
+            "2",
+            "--checkpoint-every",
+            "3",
+            "-o",
+            "m.safetensors",
+        ],
         d,
     );
     ok(&o);
@@ -21,54 +39,187 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
     // Outputs are readable like any other file, including those burn-store wrote under the
     // temporary name.
     #[cfg(unix)]
-    for f in ["m.safetensors", "m.safetensors.ckpt/optim.bin", "m.safetensors.ckpt/net.bpk", "m.safetensors.ckpt/model.safetensors"] {
+    for f in [
+        "m.safetensors",
+        "m.safetensors.ckpt/optim.bin",
+        "m.safetensors.ckpt/net.bpk",
+        "m.safetensors.ckpt/model.safetensors",
+    ] {
         use std::os::unix::fs::PermissionsExt;
-        assert_eq!(std::fs::metadata(d.join(f)).unwrap().permissions().mode() & 0o777, 0o644, "{f}");
+        assert_eq!(
+            std::fs::metadata(d.join(f)).unwrap().permissions().mode() & 0o777,
+            0o644,
+            "{f}"
+        );
     }
     // A 3-frame raw stack from the virtual camera, with its exposure in the TIFF description.
-    ok(&emccd(&["simulate", "pairs", "--clean", clean.join("field1-avg50.png").to_str().unwrap(), "--frames", "3", "-o", "pairs"], d));
+    ok(&emccd(
+        &[
+            "simulate",
+            "pairs",
+            "--clean",
+            clean.join("field1-avg50.png").to_str().unwrap(),
+            "--frames",
+            "3",
+            "-o",
+            "pairs",
+        ],
+        d,
+    ));
     let noisy = "pairs/noisy/field1-avg50_p20.tif";
-    ok(&emccd(&["denoise", noisy, "-o", "den.tif", "--model", "m.safetensors"], d));
+    ok(&emccd(
+        &[
+            "denoise",
+            noisy,
+            "-o",
+            "den.tif",
+            "--model",
+            "m.safetensors",
+        ],
+        d,
+    ));
     let (info, frames) = emccd_io::read_all(d.join("den.tif")).unwrap();
     assert_eq!((info.width, info.height, info.frames), (512, 512, 3));
     assert!(frames.iter().all(|f| f.iter().all(|v| v.is_finite())));
     // In electrons the values scale by 2/s.
-    ok(&emccd(&["denoise", noisy, "-o", "den_e.fits", "--model", "m.safetensors", "--units", "electrons"], d));
+    ok(&emccd(
+        &[
+            "denoise",
+            noisy,
+            "-o",
+            "den_e.fits",
+            "--model",
+            "m.safetensors",
+            "--units",
+            "electrons",
+        ],
+        d,
+    ));
     let (_, fe) = emccd_io::read_all(d.join("den_e.fits")).unwrap();
     let k = 20.14f32 / 2.0;
     assert!((fe[0][1000] * k - frames[0][1000]).abs() < 1e-2 * frames[0][1000].abs().max(1.0));
     // The geometric self-ensemble: the same frame, averaged over two orientations — close to
     // the plain output (same network) but not identical (the network is not flip-equivariant).
-    ok(&emccd(&["denoise", noisy, "-o", "den2.tif", "--model", "m.safetensors", "--ensemble", "2"], d));
+    ok(&emccd(
+        &[
+            "denoise",
+            noisy,
+            "-o",
+            "den2.tif",
+            "--model",
+            "m.safetensors",
+            "--ensemble",
+            "2",
+        ],
+        d,
+    ));
     let (_, f2) = emccd_io::read_all(d.join("den2.tif")).unwrap();
-    let rms = |a: &[f32], b: &[f32]| (a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum::<f64>() / a.len() as f64).sqrt();
+    let rms = |a: &[f32], b: &[f32]| {
+        (a.iter()
+            .zip(b)
+            .map(|(x, y)| ((x - y) as f64).powi(2))
+            .sum::<f64>()
+            / a.len() as f64)
+            .sqrt()
+    };
     let (diff, spread) = (rms(&f2[0], &frames[0]), rms(&frames[0], &frames[1]));
-    assert!(diff > 0.0 && diff < spread, "ensemble vs plain rms {diff}, frame-to-frame {spread}");
+    assert!(
+        diff > 0.0 && diff < spread,
+        "ensemble vs plain rms {diff}, frame-to-frame {spread}"
+    );
     let o = emccd(&["evaluate", "pairs", "--method", "m.safetensors@9"], d);
     assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("1 to 8"), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("1 to 8"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     // The pairs command can denoise too, and reports the PSNR after.
-    let out = emccd(&["simulate", "pairs", "--clean", clean.join("field2-avg50.png").to_str().unwrap(), "--denoise", "m.safetensors", "-o", "p2"], d);
+    let out = emccd(
+        &[
+            "simulate",
+            "pairs",
+            "--clean",
+            clean.join("field2-avg50.png").to_str().unwrap(),
+            "--denoise",
+            "m.safetensors",
+            "-o",
+            "p2",
+        ],
+        d,
+    );
     ok(&out);
     assert!(String::from_utf8_lossy(&out.stdout).contains("denoised (dB)"));
     assert!(d.join("p2/denoised/field2-avg50_p20.tif").is_file());
 
     // Bad input: a frame of another size than the profile's sensor, a missing model.
-    let mut w = emccd_io::StackWriter::create(d.join("small.tif"), 64, 64, emccd_io::SampleFormat::U16, Some(1)).unwrap();
+    let mut w = emccd_io::StackWriter::create(
+        d.join("small.tif"),
+        64,
+        64,
+        emccd_io::SampleFormat::U16,
+        Some(1),
+    )
+    .unwrap();
     w.write_frame(&vec![500.0; 64 * 64]).unwrap();
     w.finish().unwrap();
-    let o = emccd(&["denoise", "small.tif", "-o", "x.tif", "--model", "m.safetensors", "--exposure-s", "0.01"], d);
+    let o = emccd(
+        &[
+            "denoise",
+            "small.tif",
+            "-o",
+            "x.tif",
+            "--model",
+            "m.safetensors",
+            "--exposure-s",
+            "0.01",
+        ],
+        d,
+    );
     assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("64×64"), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("64×64"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     assert!(!d.join("x.tif").exists());
     // A model that does not fit the method: a denoiser is no BM3D refiner, BM3D runs no model.
-    for (args, want) in [(["--method", "hybrid"], "not one for --method hybrid"), (["--method", "bm3d"], "runs no network")] {
-        let o = emccd(&["denoise", noisy, "-o", "y.tif", "--model", "m.safetensors", args[0], args[1]], d);
+    for (args, want) in [
+        (["--method", "hybrid"], "not one for --method hybrid"),
+        (["--method", "bm3d"], "runs no network"),
+    ] {
+        let o = emccd(
+            &[
+                "denoise",
+                noisy,
+                "-o",
+                "y.tif",
+                "--model",
+                "m.safetensors",
+                args[0],
+                args[1],
+            ],
+            d,
+        );
         assert_eq!(o.status.code(), Some(2));
-        assert!(String::from_utf8_lossy(&o.stderr).contains(want), "{}", String::from_utf8_lossy(&o.stderr));
+        assert!(
+            String::from_utf8_lossy(&o.stderr).contains(want),
+            "{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
         assert!(!d.join("y.tif").exists());
     }
-    let o = emccd(&["denoise", "small.tif", "-o", "x.tif", "--model", "absent.safetensors"], d);
+    let o = emccd(
+        &[
+            "denoise",
+            "small.tif",
+            "-o",
+            "x.tif",
+            "--model",
+            "absent.safetensors",
+        ],
+        d,
+    );
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("absent.safetensors"));
 }

@@ -8,7 +8,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 /// Where the bundled default profile lives in the source tree.
 pub fn bundled_profile_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("profiles").join("default")
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("profiles")
+        .join("default")
 }
 
 /// Loads `--profile`: a directory, or `default` for the bundled profile (read from the source
@@ -38,9 +40,17 @@ pub fn progress(len: u64, what: &str) -> ProgressBar {
 
 /// Parses `WxH` (e.g. `128x96`).
 pub fn parse_size(s: &str) -> Result<(usize, usize), String> {
-    let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("expected WIDTHxHEIGHT, got '{s}'"))?;
-    let w: usize = w.trim().parse().map_err(|_| format!("bad width in '{s}'"))?;
-    let h: usize = h.trim().parse().map_err(|_| format!("bad height in '{s}'"))?;
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("expected WIDTHxHEIGHT, got '{s}'"))?;
+    let w: usize = w
+        .trim()
+        .parse()
+        .map_err(|_| format!("bad width in '{s}'"))?;
+    let h: usize = h
+        .trim()
+        .parse()
+        .map_err(|_| format!("bad height in '{s}'"))?;
     if w == 0 || h == 0 {
         return Err(format!("size must be positive, got '{s}'"));
     }
@@ -61,7 +71,11 @@ pub fn read_scene(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
     let (info, mut img) = emccd_io::read_first(path)?;
     let mut scale = full_scale(info.pixel_type);
     if scale == 1.0 {
-        scale = img.iter().copied().fold(0f32, f32::max).max(f32::MIN_POSITIVE);
+        scale = img
+            .iter()
+            .copied()
+            .fold(0f32, f32::max)
+            .max(f32::MIN_POSITIVE);
     }
     for v in &mut img {
         *v = (*v / scale).clamp(0.0, 1.0);
@@ -110,6 +124,11 @@ pub fn exposure_tag(t: f64) -> String {
 
 /// PSNR in dB of `x` against `reference` with the given data range.
 pub fn psnr(x: &[f32], reference: &[f32], data_range: f64) -> f64 {
-    let mse = x.iter().zip(reference).map(|(&a, &b)| (a as f64 - b as f64).powi(2)).sum::<f64>() / x.len() as f64;
+    let mse = x
+        .iter()
+        .zip(reference)
+        .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
+        .sum::<f64>()
+        / x.len() as f64;
     10.0 * (data_range * data_range / mse.max(1e-30)).log10()
 }

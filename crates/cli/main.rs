@@ -54,7 +54,10 @@ fn main() {
     };
     if let Err(e) = result {
         // A closed pipe (e.g. `emccd info f --json | head`) is not a failure.
-        if e.chain().any(|c| c.downcast_ref::<std::io::Error>().is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)) {
+        if e.chain().any(|c| {
+            c.downcast_ref::<std::io::Error>()
+                .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+        }) {
             std::process::exit(0);
         }
         eprintln!("error: {e}");
@@ -74,15 +77,76 @@ mod tests {
         for args in [
             vec!["emccd", "info", "x.tif", "--json"],
             vec!["emccd", "profile", "show", "default", "--json"],
-            vec!["emccd", "calibrate", "cal/calibration.toml", "-o", "prof", "--report", "rep"],
+            vec![
+                "emccd",
+                "calibrate",
+                "cal/calibration.toml",
+                "-o",
+                "prof",
+                "--report",
+                "rep",
+            ],
             vec!["emccd", "profile", "init-default", "out"],
-            vec!["emccd", "simulate", "calibration", "-o", "cal", "--crop", "64x48", "--frames", "5"],
-            vec!["emccd", "simulate", "pairs", "--clean", "a.png", "--photons", "10", "--photons", "100", "-o", "p"],
-            vec!["emccd", "synthesize", "a.png", "-o", "n.tif", "--model", "pgn", "--signal-dn", "500"],
+            vec![
+                "emccd",
+                "simulate",
+                "calibration",
+                "-o",
+                "cal",
+                "--crop",
+                "64x48",
+                "--frames",
+                "5",
+            ],
+            vec![
+                "emccd",
+                "simulate",
+                "pairs",
+                "--clean",
+                "a.png",
+                "--photons",
+                "10",
+                "--photons",
+                "100",
+                "-o",
+                "p",
+            ],
+            vec![
+                "emccd",
+                "synthesize",
+                "a.png",
+                "-o",
+                "n.tif",
+                "--model",
+                "pgn",
+                "--signal-dn",
+                "500",
+            ],
             vec!["emccd", "bench", "--frames", "3"],
-            vec!["emccd", "train", "--clean", "dir", "--steps", "10", "-o", "m.safetensors"],
-            vec!["emccd", "denoise", "a.tif", "b.sif", "-o", "outdir", "--exposure-s", "0.01"],
-            vec!["emccd", "evaluate", "pairs", "--method", "input", "--method", "bm3d", "--json", "--out", "ev"],
+            vec![
+                "emccd",
+                "train",
+                "--clean",
+                "dir",
+                "--steps",
+                "10",
+                "-o",
+                "m.safetensors",
+            ],
+            vec![
+                "emccd",
+                "denoise",
+                "a.tif",
+                "b.sif",
+                "-o",
+                "outdir",
+                "--exposure-s",
+                "0.01",
+            ],
+            vec![
+                "emccd", "evaluate", "pairs", "--method", "input", "--method", "bm3d", "--json",
+                "--out", "ev",
+            ],
         ] {
             Cli::try_parse_from(&args).unwrap_or_else(|e| panic!("{args:?}: {e}"));
         }

@@ -6,12 +6,22 @@ use std::process::{Command, Output};
 
 /// Runs `emccd ARGS` in `cwd`.
 pub fn emccd(args: &[&str], cwd: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_emccd")).args(args).current_dir(cwd).output().expect("run emccd")
+    Command::new(env!("CARGO_BIN_EXE_emccd"))
+        .args(args)
+        .current_dir(cwd)
+        .output()
+        .expect("run emccd")
 }
 
 /// Requires success; returns stdout.
 pub fn ok(o: &Output) -> String {
-    assert!(o.status.success(), "exit {:?}\nstdout: {}\nstderr: {}", o.status, String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.status.success(),
+        "exit {:?}\nstdout: {}\nstderr: {}",
+        o.status,
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
     String::from_utf8_lossy(&o.stdout).into_owned()
 }
 

@@ -69,15 +69,28 @@ pub struct BloomingResult {
 impl BloomingResult {
     /// The law as the profile stores it, valid over the measured exposures.
     pub fn law(&self) -> emccd_profile::BloomingFit {
-        let lo = self.levels.iter().map(|l| l.exposure_s).fold(f64::INFINITY, f64::min);
+        let lo = self
+            .levels
+            .iter()
+            .map(|l| l.exposure_s)
+            .fold(f64::INFINITY, f64::min);
         let hi = self.levels.iter().map(|l| l.exposure_s).fold(0.0, f64::max);
-        emccd_profile::BloomingFit { a: self.a, b: self.b, range_s: Some([lo, hi]) }
+        emccd_profile::BloomingFit {
+            a: self.a,
+            b: self.b,
+            range_s: Some([lo, hi]),
+        }
     }
 }
 
 /// Lowest-std `win × win` window inside the rectangle `[x0, x1) × [y0, y1)` of `img`, using
 /// summed-area tables so every position costs O(1).
-pub fn lowest_std_window(img: &[f32], width: usize, rect: [usize; 4], win: usize) -> Option<Window> {
+pub fn lowest_std_window(
+    img: &[f32],
+    width: usize,
+    rect: [usize; 4],
+    win: usize,
+) -> Option<Window> {
     let [x0, y0, x1, y1] = rect;
     if x1 <= x0 || y1 <= y0 {
         return None;
@@ -97,7 +110,10 @@ pub fn lowest_std_window(img: &[f32], width: usize, rect: [usize; 4], win: usize
             s2[(y + 1) * stride + x + 1] = s2[y * stride + x + 1] + r2;
         }
     }
-    let box_sum = |s: &[f64], x: usize, y: usize| s[(y + wh) * stride + x + ww] - s[y * stride + x + ww] - s[(y + wh) * stride + x] + s[y * stride + x];
+    let box_sum = |s: &[f64], x: usize, y: usize| {
+        s[(y + wh) * stride + x + ww] - s[y * stride + x + ww] - s[(y + wh) * stride + x]
+            + s[y * stride + x]
+    };
     let m = (ww * wh) as f64;
     let mut best: Option<Window> = None;
     for y in 0..=rh - wh {
@@ -107,7 +123,14 @@ pub fn lowest_std_window(img: &[f32], width: usize, rect: [usize; 4], win: usize
             let mean = a / m;
             let var = ((b - a * a / m) / (m - 1.0).max(1.0)).max(0.0);
             if best.is_none_or(|w| var.sqrt() < w.std) {
-                best = Some(Window { x: x0 + x, y: y0 + y, w: ww, h: wh, mean, std: var.sqrt() });
+                best = Some(Window {
+                    x: x0 + x,
+                    y: y0 + y,
+                    w: ww,
+                    h: wh,
+                    mean,
+                    std: var.sqrt(),
+                });
             }
         }
     }
@@ -141,39 +164,72 @@ fn percentile(v: &[f64], q: f64) -> f64 {
 
 /// Measures one exposure. `img` is the averaged frame with FPN subtracted. The source is found
 /// from the column and row profiles; regions keep a margin of `margin` px from its edges.
-pub fn measure(img: &[f32], width: usize, height: usize, win: usize, file: &std::path::Path) -> Result<(Window, Window, Window, f64)> {
+pub fn measure(
+    img: &[f32],
+    width: usize,
+    height: usize,
+    win: usize,
+    file: &std::path::Path,
+) -> Result<(Window, Window, Window, f64)> {
     let bad = |m: &str| Error::input(file, m.to_string());
     let margin = 2usize;
-    let cm: Vec<f64> = (0..width).map(|x| (0..height).map(|y| img[y * width + x] as f64).sum::<f64>() / height as f64).collect();
+    let cm: Vec<f64> = (0..width)
+        .map(|x| (0..height).map(|y| img[y * width + x] as f64).sum::<f64>() / height as f64)
+        .collect();
     let (lo, hi) = (percentile(&cm, 0.05), percentile(&cm, 0.95));
     let (bx0, bx1) = longest_run(&cm.iter().map(|&c| c > 0.5 * (lo + hi)).collect::<Vec<_>>())
         .ok_or_else(|| bad("blooming frame: no bright columns found"))?;
-    let rm: Vec<f64> = (0..height).map(|y| (bx0..bx1).map(|x| img[y * width + x] as f64).sum::<f64>() / (bx1 - bx0) as f64).collect();
+    let rm: Vec<f64> = (0..height)
+        .map(|y| (bx0..bx1).map(|x| img[y * width + x] as f64).sum::<f64>() / (bx1 - bx0) as f64)
+        .collect();
     let (rlo, rhi) = (percentile(&rm, 0.05), percentile(&rm, 0.95));
-    let (by0, by1) = longest_run(&rm.iter().map(|&r| r > 0.5 * (rlo + rhi)).collect::<Vec<_>>())
-        .ok_or_else(|| bad("blooming frame: no bright rows found"))?;
+    let (by0, by1) = longest_run(
+        &rm.iter()
+            .map(|&r| r > 0.5 * (rlo + rhi))
+            .collect::<Vec<_>>(),
+    )
+    .ok_or_else(|| bad("blooming frame: no bright rows found"))?;
     if bx1 - bx0 == width || by1 - by0 == height {
         return Err(bad("blooming frame: the bright source must leave some columns and some rows of its columns dark"));
     }
     // The source must stand well clear of the noise, or there is nothing to measure.
-    let noise = (0..width).map(|x| (cm[x] - lo).abs()).fold(0.0, f64::max).max(1e-9);
+    let noise = (0..width)
+        .map(|x| (cm[x] - lo).abs())
+        .fold(0.0, f64::max)
+        .max(1e-9);
     if !(rhi - rlo > 0.0) || hi - lo < 1e-6 * noise {
         return Err(bad("blooming frame: no bright source stands out"));
     }
-    let shrink = |a: usize, b: usize, n: usize| -> (usize, usize) { (if a == 0 { 0 } else { a + margin }, if b == n { n } else { b.saturating_sub(margin) }) };
+    let shrink = |a: usize, b: usize, n: usize| -> (usize, usize) {
+        (
+            if a == 0 { 0 } else { a + margin },
+            if b == n { n } else { b.saturating_sub(margin) },
+        )
+    };
     let (sx0, sx1) = shrink(bx0, bx1, width);
     let (sy0, sy1) = shrink(by0, by1, height);
     // Bloomed area: the larger side of the source's columns above or below it.
     let above = by0.saturating_sub(margin);
     let below_start = (by1 + margin).min(height);
-    let bloom_rect = if above >= height - below_start { [sx0, 0, sx1, above] } else { [sx0, below_start, sx1, height] };
+    let bloom_rect = if above >= height - below_start {
+        [sx0, 0, sx1, above]
+    } else {
+        [sx0, below_start, sx1, height]
+    };
     // Dark area: the larger side of the other columns.
     let left = bx0.saturating_sub(margin);
     let right_start = (bx1 + margin).min(width);
-    let dark_rect = if left >= width - right_start { [0, 0, left, height] } else { [right_start, 0, width, height] };
-    let v1 = lowest_std_window(img, width, [sx0, sy0, sx1, sy1], win).ok_or_else(|| bad("blooming frame: bright area too small"))?;
-    let v2 = lowest_std_window(img, width, bloom_rect, win).ok_or_else(|| bad("blooming frame: no bloomed area beside the source"))?;
-    let v3 = lowest_std_window(img, width, dark_rect, win).ok_or_else(|| bad("blooming frame: no dark columns"))?;
+    let dark_rect = if left >= width - right_start {
+        [0, 0, left, height]
+    } else {
+        [right_start, 0, width, height]
+    };
+    let v1 = lowest_std_window(img, width, [sx0, sy0, sx1, sy1], win)
+        .ok_or_else(|| bad("blooming frame: bright area too small"))?;
+    let v2 = lowest_std_window(img, width, bloom_rect, win)
+        .ok_or_else(|| bad("blooming frame: no bloomed area beside the source"))?;
+    let v3 = lowest_std_window(img, width, dark_rect, win)
+        .ok_or_else(|| bad("blooming frame: no dark columns"))?;
     let c1 = (v2.x..v2.x + v2.w).map(|x| cm[x]).sum::<f64>() / v2.w as f64;
     Ok((v1, v2, v3, c1))
 }
@@ -182,12 +238,22 @@ pub fn measure(img: &[f32], width: usize, height: usize, win: usize, file: &std:
 pub fn fit(levels: Vec<BloomLevel>, fpn_subtracted: bool) -> Result<BloomingResult> {
     let ok: Vec<&BloomLevel> = levels.iter().filter(|l| l.x > 0.0).collect();
     if ok.len() < 2 {
-        return Err(Error::Fit(format!("the blooming fit needs ≥ 2 exposures with a positive factor, got {}", ok.len())));
+        return Err(Error::Fit(format!(
+            "the blooming fit needs ≥ 2 exposures with a positive factor, got {}",
+            ok.len()
+        )));
     }
     let lx: Vec<f64> = ok.iter().map(|l| l.exposure_s.ln()).collect();
     let ly: Vec<f64> = ok.iter().map(|l| l.x.ln()).collect();
-    let f = line(&lx, &ly, None).ok_or_else(|| Error::Fit("blooming exposures are all equal".into()))?;
-    Ok(BloomingResult { a: f.intercept.exp(), b: f.slope, loglog: f, levels, fpn_subtracted })
+    let f = line(&lx, &ly, None)
+        .ok_or_else(|| Error::Fit("blooming exposures are all equal".into()))?;
+    Ok(BloomingResult {
+        a: f.intercept.exp(),
+        b: f.slope,
+        loglog: f,
+        levels,
+        fpn_subtracted,
+    })
 }
 
 #[cfg(test)]
@@ -204,7 +270,9 @@ mod tests {
                 y[r * w + c] = 3000.0;
             }
         }
-        let cm: Vec<f32> = (0..w).map(|c| (0..h).map(|r| y[r * w + c]).sum::<f32>() / h as f32).collect();
+        let cm: Vec<f32> = (0..w)
+            .map(|c| (0..h).map(|r| y[r * w + c]).sum::<f32>() / h as f32)
+            .collect();
         let img: Vec<f32> = (0..w * h).map(|i| y[i] + x as f32 * cm[i % w]).collect();
         let (_, v2, v3, c1) = measure(&img, w, h, 32, std::path::Path::new("t.tif")).unwrap();
         let est = (v2.mean - v3.mean) / (c1 - v2.mean);

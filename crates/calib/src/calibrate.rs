@@ -28,7 +28,11 @@ pub struct Options {
 
 impl Default for Options {
     fn default() -> Options {
-        Options { crop: 256, window: 32, gain_pixels: 16 }
+        Options {
+            crop: 256,
+            window: 32,
+            gain_pixels: 16,
+        }
     }
 }
 
@@ -97,7 +101,13 @@ struct Checked {
 /// Frames the run will read (for a progress bar), from the file headers alone.
 pub fn total_frames(m: &Manifest) -> u64 {
     let count = |p: &Path| emccd_io::open(p).map_or(0, |r| r.info().frames as u64);
-    let mut t: u64 = m.bias.iter().chain(&m.flat).chain(&m.blooming).map(|e| count(&e.file)).sum();
+    let mut t: u64 = m
+        .bias
+        .iter()
+        .chain(&m.flat)
+        .chain(&m.blooming)
+        .map(|e| count(&e.file))
+        .sum();
     if let Some(gs) = &m.gain_series {
         for s in &gs.settings {
             t += count(&s.file) + s.no_signal.as_deref().map_or(0, count);
@@ -117,7 +127,13 @@ fn adc_max_for(t: emccd_io::PixelType) -> f64 {
 }
 
 /// Checks one group of entries: readable, ≥ 2 frames, one frame size, a known exposure.
-fn check(entries: &[Entry], what: &str, dims: &mut Option<(usize, usize)>, adc: &mut Option<f64>, warnings: &mut Vec<String>) -> Result<Vec<Checked>> {
+fn check(
+    entries: &[Entry],
+    what: &str,
+    dims: &mut Option<(usize, usize)>,
+    adc: &mut Option<f64>,
+    warnings: &mut Vec<String>,
+) -> Result<Vec<Checked>> {
     let mut out = Vec::new();
     for e in entries {
         let r = emccd_io::open(&e.file).map_err(|err| Error::io(&e.file, err))?;
@@ -126,14 +142,23 @@ fn check(entries: &[Entry], what: &str, dims: &mut Option<(usize, usize)>, adc: 
             Some((w, h)) if (*w, *h) != (info.width, info.height) => {
                 return Err(Error::input(
                     &e.file,
-                    format!("frames are {}×{}, but the other stacks are {w}×{h}", info.width, info.height),
+                    format!(
+                        "frames are {}×{}, but the other stacks are {w}×{h}",
+                        info.width, info.height
+                    ),
                 ))
             }
             None => *dims = Some((info.width, info.height)),
             _ => {}
         }
         if info.frames < 2 {
-            return Err(Error::input(&e.file, format!("holds {} frame(s); {what} statistics need at least 2", info.frames)));
+            return Err(Error::input(
+                &e.file,
+                format!(
+                    "holds {} frame(s); {what} statistics need at least 2",
+                    info.frames
+                ),
+            ));
         }
         for w in &info.metadata.warnings {
             warnings.push(format!("{}: {w}", e.file.display()));
@@ -141,16 +166,27 @@ fn check(entries: &[Entry], what: &str, dims: &mut Option<(usize, usize)>, adc: 
         let exposure_s = match (e.exposure_s, info.metadata.exposure_s) {
             (Some(m), Some(h)) => {
                 if (m - h).abs() > 0.01 * m {
-                    warnings.push(format!("{}: manifest says {m} s, the file header {h} s; using the manifest", e.file.display()));
+                    warnings.push(format!(
+                        "{}: manifest says {m} s, the file header {h} s; using the manifest",
+                        e.file.display()
+                    ));
                 }
                 m
             }
             (Some(m), None) => m,
             (None, Some(h)) if h > 0.0 => h,
-            _ => return Err(Error::input(&e.file, "no exposure_s in the manifest and none in the file header")),
+            _ => {
+                return Err(Error::input(
+                    &e.file,
+                    "no exposure_s in the manifest and none in the file header",
+                ))
+            }
         };
         adc.get_or_insert(adc_max_for(info.pixel_type));
-        out.push(Checked { file: e.file.clone(), exposure_s });
+        out.push(Checked {
+            file: e.file.clone(),
+            exposure_s,
+        });
     }
     Ok(out)
 }
@@ -169,20 +205,37 @@ fn fit_fpn(bias: &[BiasLevel], width: usize) -> Result<Option<FpnResult>> {
 
 /// The bias pattern at exposure `t`: the bias mean measured there, else the fit's prediction,
 /// else (with a warning) the nearest exposure's mean.
-fn pattern_at(bias: &[BiasLevel], fit: Option<&FpnResult>, t: f64, warnings: &mut Vec<String>) -> Option<Vec<f32>> {
+fn pattern_at(
+    bias: &[BiasLevel],
+    fit: Option<&FpnResult>,
+    t: f64,
+    warnings: &mut Vec<String>,
+) -> Option<Vec<f32>> {
     if let Some(b) = bias.iter().find(|b| (b.exposure_s - t).abs() <= 5e-3 * t) {
         return Some(b.mean.clone());
     }
     if let Some(f) = fit {
         return Some(fpn::predict(f, &bias[0].mean, f.chosen, t));
     }
-    let b = bias.iter().min_by(|a, b| (a.exposure_s.ln() - t.ln()).abs().total_cmp(&(b.exposure_s.ln() - t.ln()).abs()))?;
-    warnings.push(format!("FPN at {t} s taken from the bias stack at {} s (no exposure fit)", b.exposure_s));
+    let b = bias.iter().min_by(|a, b| {
+        (a.exposure_s.ln() - t.ln())
+            .abs()
+            .total_cmp(&(b.exposure_s.ln() - t.ln()).abs())
+    })?;
+    warnings.push(format!(
+        "FPN at {t} s taken from the bias stack at {} s (no exposure fit)",
+        b.exposure_s
+    ));
     Some(b.mean.clone())
 }
 
 /// Sets every bias level's FPN map to `B⁻¹[raw mean]` under `law`.
-fn unbloom(bias: &mut [BiasLevel], raw: &[Vec<f32>], law: &emccd_profile::BloomingFit, width: usize) {
+fn unbloom(
+    bias: &mut [BiasLevel],
+    raw: &[Vec<f32>],
+    law: &emccd_profile::BloomingFit,
+    width: usize,
+) {
     for (b, r) in bias.iter_mut().zip(raw) {
         b.mean.clone_from(r);
         emccd_camera::remove_blooming(&mut b.mean, width, law.factor(b.exposure_s));
@@ -212,13 +265,23 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
     bias_in.sort_by(|a, b| a.exposure_s.total_cmp(&b.exposure_s));
     for w in bias_in.windows(2) {
         if (w[1].exposure_s - w[0].exposure_s).abs() <= 1e-3 * w[0].exposure_s {
-            return Err(Error::input(&w[1].file, format!("a second bias stack at {} s (also {})", w[0].exposure_s, w[0].file.display())));
+            return Err(Error::input(
+                &w[1].file,
+                format!(
+                    "a second bias stack at {} s (also {})",
+                    w[0].exposure_s,
+                    w[0].file.display()
+                ),
+            ));
         }
     }
 
     // Bias: FPN_t and read-noise maps, one streaming pass per stack.
     let probes: Vec<usize> = if n > 0 {
-        [(1, 1), (1, 3), (3, 1), (3, 3), (2, 2)].iter().map(|&(a, b)| (b * height / 4) * width + a * width / 4).collect()
+        [(1, 1), (1, 3), (3, 1), (3, 3), (2, 2)]
+            .iter()
+            .map(|&(a, b)| (b * height / 4) * width + a * width / 4)
+            .collect()
     } else {
         Vec::new()
     };
@@ -228,7 +291,8 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
         let (_, st) = accumulate(&c.file, dims, 2, &probes, None, progress)?;
         let mean = st.mean();
         let std = st.std();
-        if st.probes.first().map_or(0, |p| p.1.len()) > best_probes.first().map_or(0, |p| p.1.len()) {
+        if st.probes.first().map_or(0, |p| p.1.len()) > best_probes.first().map_or(0, |p| p.1.len())
+        {
             best_probes = st.probes.clone();
         }
         bias.push(BiasLevel {
@@ -237,13 +301,17 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
             frames: st.frames,
             median_dn: emccd_profile::median(mean.iter().copied()),
             read_noise_median_dn: emccd_profile::median(std.iter().copied()),
-            read_noise_rms_dn: (std.iter().map(|&v| (v as f64).powi(2)).sum::<f64>() / std.len().max(1) as f64).sqrt(),
+            read_noise_rms_dn: (std.iter().map(|&v| (v as f64).powi(2)).sum::<f64>()
+                / std.len().max(1) as f64)
+                .sqrt(),
             mean,
             std,
         });
     }
-    let normality: Vec<NormalPlot> =
-        best_probes.iter().filter_map(|(i, v)| normal_plot(i % width.max(1), i / width.max(1), v)).collect();
+    let normality: Vec<NormalPlot> = best_probes
+        .iter()
+        .filter_map(|(i, v)| normal_plot(i % width.max(1), i / width.max(1), v))
+        .collect();
     if bias.is_empty() {
         missing.push("FPN and read-noise maps: the manifest has no [[bias]] stacks".into());
     }
@@ -282,7 +350,17 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
             let se2 = v2.std / ((v2.w * v2.h) as f64).sqrt();
             let se3 = v3.std / ((v3.w * v3.h) as f64).sqrt();
             let x_se = ((se2 * (1.0 + x) / den).powi(2) + (se3 / den).powi(2)).sqrt();
-            levels.push(BloomLevel { file: c.file.clone(), exposure_s: c.exposure_s, frames: *frames, v1, v2, v3, c1, x, x_se });
+            levels.push(BloomLevel {
+                file: c.file.clone(),
+                exposure_s: c.exposure_s,
+                frames: *frames,
+                v1,
+                v2,
+                v3,
+                c1,
+                x,
+                x_se,
+            });
         }
         levels.sort_by(|a, b| a.exposure_s.total_cmp(&b.exposure_s));
         blooming::fit(levels, fpn_sub)
@@ -297,7 +375,11 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
         if !pass1.fpn_subtracted {
             warnings.push("blooming frames: no bias stacks, so no FPN was subtracted (x is exact only for a flat pattern)".into());
         }
-        let needs_prediction = bloom_in.iter().any(|c| !bias.iter().any(|b| (b.exposure_s - c.exposure_s).abs() <= 5e-3 * c.exposure_s));
+        let needs_prediction = bloom_in.iter().any(|c| {
+            !bias
+                .iter()
+                .any(|b| (b.exposure_s - c.exposure_s).abs() <= 5e-3 * c.exposure_s)
+        });
         if needs_prediction && raw_fit.is_some() {
             // Pass 2: the pattern at exposures without a bias stack, predicted from the
             // un-bloomed fit and bloomed with pass 1's law — B[FPN_t] is what the frames hold.
@@ -319,7 +401,11 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
         unbloom(&mut bias, &raw_means, &b.law(), width);
     }
     let x_at = |t: f64| blooming.as_ref().map_or(0.0, |b| b.law().factor(t));
-    let fpn = if blooming.is_some() { fit_fpn(&bias, width)? } else { raw_fit };
+    let fpn = if blooming.is_some() {
+        fit_fpn(&bias, width)?
+    } else {
+        raw_fit
+    };
 
     // Flats: median–variance on the central crop.
     let ptc = if flat_in.is_empty() {
@@ -334,7 +420,9 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
             let raw = st.mean();
             let var = st.variance();
             let [x0, y0, cw, ch] = crop;
-            let raw_crop: Vec<f32> = (y0..y0 + ch).flat_map(|y| raw[y * width + x0..y * width + x0 + cw].iter().copied()).collect();
+            let raw_crop: Vec<f32> = (y0..y0 + ch)
+                .flat_map(|y| raw[y * width + x0..y * width + x0 + cw].iter().copied())
+                .collect();
             let raw_median = emccd_profile::median(raw_crop);
             if raw_median >= adc_max - 0.5 {
                 return Err(Error::input(
@@ -348,13 +436,34 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
                 Some(f) => signal.iter_mut().zip(&f).for_each(|(v, f)| *v -= f),
                 None => fpn_sub = false,
             }
-            let (median_dn, variance_dn2, variance_se_dn2, pixels) = ptc::level_stats(&signal, &var, width, crop);
+            let (median_dn, variance_dn2, variance_se_dn2, pixels) =
+                ptc::level_stats(&signal, &var, width, crop);
             let saturated_fraction = st.saturated as f64 / (st.frames * n) as f64;
-            let status = if saturated_fraction > 1e-4 { LevelStatus::Saturated } else { LevelStatus::Included };
-            levels.push(FlatLevel { file: c.file.clone(), exposure_s: c.exposure_s, frames: st.frames, median_dn, variance_dn2, variance_se_dn2, pixels, saturated_fraction, status });
+            let status = if saturated_fraction > 1e-4 {
+                LevelStatus::Saturated
+            } else {
+                LevelStatus::Included
+            };
+            levels.push(FlatLevel {
+                file: c.file.clone(),
+                exposure_s: c.exposure_s,
+                frames: st.frames,
+                median_dn,
+                variance_dn2,
+                variance_se_dn2,
+                pixels,
+                saturated_fraction,
+                status,
+            });
         }
         let fit = ptc::fit(&mut levels)?;
-        Some(PtcResult { levels, fit, crop, fpn_subtracted: fpn_sub, blooming_removed: blooming.is_some() })
+        Some(PtcResult {
+            levels,
+            fit,
+            crop,
+            fpn_subtracted: fpn_sub,
+            blooming_removed: blooming.is_some(),
+        })
     };
 
     let gain_series = match &m.gain_series {
@@ -391,7 +500,11 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
     })
 }
 
-fn run_gain_series(gs: &crate::manifest::GainSeries, opts: &Options, progress: &dyn Progress) -> Result<GainSeriesResult> {
+fn run_gain_series(
+    gs: &crate::manifest::GainSeries,
+    opts: &Options,
+    progress: &dyn Progress,
+) -> Result<GainSeriesResult> {
     let first = &gs.settings[0].file;
     let r = emccd_io::open(first).map_err(|e| Error::io(first, e))?;
     let (w, h) = (r.info().width, r.info().height);
@@ -400,13 +513,20 @@ fn run_gain_series(gs: &crate::manifest::GainSeries, opts: &Options, progress: &
     let side = ((opts.gain_pixels.max(1) as f64).sqrt() as usize).max(1);
     let (bw, bh) = (side.min(w), side.min(h));
     let (x0, y0) = ((w - bw) / 2, (h - bh) / 2);
-    let pixels: Vec<(usize, usize)> = (y0..y0 + bh).flat_map(|y| (x0..x0 + bw).map(move |x| (x, y))).collect();
+    let pixels: Vec<(usize, usize)> = (y0..y0 + bh)
+        .flat_map(|y| (x0..x0 + bw).map(move |x| (x, y)))
+        .collect();
     let idx: Vec<usize> = pixels.iter().map(|&(x, y)| y * w + x).collect();
     let mut data = Vec::new();
     for s in &gs.settings {
         let (info, st) = accumulate(&s.file, Some((w, h)), 100, &idx, None, progress)?;
         if info.frames > crate::stats::PROBE_CAP {
-            eprintln!("note: {}: fitting the first {} of {} frames", s.file.display(), crate::stats::PROBE_CAP, info.frames);
+            eprintln!(
+                "note: {}: fitting the first {} of {} frames",
+                s.file.display(),
+                crate::stats::PROBE_CAP,
+                info.frames
+            );
         }
         let (offset, sigma) = match (&s.offset_map, &s.sigma_map, &s.no_signal) {
             (Some(o), Some(g), _) => {
@@ -414,28 +534,57 @@ fn run_gain_series(gs: &crate::manifest::GainSeries, opts: &Options, progress: &
                 let (gw, gh, gm) = read_map(g)?;
                 for (p, ww, hh) in [(o, ow, oh), (g, gw, gh)] {
                     if (ww, hh) != (w, h) {
-                        return Err(Error::input(p, format!("map is {ww}×{hh}, the stack {} is {w}×{h}", s.file.display())));
+                        return Err(Error::input(
+                            p,
+                            format!(
+                                "map is {ww}×{hh}, the stack {} is {w}×{h}",
+                                s.file.display()
+                            ),
+                        ));
                     }
                 }
-                (idx.iter().map(|&i| om[i] as f64).collect::<Vec<_>>(), idx.iter().map(|&i| gm[i] as f64).collect::<Vec<_>>())
+                (
+                    idx.iter().map(|&i| om[i] as f64).collect::<Vec<_>>(),
+                    idx.iter().map(|&i| gm[i] as f64).collect::<Vec<_>>(),
+                )
             }
             (_, _, Some(ns)) => {
                 let (_, st0) = accumulate(ns, Some((w, h)), 2, &[], None, progress)?;
                 let (m0, s0) = (st0.mean(), st0.std());
-                (idx.iter().map(|&i| m0[i] as f64).collect(), idx.iter().map(|&i| s0[i] as f64).collect())
+                (
+                    idx.iter().map(|&i| m0[i] as f64).collect(),
+                    idx.iter().map(|&i| s0[i] as f64).collect(),
+                )
             }
-            _ => return Err(Error::input(&s.file, "no offset/sigma maps and no no-signal stack")),
+            _ => {
+                return Err(Error::input(
+                    &s.file,
+                    "no offset/sigma maps and no no-signal stack",
+                ))
+            }
         };
         if let Some(bad) = sigma.iter().position(|v| !(*v > 0.0)) {
-            return Err(Error::input(&s.file, format!("readout σ of pixel {:?} is not positive", pixels[bad])));
+            return Err(Error::input(
+                &s.file,
+                format!("readout σ of pixel {:?} is not positive", pixels[bad]),
+            ));
         }
         let samples = st.probes.into_iter().map(|(_, v)| v).collect();
-        data.push(SettingData { nominal: s.em_gain, file: s.file.clone(), samples, offset, sigma });
+        data.push(SettingData {
+            nominal: s.em_gain,
+            file: s.file.clone(),
+            samples,
+            offset,
+            sigma,
+        });
     }
     let reference = match &gs.reference_e_per_dn {
         Some(p) => {
             let (rw, _, rm) = read_map(p)?;
-            let vals: Vec<f64> = pixels.iter().filter_map(|&(x, y)| rm.get(y * rw + x).map(|&v| v as f64)).collect();
+            let vals: Vec<f64> = pixels
+                .iter()
+                .filter_map(|&(x, y)| rm.get(y * rw + x).map(|&v| v as f64))
+                .collect();
             Some(vals.iter().sum::<f64>() / vals.len().max(1) as f64)
         }
         None => None,
@@ -448,7 +597,9 @@ impl Calibration {
     /// blooming stacks: a gain series alone does not describe a sensor).
     pub fn profile(&self) -> Result<CameraProfile> {
         if self.width == 0 {
-            return Err(Error::Fit("no stacks with a frame size: nothing to build a profile from".into()));
+            return Err(Error::Fit(
+                "no stacks with a frame size: nothing to build a profile from".into(),
+            ));
         }
         let n = self.width * self.height;
         let (fpn_fit, fpn_base, fpn_theta) = match (self.bias.first(), &self.fpn) {
@@ -465,12 +616,39 @@ impl Calibration {
                         }
                     }
                 }
-                (FpnFit { form: f.chosen, base_exposure_s: b0.exposure_s, shared_theta: f.shared_theta }, b0.mean.clone(), theta)
+                (
+                    FpnFit {
+                        form: f.chosen,
+                        base_exposure_s: b0.exposure_s,
+                        shared_theta: f.shared_theta,
+                    },
+                    b0.mean.clone(),
+                    theta,
+                )
             }
-            (Some(b0), None) => (FpnFit { form: FpnForm::Shared, base_exposure_s: b0.exposure_s, shared_theta: [0.0; 4] }, b0.mean.clone(), Vec::new()),
-            _ => (FpnFit { form: FpnForm::Shared, base_exposure_s: 1e-5, shared_theta: [0.0; 4] }, Vec::new(), Vec::new()),
+            (Some(b0), None) => (
+                FpnFit {
+                    form: FpnForm::Shared,
+                    base_exposure_s: b0.exposure_s,
+                    shared_theta: [0.0; 4],
+                },
+                b0.mean.clone(),
+                Vec::new(),
+            ),
+            _ => (
+                FpnFit {
+                    form: FpnForm::Shared,
+                    base_exposure_s: 1e-5,
+                    shared_theta: [0.0; 4],
+                },
+                Vec::new(),
+                Vec::new(),
+            ),
         };
-        let mut notes = format!("calibrated by `emccd calibrate` from {}", self.manifest.display());
+        let mut notes = format!(
+            "calibrated by `emccd calibrate` from {}",
+            self.manifest.display()
+        );
         for m in &self.missing {
             notes.push_str(&format!("; missing: {m}"));
         }
@@ -479,7 +657,11 @@ impl Calibration {
                 "; gain series: {:.4} ± {:.4} e-/DN, gains {}",
                 gs.e_per_dn,
                 gs.e_per_dn_se,
-                gs.settings.iter().map(|s| format!("{}x→{:.2}", s.nominal, s.gain)).collect::<Vec<_>>().join(", ")
+                gs.settings
+                    .iter()
+                    .map(|s| format!("{}x→{:.2}", s.nominal, s.gain))
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ));
         }
         let p = CameraProfile {
@@ -487,7 +669,11 @@ impl Calibration {
             em_gain: self.em_gain,
             width: self.width,
             height: self.height,
-            ptc_slope_dn: self.ptc.as_ref().map(|p| p.fit.slope).or_else(|| self.gain_series.as_ref().map(|g| g.slope_at(self.em_gain))),
+            ptc_slope_dn: self
+                .ptc
+                .as_ref()
+                .map(|p| p.fit.slope)
+                .or_else(|| self.gain_series.as_ref().map(|g| g.slope_at(self.em_gain))),
             f_range: [1.3, std::f64::consts::SQRT_2],
             quantization_dn: 1.0,
             adc_max_dn: self.adc_max_dn,
@@ -496,10 +682,18 @@ impl Calibration {
             exposures_s: self.bias.iter().map(|b| b.exposure_s).collect(),
             eld: None,
             pgn: None,
-            provenance: Provenance { source: "calibrated".into(), notes },
-            maps: ProfileMaps { fpn_base, fpn_theta, read_noise: self.bias.iter().map(|b| b.std.clone()).collect() },
+            provenance: Provenance {
+                source: "calibrated".into(),
+                notes,
+            },
+            maps: ProfileMaps {
+                fpn_base,
+                fpn_theta,
+                read_noise: self.bias.iter().map(|b| b.std.clone()).collect(),
+            },
         };
-        p.validate().map_err(|e| Error::Fit(format!("the calibrated profile is inconsistent: {e}")))?;
+        p.validate()
+            .map_err(|e| Error::Fit(format!("the calibrated profile is inconsistent: {e}")))?;
         Ok(p)
     }
 }

@@ -30,12 +30,18 @@ pub enum Error {
 impl Error {
     /// An input error for `path`.
     pub fn input(path: &Path, message: impl Into<String>) -> Error {
-        Error::Input { path: path.to_path_buf(), message: message.into() }
+        Error::Input {
+            path: path.to_path_buf(),
+            message: message.into(),
+        }
     }
 
     /// Wraps an I/O-layer error; `emccd_io` errors already name their file.
     pub fn io(path: &Path, e: emccd_io::Error) -> Error {
-        Error::Input { path: path.to_path_buf(), message: io_message(e) }
+        Error::Input {
+            path: path.to_path_buf(),
+            message: io_message(e),
+        }
     }
 }
 

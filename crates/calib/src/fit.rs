@@ -37,12 +37,24 @@ pub fn line(x: &[f64], y: &[f64], w: Option<&[f64]>) -> Option<LineFit> {
     }
     let slope = sxy / sxx;
     let intercept = my - slope * mx;
-    let sse: f64 = (0..n).map(|i| wt(i) * (y[i] - intercept - slope * x[i]).powi(2)).sum();
-    let s2 = if n > 2 { sse / (n - 2) as f64 } else { f64::NAN };
+    let sse: f64 = (0..n)
+        .map(|i| wt(i) * (y[i] - intercept - slope * x[i]).powi(2))
+        .sum();
+    let s2 = if n > 2 {
+        sse / (n - 2) as f64
+    } else {
+        f64::NAN
+    };
     let slope_se = (s2 / sxx).sqrt();
     let intercept_se = (s2 * (1.0 / sw + mx * mx / sxx)).sqrt();
     let r2 = if syy > 0.0 { 1.0 - sse / syy } else { 1.0 };
-    Some(LineFit { slope, intercept, slope_se, intercept_se, r2 })
+    Some(LineFit {
+        slope,
+        intercept,
+        slope_se,
+        intercept_se,
+        r2,
+    })
 }
 
 /// Inverts a symmetric positive-definite `p×p` matrix (row-major) by Gauss–Jordan with partial
@@ -104,7 +116,12 @@ pub fn levenberg_marquardt<const P: usize>(
     clamp: impl Fn(&mut [f64; P]),
     max_iter: usize,
 ) -> LsqFit<P> {
-    let sse_of = |th: &[f64; P]| x.iter().zip(y).map(|(&xi, &yi)| (yi - model(xi, th).0).powi(2)).sum::<f64>();
+    let sse_of = |th: &[f64; P]| {
+        x.iter()
+            .zip(y)
+            .map(|(&xi, &yi)| (yi - model(xi, th).0).powi(2))
+            .sum::<f64>()
+    };
     let mut th = init;
     let mut sse = sse_of(&th);
     let mut lambda = 1e-3;
@@ -174,12 +191,22 @@ pub fn levenberg_marquardt<const P: usize>(
             }
         }
     }
-    LsqFit { params: th, sse, se }
+    LsqFit {
+        params: th,
+        sse,
+        se,
+    }
 }
 
 /// Nelder–Mead minimization of `f` from `x0` with initial simplex steps `step`.
 /// Stops when the simplex's function values agree within `ftol` (absolute) or after `max_eval`.
-pub fn nelder_mead(f: &dyn Fn(&[f64]) -> f64, x0: &[f64], step: &[f64], ftol: f64, max_eval: usize) -> (Vec<f64>, f64) {
+pub fn nelder_mead(
+    f: &dyn Fn(&[f64]) -> f64,
+    x0: &[f64],
+    step: &[f64],
+    ftol: f64,
+    max_eval: usize,
+) -> (Vec<f64>, f64) {
     let n = x0.len();
     let mut pts: Vec<Vec<f64>> = vec![x0.to_vec()];
     for i in 0..n {
@@ -198,8 +225,14 @@ pub fn nelder_mead(f: &dyn Fn(&[f64]) -> f64, x0: &[f64], step: &[f64], ftol: f6
         if (fv(vals[n]) - fv(vals[0])).abs() <= ftol {
             break;
         }
-        let centroid: Vec<f64> = (0..n).map(|j| pts[..n].iter().map(|p| p[j]).sum::<f64>() / n as f64).collect();
-        let along = |t: f64| -> Vec<f64> { (0..n).map(|j| centroid[j] + t * (pts[n][j] - centroid[j])).collect() };
+        let centroid: Vec<f64> = (0..n)
+            .map(|j| pts[..n].iter().map(|p| p[j]).sum::<f64>() / n as f64)
+            .collect();
+        let along = |t: f64| -> Vec<f64> {
+            (0..n)
+                .map(|j| centroid[j] + t * (pts[n][j] - centroid[j]))
+                .collect()
+        };
         let xr = along(-1.0);
         let fr = fv(f(&xr));
         evals += 1;
@@ -242,7 +275,9 @@ pub fn nelder_mead(f: &dyn Fn(&[f64]) -> f64, x0: &[f64], step: &[f64], ftol: f6
             }
         }
     }
-    let best = (0..=n).min_by(|&a, &b| fv(vals[a]).total_cmp(&fv(vals[b]))).unwrap_or(0);
+    let best = (0..=n)
+        .min_by(|&a, &b| fv(vals[a]).total_cmp(&fv(vals[b])))
+        .unwrap_or(0);
     (pts[best].clone(), vals[best])
 }
 
@@ -255,16 +290,46 @@ pub fn normal_cdf(z: f64) -> f64 {
 /// (relative error below 1e-12 on (0, 1)).
 pub fn normal_quantile(p: f64) -> f64 {
     if !(p > 0.0 && p < 1.0) {
-        return if p <= 0.0 { f64::NEG_INFINITY } else { f64::INFINITY };
+        return if p <= 0.0 {
+            f64::NEG_INFINITY
+        } else {
+            f64::INFINITY
+        };
     }
-    const A: [f64; 6] = [-3.969683028665376e1, 2.209460984245205e2, -2.759285104469687e2, 1.383577518672690e2, -3.066479806614716e1, 2.506628277459239];
-    const B: [f64; 5] = [-5.447609879822406e1, 1.615858368580409e2, -1.556989798598866e2, 6.680131188771972e1, -1.328068155288572e1];
-    const C: [f64; 6] = [-7.784894002430293e-3, -3.223964580411365e-1, -2.400758277161838, -2.549732539343734, 4.374664141464968, 2.938163982698783];
-    const D: [f64; 4] = [7.784695709041462e-3, 3.224671290700398e-1, 2.445134137142996, 3.754408661907416];
+    const A: [f64; 6] = [
+        -3.969683028665376e1,
+        2.209460984245205e2,
+        -2.759285104469687e2,
+        1.383577518672690e2,
+        -3.066479806614716e1,
+        2.506628277459239,
+    ];
+    const B: [f64; 5] = [
+        -5.447609879822406e1,
+        1.615858368580409e2,
+        -1.556989798598866e2,
+        6.680131188771972e1,
+        -1.328068155288572e1,
+    ];
+    const C: [f64; 6] = [
+        -7.784894002430293e-3,
+        -3.223964580411365e-1,
+        -2.400758277161838,
+        -2.549732539343734,
+        4.374664141464968,
+        2.938163982698783,
+    ];
+    const D: [f64; 4] = [
+        7.784695709041462e-3,
+        3.224671290700398e-1,
+        2.445134137142996,
+        3.754408661907416,
+    ];
     let pl = 0.02425;
     let x = if p < pl {
         let q = (-2.0 * p.ln()).sqrt();
-        (((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5]) / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
+        (((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5])
+            / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
     } else if p <= 1.0 - pl {
         let q = p - 0.5;
         let r = q * q;
@@ -272,7 +337,8 @@ pub fn normal_quantile(p: f64) -> f64 {
             / (((((B[0] * r + B[1]) * r + B[2]) * r + B[3]) * r + B[4]) * r + 1.0)
     } else {
         let q = (-2.0 * (1.0 - p).ln()).sqrt();
-        -(((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5]) / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
+        -(((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5])
+            / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
     };
     let e = normal_cdf(x) - p;
     let u = e * (2.0 * std::f64::consts::PI).sqrt() * (x * x / 2.0).exp();
@@ -319,19 +385,29 @@ mod tests {
         let x = [1.0, 2.0, 4.0, 8.0];
         let y: Vec<f64> = x.iter().map(|v| 3.0 * v - 2.0).collect();
         let f = line(&x, &y, None).unwrap();
-        assert!((f.slope - 3.0).abs() < 1e-12 && (f.intercept + 2.0).abs() < 1e-12 && (f.r2 - 1.0).abs() < 1e-12);
+        assert!(
+            (f.slope - 3.0).abs() < 1e-12
+                && (f.intercept + 2.0).abs() < 1e-12
+                && (f.r2 - 1.0).abs() < 1e-12
+        );
     }
 
     #[test]
     fn lm_fits_a_logistic() {
         let th = [1.0, 0.5, 1.3, -2.0];
         let x: Vec<f64> = (0..30).map(|i| -8.0 + i as f64 * 0.4).collect();
-        let y: Vec<f64> = x.iter().map(|&u| th[0] + th[1] / (1.0 + (-th[2] * (u - th[3])).exp())).collect();
+        let y: Vec<f64> = x
+            .iter()
+            .map(|&u| th[0] + th[1] / (1.0 + (-th[2] * (u - th[3])).exp()))
+            .collect();
         let model = |u: f64, t: &[f64; 4]| {
             let e = (-t[2] * (u - t[3])).exp();
             let s = 1.0 / (1.0 + e);
             let ds = s * s * e;
-            (t[0] + t[1] * s, [1.0, s, t[1] * ds * (u - t[3]), -t[1] * ds * t[2]])
+            (
+                t[0] + t[1] * s,
+                [1.0, s, t[1] * ds * (u - t[3]), -t[1] * ds * t[2]],
+            )
         };
         let f = levenberg_marquardt(&x, &y, [0.8, 0.7, 1.0, -1.0], model, |_| {}, 200);
         for k in 0..4 {
@@ -341,8 +417,12 @@ mod tests {
 
     #[test]
     fn nelder_mead_finds_a_quadratic_minimum() {
-        let f = |x: &[f64]| (x[0] - 1.0).powi(2) + 10.0 * (x[1] + 2.0).powi(2) + (x[2] - 0.5).powi(2);
+        let f =
+            |x: &[f64]| (x[0] - 1.0).powi(2) + 10.0 * (x[1] + 2.0).powi(2) + (x[2] - 0.5).powi(2);
         let (x, v) = nelder_mead(&f, &[0.0, 0.0, 0.0], &[0.5, 0.5, 0.5], 1e-14, 5000);
-        assert!(v < 1e-10 && (x[0] - 1.0).abs() < 1e-4 && (x[1] + 2.0).abs() < 1e-4, "{x:?}");
+        assert!(
+            v < 1e-10 && (x[0] - 1.0).abs() < 1e-4 && (x[1] + 2.0).abs() < 1e-4,
+            "{x:?}"
+        );
     }
 }

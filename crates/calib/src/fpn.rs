@@ -78,7 +78,11 @@ fn shared_model(u: f64, u0: f64, t: &[f64; 3]) -> (f64, [f64; 3]) {
     let (d, d0) = (s * (1.0 - s), s0 * (1.0 - s0));
     (
         t[0] * (s - s0),
-        [s - s0, t[0] * (d * (u - t[2]) - d0 * (u0 - t[2])), -t[0] * t[1] * (d - d0)],
+        [
+            s - s0,
+            t[0] * (d * (u - t[2]) - d0 * (u0 - t[2])),
+            -t[0] * t[1] * (d - d0),
+        ],
     )
 }
 
@@ -86,12 +90,21 @@ fn shared_model(u: f64, u0: f64, t: &[f64; 3]) -> (f64, [f64; 3]) {
 fn pixel_model(u: f64, t: &[f64; 4]) -> (f64, [f64; 4]) {
     let s = sig(u, t[2], t[3]);
     let d = s * (1.0 - s);
-    (t[0] + t[1] * s, [1.0, s, t[1] * d * (u - t[3]), -t[1] * t[2] * d])
+    (
+        t[0] + t[1] * s,
+        [1.0, s, t[1] * d * (u - t[3]), -t[1] * t[2] * d],
+    )
 }
 
 /// Fits both forms. `means[i]`/`stds[i]` are the bias maps at `exposures[i]` (ascending) from
 /// `frames[i]` frames each.
-pub fn fit(exposures: &[f64], means: &[Vec<f32>], stds: &[Vec<f32>], frames: &[usize], width: usize) -> Result<FpnResult> {
+pub fn fit(
+    exposures: &[f64],
+    means: &[Vec<f32>],
+    stds: &[Vec<f32>],
+    frames: &[usize],
+    width: usize,
+) -> Result<FpnResult> {
     let e = exposures.len();
     let n = means.first().map_or(0, Vec::len);
     if e < 4 {
@@ -118,10 +131,18 @@ pub fn fit(exposures: &[f64], means: &[Vec<f32>], stds: &[Vec<f32>], frames: &[u
     }
     let kept = inlier.iter().filter(|&&k| k).count();
     if kept < n / 2 {
-        return Err(Error::Fit(format!("FPN fit: only {kept} of {n} pixels behave consistently across exposures")));
+        return Err(Error::Fit(format!(
+            "FPN fit: only {kept} of {n} pixels behave consistently across exposures"
+        )));
     }
     let points: Vec<f64> = (0..e)
-        .map(|i| (0..n).filter(|&p| inlier[p]).map(|p| ratio(i, p)).sum::<f64>() / kept as f64)
+        .map(|i| {
+            (0..n)
+                .filter(|&p| inlier[p])
+                .map(|p| ratio(i, p))
+                .sum::<f64>()
+                / kept as f64
+        })
         .collect();
     // Grid start (θ1 by linear least squares for each θ2, θ3), then Levenberg–Marquardt.
     let (umin, umax) = (u[0], u[e - 1]);
@@ -129,13 +150,20 @@ pub fn fit(exposures: &[f64], means: &[Vec<f32>], stds: &[Vec<f32>], frames: &[u
     for &t2 in &[0.2, 0.4, 0.7, 1.0, 1.5, 2.5, 4.0] {
         for k in 0..=40 {
             let t3 = umin - 3.0 + (umax - umin + 6.0) * k as f64 / 40.0;
-            let g: Vec<f64> = u.iter().map(|&x| sig(x, t2, t3) - sig(u[0], t2, t3)).collect();
+            let g: Vec<f64> = u
+                .iter()
+                .map(|&x| sig(x, t2, t3) - sig(u[0], t2, t3))
+                .collect();
             let gg: f64 = g.iter().map(|v| v * v).sum();
             if gg <= 0.0 {
                 continue;
             }
             let t1 = g.iter().zip(&points).map(|(a, b)| a * b).sum::<f64>() / gg;
-            let sse: f64 = g.iter().zip(&points).map(|(a, b)| (b - t1 * a).powi(2)).sum();
+            let sse: f64 = g
+                .iter()
+                .zip(&points)
+                .map(|(a, b)| (b - t1 * a).powi(2))
+                .sum();
             if sse < best.0 {
                 best = (sse, [t1, t2, t3]);
             }
@@ -145,7 +173,14 @@ pub fn fit(exposures: &[f64], means: &[Vec<f32>], stds: &[Vec<f32>], frames: &[u
         t[1] = t[1].clamp(0.01, 20.0);
         t[2] = t[2].clamp(umin - 15.0, umax + 15.0);
     };
-    let sh = levenberg_marquardt(&u, &points, best.1, |x, t| shared_model(x, u[0], t), clamp3, 200);
+    let sh = levenberg_marquardt(
+        &u,
+        &points,
+        best.1,
+        |x, t| shared_model(x, u[0], t),
+        clamp3,
+        200,
+    );
     let [t1, t2, t3] = sh.params;
     let shared_theta = [0.0, t1, t2, t3];
     let shared_se = [0.0, sh.se[0], sh.se[1], sh.se[2]];
@@ -162,9 +197,20 @@ pub fn fit(exposures: &[f64], means: &[Vec<f32>], stds: &[Vec<f32>], frames: &[u
                 let y: Vec<f64> = (0..e).map(|i| (means[i][p] as f64).ln()).collect();
                 let s: Vec<f64> = u.iter().map(|&x| sig(x, t2, t3)).collect();
                 // Linear start: θ0, θ1 for the shared shape.
-                let (ms, my) = (s.iter().sum::<f64>() / e as f64, y.iter().sum::<f64>() / e as f64);
+                let (ms, my) = (
+                    s.iter().sum::<f64>() / e as f64,
+                    y.iter().sum::<f64>() / e as f64,
+                );
                 let sxx: f64 = s.iter().map(|v| (v - ms).powi(2)).sum();
-                let a1 = if sxx > 0.0 { s.iter().zip(&y).map(|(a, b)| (a - ms) * (b - my)).sum::<f64>() / sxx } else { 0.0 };
+                let a1 = if sxx > 0.0 {
+                    s.iter()
+                        .zip(&y)
+                        .map(|(a, b)| (a - ms) * (b - my))
+                        .sum::<f64>()
+                        / sxx
+                } else {
+                    0.0
+                };
                 let init = [my - a1 * ms, a1, t2, t3];
                 let clamp4 = |t: &mut [f64; 4]| {
                     t[2] = t[2].clamp(0.01, 20.0);
@@ -186,10 +232,17 @@ pub fn fit(exposures: &[f64], means: &[Vec<f32>], stds: &[Vec<f32>], frames: &[u
     };
 
     let pixel_pred = |p: usize, x: f64| -> f64 {
-        let th = [theta_maps[p], theta_maps[n + p], theta_maps[2 * n + p], theta_maps[3 * n + p]].map(|v| v as f64);
+        let th = [
+            theta_maps[p],
+            theta_maps[n + p],
+            theta_maps[2 * n + p],
+            theta_maps[3 * n + p],
+        ]
+        .map(|v| v as f64);
         pixel_model(x, &th).0.exp()
     };
-    let shared_pred = |p: usize, x: f64| -> f64 { base[p] as f64 * shared_model(x, u[0], &sh.params).0.exp() };
+    let shared_pred =
+        |p: usize, x: f64| -> f64 { base[p] as f64 * shared_model(x, u[0], &sh.params).0.exp() };
     let errors: Vec<FpnError> = (0..e)
         .map(|i| {
             let (mut es, mut ep, mut ei, mut fl, mut ni) = (0.0, 0.0, 0.0, 0.0, 0usize);
@@ -202,7 +255,11 @@ pub fn fit(exposures: &[f64], means: &[Vec<f32>], stds: &[Vec<f32>], frames: &[u
                     ni += 1;
                 }
                 if per_pixel {
-                    ep += if usable[p] { (pixel_pred(p, u[i]) - m).abs() } else { m.abs() };
+                    ep += if usable[p] {
+                        (pixel_pred(p, u[i]) - m).abs()
+                    } else {
+                        m.abs()
+                    };
                 }
                 fl += stds[i][p] as f64;
             }
@@ -212,7 +269,9 @@ pub fn fit(exposures: &[f64], means: &[Vec<f32>], stds: &[Vec<f32>], frames: &[u
                 shared_mae_dn: es / nn,
                 per_pixel_mae_dn: if per_pixel { ep / nn } else { f64::NAN },
                 shared_mae_inliers_dn: ei / ni.max(1) as f64,
-                noise_floor_dn: (2.0 / std::f64::consts::PI).sqrt() * fl / nn / (frames[i].max(1) as f64).sqrt(),
+                noise_floor_dn: (2.0 / std::f64::consts::PI).sqrt() * fl
+                    / nn
+                    / (frames[i].max(1) as f64).sqrt(),
             }
         })
         .collect();
@@ -237,7 +296,13 @@ pub fn fit(exposures: &[f64], means: &[Vec<f32>], stds: &[Vec<f32>], frames: &[u
         y: pick / width.max(1),
         measured_dn: (0..e).map(|i| means[i][pick] as f64).collect(),
         theta: if per_pixel {
-            [theta_maps[pick], theta_maps[n + pick], theta_maps[2 * n + pick], theta_maps[3 * n + pick]].map(|v| v as f64)
+            [
+                theta_maps[pick],
+                theta_maps[n + pick],
+                theta_maps[2 * n + pick],
+                theta_maps[3 * n + pick],
+            ]
+            .map(|v| v as f64)
         } else {
             [f64::NAN; 4]
         },
@@ -267,7 +332,11 @@ pub fn predict(r: &FpnResult, base: &[f32], form: FpnForm, exposure_s: f64) -> V
             .map(|p| {
                 let t = &r.theta_maps;
                 let th = [t[p], t[n + p], t[2 * n + p], t[3 * n + p]].map(|v| v as f64);
-                if th[0].is_nan() { base[p] } else { pixel_model(u, &th).0.exp() as f32 }
+                if th[0].is_nan() {
+                    base[p]
+                } else {
+                    pixel_model(u, &th).0.exp() as f32
+                }
             })
             .collect(),
         _ => {
@@ -299,8 +368,18 @@ mod tests {
         let stds = vec![vec![0.0f32; n]; t.len()];
         let r = fit(&t, &means, &stds, &vec![10; t.len()], 8).unwrap();
         for k in 1..4 {
-            assert!((r.shared_theta[k] - th[k]).abs() < 1e-3 * th[k].abs().max(1.0), "{:?}", r.shared_theta);
+            assert!(
+                (r.shared_theta[k] - th[k]).abs() < 1e-3 * th[k].abs().max(1.0),
+                "{:?}",
+                r.shared_theta
+            );
         }
-        assert!(r.errors.iter().all(|e| e.shared_mae_dn < 1e-3 && e.per_pixel_mae_dn < 1e-2), "{:?}", r.errors);
+        assert!(
+            r.errors
+                .iter()
+                .all(|e| e.shared_mae_dn < 1e-3 && e.per_pixel_mae_dn < 1e-2),
+            "{:?}",
+            r.errors
+        );
     }
 }

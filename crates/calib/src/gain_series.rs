@@ -111,7 +111,11 @@ impl GainSeriesResult {
         let s = self
             .settings
             .iter()
-            .min_by(|a, b| (a.nominal - em_gain).abs().total_cmp(&(b.nominal - em_gain).abs()))
+            .min_by(|a, b| {
+                (a.nominal - em_gain)
+                    .abs()
+                    .total_cmp(&(b.nominal - em_gain).abs())
+            })
             .expect("a gain series has settings");
         (2.0 - 1.0 / s.gain) * s.gain / self.e_per_dn
     }
@@ -133,8 +137,12 @@ struct Term {
 
 impl Term {
     fn new(samples: &[f32], s0: f64, sigma: f64, planner: &mut RealFftPlanner<f64>) -> Term {
-        let lo = samples.iter().fold(f64::INFINITY, |a, &v| a.min(v.round() as f64));
-        let hi = samples.iter().fold(f64::NEG_INFINITY, |a, &v| a.max(v.round() as f64));
+        let lo = samples
+            .iter()
+            .fold(f64::INFINITY, |a, &v| a.min(v.round() as f64));
+        let hi = samples
+            .iter()
+            .fold(f64::NEG_INFINITY, |a, &v| a.max(v.round() as f64));
         let pad = (12.0 * sigma).max(64.0).ceil();
         let x0 = lo - pad;
         let n = ((hi - lo + 1.0 + 2.0 * pad) as usize).next_power_of_two();
@@ -142,12 +150,27 @@ impl Term {
         for &v in samples {
             counts[(v.round() as f64 - x0) as usize] += 1.0;
         }
-        let hist = counts.iter().enumerate().filter(|(_, &c)| c > 0.0).map(|(i, &c)| (i, c)).collect();
+        let hist = counts
+            .iter()
+            .enumerate()
+            .filter(|(_, &c)| c > 0.0)
+            .map(|(i, &c)| (i, c))
+            .collect();
         let plan = planner.plan_fft_inverse(n);
         let spec = plan.make_input_vec();
         let out = plan.make_output_vec();
         let scratch = plan.make_scratch_vec();
-        Term { hist, x0, n, s0, sigma, plan, spec, out, scratch }
+        Term {
+            hist,
+            x0,
+            n,
+            s0,
+            sigma,
+            plan,
+            spec,
+            out,
+            scratch,
+        }
     }
 
     /// Fills `out` with the probability of each integer DN `x0 + j`.
@@ -155,23 +178,36 @@ impl Term {
         let n = self.n;
         let two_pi_n = 2.0 * std::f64::consts::PI / n as f64;
         let unity = gain <= 1.0 + 1e-9;
-        let (a, scale) = if unity { (0.0, 0.0) } else { (gain / (gain - 1.0), (gain - 1.0) / c) };
+        let (a, scale) = if unity {
+            (0.0, 0.0)
+        } else {
+            (gain / (gain - 1.0), (gain - 1.0) / c)
+        };
         for (k, s) in self.spec.iter_mut().enumerate() {
             let t = two_pi_n * k as f64;
-            let box_cf = if k == 0 { 1.0 } else { (t / 2.0).sin() / (t / 2.0) };
+            let box_cf = if k == 0 {
+                1.0
+            } else {
+                (t / 2.0).sin() / (t / 2.0)
+            };
             let phi_x = if unity {
                 Complex64::new(0.0, t / c).exp()
             } else {
                 Complex64::new(1.0, -scale * t).powf(-a)
             };
-            let log_phi = Complex64::new(-0.5 * self.sigma * self.sigma * t * t, t * (self.s0 - self.x0)) + lambda * (phi_x - 1.0);
+            let log_phi = Complex64::new(
+                -0.5 * self.sigma * self.sigma * t * t,
+                t * (self.s0 - self.x0),
+            ) + lambda * (phi_x - 1.0);
             // Conjugate: realfft's inverse uses e^{+i}, the density needs e^{−itx}.
             *s = (log_phi.exp() * box_cf).conj();
         }
         self.spec[0].im = 0.0;
         self.spec[n / 2].im = 0.0;
         // The plan only fails on wrong buffer lengths, which `make_*_vec` rule out.
-        let _ = self.plan.process_with_scratch(&mut self.spec, &mut self.out, &mut self.scratch);
+        let _ = self
+            .plan
+            .process_with_scratch(&mut self.spec, &mut self.out, &mut self.scratch);
         let inv = 1.0 / n as f64;
         for v in &mut self.out {
             *v *= inv;
@@ -180,24 +216,41 @@ impl Term {
 
     fn log_likelihood(&mut self, lambda: f64, gain: f64, c: f64) -> f64 {
         self.pmf(lambda, gain, c);
-        self.hist.iter().map(|&(j, cnt)| cnt * self.out[j].max(1e-300).ln()).sum()
+        self.hist
+            .iter()
+            .map(|&(j, cnt)| cnt * self.out[j].max(1e-300).ln())
+            .sum()
     }
 }
 
 /// Per-pixel fit: returns (λ, c, gains per setting, SE of c from the curvature).
 fn fit_pixel(data: &[SettingData], p: usize, anchor: usize) -> (f64, f64, Vec<f64>, f64, f64) {
     let mut planner = RealFftPlanner::<f64>::new();
-    let terms: Vec<RefCell<Term>> =
-        data.iter().map(|d| RefCell::new(Term::new(&d.samples[p], d.offset[p], d.sigma[p], &mut planner))).collect();
+    let terms: Vec<RefCell<Term>> = data
+        .iter()
+        .map(|d| {
+            RefCell::new(Term::new(
+                &d.samples[p],
+                d.offset[p],
+                d.sigma[p],
+                &mut planner,
+            ))
+        })
+        .collect();
     // Moments start: the highest setting's variance/mean fixes G/c and λ (F² = 2 − 1/G), the
     // anchor's mean then fixes c.
     let mom = |d: &SettingData| -> (f64, f64) {
         let s = &d.samples[p];
         let m = s.iter().map(|&v| v as f64).sum::<f64>() / s.len() as f64;
         let v = s.iter().map(|&x| (x as f64 - m).powi(2)).sum::<f64>() / (s.len() - 1) as f64;
-        (m - d.offset[p], (v - d.sigma[p].powi(2) - 1.0 / 12.0).max(1e-6))
+        (
+            m - d.offset[p],
+            (v - d.sigma[p].powi(2) - 1.0 / 12.0).max(1e-6),
+        )
     };
-    let top = (0..data.len()).max_by(|&a, &b| data[a].nominal.total_cmp(&data[b].nominal)).unwrap_or(0);
+    let top = (0..data.len())
+        .max_by(|&a, &b| data[a].nominal.total_cmp(&data[b].nominal))
+        .unwrap_or(0);
     let (mt, vt) = mom(&data[top]);
     let f2 = 2.0 - 1.0 / data[top].nominal;
     let k_top = vt / (f2 * mt.max(1e-9));
@@ -212,7 +265,9 @@ fn fit_pixel(data: &[SettingData], p: usize, anchor: usize) -> (f64, f64, Vec<f6
     }
     let nll = |x: &[f64]| -> f64 {
         let (lambda, c) = (x[0].exp(), x[1].exp());
-        let mut s = -terms[anchor].borrow_mut().log_likelihood(lambda, data[anchor].nominal, c);
+        let mut s = -terms[anchor]
+            .borrow_mut()
+            .log_likelihood(lambda, data[anchor].nominal, c);
         for (i, &k) in others.iter().enumerate() {
             let g = x[2 + i].exp();
             if g < 1.0 {
@@ -264,20 +319,40 @@ fn fit_pixel(data: &[SettingData], p: usize, anchor: usize) -> (f64, f64, Vec<f6
 }
 
 /// Fits every pixel (in parallel) and summarizes over pixels.
-pub fn fit(mut data: Vec<SettingData>, pixels: Vec<(usize, usize)>, sensor: (usize, usize), reference: Option<f64>) -> Result<GainSeriesResult> {
+pub fn fit(
+    mut data: Vec<SettingData>,
+    pixels: Vec<(usize, usize)>,
+    sensor: (usize, usize),
+    reference: Option<f64>,
+) -> Result<GainSeriesResult> {
     if data.len() < 2 {
-        return Err(Error::Fit("a gain series needs at least two settings".into()));
+        return Err(Error::Fit(
+            "a gain series needs at least two settings".into(),
+        ));
     }
     data.sort_by(|a, b| a.nominal.total_cmp(&b.nominal));
     let np = pixels.len();
-    if np == 0 || data.iter().any(|d| d.samples.len() != np || d.samples.iter().any(|s| s.len() < 100)) {
-        return Err(Error::Fit("a gain series needs at least 100 frames per setting for every fitted pixel".into()));
+    if np == 0
+        || data
+            .iter()
+            .any(|d| d.samples.len() != np || d.samples.iter().any(|s| s.len() < 100))
+    {
+        return Err(Error::Fit(
+            "a gain series needs at least 100 frames per setting for every fitted pixel".into(),
+        ));
     }
     let anchor = 0;
-    let fits: Vec<(f64, f64, Vec<f64>, f64, f64)> = (0..np).into_par_iter().map(|p| fit_pixel(&data, p, anchor)).collect();
+    let fits: Vec<(f64, f64, Vec<f64>, f64, f64)> = (0..np)
+        .into_par_iter()
+        .map(|p| fit_pixel(&data, p, anchor))
+        .collect();
     let mean_se = |v: &[f64]| -> (f64, f64) {
         let m = v.iter().sum::<f64>() / v.len() as f64;
-        let sd = if v.len() > 1 { (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt() } else { f64::NAN };
+        let sd = if v.len() > 1 {
+            (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt()
+        } else {
+            f64::NAN
+        };
         (m, sd / (v.len() as f64).sqrt())
     };
     let cs: Vec<f64> = fits.iter().map(|f| f.1).collect();
@@ -288,17 +363,34 @@ pub fn fit(mut data: Vec<SettingData>, pixels: Vec<(usize, usize)>, sensor: (usi
         .map(|(k, d)| {
             let g: Vec<f64> = fits.iter().map(|f| f.2[k]).collect();
             let (m, se) = mean_se(&g);
-            SettingFit { nominal: d.nominal, file: d.file.clone(), frames: d.samples[0].len(), gain: m, gain_se: se, gain_per_pixel: g, fixed: k == anchor }
+            SettingFit {
+                nominal: d.nominal,
+                file: d.file.clone(),
+                frames: d.samples[0].len(),
+                gain: m,
+                gain_se: se,
+                gain_per_pixel: g,
+                fixed: k == anchor,
+            }
         })
         .collect();
     // Example: highest setting, first pixel, histogram in ≤ 120 bins with the model.
     let top = data.len() - 1;
     let mut planner = RealFftPlanner::<f64>::new();
-    let mut term = Term::new(&data[top].samples[0], data[top].offset[0], data[top].sigma[0], &mut planner);
+    let mut term = Term::new(
+        &data[top].samples[0],
+        data[top].offset[0],
+        data[top].sigma[0],
+        &mut planner,
+    );
     term.pmf(fits[0].0, fits[0].2[top], fits[0].1);
     let s = &data[top].samples[0];
-    let lo = s.iter().fold(f64::INFINITY, |a, &v| a.min(v.round() as f64));
-    let hi = s.iter().fold(f64::NEG_INFINITY, |a, &v| a.max(v.round() as f64));
+    let lo = s
+        .iter()
+        .fold(f64::INFINITY, |a, &v| a.min(v.round() as f64));
+    let hi = s
+        .iter()
+        .fold(f64::NEG_INFINITY, |a, &v| a.max(v.round() as f64));
     let bin = ((hi - lo + 1.0) / 120.0).ceil().max(1.0);
     let nb = ((hi - lo + 1.0) / bin).ceil() as usize;
     let mut counts = vec![0.0; nb];
@@ -323,7 +415,14 @@ pub fn fit(mut data: Vec<SettingData>, pixels: Vec<(usize, usize)>, sensor: (usi
         moments_e_per_dn: moments,
         reference_e_per_dn: reference,
         pixels,
-        example: Example { setting: top, pixel: 0, x0: lo, bin, counts, model },
+        example: Example {
+            setting: top,
+            pixel: 0,
+            x0: lo,
+            bin,
+            counts,
+            model,
+        },
         sensor,
     })
 }
@@ -351,8 +450,14 @@ mod tests {
         let want_mean = s0 + lambda * g / c;
         let want_var = sigma * sigma + (2.0 - 1.0 / g) * lambda * (g / c).powi(2) + 1.0 / 12.0;
         assert!((m0 - 1.0).abs() < 1e-9, "{m0}");
-        assert!((mean - want_mean).abs() < 1e-6 * want_mean, "{mean} vs {want_mean}");
-        assert!((var - want_var).abs() < 1e-6 * want_var, "{var} vs {want_var}");
+        assert!(
+            (mean - want_mean).abs() < 1e-6 * want_mean,
+            "{mean} vs {want_mean}"
+        );
+        assert!(
+            (var - want_var).abs() < 1e-6 * want_var,
+            "{var} vs {want_var}"
+        );
     }
 
     /// Known truth: samples drawn from the model itself (Poisson → ENF Gamma → Normal →
@@ -375,21 +480,49 @@ mod tests {
                         (0..frames)
                             .map(|_| {
                                 let n: f64 = Poisson::new(lambda).unwrap().sample(&mut rng);
-                                let x = if g <= 1.0 || n == 0.0 { n } else { Gamma::new(n * g / (g - 1.0), g - 1.0).unwrap().sample(&mut rng) };
+                                let x = if g <= 1.0 || n == 0.0 {
+                                    n
+                                } else {
+                                    Gamma::new(n * g / (g - 1.0), g - 1.0)
+                                        .unwrap()
+                                        .sample(&mut rng)
+                                };
                                 let r: f64 = Normal::new(0.0, sigma).unwrap().sample(&mut rng);
                                 (s0 + x / c + r).round() as f32
                             })
                             .collect()
                     })
                     .collect();
-                SettingData { nominal: g, file: PathBuf::from(format!("{g}x")), samples, offset: vec![s0; pixels], sigma: vec![sigma; pixels] }
+                SettingData {
+                    nominal: g,
+                    file: PathBuf::from(format!("{g}x")),
+                    samples,
+                    offset: vec![s0; pixels],
+                    sigma: vec![sigma; pixels],
+                }
             })
             .collect();
-        let r = fit(data, (0..pixels).map(|i| (i, 0)).collect(), (pixels, 1), None).unwrap();
+        let r = fit(
+            data,
+            (0..pixels).map(|i| (i, 0)).collect(),
+            (pixels, 1),
+            None,
+        )
+        .unwrap();
         let se = r.e_per_dn_fit_se.iter().sum::<f64>() / pixels as f64 / (pixels as f64).sqrt();
-        assert!((r.e_per_dn - c).abs() < 4.0 * se.max(r.e_per_dn_se), "c {} ± {} (fit SE {se})", r.e_per_dn, r.e_per_dn_se);
+        assert!(
+            (r.e_per_dn - c).abs() < 4.0 * se.max(r.e_per_dn_se),
+            "c {} ± {} (fit SE {se})",
+            r.e_per_dn,
+            r.e_per_dn_se
+        );
         for (s, &g) in r.settings.iter().zip(&gains) {
-            assert!((s.gain - g).abs() < 4.0 * s.gain_se.max(0.01 * g) , "G {} ± {} vs {g}", s.gain, s.gain_se);
+            assert!(
+                (s.gain - g).abs() < 4.0 * s.gain_se.max(0.01 * g),
+                "G {} ± {} vs {g}",
+                s.gain,
+                s.gain_se
+            );
         }
     }
 }

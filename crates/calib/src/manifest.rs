@@ -101,14 +101,19 @@ impl Manifest {
     /// Reads a manifest and resolves its paths; checks that every named file exists.
     pub fn load(path: impl AsRef<Path>) -> Result<Manifest> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| Error::Manifest { path: path.into(), message: format!("cannot read: {e}") })?;
+        let text = std::fs::read_to_string(path).map_err(|e| Error::Manifest {
+            path: path.into(),
+            message: format!("cannot read: {e}"),
+        })?;
         Manifest::parse(&text, path)
     }
 
     /// Parses manifest text as if read from `path`.
     pub fn parse(text: &str, path: &Path) -> Result<Manifest> {
-        let bad = |message: String| Error::Manifest { path: path.into(), message };
+        let bad = |message: String| Error::Manifest {
+            path: path.into(),
+            message,
+        };
         let mut m: Manifest = toml::from_str(text).map_err(|e| bad(e.to_string()))?;
         m.path = path.to_path_buf();
         let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
@@ -117,7 +122,12 @@ impl Manifest {
                 *p = base.join(&*p);
             }
         };
-        for e in m.bias.iter_mut().chain(m.flat.iter_mut()).chain(m.blooming.iter_mut()) {
+        for e in m
+            .bias
+            .iter_mut()
+            .chain(m.flat.iter_mut())
+            .chain(m.blooming.iter_mut())
+        {
             fix(&mut e.file);
         }
         if let Some(gs) = &mut m.gain_series {
@@ -126,7 +136,10 @@ impl Manifest {
             }
             for s in &mut gs.settings {
                 fix(&mut s.file);
-                for p in [&mut s.no_signal, &mut s.offset_map, &mut s.sigma_map].into_iter().flatten() {
+                for p in [&mut s.no_signal, &mut s.offset_map, &mut s.sigma_map]
+                    .into_iter()
+                    .flatten()
+                {
                     fix(p);
                 }
             }
@@ -134,23 +147,35 @@ impl Manifest {
         if !(m.em_gain >= 1.0) {
             return Err(bad(format!("em_gain must be ≥ 1, got {}", m.em_gain)));
         }
-        if m.bias.is_empty() && m.flat.is_empty() && m.blooming.is_empty() && m.gain_series.is_none() {
+        if m.bias.is_empty()
+            && m.flat.is_empty()
+            && m.blooming.is_empty()
+            && m.gain_series.is_none()
+        {
             return Err(bad("names no acquisitions: add [[bias]], [[flat]], [[blooming]] or [gain_series] entries".into()));
         }
         for e in m.bias.iter().chain(&m.flat).chain(&m.blooming) {
             if let Some(t) = e.exposure_s {
                 if !(t > 0.0 && t.is_finite()) {
-                    return Err(bad(format!("{}: exposure_s must be positive, got {t}", e.file.display())));
+                    return Err(bad(format!(
+                        "{}: exposure_s must be positive, got {t}",
+                        e.file.display()
+                    )));
                 }
             }
         }
         if let Some(gs) = &m.gain_series {
             if gs.settings.len() < 2 {
-                return Err(bad("a gain series needs at least two EM gain settings".into()));
+                return Err(bad(
+                    "a gain series needs at least two EM gain settings".into()
+                ));
             }
             for s in &gs.settings {
                 if !(s.em_gain >= 1.0) {
-                    return Err(bad(format!("{}: gain-series em_gain must be ≥ 1", s.file.display())));
+                    return Err(bad(format!(
+                        "{}: gain-series em_gain must be ≥ 1",
+                        s.file.display()
+                    )));
                 }
                 if s.no_signal.is_none() && (s.offset_map.is_none() || s.sigma_map.is_none()) {
                     return Err(bad(format!(
@@ -162,7 +187,10 @@ impl Manifest {
         }
         for p in m.files() {
             if !p.is_file() {
-                return Err(Error::input(&p, format!("named in {} but not found", path.display())));
+                return Err(Error::input(
+                    &p,
+                    format!("named in {} but not found", path.display()),
+                ));
             }
         }
         Ok(m)
@@ -170,12 +198,23 @@ impl Manifest {
 
     /// Every file the manifest names.
     pub fn files(&self) -> Vec<PathBuf> {
-        let mut v: Vec<PathBuf> = self.bias.iter().chain(&self.flat).chain(&self.blooming).map(|e| e.file.clone()).collect();
+        let mut v: Vec<PathBuf> = self
+            .bias
+            .iter()
+            .chain(&self.flat)
+            .chain(&self.blooming)
+            .map(|e| e.file.clone())
+            .collect();
         if let Some(gs) = &self.gain_series {
             v.extend(gs.reference_e_per_dn.iter().cloned());
             for s in &gs.settings {
                 v.push(s.file.clone());
-                v.extend([&s.no_signal, &s.offset_map, &s.sigma_map].into_iter().flatten().cloned());
+                v.extend(
+                    [&s.no_signal, &s.offset_map, &s.sigma_map]
+                        .into_iter()
+                        .flatten()
+                        .cloned(),
+                );
             }
         }
         v
@@ -190,17 +229,31 @@ mod tests {
     fn missing_file_is_named() {
         let dir = tempfile::tempdir().unwrap();
         let m = dir.path().join("m.toml");
-        let err = Manifest::parse("em_gain = 300\n[[bias]]\nfile = \"nope.tif\"\nexposure_s = 0.01\n", &m).unwrap_err();
+        let err = Manifest::parse(
+            "em_gain = 300\n[[bias]]\nfile = \"nope.tif\"\nexposure_s = 0.01\n",
+            &m,
+        )
+        .unwrap_err();
         let msg = err.to_string();
-        assert!(msg.contains("nope.tif") && msg.contains("not found"), "{msg}");
+        assert!(
+            msg.contains("nope.tif") && msg.contains("not found"),
+            "{msg}"
+        );
     }
 
     #[test]
     fn empty_and_malformed_manifests_are_refused() {
         let m = Path::new("/tmp/m.toml");
-        assert!(Manifest::parse("em_gain = 300\n", m).unwrap_err().to_string().contains("no acquisitions"));
+        assert!(Manifest::parse("em_gain = 300\n", m)
+            .unwrap_err()
+            .to_string()
+            .contains("no acquisitions"));
         assert!(Manifest::parse("em_gain = 300\n[[bias]]\nfil = \"x\"\n", m).is_err());
-        let e = Manifest::parse("em_gain = 300\n[[flat]]\nfile = \"x\"\nexposure_s = -1\n", m).unwrap_err();
+        let e = Manifest::parse(
+            "em_gain = 300\n[[flat]]\nfile = \"x\"\nexposure_s = -1\n",
+            m,
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("positive"), "{e}");
     }
 }

@@ -35,13 +35,29 @@ pub fn normal_plot(x: usize, y: usize, values: &[f32]) -> Option<NormalPlot> {
     }
     let mut z: Vec<f64> = values.iter().map(|&v| (v as f64 - m) / sd).collect();
     z.sort_by(f64::total_cmp);
-    let q: Vec<f64> = (0..n).map(|i| normal_quantile((i as f64 + 1.0 - 0.375) / (n as f64 + 0.25))).collect();
-    let (mq, mz) = (q.iter().sum::<f64>() / n as f64, z.iter().sum::<f64>() / n as f64);
+    let q: Vec<f64> = (0..n)
+        .map(|i| normal_quantile((i as f64 + 1.0 - 0.375) / (n as f64 + 0.25)))
+        .collect();
+    let (mq, mz) = (
+        q.iter().sum::<f64>() / n as f64,
+        z.iter().sum::<f64>() / n as f64,
+    );
     let sqz: f64 = q.iter().zip(&z).map(|(a, b)| (a - mq) * (b - mz)).sum();
     let sqq: f64 = q.iter().map(|a| (a - mq).powi(2)).sum();
     let szz: f64 = z.iter().map(|b| (b - mz).powi(2)).sum();
     let r2 = sqz * sqz / (sqq * szz);
     let step = (n / 200).max(1);
-    let points = (0..n).step_by(step).chain(std::iter::once(n - 1)).map(|i| (q[i], z[i])).collect();
-    Some(NormalPlot { x, y, samples: n, std_dn: sd, r2, points })
+    let points = (0..n)
+        .step_by(step)
+        .chain(std::iter::once(n - 1))
+        .map(|i| (q[i], z[i]))
+        .collect();
+    Some(NormalPlot {
+        x,
+        y,
+        samples: n,
+        std_dn: sd,
+        r2,
+        points,
+    })
 }

@@ -67,7 +67,12 @@ pub fn central_crop(width: usize, height: usize, side: usize) -> [usize; 4] {
 
 /// Median signal and robust mean variance of one flat on `crop`. `signal` is the per-pixel
 /// temporal mean already corrected for FPN and blooming; `var` the temporal variance.
-pub fn level_stats(signal: &[f32], var: &[f32], width: usize, crop: [usize; 4]) -> (f64, f64, f64, usize) {
+pub fn level_stats(
+    signal: &[f32],
+    var: &[f32],
+    width: usize,
+    crop: [usize; 4],
+) -> (f64, f64, f64, usize) {
     let [x0, y0, cw, ch] = crop;
     let mut s = Vec::with_capacity(cw * ch);
     let mut v = Vec::with_capacity(cw * ch);
@@ -81,20 +86,26 @@ pub fn level_stats(signal: &[f32], var: &[f32], width: usize, crop: [usize; 4]) 
     let (ms, ss) = median_mad(&s);
     let (mv, sv) = median_mad(&v);
     let keep: Vec<usize> = (0..s.len())
-        .filter(|&i| (s[i] - ms).abs() <= 6.0 * ss.max(1e-6 * ms.abs().max(1.0)) && (v[i] - mv).abs() <= 6.0 * sv.max(1e-6 * mv.abs().max(1.0)))
+        .filter(|&i| {
+            (s[i] - ms).abs() <= 6.0 * ss.max(1e-6 * ms.abs().max(1.0))
+                && (v[i] - mv).abs() <= 6.0 * sv.max(1e-6 * mv.abs().max(1.0))
+        })
         .collect();
     let k = keep.len().max(1) as f64;
     let kept_s: Vec<f64> = keep.iter().map(|&i| s[i]).collect();
     let med = crate::fit::median(&kept_s);
     let mean_v = keep.iter().map(|&i| v[i]).sum::<f64>() / k;
-    let sd_v = (keep.iter().map(|&i| (v[i] - mean_v).powi(2)).sum::<f64>() / (k - 1.0).max(1.0)).sqrt();
+    let sd_v =
+        (keep.iter().map(|&i| (v[i] - mean_v).powi(2)).sum::<f64>() / (k - 1.0).max(1.0)).sqrt();
     (med, mean_v, sd_v / k.sqrt(), keep.len())
 }
 
 /// Fits the included levels; excludes non-linear ones (worst first) while more than three remain.
 pub fn fit(levels: &mut [FlatLevel]) -> Result<LineFit> {
     loop {
-        let inc: Vec<usize> = (0..levels.len()).filter(|&i| levels[i].status == LevelStatus::Included).collect();
+        let inc: Vec<usize> = (0..levels.len())
+            .filter(|&i| levels[i].status == LevelStatus::Included)
+            .collect();
         if inc.len() < 3 {
             return Err(Error::Fit(format!(
                 "the median–variance fit needs ≥ 3 unsaturated flat levels, {} usable of {}",
@@ -106,10 +117,21 @@ pub fn fit(levels: &mut [FlatLevel]) -> Result<LineFit> {
         let y: Vec<f64> = inc.iter().map(|&i| levels[i].variance_dn2).collect();
         // Relative precision of a variance is about the same at every level, so weight by 1/Var².
         let w: Vec<f64> = y.iter().map(|v| 1.0 / v.max(1e-9).powi(2)).collect();
-        let f = line(&x, &y, Some(&w)).ok_or_else(|| Error::Fit("flat levels all have the same median".into()))?;
-        let rel: Vec<f64> = x.iter().zip(&y).map(|(a, b)| (b - (f.slope * a + f.intercept)) / (f.slope * a + f.intercept).abs().max(1e-9)).collect();
+        let f = line(&x, &y, Some(&w))
+            .ok_or_else(|| Error::Fit("flat levels all have the same median".into()))?;
+        let rel: Vec<f64> = x
+            .iter()
+            .zip(&y)
+            .map(|(a, b)| {
+                (b - (f.slope * a + f.intercept)) / (f.slope * a + f.intercept).abs().max(1e-9)
+            })
+            .collect();
         let (_, scale) = median_mad(&rel);
-        let (worst, r) = rel.iter().enumerate().map(|(k, r)| (k, r.abs())).fold((0, 0.0), |a, b| if b.1 > a.1 { b } else { a });
+        let (worst, r) = rel
+            .iter()
+            .enumerate()
+            .map(|(k, r)| (k, r.abs()))
+            .fold((0, 0.0), |a, b| if b.1 > a.1 { b } else { a });
         if inc.len() > 3 && r > (5.0 * scale).max(0.05) {
             levels[inc[worst]].status = LevelStatus::NonLinear;
             continue;

@@ -21,7 +21,11 @@ fn svg(w: u32, h: u32, f: impl FnOnce(&Draw<'_>) -> PlotResult) -> String {
         let root = SVGBackend::with_string(&mut s, (w, h)).into_drawing_area();
         let _ = root.fill(&WHITE);
         if let Err(e) = f(&root) {
-            let _ = root.draw(&Text::new(format!("plot failed: {e}"), (10, 20), ("sans-serif", 14)));
+            let _ = root.draw(&Text::new(
+                format!("plot failed: {e}"),
+                (10, 20),
+                ("sans-serif", 14),
+            ));
         }
         let _ = root.present();
     }
@@ -45,7 +49,14 @@ fn range(v: impl Iterator<Item = f64> + Clone, log: bool) -> (f64, f64) {
 
 /// Perceptual colour map (viridis anchors, linear between them).
 fn viridis(t: f64) -> [u8; 3] {
-    const A: [[f64; 3]; 6] = [[68., 1., 84.], [65., 68., 135.], [42., 120., 142.], [34., 168., 132.], [122., 209., 81.], [253., 231., 37.]];
+    const A: [[f64; 3]; 6] = [
+        [68., 1., 84.],
+        [65., 68., 135.],
+        [42., 120., 142.],
+        [34., 168., 132.],
+        [122., 209., 81.],
+        [253., 231., 37.],
+    ];
     let t = t.clamp(0.0, 1.0) * 5.0;
     let i = (t.floor() as usize).min(4);
     let f = t - i as f64;
@@ -75,12 +86,18 @@ fn heat_map(map: &[f32], w: usize, h: usize, unit: &str) -> String {
         }
     }
     let b64 = base64::engine::general_purpose::STANDARD.encode(&png_bytes);
-    let stops: String = (0..=5).map(|i| {
-        let c = viridis(i as f64 / 5.0);
-        format!("rgb({},{},{}) {}%", c[0], c[1], c[2], i * 20)
-    }).collect::<Vec<_>>().join(",");
+    let stops: String = (0..=5)
+        .map(|i| {
+            let c = viridis(i as f64 / 5.0);
+            format!("rgb({},{},{}) {}%", c[0], c[1], c[2], i * 20)
+        })
+        .collect::<Vec<_>>()
+        .join(",");
     let disp = (w.max(h) as f64).clamp(256.0, 420.0);
-    let (dw, dh) = (disp * w as f64 / w.max(h) as f64, disp * h as f64 / w.max(h) as f64);
+    let (dw, dh) = (
+        disp * w as f64 / w.max(h) as f64,
+        disp * h as f64 / w.max(h) as f64,
+    );
     format!(
         "<div class=heat><img style=\"width:{dw:.0}px;height:{dh:.0}px;image-rendering:pixelated\" src=\"data:image/png;base64,{b64}\">\
          <div class=bar><span>{hi:.2} {unit}</span><div style=\"background:linear-gradient(to top,{stops})\"></div><span>{lo:.2} {unit}</span></div></div>"
@@ -88,11 +105,15 @@ fn heat_map(map: &[f32], w: usize, h: usize, unit: &str) -> String {
 }
 
 fn esc(s: &str) -> String {
-    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
 }
 
 fn ptc_plot(c: &Calibration) -> String {
-    let Some(p) = &c.ptc else { return String::new() };
+    let Some(p) = &c.ptc else {
+        return String::new();
+    };
     svg(560, 400, |root| {
         let (x0, x1) = range(p.levels.iter().map(|l| l.median_dn), true);
         let (y0, y1) = range(p.levels.iter().map(|l| l.variance_dn2), true);
@@ -102,47 +123,102 @@ fn ptc_plot(c: &Calibration) -> String {
             .x_label_area_size(40)
             .y_label_area_size(60)
             .build_cartesian_2d((x0..x1).log_scale(), (y0..y1).log_scale())?;
-        ch.configure_mesh().x_desc("median signal (DN)").y_desc("temporal variance (DN²)").draw()?;
+        ch.configure_mesh()
+            .x_desc("median signal (DN)")
+            .y_desc("temporal variance (DN²)")
+            .draw()?;
         let f = p.fit;
-        let line: Vec<(f64, f64)> = (0..=100).map(|i| x0 * (x1 / x0).powf(i as f64 / 100.0)).map(|x| (x, f.slope * x + f.intercept)).filter(|p| p.1 > 0.0).collect();
+        let line: Vec<(f64, f64)> = (0..=100)
+            .map(|i| x0 * (x1 / x0).powf(i as f64 / 100.0))
+            .map(|x| (x, f.slope * x + f.intercept))
+            .filter(|p| p.1 > 0.0)
+            .collect();
         ch.draw_series(LineSeries::new(line, RED.stroke_width(2)))?
             .label(format!("Var = {:.3}·Median + {:.1}", f.slope, f.intercept))
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
-        ch.draw_series(p.levels.iter().filter(|l| l.status == LevelStatus::Included).map(|l| Circle::new((l.median_dn, l.variance_dn2), 5, BLUE.filled())))?
-            .label("included")
-            .legend(|(x, y)| Circle::new((x + 10, y), 4, BLUE.filled()));
-        ch.draw_series(p.levels.iter().filter(|l| l.status != LevelStatus::Included).map(|l| Cross::new((l.median_dn, l.variance_dn2), 6, BLACK.stroke_width(2))))?;
-        ch.configure_series_labels().border_style(BLACK).background_style(WHITE).position(SeriesLabelPosition::UpperLeft).draw()?;
+        ch.draw_series(
+            p.levels
+                .iter()
+                .filter(|l| l.status == LevelStatus::Included)
+                .map(|l| Circle::new((l.median_dn, l.variance_dn2), 5, BLUE.filled())),
+        )?
+        .label("included")
+        .legend(|(x, y)| Circle::new((x + 10, y), 4, BLUE.filled()));
+        ch.draw_series(
+            p.levels
+                .iter()
+                .filter(|l| l.status != LevelStatus::Included)
+                .map(|l| Cross::new((l.median_dn, l.variance_dn2), 6, BLACK.stroke_width(2))),
+        )?;
+        ch.configure_series_labels()
+            .border_style(BLACK)
+            .background_style(WHITE)
+            .position(SeriesLabelPosition::UpperLeft)
+            .draw()?;
         Ok(())
     })
 }
 
 fn fpn_curve_plot(c: &Calibration) -> String {
-    let Some(f) = &c.fpn else { return String::new() };
+    let Some(f) = &c.fpn else {
+        return String::new();
+    };
     let ex = &f.example;
     svg(560, 400, |root| {
         let (x0, x1) = range(f.exposures_s.iter().copied(), true);
         let (y0, y1) = range(ex.measured_dn.iter().copied(), false);
         let mut ch = ChartBuilder::on(root)
-            .caption(format!("FPN of pixel ({}, {}) vs exposure", ex.x, ex.y), ("sans-serif", 16))
+            .caption(
+                format!("FPN of pixel ({}, {}) vs exposure", ex.x, ex.y),
+                ("sans-serif", 16),
+            )
             .margin(10)
             .x_label_area_size(40)
             .y_label_area_size(60)
             .build_cartesian_2d((x0..x1).log_scale(), y0..y1)?;
-        ch.configure_mesh().x_desc("exposure (s)").y_desc("FPN (DN)").draw()?;
-        let ts: Vec<f64> = (0..=120).map(|i| x0 * (x1 / x0).powf(i as f64 / 120.0)).collect();
+        ch.configure_mesh()
+            .x_desc("exposure (s)")
+            .y_desc("FPN (DN)")
+            .draw()?;
+        let ts: Vec<f64> = (0..=120)
+            .map(|i| x0 * (x1 / x0).powf(i as f64 / 120.0))
+            .collect();
         let sig = |u: f64, t: [f64; 4]| t[0] + t[1] / (1.0 + (-t[2] * (u - t[3])).exp());
         let u0 = f.exposures_s[0].ln();
-        let shared: Vec<(f64, f64)> = ts.iter().map(|&t| (t, ex.base_dn * (sig(t.ln(), f.shared_theta) - sig(u0, f.shared_theta)).exp())).collect();
-        ch.draw_series(LineSeries::new(shared, BLUE.stroke_width(2)))?.label("shared θ × base map").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
+        let shared: Vec<(f64, f64)> = ts
+            .iter()
+            .map(|&t| {
+                (
+                    t,
+                    ex.base_dn * (sig(t.ln(), f.shared_theta) - sig(u0, f.shared_theta)).exp(),
+                )
+            })
+            .collect();
+        ch.draw_series(LineSeries::new(shared, BLUE.stroke_width(2)))?
+            .label("shared θ × base map")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
         if f.per_pixel {
-            let own: Vec<(f64, f64)> = ts.iter().map(|&t| (t, sig(t.ln(), ex.theta).exp())).collect();
-            ch.draw_series(LineSeries::new(own, RED.stroke_width(2)))?.label("per-pixel θ").legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+            let own: Vec<(f64, f64)> = ts
+                .iter()
+                .map(|&t| (t, sig(t.ln(), ex.theta).exp()))
+                .collect();
+            ch.draw_series(LineSeries::new(own, RED.stroke_width(2)))?
+                .label("per-pixel θ")
+                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
         }
-        ch.draw_series(f.exposures_s.iter().zip(&ex.measured_dn).map(|(&t, &v)| Circle::new((t, v), 4, BLACK.filled())))?
-            .label("measured")
-            .legend(|(x, y)| Circle::new((x + 10, y), 4, BLACK.filled()));
-        ch.configure_series_labels().border_style(BLACK).background_style(WHITE).position(SeriesLabelPosition::UpperLeft).draw()?;
+        ch.draw_series(
+            f.exposures_s
+                .iter()
+                .zip(&ex.measured_dn)
+                .map(|(&t, &v)| Circle::new((t, v), 4, BLACK.filled())),
+        )?
+        .label("measured")
+        .legend(|(x, y)| Circle::new((x + 10, y), 4, BLACK.filled()));
+        ch.configure_series_labels()
+            .border_style(BLACK)
+            .background_style(WHITE)
+            .position(SeriesLabelPosition::UpperLeft)
+            .draw()?;
         Ok(())
     })
 }
@@ -152,28 +228,45 @@ fn qq_plot(c: &Calibration) -> String {
         return String::new();
     }
     svg(460, 400, |root| {
-        let lim = c.normality.iter().flat_map(|n| n.points.iter().map(|p| p.0.abs().max(p.1.abs()))).fold(3.0, f64::max);
+        let lim = c
+            .normality
+            .iter()
+            .flat_map(|n| n.points.iter().map(|p| p.0.abs().max(p.1.abs())))
+            .fold(3.0, f64::max);
         let mut ch = ChartBuilder::on(root)
             .caption("Normal probability plot (bias values)", ("sans-serif", 16))
             .margin(10)
             .x_label_area_size(40)
             .y_label_area_size(50)
             .build_cartesian_2d(-lim..lim, -lim..lim)?;
-        ch.configure_mesh().x_desc("normal quantile").y_desc("standardized value").draw()?;
+        ch.configure_mesh()
+            .x_desc("normal quantile")
+            .y_desc("standardized value")
+            .draw()?;
         ch.draw_series(LineSeries::new(vec![(-lim, -lim), (lim, lim)], BLACK))?;
         for (k, n) in c.normality.iter().enumerate() {
             let col = Palette99::pick(k).to_rgba();
-            ch.draw_series(n.points.iter().map(|&(q, z)| Circle::new((q, z), 2, col.filled())))?
-                .label(format!("({}, {}) r²={:.4}", n.x, n.y, n.r2))
-                .legend(move |(x, y)| Circle::new((x + 10, y), 4, col.filled()));
+            ch.draw_series(
+                n.points
+                    .iter()
+                    .map(|&(q, z)| Circle::new((q, z), 2, col.filled())),
+            )?
+            .label(format!("({}, {}) r²={:.4}", n.x, n.y, n.r2))
+            .legend(move |(x, y)| Circle::new((x + 10, y), 4, col.filled()));
         }
-        ch.configure_series_labels().border_style(BLACK).background_style(WHITE).position(SeriesLabelPosition::UpperLeft).draw()?;
+        ch.configure_series_labels()
+            .border_style(BLACK)
+            .background_style(WHITE)
+            .position(SeriesLabelPosition::UpperLeft)
+            .draw()?;
         Ok(())
     })
 }
 
 fn blooming_plot(c: &Calibration) -> String {
-    let Some(b) = &c.blooming else { return String::new() };
+    let Some(b) = &c.blooming else {
+        return String::new();
+    };
     svg(560, 400, |root| {
         let (x0, x1) = range(b.levels.iter().map(|l| l.exposure_s), true);
         let (y0, y1) = range(b.levels.iter().map(|l| l.x), true);
@@ -183,39 +276,83 @@ fn blooming_plot(c: &Calibration) -> String {
             .x_label_area_size(40)
             .y_label_area_size(60)
             .build_cartesian_2d((x0..x1).log_scale(), (y0..y1).log_scale())?;
-        ch.configure_mesh().x_desc("exposure (s)").y_desc("blooming factor x").draw()?;
-        let line: Vec<(f64, f64)> = (0..=50).map(|i| x0 * (x1 / x0).powf(i as f64 / 50.0)).map(|t| (t, b.a * t.powf(b.b))).collect();
+        ch.configure_mesh()
+            .x_desc("exposure (s)")
+            .y_desc("blooming factor x")
+            .draw()?;
+        let line: Vec<(f64, f64)> = (0..=50)
+            .map(|i| x0 * (x1 / x0).powf(i as f64 / 50.0))
+            .map(|t| (t, b.a * t.powf(b.b)))
+            .collect();
         ch.draw_series(LineSeries::new(line, RED.stroke_width(2)))?
-            .label(format!("x = {:.3e}·t^{:.4} (r² {:.4})", b.a, b.b, b.loglog.r2))
+            .label(format!(
+                "x = {:.3e}·t^{:.4} (r² {:.4})",
+                b.a, b.b, b.loglog.r2
+            ))
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
-        ch.draw_series(b.levels.iter().filter(|l| l.x > 0.0).map(|l| Circle::new((l.exposure_s, l.x), 5, BLUE.filled())))?;
-        ch.configure_series_labels().border_style(BLACK).background_style(WHITE).position(SeriesLabelPosition::UpperRight).draw()?;
+        ch.draw_series(
+            b.levels
+                .iter()
+                .filter(|l| l.x > 0.0)
+                .map(|l| Circle::new((l.exposure_s, l.x), 5, BLUE.filled())),
+        )?;
+        ch.configure_series_labels()
+            .border_style(BLACK)
+            .background_style(WHITE)
+            .position(SeriesLabelPosition::UpperRight)
+            .draw()?;
         Ok(())
     })
 }
 
 fn gain_plots(c: &Calibration) -> (String, String) {
-    let Some(g) = &c.gain_series else { return (String::new(), String::new()) };
+    let Some(g) = &c.gain_series else {
+        return (String::new(), String::new());
+    };
     let e = &g.example;
     let hist = svg(560, 400, |root| {
         let x1 = e.x0 + e.bin * e.counts.len() as f64;
-        let ymax = e.counts.iter().chain(&e.model).fold(1.0, |a: f64, &b| a.max(b)) * 1.1;
+        let ymax = e
+            .counts
+            .iter()
+            .chain(&e.model)
+            .fold(1.0, |a: f64, &b| a.max(b))
+            * 1.1;
         let s = &g.settings[e.setting];
         let mut ch = ChartBuilder::on(root)
-            .caption(format!("{}× setting, pixel {:?}: data and fitted density", s.nominal, g.pixels[e.pixel]), ("sans-serif", 16))
+            .caption(
+                format!(
+                    "{}× setting, pixel {:?}: data and fitted density",
+                    s.nominal, g.pixels[e.pixel]
+                ),
+                ("sans-serif", 16),
+            )
             .margin(10)
             .x_label_area_size(40)
             .y_label_area_size(60)
             .build_cartesian_2d(e.x0..x1, 0.0..ymax)?;
-        ch.configure_mesh().x_desc("DN").y_desc(format!("frames per {} DN", e.bin)).draw()?;
+        ch.configure_mesh()
+            .x_desc("DN")
+            .y_desc(format!("frames per {} DN", e.bin))
+            .draw()?;
         ch.draw_series(e.counts.iter().enumerate().map(|(i, &c)| {
             let x = e.x0 + i as f64 * e.bin;
             Rectangle::new([(x, 0.0), (x + e.bin, c)], RGBColor(150, 170, 220).filled())
         }))?;
-        ch.draw_series(LineSeries::new(e.model.iter().enumerate().map(|(i, &m)| (e.x0 + (i as f64 + 0.5) * e.bin, m)), RED.stroke_width(2)))?
-            .label("Poisson–Gamma ⊛ Normal fit")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
-        ch.configure_series_labels().border_style(BLACK).background_style(WHITE).position(SeriesLabelPosition::UpperRight).draw()?;
+        ch.draw_series(LineSeries::new(
+            e.model
+                .iter()
+                .enumerate()
+                .map(|(i, &m)| (e.x0 + (i as f64 + 0.5) * e.bin, m)),
+            RED.stroke_width(2),
+        ))?
+        .label("Poisson–Gamma ⊛ Normal fit")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED));
+        ch.configure_series_labels()
+            .border_style(BLACK)
+            .background_style(WHITE)
+            .position(SeriesLabelPosition::UpperRight)
+            .draw()?;
         Ok(())
     });
     let gains = svg(460, 400, |root| {
@@ -226,16 +363,29 @@ fn gain_plots(c: &Calibration) -> (String, String) {
             .x_label_area_size(40)
             .y_label_area_size(60)
             .build_cartesian_2d((lo..hi).log_scale(), (lo..hi).log_scale())?;
-        ch.configure_mesh().x_desc("nominal EM gain").y_desc("fitted G").draw()?;
+        ch.configure_mesh()
+            .x_desc("nominal EM gain")
+            .y_desc("fitted G")
+            .draw()?;
         ch.draw_series(LineSeries::new(vec![(lo, lo), (hi, hi)], BLACK))?;
-        ch.draw_series(g.settings.iter().flat_map(|s| s.gain_per_pixel.iter().map(move |&v| Circle::new((s.nominal, v), 4, BLUE.filled()))))?;
+        ch.draw_series(g.settings.iter().flat_map(|s| {
+            s.gain_per_pixel
+                .iter()
+                .map(move |&v| Circle::new((s.nominal, v), 4, BLUE.filled()))
+        }))?;
         Ok(())
     });
     (hist, gains)
 }
 
 fn row(out: &mut String, name: &str, value: String, note: &str) {
-    let _ = writeln!(out, "<tr><td>{}</td><td>{}</td><td>{}</td></tr>", esc(name), value, esc(note));
+    let _ = writeln!(
+        out,
+        "<tr><td>{}</td><td>{}</td><td>{}</td></tr>",
+        esc(name),
+        value,
+        esc(note)
+    );
 }
 
 /// Writes `dir/index.html` and `dir/results.json` (each atomically).
@@ -243,33 +393,125 @@ pub fn write(c: &Calibration, dir: &Path) -> std::io::Result<()> {
     std::fs::create_dir_all(dir)?;
     let mut t = String::new();
     if let Some(p) = &c.ptc {
-        row(&mut t, "photon-transfer slope s = K·f²", format!("{:.4} ± {:.4} DN", p.fit.slope, p.fit.slope_se), "median–variance, weighted by 1/Var²");
-        row(&mut t, "PTC intercept", format!("{:.2} ± {:.2} DN²", p.fit.intercept, p.fit.intercept_se), "read noise² + quantization + other signal-independent noise");
+        row(
+            &mut t,
+            "photon-transfer slope s = K·f²",
+            format!("{:.4} ± {:.4} DN", p.fit.slope, p.fit.slope_se),
+            "median–variance, weighted by 1/Var²",
+        );
+        row(
+            &mut t,
+            "PTC intercept",
+            format!("{:.2} ± {:.2} DN²", p.fit.intercept, p.fit.intercept_se),
+            "read noise² + quantization + other signal-independent noise",
+        );
         row(&mut t, "PTC r²", format!("{:.6}", p.fit.r2), "");
-        row(&mut t, "K range (f ∈ [1.3, √2])", format!("{:.3} – {:.3} DN/e⁻", p.fit.slope / 2.0, p.fit.slope / 1.69), "K = s/f²");
+        row(
+            &mut t,
+            "K range (f ∈ [1.3, √2])",
+            format!("{:.3} – {:.3} DN/e⁻", p.fit.slope / 2.0, p.fit.slope / 1.69),
+            "K = s/f²",
+        );
     }
     if let Some(b) = c.bias.first() {
-        row(&mut t, "bias level (median FPN)", format!("{:.2} DN at {} s", b.median_dn, b.exposure_s), "");
+        row(
+            &mut t,
+            "bias level (median FPN)",
+            format!("{:.2} DN at {} s", b.median_dn, b.exposure_s),
+            "",
+        );
         let rn: Vec<f32> = c.bias.iter().flat_map(|b| b.std.iter().copied()).collect();
-        row(&mut t, "read noise (median std)", format!("{:.3} DN", emccd_profile::median(rn)), &format!("over pixels and {} exposures", c.bias.len()));
+        row(
+            &mut t,
+            "read noise (median std)",
+            format!("{:.3} DN", emccd_profile::median(rn)),
+            &format!("over pixels and {} exposures", c.bias.len()),
+        );
     }
     if let Some(f) = &c.fpn {
-        row(&mut t, "FPN shared θ1", format!("{:.4} ± {:.4}", f.shared_theta[1], f.shared_se[1]), "");
-        row(&mut t, "FPN shared θ2", format!("{:.4} ± {:.4}", f.shared_theta[2], f.shared_se[2]), "");
-        row(&mut t, "FPN shared θ3", format!("{:.4} ± {:.4} (t = {:.3} s)", f.shared_theta[3], f.shared_se[3], f.shared_theta[3].exp()), "");
-        row(&mut t, "FPN outlier pixels", format!("{}", f.outliers), "excluded from the shared fit");
-        row(&mut t, "FPN form used", format!("{:?}", f.chosen), "the lower mean error");
+        row(
+            &mut t,
+            "FPN shared θ1",
+            format!("{:.4} ± {:.4}", f.shared_theta[1], f.shared_se[1]),
+            "",
+        );
+        row(
+            &mut t,
+            "FPN shared θ2",
+            format!("{:.4} ± {:.4}", f.shared_theta[2], f.shared_se[2]),
+            "",
+        );
+        row(
+            &mut t,
+            "FPN shared θ3",
+            format!(
+                "{:.4} ± {:.4} (t = {:.3} s)",
+                f.shared_theta[3],
+                f.shared_se[3],
+                f.shared_theta[3].exp()
+            ),
+            "",
+        );
+        row(
+            &mut t,
+            "FPN outlier pixels",
+            format!("{}", f.outliers),
+            "excluded from the shared fit",
+        );
+        row(
+            &mut t,
+            "FPN form used",
+            format!("{:?}", f.chosen),
+            "the lower mean error",
+        );
     }
     if let Some(b) = &c.blooming {
-        row(&mut t, "blooming a", format!("{:.4e}", b.a), &format!("ln a = {:.4} ± {:.4}", b.loglog.intercept, b.loglog.intercept_se));
-        row(&mut t, "blooming b", format!("{:.4} ± {:.4}", b.b, b.loglog.slope_se), &format!("r² = {:.5}", b.loglog.r2));
+        row(
+            &mut t,
+            "blooming a",
+            format!("{:.4e}", b.a),
+            &format!(
+                "ln a = {:.4} ± {:.4}",
+                b.loglog.intercept, b.loglog.intercept_se
+            ),
+        );
+        row(
+            &mut t,
+            "blooming b",
+            format!("{:.4} ± {:.4}", b.b, b.loglog.slope_se),
+            &format!("r² = {:.5}", b.loglog.r2),
+        );
     }
     if let Some(g) = &c.gain_series {
-        let r = g.reference_e_per_dn.map_or("–".to_string(), |r| format!("reference {r:.4} ({:+.2} %)", 100.0 * (g.e_per_dn / r - 1.0)));
-        row(&mut t, "e⁻ per DN (gain series MLE)", format!("{:.4} ± {:.4}", g.e_per_dn, g.e_per_dn_se), &r);
-        row(&mut t, "e⁻ per DN from moments", format!("{:.4}", g.moments_e_per_dn), "the fit's starting point");
+        let r = g.reference_e_per_dn.map_or("–".to_string(), |r| {
+            format!(
+                "reference {r:.4} ({:+.2} %)",
+                100.0 * (g.e_per_dn / r - 1.0)
+            )
+        });
+        row(
+            &mut t,
+            "e⁻ per DN (gain series MLE)",
+            format!("{:.4} ± {:.4}", g.e_per_dn, g.e_per_dn_se),
+            &r,
+        );
+        row(
+            &mut t,
+            "e⁻ per DN from moments",
+            format!("{:.4}", g.moments_e_per_dn),
+            "the fit's starting point",
+        );
         for s in &g.settings {
-            row(&mut t, &format!("EM gain at {}× setting", s.nominal), if s.fixed { format!("{} (anchor)", s.nominal) } else { format!("{:.3} ± {:.3}", s.gain, s.gain_se) }, &format!("{} frames, {} pixels", s.frames, s.gain_per_pixel.len()));
+            row(
+                &mut t,
+                &format!("EM gain at {}× setting", s.nominal),
+                if s.fixed {
+                    format!("{} (anchor)", s.nominal)
+                } else {
+                    format!("{:.3} ± {:.3}", s.gain, s.gain_se)
+                },
+                &format!("{} frames, {} pixels", s.frames, s.gain_per_pixel.len()),
+            );
         }
     }
 
@@ -304,25 +546,57 @@ table{{border-collapse:collapse;font-size:14px}} td,th{{border:1px solid #ccc;pa
             if p.blooming_removed { "removed" } else { "not removed" },
             ptc_plot(c));
         for l in &p.levels {
-            let _ = write!(h, "<tr><td>{}</td><td>{:.2}</td><td>{:.2} ± {:.2}</td><td>{}</td><td>{:?}</td></tr>", esc(&l.file.file_name().unwrap_or_default().to_string_lossy()), l.median_dn, l.variance_dn2, l.variance_se_dn2, l.frames, l.status);
+            let _ = write!(
+                h,
+                "<tr><td>{}</td><td>{:.2}</td><td>{:.2} ± {:.2}</td><td>{}</td><td>{:?}</td></tr>",
+                esc(&l.file.file_name().unwrap_or_default().to_string_lossy()),
+                l.median_dn,
+                l.variance_dn2,
+                l.variance_se_dn2,
+                l.frames,
+                l.status
+            );
         }
         h.push_str("</table></div>");
     }
     if let (Some(f), false) = (&c.fpn, c.bias.is_empty()) {
-        let i = (0..c.bias.len()).min_by(|&a, &b| (c.bias[a].exposure_s.ln() - 0.01f64.ln()).abs().total_cmp(&(c.bias[b].exposure_s.ln() - 0.01f64.ln()).abs())).unwrap_or(0);
+        let i = (0..c.bias.len())
+            .min_by(|&a, &b| {
+                (c.bias[a].exposure_s.ln() - 0.01f64.ln())
+                    .abs()
+                    .total_cmp(&(c.bias[b].exposure_s.ln() - 0.01f64.ln()).abs())
+            })
+            .unwrap_or(0);
         let _ = write!(h, "<h2>Fixed pattern (paper Fig. 3)</h2><div class=row><div><p>FPN at {} s</p>{}</div>{}</div>", c.bias[i].exposure_s, heat_map(&c.bias[i].mean, c.width, c.height, "DN"), fpn_curve_plot(c));
         h.push_str("<p>Mean absolute prediction error per pixel (all pixels; the noise floor is what a perfect prediction would still show, from the finite number of bias frames).</p><table><tr><th>exposure s</th><th>shared form DN</th><th>shared, inliers DN</th><th>per-pixel form DN</th><th>noise floor DN</th></tr>");
         for e in &f.errors {
-            let _ = write!(h, "<tr><td>{}</td><td>{:.3}</td><td>{:.3}</td><td>{:.3}</td><td>{:.3}</td></tr>", e.exposure_s, e.shared_mae_dn, e.shared_mae_inliers_dn, e.per_pixel_mae_dn, e.noise_floor_dn);
+            let _ = write!(
+                h,
+                "<tr><td>{}</td><td>{:.3}</td><td>{:.3}</td><td>{:.3}</td><td>{:.3}</td></tr>",
+                e.exposure_s,
+                e.shared_mae_dn,
+                e.shared_mae_inliers_dn,
+                e.per_pixel_mae_dn,
+                e.noise_floor_dn
+            );
         }
         h.push_str("</table>");
     } else if let Some(b) = c.bias.first() {
-        let _ = write!(h, "<h2>Fixed pattern</h2><p>FPN at {} s</p>{}", b.exposure_s, heat_map(&b.mean, c.width, c.height, "DN"));
+        let _ = write!(
+            h,
+            "<h2>Fixed pattern</h2><p>FPN at {} s</p>{}",
+            b.exposure_s,
+            heat_map(&b.mean, c.width, c.height, "DN")
+        );
     }
     if let Some(b) = c.bias.first() {
         let _ = write!(h, "<h2>Read noise (paper Fig. 4)</h2><div class=row><div><p>read-noise std at {} s</p>{}</div>{}</div><table><tr><th>exposure s</th><th>frames</th><th>FPN median DN</th><th>read-noise median DN</th><th>read-noise rms DN</th></tr>", b.exposure_s, heat_map(&b.std, c.width, c.height, "DN"), qq_plot(c));
         for l in &c.bias {
-            let _ = write!(h, "<tr><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.3}</td><td>{:.3}</td></tr>", l.exposure_s, l.frames, l.median_dn, l.read_noise_median_dn, l.read_noise_rms_dn);
+            let _ = write!(
+                h,
+                "<tr><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.3}</td><td>{:.3}</td></tr>",
+                l.exposure_s, l.frames, l.median_dn, l.read_noise_median_dn, l.read_noise_rms_dn
+            );
         }
         h.push_str("</table>");
     }
@@ -335,11 +609,17 @@ table{{border-collapse:collapse;font-size:14px}} td,th{{border:1px solid #ccc;pa
     }
     if c.gain_series.is_some() {
         let (hist, gains) = gain_plots(c);
-        let _ = write!(h, "<h2>Gain series (Ryan et al. 2021)</h2><div class=row>{hist}{gains}</div>");
+        let _ = write!(
+            h,
+            "<h2>Gain series (Ryan et al. 2021)</h2><div class=row>{hist}{gains}</div>"
+        );
     }
-    h.push_str("<p style=\"color:#777;font-size:12px\">Written by emccd calibrate.</p></body></html>");
+    h.push_str(
+        "<p style=\"color:#777;font-size:12px\">Written by emccd calibrate.</p></body></html>",
+    );
     emccd_io::write_atomic(dir.join("index.html"), h.as_bytes()).map_err(std::io::Error::other)?;
     let json = serde_json::to_string_pretty(c).map_err(std::io::Error::other)?;
-    emccd_io::write_atomic(dir.join("results.json"), json.as_bytes()).map_err(std::io::Error::other)?;
+    emccd_io::write_atomic(dir.join("results.json"), json.as_bytes())
+        .map_err(std::io::Error::other)?;
     Ok(())
 }

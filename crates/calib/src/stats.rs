@@ -45,7 +45,11 @@ impl StackStats {
             height,
             frames: 0,
             saturated: 0,
-            probes: probes.iter().filter(|&&i| i < n).map(|&i| (i, Vec::new())).collect(),
+            probes: probes
+                .iter()
+                .filter(|&&i| i < n)
+                .map(|&i| (i, Vec::new()))
+                .collect(),
             shift: vec![0.0; n],
             s1: vec![0.0; n],
             s2: vec![0.0; n],
@@ -78,7 +82,11 @@ impl StackStats {
                     *s1 += d;
                     *s2 += d * d;
                 }
-                let bad = if finite { None } else { x.iter().position(|v| !v.is_finite()).map(|i| c * CHUNK + i) };
+                let bad = if finite {
+                    None
+                } else {
+                    x.iter().position(|v| !v.is_finite()).map(|i| c * CHUNK + i)
+                };
                 (bad, sat)
             })
             .reduce(|| (None, 0), |a, b| (a.0.or(b.0), a.1 + b.1));
@@ -98,7 +106,11 @@ impl StackStats {
     /// Per-pixel temporal mean.
     pub fn mean(&self) -> Vec<f32> {
         let n = self.frames.max(1) as f64;
-        self.shift.par_iter().zip(&self.s1).map(|(&s, &a)| (s as f64 + a / n) as f32).collect()
+        self.shift
+            .par_iter()
+            .zip(&self.s1)
+            .map(|(&s, &a)| (s as f64 + a / n) as f32)
+            .collect()
     }
 
     /// Per-pixel unbiased temporal variance (0 with fewer than 2 frames).
@@ -107,7 +119,11 @@ impl StackStats {
         if self.frames < 2 {
             return vec![0.0; self.s1.len()];
         }
-        self.s1.par_iter().zip(&self.s2).map(|(&a, &b)| ((b - a * a / n) / (n - 1.0)).max(0.0) as f32).collect()
+        self.s1
+            .par_iter()
+            .zip(&self.s2)
+            .map(|(&a, &b)| ((b - a * a / n) / (n - 1.0)).max(0.0) as f32)
+            .collect()
     }
 
     /// Per-pixel temporal standard deviation.
@@ -145,35 +161,55 @@ pub fn accumulate(
         if (info.width, info.height) != (w, h) {
             return Err(Error::input(
                 path,
-                format!("frames are {}×{}, but the other stacks are {w}×{h}", info.width, info.height),
+                format!(
+                    "frames are {}×{}, but the other stacks are {w}×{h}",
+                    info.width, info.height
+                ),
             ));
         }
     }
     if info.frames < min_frames {
         return Err(Error::input(
             path,
-            format!("holds {} frame(s); temporal statistics need at least {min_frames}", info.frames),
+            format!(
+                "holds {} frame(s); temporal statistics need at least {min_frames}",
+                info.frames
+            ),
         ));
     }
     let mut st = StackStats::new(info.width, info.height, probes);
     let mut buf = vec![0f32; info.frame_len()];
     loop {
-        let more = r
-            .read_frame(&mut buf)
-            .map_err(|e| Error::input(path, format!("frame {}: {}", st.frames + 1, crate::error::io_message(e))))?;
+        let more = r.read_frame(&mut buf).map_err(|e| {
+            Error::input(
+                path,
+                format!("frame {}: {}", st.frames + 1, crate::error::io_message(e)),
+            )
+        })?;
         if !more {
             break;
         }
         if let Err(i) = st.push(&buf, adc_max) {
             return Err(Error::input(
                 path,
-                format!("frame {} has a non-finite value at pixel ({}, {})", st.frames + 1, i % info.width, i / info.width),
+                format!(
+                    "frame {} has a non-finite value at pixel ({}, {})",
+                    st.frames + 1,
+                    i % info.width,
+                    i / info.width
+                ),
             ));
         }
         progress.advance(1);
     }
     if st.frames < min_frames {
-        return Err(Error::input(path, format!("only {} frame(s) could be read; need at least {min_frames}", st.frames)));
+        return Err(Error::input(
+            path,
+            format!(
+                "only {} frame(s) could be read; need at least {min_frames}",
+                st.frames
+            ),
+        ));
     }
     Ok((info, st))
 }
@@ -188,7 +224,9 @@ mod tests {
         let mut st = StackStats::new(w, h, &[3]);
         let mut all = Vec::new();
         for k in 0..n {
-            let f: Vec<f32> = (0..w * h).map(|i| 500.0 + ((i * 7919 + k * 104729) % 97) as f32 * 0.37).collect();
+            let f: Vec<f32> = (0..w * h)
+                .map(|i| 500.0 + ((i * 7919 + k * 104729) % 97) as f32 * 0.37)
+                .collect();
             st.push(&f, None).unwrap();
             all.push(f);
         }
@@ -196,7 +234,9 @@ mod tests {
         for i in [0, 17, w * h - 1] {
             let mu = all.iter().map(|f| f[i] as f64).sum::<f64>() / n as f64;
             let var = all.iter().map(|f| (f[i] as f64 - mu).powi(2)).sum::<f64>() / (n - 1) as f64;
-            assert!((m[i] as f64 - mu).abs() < 1e-4 && (v[i] as f64 - var).abs() < 1e-3 * var.max(1.0));
+            assert!(
+                (m[i] as f64 - mu).abs() < 1e-4 && (v[i] as f64 - var).abs() < 1e-3 * var.max(1.0)
+            );
         }
         assert_eq!(st.probes[0].1.len(), n);
     }

@@ -28,7 +28,9 @@ static A: Counting = Counting;
 
 fn write_stack(path: &std::path::Path, frames: usize) {
     let (w, h) = (128, 128);
-    let mut wr = emccd_io::StackWriter::create(path, w, h, emccd_io::SampleFormat::U16, Some(frames)).unwrap();
+    let mut wr =
+        emccd_io::StackWriter::create(path, w, h, emccd_io::SampleFormat::U16, Some(frames))
+            .unwrap();
     let mut f = vec![0f32; w * h];
     for k in 0..frames {
         for (i, v) in f.iter_mut().enumerate() {
@@ -42,7 +44,8 @@ fn write_stack(path: &std::path::Path, frames: usize) {
 fn peak_while_reading(path: &std::path::Path) -> usize {
     let base = LIVE.load(SeqCst);
     PEAK.store(base, SeqCst);
-    let (_, st) = emccd_calib::stats::accumulate(path, None, 2, &[], None, &emccd_calib::Silent).unwrap();
+    let (_, st) =
+        emccd_calib::stats::accumulate(path, None, 2, &[], None, &emccd_calib::Silent).unwrap();
     let peak = PEAK.load(SeqCst) - base;
     drop(st);
     peak
@@ -61,6 +64,9 @@ fn memory_does_not_grow_with_frame_count() {
     // 400 frames of 128² f32 would be 26 MB if they were held; the streaming state is ~330 KB.
     // Allow 64 KiB of slack for the TIFF decoder's per-file tables (the IFD list grows with the
     // page count: 8 bytes a page).
-    assert!(p400 <= p10 + 64 * 1024, "peak {p10} B for 10 frames, {p400} B for 400 frames");
+    assert!(
+        p400 <= p10 + 64 * 1024,
+        "peak {p10} B for 10 frames, {p400} B for 400 frames"
+    );
     assert!(p400 < 2_000_000, "peak {p400} B");
 }

@@ -61,7 +61,13 @@ pub struct Ablation {
 
 impl Default for Ablation {
     fn default() -> Self {
-        Ablation { multiplicative: true, readout: true, quantization: true, fpn: true, blooming: true }
+        Ablation {
+            multiplicative: true,
+            readout: true,
+            quantization: true,
+            fpn: true,
+            blooming: true,
+        }
     }
 }
 
@@ -107,8 +113,15 @@ fn inv_moment(a: f64, b: f64, k: i32) -> f64 {
 }
 
 fn check_frame(clean: &[f32], width: usize, out: &[f32]) {
-    assert!(width > 0 && clean.len() % width == 0, "frame is not a whole number of rows");
-    assert_eq!(clean.len(), out.len(), "input and output frames differ in size");
+    assert!(
+        width > 0 && clean.len() % width == 0,
+        "frame is not a whole number of rows"
+    );
+    assert_eq!(
+        clean.len(),
+        out.len(),
+        "input and output frames differ in size"
+    );
 }
 
 /// The paper's model (eq. 5): `D̂' = K(I + f·Np) + Nr + Nq`, `I = S/K`, `K = s/f²`,
@@ -126,18 +139,41 @@ impl OursModel {
     /// Builds the model from a profile's slope, f range, quantization and read-noise maps.
     /// Fails when the profile lacks a slope or read-noise maps (a partial calibration).
     pub fn from_profile(p: &CameraProfile, ablation: Ablation) -> Result<OursModel, Error> {
-        p.require_complete().map_err(|e| Error::Parameter(e.to_string()))?;
-        OursModel::new(p.slope().unwrap_or(f64::NAN), p.f_range, p.quantization_dn, p.maps.read_noise.clone(), ablation)
+        p.require_complete()
+            .map_err(|e| Error::Parameter(e.to_string()))?;
+        OursModel::new(
+            p.slope().unwrap_or(f64::NAN),
+            p.f_range,
+            p.quantization_dn,
+            p.maps.read_noise.clone(),
+            ablation,
+        )
     }
 
     /// Builds the model from explicit parameters (one or more read-noise maps).
-    pub fn new(slope: f64, f_range: [f64; 2], q: f64, read_noise: Vec<Vec<f32>>, ablation: Ablation) -> Result<OursModel, Error> {
-        if !(slope > 0.0) || !(f_range[0] >= 1.0 && f_range[1] >= f_range[0]) || !(q >= 0.0) || read_noise.is_empty() {
+    pub fn new(
+        slope: f64,
+        f_range: [f64; 2],
+        q: f64,
+        read_noise: Vec<Vec<f32>>,
+        ablation: Ablation,
+    ) -> Result<OursModel, Error> {
+        if !(slope > 0.0)
+            || !(f_range[0] >= 1.0 && f_range[1] >= f_range[0])
+            || !(q >= 0.0)
+            || read_noise.is_empty()
+        {
             return Err(Error::Parameter(format!(
                 "ours: need s > 0, 1 ≤ f_lo ≤ f_hi, q ≥ 0 and a read-noise map (s={slope}, f={f_range:?}, q={q})"
             )));
         }
-        Ok(OursModel { slope, f_range, q, read_noise: Arc::new(read_noise), ablation })
+        Ok(OursModel {
+            slope,
+            f_range,
+            q,
+            read_noise: Arc::new(read_noise),
+            ablation,
+        })
     }
 
     /// The per-frame draws for `seed`: (f, read-noise map index).
@@ -160,24 +196,31 @@ impl NoiseModel for OursModel {
         let k = self.slope / (f * f);
         let f_eff = if self.ablation.multiplicative { f } else { 1.0 };
         let rn = &self.read_noise[map];
-        assert_eq!(rn.len(), clean.len(), "read-noise map and frame differ in size");
+        assert_eq!(
+            rn.len(),
+            clean.len(),
+            "read-noise map and frame differ in size"
+        );
         let (readout, quant, q) = (self.ablation.readout, self.ablation.quantization, self.q);
-        out.par_chunks_mut(width).zip(clean.par_chunks(width)).enumerate().for_each(|(y, (o, c))| {
-            let mut rng = stream(seed, y as u64, 1);
-            let sig = &rn[y * width..(y + 1) * width];
-            for ((o, &s), &sd) in o.iter_mut().zip(c).zip(sig) {
-                let i = (s.max(0.0) as f64) / k;
-                let n = poisson(&mut rng, i);
-                let mut v = k * (i + f_eff * (n - i));
-                if readout {
-                    v += sd as f64 * normal(&mut rng);
+        out.par_chunks_mut(width)
+            .zip(clean.par_chunks(width))
+            .enumerate()
+            .for_each(|(y, (o, c))| {
+                let mut rng = stream(seed, y as u64, 1);
+                let sig = &rn[y * width..(y + 1) * width];
+                for ((o, &s), &sd) in o.iter_mut().zip(c).zip(sig) {
+                    let i = (s.max(0.0) as f64) / k;
+                    let n = poisson(&mut rng, i);
+                    let mut v = k * (i + f_eff * (n - i));
+                    if readout {
+                        v += sd as f64 * normal(&mut rng);
+                    }
+                    if quant {
+                        v += q * (rng.random::<f64>() - 0.5);
+                    }
+                    *o = v as f32;
                 }
-                if quant {
-                    v += q * (rng.random::<f64>() - 0.5);
-                }
-                *o = v as f32;
-            }
-        });
+            });
     }
 
     fn moments(&self, signal_dn: f64, pixel: usize) -> Moments {
@@ -187,7 +230,10 @@ impl NoiseModel for OursModel {
         let (var_shot, third) = if self.ablation.multiplicative {
             (s * sig, s * s * sig * inv_moment(a, b, 1))
         } else {
-            (s * sig * inv_moment(a, b, 2), s * s * sig * inv_moment(a, b, 4))
+            (
+                s * sig * inv_moment(a, b, 2),
+                s * s * sig * inv_moment(a, b, 4),
+            )
         };
         let read = if self.ablation.readout {
             let m = &self.read_noise;
@@ -195,8 +241,16 @@ impl NoiseModel for OursModel {
         } else {
             0.0
         };
-        let quant = if self.ablation.quantization { self.q * self.q / 12.0 } else { 0.0 };
-        Moments { mean: sig, var: var_shot + read + quant, third }
+        let quant = if self.ablation.quantization {
+            self.q * self.q / 12.0
+        } else {
+            0.0
+        };
+        Moments {
+            mean: sig,
+            var: var_shot + read + quant,
+            third,
+        }
     }
 }
 
@@ -217,25 +271,52 @@ pub fn tukey_variance(lambda: f64) -> f64 {
         std::f64::consts::PI.powi(2) / 3.0
     } else {
         let g = libm::tgamma;
-        2.0 / (lambda * lambda) * (1.0 / (1.0 + 2.0 * lambda) - g(lambda + 1.0).powi(2) / g(2.0 * lambda + 2.0))
+        2.0 / (lambda * lambda)
+            * (1.0 / (1.0 + 2.0 * lambda) - g(lambda + 1.0).powi(2) / g(2.0 * lambda + 2.0))
     }
 }
 
 impl EldModel {
     /// Builds the model; λ must exceed −1/2 for the variance to exist.
-    pub fn new(k_dn: f64, tukey_lambda: f64, tukey_scale_dn: f64, row_sigma_dn: f64, q: f64) -> Result<EldModel, Error> {
-        if !(k_dn > 0.0 && tukey_lambda > -0.5 && tukey_scale_dn >= 0.0 && row_sigma_dn >= 0.0 && q >= 0.0) {
+    pub fn new(
+        k_dn: f64,
+        tukey_lambda: f64,
+        tukey_scale_dn: f64,
+        row_sigma_dn: f64,
+        q: f64,
+    ) -> Result<EldModel, Error> {
+        if !(k_dn > 0.0
+            && tukey_lambda > -0.5
+            && tukey_scale_dn >= 0.0
+            && row_sigma_dn >= 0.0
+            && q >= 0.0)
+        {
             return Err(Error::Parameter(format!(
                 "eld: need K > 0, λ > −1/2 and non-negative scales (K={k_dn}, λ={tukey_lambda})"
             )));
         }
-        Ok(EldModel { k: k_dn, lambda: tukey_lambda, scale: tukey_scale_dn, row_sigma: row_sigma_dn, q })
+        Ok(EldModel {
+            k: k_dn,
+            lambda: tukey_lambda,
+            scale: tukey_scale_dn,
+            row_sigma: row_sigma_dn,
+            q,
+        })
     }
 
     /// Builds the model from a profile's `[eld]` section.
     pub fn from_profile(p: &CameraProfile) -> Result<EldModel, Error> {
-        let e = p.eld.as_ref().ok_or_else(|| Error::Parameter("the profile has no [eld] parameters".into()))?;
-        EldModel::new(e.k_dn, e.tukey_lambda, e.tukey_scale_dn, e.row_sigma_dn, p.quantization_dn)
+        let e = p
+            .eld
+            .as_ref()
+            .ok_or_else(|| Error::Parameter("the profile has no [eld] parameters".into()))?;
+        EldModel::new(
+            e.k_dn,
+            e.tukey_lambda,
+            e.tukey_scale_dn,
+            e.row_sigma_dn,
+            p.quantization_dn,
+        )
     }
 
     #[inline]
@@ -257,16 +338,19 @@ impl NoiseModel for EldModel {
 
     fn synthesize(&self, clean: &[f32], width: usize, out: &mut [f32], seed: u64) {
         check_frame(clean, width, out);
-        out.par_chunks_mut(width).zip(clean.par_chunks(width)).enumerate().for_each(|(y, (o, c))| {
-            let mut rng = stream(seed, y as u64, 2);
-            let row = self.row_sigma * normal(&mut rng);
-            for (o, &s) in o.iter_mut().zip(c) {
-                let shot = self.k * poisson(&mut rng, s.max(0.0) as f64 / self.k);
-                let read = self.scale * self.tukey(&mut rng);
-                let quant = self.q * (rng.random::<f64>() - 0.5);
-                *o = (shot + read + row + quant) as f32;
-            }
-        });
+        out.par_chunks_mut(width)
+            .zip(clean.par_chunks(width))
+            .enumerate()
+            .for_each(|(y, (o, c))| {
+                let mut rng = stream(seed, y as u64, 2);
+                let row = self.row_sigma * normal(&mut rng);
+                for (o, &s) in o.iter_mut().zip(c) {
+                    let shot = self.k * poisson(&mut rng, s.max(0.0) as f64 / self.k);
+                    let read = self.scale * self.tukey(&mut rng);
+                    let quant = self.q * (rng.random::<f64>() - 0.5);
+                    *o = (shot + read + row + quant) as f32;
+                }
+            });
     }
 
     fn moments(&self, signal_dn: f64, _pixel: usize) -> Moments {
@@ -300,13 +384,37 @@ pub struct PgnModel {
 
 impl PgnModel {
     /// Builds the model at a given exposure (for the dark-current term).
-    pub fn new(em_gain: f64, e_per_dn: f64, cic_e: f64, dark_e_per_s: f64, exposure_s: f64, read_sigma_dn: f64, q: f64) -> Result<PgnModel, Error> {
-        if !(em_gain >= 1.0 && e_per_dn > 0.0 && cic_e >= 0.0 && dark_e_per_s >= 0.0 && exposure_s >= 0.0 && read_sigma_dn >= 0.0 && q >= 0.0) {
+    pub fn new(
+        em_gain: f64,
+        e_per_dn: f64,
+        cic_e: f64,
+        dark_e_per_s: f64,
+        exposure_s: f64,
+        read_sigma_dn: f64,
+        q: f64,
+    ) -> Result<PgnModel, Error> {
+        if !(em_gain >= 1.0
+            && e_per_dn > 0.0
+            && cic_e >= 0.0
+            && dark_e_per_s >= 0.0
+            && exposure_s >= 0.0
+            && read_sigma_dn >= 0.0
+            && q >= 0.0)
+        {
             return Err(Error::Parameter(format!(
                 "pgn: need G ≥ 1, e/DN > 0 and non-negative rates (G={em_gain}, c={e_per_dn})"
             )));
         }
-        Ok(PgnModel { g: em_gain, c: e_per_dn, cic: cic_e, dark: dark_e_per_s, exposure_s, sigma: read_sigma_dn, q, read_map: None })
+        Ok(PgnModel {
+            g: em_gain,
+            c: e_per_dn,
+            cic: cic_e,
+            dark: dark_e_per_s,
+            exposure_s,
+            sigma: read_sigma_dn,
+            q,
+            read_map: None,
+        })
     }
 
     /// The same camera with a per-pixel read-noise std map (DN, row-major, the frame's size)
@@ -318,13 +426,27 @@ impl PgnModel {
     }
 
     fn sigma_at(&self, pixel: usize) -> f64 {
-        self.read_map.as_ref().and_then(|m| m.get(pixel)).map_or(self.sigma, |&v| v as f64)
+        self.read_map
+            .as_ref()
+            .and_then(|m| m.get(pixel))
+            .map_or(self.sigma, |&v| v as f64)
     }
 
     /// Builds the model from a profile's `[pgn]` section.
     pub fn from_profile(p: &CameraProfile, exposure_s: f64) -> Result<PgnModel, Error> {
-        let m = p.pgn.as_ref().ok_or_else(|| Error::Parameter("the profile has no [pgn] parameters".into()))?;
-        PgnModel::new(m.em_gain, m.e_per_dn, m.cic_e, m.dark_e_per_s, exposure_s, m.read_sigma_dn, p.quantization_dn)
+        let m = p
+            .pgn
+            .as_ref()
+            .ok_or_else(|| Error::Parameter("the profile has no [pgn] parameters".into()))?;
+        PgnModel::new(
+            m.em_gain,
+            m.e_per_dn,
+            m.cic_e,
+            m.dark_e_per_s,
+            exposure_s,
+            m.read_sigma_dn,
+            p.quantization_dn,
+        )
     }
 
     fn background_e(&self) -> f64 {
@@ -354,17 +476,21 @@ impl NoiseModel for PgnModel {
         if let Some(m) = &self.read_map {
             assert_eq!(m.len(), clean.len(), "read-noise map size");
         }
-        out.par_chunks_mut(width).zip(clean.par_chunks(width)).enumerate().for_each(|(y, (o, c))| {
-            let mut rng = stream(seed, y as u64, 3);
-            for (x, (o, &s)) in o.iter_mut().zip(c).enumerate() {
-                let lambda = s.max(0.0) as f64 * self.c / self.g + bg;
-                let n = poisson(&mut rng, lambda);
-                let m = em_register(&mut rng, n, self.g);
-                let sigma = self.sigma_at(y * width + x);
-                let v = m / self.c + sigma * normal(&mut rng) - offset + self.q * (rng.random::<f64>() - 0.5);
-                *o = v as f32;
-            }
-        });
+        out.par_chunks_mut(width)
+            .zip(clean.par_chunks(width))
+            .enumerate()
+            .for_each(|(y, (o, c))| {
+                let mut rng = stream(seed, y as u64, 3);
+                for (x, (o, &s)) in o.iter_mut().zip(c).enumerate() {
+                    let lambda = s.max(0.0) as f64 * self.c / self.g + bg;
+                    let n = poisson(&mut rng, lambda);
+                    let m = em_register(&mut rng, n, self.g);
+                    let sigma = self.sigma_at(y * width + x);
+                    let v = m / self.c + sigma * normal(&mut rng) - offset
+                        + self.q * (rng.random::<f64>() - 0.5);
+                    *o = v as f32;
+                }
+            });
     }
 
     fn moments(&self, signal_dn: f64, pixel: usize) -> Moments {
@@ -373,7 +499,9 @@ impl NoiseModel for PgnModel {
         let (g, c) = (self.g, self.c);
         Moments {
             mean: signal_dn.max(0.0),
-            var: 2.0 * g * g * lambda / (c * c) + self.sigma_at(pixel).powi(2) + self.q * self.q / 12.0,
+            var: 2.0 * g * g * lambda / (c * c)
+                + self.sigma_at(pixel).powi(2)
+                + self.q * self.q / 12.0,
             third: 6.0 * g.powi(3) * lambda / c.powi(3),
         }
     }

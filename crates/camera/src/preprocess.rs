@@ -51,7 +51,9 @@ mod tests {
     #[test]
     fn blooming_inverse_is_exact() {
         let w = 5;
-        let orig: Vec<f32> = (0..30).map(|i| ((i * 37) % 11) as f32 * 10.0 + 3.0).collect();
+        let orig: Vec<f32> = (0..30)
+            .map(|i| ((i * 37) % 11) as f32 * 10.0 + 3.0)
+            .collect();
         let mut f = orig.clone();
         apply_blooming(&mut f, w, 0.07);
         assert!(f.iter().zip(&orig).any(|(a, b)| (a - b).abs() > 1.0));

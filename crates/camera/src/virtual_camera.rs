@@ -36,7 +36,14 @@ pub struct PhysicalParams {
 
 impl Default for PhysicalParams {
     fn default() -> Self {
-        PhysicalParams { qe: 0.9, dark_e_per_s: 0.001, cic_e: 0.005, hot_fraction: 2e-4, hot_dark_e_per_s: 50.0, seed: 7 }
+        PhysicalParams {
+            qe: 0.9,
+            dark_e_per_s: 0.001,
+            cic_e: 0.005,
+            hot_fraction: 2e-4,
+            hot_dark_e_per_s: 50.0,
+            seed: 7,
+        }
     }
 }
 
@@ -73,14 +80,29 @@ pub struct Exposure<'a> {
 impl VirtualCamera {
     /// Builds a camera whose truth is `profile`, with the physics in `physics`.
     pub fn new(profile: CameraProfile, physics: PhysicalParams) -> Result<VirtualCamera, Error> {
-        profile.validate().map_err(|e| Error::Parameter(e.to_string()))?;
-        profile.require_complete().map_err(|e| Error::Parameter(format!("virtual camera: {e}")))?;
+        profile
+            .validate()
+            .map_err(|e| Error::Parameter(e.to_string()))?;
+        profile
+            .require_complete()
+            .map_err(|e| Error::Parameter(format!("virtual camera: {e}")))?;
         let p = &physics;
-        if !(p.qe > 0.0 && p.qe <= 1.0 && p.dark_e_per_s >= 0.0 && p.cic_e >= 0.0 && (0.0..1.0).contains(&p.hot_fraction) && p.hot_dark_e_per_s >= 0.0) {
-            return Err(Error::Parameter(format!("virtual camera: invalid physics {p:?}")));
+        if !(p.qe > 0.0
+            && p.qe <= 1.0
+            && p.dark_e_per_s >= 0.0
+            && p.cic_e >= 0.0
+            && (0.0..1.0).contains(&p.hot_fraction)
+            && p.hot_dark_e_per_s >= 0.0)
+        {
+            return Err(Error::Parameter(format!(
+                "virtual camera: invalid physics {p:?}"
+            )));
         }
         let g = profile.em_gain.max(1.0);
-        let c = 2.0 * g / profile.slope().map_err(|e| Error::Parameter(e.to_string()))?;
+        let c = 2.0 * g
+            / profile
+                .slope()
+                .map_err(|e| Error::Parameter(e.to_string()))?;
         let n = profile.len();
         let mut rng = stream(p.seed, 0x407, 0);
         let mut dark_map = vec![p.dark_e_per_s as f32; n];
@@ -91,12 +113,20 @@ impl VirtualCamera {
                 hot_pixels.push(i);
             }
         }
-        Ok(VirtualCamera { profile, physics, em_gain: g, e_per_dn: c, dark_map, hot_pixels })
+        Ok(VirtualCamera {
+            profile,
+            physics,
+            em_gain: g,
+            e_per_dn: c,
+            dark_map,
+            hot_pixels,
+        })
     }
 
     /// The bundled default profile with default physics.
     pub fn default_camera() -> VirtualCamera {
-        VirtualCamera::new(emccd_profile::default_profile(), PhysicalParams::default()).expect("default camera is valid")
+        VirtualCamera::new(emccd_profile::default_profile(), PhysicalParams::default())
+            .expect("default camera is valid")
     }
 
     /// Frame width.
@@ -134,9 +164,19 @@ impl Exposure<'_> {
     pub fn frame(&self, photons: &[f32], seed: u64, out: &mut [f32]) {
         let cam = self.cam;
         let w = cam.width();
-        assert_eq!(photons.len(), cam.profile.len(), "photon map must cover the sensor");
+        assert_eq!(
+            photons.len(),
+            cam.profile.len(),
+            "photon map must cover the sensor"
+        );
         assert_eq!(out.len(), photons.len(), "output must hold one frame");
-        let (qe, cic, t, g, c) = (cam.physics.qe, cam.physics.cic_e, self.exposure_s, cam.em_gain, cam.e_per_dn);
+        let (qe, cic, t, g, c) = (
+            cam.physics.qe,
+            cam.physics.cic_e,
+            self.exposure_s,
+            cam.em_gain,
+            cam.e_per_dn,
+        );
         // Pass 1: EM-amplified charge plus the fixed pattern, before blooming.
         out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
             let mut rng = stream(seed, y as u64, 10);
@@ -145,7 +185,10 @@ impl Exposure<'_> {
                 let i = base + x;
                 let lambda = qe * photons[i].max(0.0) as f64 + cam.dark_map[i] as f64 * t + cic;
                 let n = if lambda > 0.0 {
-                    rand_distr::Distribution::sample(&rand_distr::Poisson::new(lambda).unwrap(), &mut rng)
+                    rand_distr::Distribution::sample(
+                        &rand_distr::Poisson::new(lambda).unwrap(),
+                        &mut rng,
+                    )
                 } else {
                     0.0
                 };
@@ -161,7 +204,8 @@ impl Exposure<'_> {
             let mut rng = stream(seed, y as u64, 11);
             let rn = &self.read_noise[y * w..(y + 1) * w];
             for ((o, &m), &sd) in row.iter_mut().zip(&cm).zip(rn) {
-                let z: f64 = rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut rng);
+                let z: f64 =
+                    rand_distr::Distribution::sample(&rand_distr::StandardNormal, &mut rng);
                 let v = *o as f64 + x * m + sd as f64 * z;
                 *o = v.round().clamp(0.0, adc_max) as f32;
             }
@@ -187,14 +231,21 @@ impl Exposure<'_> {
         photons
             .iter()
             .zip(&cam.dark_map)
-            .map(|(&p, &d)| (k * (cam.physics.qe * p.max(0.0) as f64 + d as f64 * self.exposure_s + cam.physics.cic_e)) as f32)
+            .map(|(&p, &d)| {
+                (k * (cam.physics.qe * p.max(0.0) as f64
+                    + d as f64 * self.exposure_s
+                    + cam.physics.cic_e)) as f32
+            })
             .collect()
     }
 
     /// The ground truth of a pair: the photo-signal alone, `K·QE·φ` in DN above bias.
     pub fn ground_truth(&self, photons: &[f32]) -> Vec<f32> {
         let k = self.cam.k_dn() * self.cam.physics.qe;
-        photons.iter().map(|&p| (k * p.max(0.0) as f64) as f32).collect()
+        photons
+            .iter()
+            .map(|&p| (k * p.max(0.0) as f64) as f32)
+            .collect()
     }
 }
 
@@ -204,8 +255,17 @@ mod tests {
     use crate::preprocess::preprocess;
 
     fn small_camera() -> VirtualCamera {
-        let p = emccd_profile::default_profile().crop(100, 200, 64, 48).unwrap();
-        VirtualCamera::new(p, PhysicalParams { hot_fraction: 0.01, ..Default::default() }).unwrap()
+        let p = emccd_profile::default_profile()
+            .crop(100, 200, 64, 48)
+            .unwrap();
+        VirtualCamera::new(
+            p,
+            PhysicalParams {
+                hot_fraction: 0.01,
+                ..Default::default()
+            },
+        )
+        .unwrap()
     }
 
     #[test]
@@ -218,7 +278,11 @@ mod tests {
             let mut raw = e.expected_raw(&photons);
             let want = e.expected_signal(&photons);
             preprocess(&mut raw, cam.width(), e.blooming_x, &e.fpn);
-            let worst = raw.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+            let worst = raw
+                .iter()
+                .zip(&want)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0f32, f32::max);
             // f32 arithmetic on values of a few hundred DN: error at the 1e-4 DN level.
             assert!(worst < 2e-3, "t = {t}: worst error {worst} DN");
         }
@@ -235,7 +299,9 @@ mod tests {
         e.frame(&photons, 42, &mut a);
         e.frame(&photons, 42, &mut b);
         assert_eq!(a, b);
-        assert!(a.iter().all(|v| v.fract() == 0.0 && (0.0..=65535.0).contains(v)));
+        assert!(a
+            .iter()
+            .all(|v| v.fract() == 0.0 && (0.0..=65535.0).contains(v)));
         e.frame(&photons, 43, &mut b);
         assert_ne!(a, b);
     }

@@ -9,7 +9,9 @@
 //! false-alarm rate of 7·10⁻⁶ per check (≈ 6·10⁻⁴ over the ~90 checks here). Seeds are fixed, so
 //! the outcome is deterministic.
 
-use emccd_camera::{noise::tukey_variance, Ablation, EldModel, Moments, NoiseModel, OursModel, PgnModel};
+use emccd_camera::{
+    noise::tukey_variance, Ablation, EldModel, Moments, NoiseModel, OursModel, PgnModel,
+};
 
 const W: usize = 50;
 const H: usize = 50;
@@ -32,11 +34,25 @@ fn check(model: &dyn NoiseModel, signal: f64, seed0: u64, label: &str) {
         model.synthesize(&clean, W, &mut out, seed0 * 1_000_003 + k as u64);
         let n = out.len() as f64;
         m1.push(out.iter().map(|&x| x as f64).sum::<f64>() / n);
-        m2.push(out.iter().map(|&x| (x as f64 - want.mean).powi(2)).sum::<f64>() / n);
-        m3.push(out.iter().map(|&x| (x as f64 - want.mean).powi(3)).sum::<f64>() / n);
+        m2.push(
+            out.iter()
+                .map(|&x| (x as f64 - want.mean).powi(2))
+                .sum::<f64>()
+                / n,
+        );
+        m3.push(
+            out.iter()
+                .map(|&x| (x as f64 - want.mean).powi(3))
+                .sum::<f64>()
+                / n,
+        );
     }
     let b = (FRAMES as f64).sqrt();
-    for (name, vals, truth) in [("mean", &m1, want.mean), ("variance", &m2, want.var), ("third moment", &m3, want.third)] {
+    for (name, vals, truth) in [
+        ("mean", &m1, want.mean),
+        ("variance", &m2, want.var),
+        ("third moment", &m3, want.third),
+    ] {
         let (est, sd) = mean_sd(vals);
         let se = sd / b;
         // A zero-variance statistic (e.g. third moment of a symmetric pure-read case is not) would
@@ -69,7 +85,14 @@ fn ours_fixed_f_matches_closed_form() {
 fn ours_random_f_and_maps_matches_mixture_moments() {
     // Two read-noise maps drawn per frame: the variance uses their mean square.
     let maps = vec![vec![2.0f32; W * H], vec![4.0f32; W * H]];
-    let m = OursModel::new(20.14, [1.3, std::f64::consts::SQRT_2], 1.0, maps, Ablation::default()).unwrap();
+    let m = OursModel::new(
+        20.14,
+        [1.3, std::f64::consts::SQRT_2],
+        1.0,
+        maps,
+        Ablation::default(),
+    )
+    .unwrap();
     let mo = m.moments(100.0, 0);
     assert!((mo.var - (20.14 * 100.0 + 10.0 + 1.0 / 12.0)).abs() < 1e-9);
     for (j, s) in LEVELS.into_iter().enumerate() {
@@ -79,14 +102,28 @@ fn ours_random_f_and_maps_matches_mixture_moments() {
 
 #[test]
 fn ours_ablations_match_closed_form() {
-    let off_mult = Ablation { multiplicative: false, ..Ablation::default() };
-    let m = OursModel::new(20.14, [1.3, std::f64::consts::SQRT_2], 1.0, uniform_map(3.0), off_mult).unwrap();
+    let off_mult = Ablation {
+        multiplicative: false,
+        ..Ablation::default()
+    };
+    let m = OursModel::new(
+        20.14,
+        [1.3, std::f64::consts::SQRT_2],
+        1.0,
+        uniform_map(3.0),
+        off_mult,
+    )
+    .unwrap();
     // Without the noise factor the shot variance drops by E[1/f²] ≈ 0.54.
     assert!(m.moments(100.0, 0).var < 0.6 * 20.14 * 100.0 + 10.0);
     for (j, s) in LEVELS.into_iter().enumerate() {
         check(&m, s, 200 + j as u64, "ours without multiplicative noise");
     }
-    let off_read = Ablation { readout: false, quantization: false, ..Ablation::default() };
+    let off_read = Ablation {
+        readout: false,
+        quantization: false,
+        ..Ablation::default()
+    };
     let m = OursModel::new(20.14, [1.3, 1.3], 1.0, uniform_map(3.0), off_read).unwrap();
     assert_eq!(m.moments(0.0, 0).var, 0.0);
     for (j, s) in [2.0, 200.0].into_iter().enumerate() {
@@ -118,7 +155,9 @@ fn pgn_matches_closed_form_and_is_skewed() {
     // At high gain the PGN slope is 2G/c = s, matching a Poisson model with K = s; but the EM
     // register's third moment is 6K²S against (2K)²S = 4K²S for scaled Poisson: 1.5× the skew.
     let a = m.moments(200.0, 0);
-    let eld = EldModel::new(20.14, 0.14, 2.06514, 0.0, 1.0).unwrap().moments(200.0, 0);
+    let eld = EldModel::new(20.14, 0.14, 2.06514, 0.0, 1.0)
+        .unwrap()
+        .moments(200.0, 0);
     assert!((a.var - eld.var).abs() / a.var < 0.01);
     let ratio = a.third / eld.third;
     assert!((ratio - 1.5).abs() < 0.01, "third-moment ratio {ratio}");
@@ -126,12 +165,23 @@ fn pgn_matches_closed_form_and_is_skewed() {
 
 #[test]
 fn same_seed_same_frame_any_thread_count() {
-    let m = OursModel::new(20.14, [1.3, 1.41], 1.0, uniform_map(3.0), Ablation::default()).unwrap();
+    let m = OursModel::new(
+        20.14,
+        [1.3, 1.41],
+        1.0,
+        uniform_map(3.0),
+        Ablation::default(),
+    )
+    .unwrap();
     let clean: Vec<f32> = (0..W * H).map(|i| (i % 300) as f32).collect();
     let mut a = vec![0f32; W * H];
     let mut b = vec![0f32; W * H];
     m.synthesize(&clean, W, &mut a, 9);
-    rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap().install(|| m.synthesize(&clean, W, &mut b, 9));
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(|| m.synthesize(&clean, W, &mut b, 9));
     assert_eq!(a, b);
 }
 
@@ -143,10 +193,19 @@ fn same_seed_same_frame_any_thread_count() {
 fn pgn_low_light_with_read_noise_map_matches_closed_form() {
     let (g, s) = (300.0, 20.14);
     let c = 2.0 * g / s;
-    let m = PgnModel::new(g, c, 0.03, 0.0, 0.01, 3.0, 1.0).unwrap().with_read_noise_map(vec![5.0; W * H]);
-    assert!((m.moments(0.0, 0).var - (2.0 * g * g * 0.03 / (c * c) + 25.0 + 1.0 / 12.0)).abs() < 1e-9);
+    let m = PgnModel::new(g, c, 0.03, 0.0, 0.01, 3.0, 1.0)
+        .unwrap()
+        .with_read_noise_map(vec![5.0; W * H]);
+    assert!(
+        (m.moments(0.0, 0).var - (2.0 * g * g * 0.03 / (c * c) + 25.0 + 1.0 / 12.0)).abs() < 1e-9
+    );
     for (j, electrons) in [0.5, 1.0, 4.0, 20.0].into_iter().enumerate() {
         // Signal in DN above bias: electrons × G / c (= electrons × s/2).
-        check(&m, electrons * g / c, 600 + j as u64, &format!("pgn with map, {electrons} e⁻"));
+        check(
+            &m,
+            electrons * g / c,
+            600 + j as u64,
+            &format!("pgn with map, {electrons} e⁻"),
+        );
     }
 }

@@ -50,7 +50,8 @@ pub struct Args {
 fn bm3d_bench(sigmas: &[f64], limit: Option<usize>) -> Result<()> {
     use rand::SeedableRng;
     use rand_distr::{Distribution, Normal};
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/clean/natural/BSD68");
+    let dir =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/clean/natural/BSD68");
     let mut scenes = crate::common::expand_inputs(&[dir])?;
     if let Some(n) = limit {
         scenes.truncate(n);
@@ -61,8 +62,14 @@ fn bm3d_bench(sigmas: &[f64], limit: Option<usize>) -> Result<()> {
         50 => Some(25.62),
         _ => None,
     };
-    println!("BM3D on BSD68 ({} images), additive Gaussian noise, PSNR for 8-bit range", scenes.len());
-    println!("{:>6} {:>10} {:>10} {:>10} {:>12}", "σ", "noisy dB", "BM3D dB", "published", "s/image");
+    println!(
+        "BM3D on BSD68 ({} images), additive Gaussian noise, PSNR for 8-bit range",
+        scenes.len()
+    );
+    println!(
+        "{:>6} {:>10} {:>10} {:>10} {:>12}",
+        "σ", "noisy dB", "BM3D dB", "published", "s/image"
+    );
     for &sigma in sigmas {
         let (mut pn, mut pd, mut secs) = (0.0, 0.0, 0.0);
         for (i, sc) in scenes.iter().enumerate() {
@@ -70,7 +77,10 @@ fn bm3d_bench(sigmas: &[f64], limit: Option<usize>) -> Result<()> {
             let clean: Vec<f32> = img.iter().map(|v| v * 255.0).collect();
             let mut rng = rand_pcg::Pcg64::seed_from_u64(1000 * sigma as u64 + i as u64);
             let nd = Normal::new(0.0, sigma).expect("σ > 0");
-            let noisy: Vec<f32> = clean.iter().map(|&c| c + nd.sample(&mut rng) as f32).collect();
+            let noisy: Vec<f32> = clean
+                .iter()
+                .map(|&c| c + nd.sample(&mut rng) as f32)
+                .collect();
             let t = Instant::now();
             let den = emccd_eval::bm3d::bm3d(&noisy, w, h, sigma, 255.0);
             secs += t.elapsed().as_secs_f64();
@@ -79,19 +89,38 @@ fn bm3d_bench(sigmas: &[f64], limit: Option<usize>) -> Result<()> {
         }
         let n = scenes.len().max(1) as f64;
         let p = published(sigma).map_or("–".into(), |v: f64| format!("{v:.2}"));
-        println!("{:>6} {:>10.2} {:>10.2} {:>10} {:>12.2}", sigma, pn / n, pd / n, p, secs / n);
+        println!(
+            "{:>6} {:>10.2} {:>10.2} {:>10} {:>12.2}",
+            sigma,
+            pn / n,
+            pd / n,
+            p,
+            secs / n
+        );
     }
     Ok(())
 }
 
-fn denoise_bench(model_args: &[String], profile_arg: &str, scene_args: &[std::path::PathBuf], frames: usize) -> Result<()> {
+fn denoise_bench(
+    model_args: &[String],
+    profile_arg: &str,
+    scene_args: &[std::path::PathBuf],
+    frames: usize,
+) -> Result<()> {
     use emccd_nn::pipeline::Pipeline;
-    let specs = model_args.iter().map(|m| crate::commands::denoise::model_spec(m)).collect::<Result<Vec<_>>>()?;
-    let models = specs.iter().map(|s| crate::commands::denoise::load_model(s.0)).collect::<Result<Vec<_>>>()?;
+    let specs = model_args
+        .iter()
+        .map(|m| crate::commands::denoise::model_spec(m))
+        .collect::<Result<Vec<_>>>()?;
+    let models = specs
+        .iter()
+        .map(|s| crate::commands::denoise::load_model(s.0))
+        .collect::<Result<Vec<_>>>()?;
     let profile = crate::common::load_profile(profile_arg)?;
     let cam = VirtualCamera::new(profile.clone(), Default::default())?;
     let scenes = if scene_args.is_empty() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/clean/microscopy/fmd-confocal-bpae");
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../shared/data/clean/microscopy/fmd-confocal-bpae");
         crate::common::expand_inputs(&[dir])?
     } else {
         crate::common::expand_inputs(scene_args)?
@@ -99,14 +128,28 @@ fn denoise_bench(model_args: &[String], profile_arg: &str, scene_args: &[std::pa
     let pipes: Vec<Pipeline> = models
         .iter()
         .zip(&specs)
-        .map(|(m, s)| Pipeline { model: m, profile: &profile, tiling: Default::default(), ensemble: s.1, device: emccd_nn::device() })
+        .map(|(m, s)| Pipeline {
+            model: m,
+            profile: &profile,
+            tiling: Default::default(),
+            ensemble: s.1,
+            device: emccd_nn::device(),
+        })
         .collect();
     let e = cam.exposure(0.01);
     let k = models.len();
     let (mut pin, mut pbm, mut n, mut bm_secs) = (0.0, 0.0, 0usize, 0.0);
     let (mut pout, mut secs, mut timed) = (vec![0.0; k], vec![0.0; k], vec![0usize; k]);
-    println!("camera: {} (slope {:.2} DN, read noise {:.2} DN), 10 ms", profile.camera, profile.slope()?, profile.read_noise_dn());
-    print!("{:<28} {:>8} {:>10} {:>10}", "scene", "photons", "input dB", "BM3D dB");
+    println!(
+        "camera: {} (slope {:.2} DN, read noise {:.2} DN), 10 ms",
+        profile.camera,
+        profile.slope()?,
+        profile.read_noise_dn()
+    );
+    print!(
+        "{:<28} {:>8} {:>10} {:>10}",
+        "scene", "photons", "input dB", "BM3D dB"
+    );
     for i in 0..k {
         print!(" {:>10}", format!("model {}", i + 1));
     }
@@ -114,7 +157,12 @@ fn denoise_bench(model_args: &[String], profile_arg: &str, scene_args: &[std::pa
     for (si, sc) in scenes.iter().enumerate() {
         let (w, h, img) = crate::common::read_scene(sc)?;
         if (w, h) != (cam.width(), cam.height()) {
-            eprintln!("skipping {}: {w}×{h}, the camera is {}×{}", sc.display(), cam.width(), cam.height());
+            eprintln!(
+                "skipping {}: {w}×{h}, the camera is {}×{}",
+                sc.display(),
+                cam.width(),
+                cam.height()
+            );
             continue;
         }
         for (li, &level) in [20.0f64, 200.0].iter().enumerate() {
@@ -127,8 +175,17 @@ fn denoise_bench(model_args: &[String], profile_arg: &str, scene_args: &[std::pa
             let t = Instant::now();
             let bm = crate::commands::denoise::bm3d_frame(&profile, &raw, 0.01)?;
             bm_secs += t.elapsed().as_secs_f64();
-            let (a, c) = (crate::common::psnr(&pre, &truth, peak), crate::common::psnr(&bm, &truth, peak));
-            print!("{:<28} {:>8} {:>10.2} {:>10.2}", sc.file_name().unwrap_or_default().to_string_lossy(), level, a, c);
+            let (a, c) = (
+                crate::common::psnr(&pre, &truth, peak),
+                crate::common::psnr(&bm, &truth, peak),
+            );
+            print!(
+                "{:<28} {:>8} {:>10.2} {:>10.2}",
+                sc.file_name().unwrap_or_default().to_string_lossy(),
+                level,
+                a,
+                c
+            );
             for (mi, pipe) in pipes.iter().enumerate() {
                 // A model made for an ablation has its own preprocessing.
                 let own;
@@ -156,7 +213,12 @@ fn denoise_bench(model_args: &[String], profile_arg: &str, scene_args: &[std::pa
     }
     let nn = n.max(1) as f64;
     println!();
-    println!("mean PSNR over {n} pairs: input {:.2} dB, BM3D (GAT) {:.2} dB ({:.2} s per frame)", pin / nn, pbm / nn, bm_secs / nn);
+    println!(
+        "mean PSNR over {n} pairs: input {:.2} dB, BM3D (GAT) {:.2} dB ({:.2} s per frame)",
+        pin / nn,
+        pbm / nn,
+        bm_secs / nn
+    );
     for (i, m) in models.iter().enumerate() {
         let nparams = burn::module::Module::num_params(&m.net);
         println!(
@@ -171,7 +233,11 @@ fn denoise_bench(model_args: &[String], profile_arg: &str, scene_args: &[std::pa
             secs[i] / timed[i].max(1) as f64
         );
     }
-    println!("({} CPU threads; network on {})", rayon::current_num_threads(), emccd_nn::device_name(&emccd_nn::device()));
+    println!(
+        "({} CPU threads; network on {})",
+        rayon::current_num_threads(),
+        emccd_nn::device_name(&emccd_nn::device())
+    );
     Ok(())
 }
 
@@ -188,7 +254,8 @@ fn calibration_bench(frames: usize) -> Result<()> {
     let (w, h) = (512usize, 512usize);
     let dir = tempfile::tempdir()?;
     let path = dir.path().join("stack.tif");
-    let mut wr = emccd_io::StackWriter::create(&path, w, h, emccd_io::SampleFormat::U16, Some(frames))?;
+    let mut wr =
+        emccd_io::StackWriter::create(&path, w, h, emccd_io::SampleFormat::U16, Some(frames))?;
     let mut f = vec![0f32; w * h];
     for k in 0..frames {
         for (i, v) in f.iter_mut().enumerate() {
@@ -220,10 +287,28 @@ fn calibration_bench(frames: usize) -> Result<()> {
     let threads = rayon::current_num_threads();
     println!("calibration streaming: {frames} frames of {w}×{h} u16 ({:.0} MB TIFF, page cache), {threads} threads", bytes / 1e6);
     println!("{:<46} {:>9} {:>9}", "pass", "s", "GB/s");
-    println!("{:<46} {:>9.3} {:>9.2}", "reference: read the bytes, no decoding", t_ref, bytes / t_ref / 1e9);
-    println!("{:<46} {:>9.3} {:>9.2}", "emccd: decode + per-pixel mean and variance", t_cal, bytes / t_cal / 1e9);
+    println!(
+        "{:<46} {:>9.3} {:>9.2}",
+        "reference: read the bytes, no decoding",
+        t_ref,
+        bytes / t_ref / 1e9
+    );
+    println!(
+        "{:<46} {:>9.3} {:>9.2}",
+        "emccd: decode + per-pixel mean and variance",
+        t_cal,
+        bytes / t_cal / 1e9
+    );
     println!();
-    println!("ratio to the reference read: {:.2}  (target ≥ 1 GB/s: {})", t_ref / t_cal, if bytes / t_cal >= 1e9 { "met" } else { "not met" });
+    println!(
+        "ratio to the reference read: {:.2}  (target ≥ 1 GB/s: {})",
+        t_ref / t_cal,
+        if bytes / t_cal >= 1e9 {
+            "met"
+        } else {
+            "not met"
+        }
+    );
     println!(
         "peak memory: {:.1} MiB (before reading the stack: {:.1} MiB; the stack itself is {:.0} MiB)",
         peak_rss_mib().unwrap_or(f64::NAN),
@@ -286,7 +371,10 @@ pub fn run(a: Args) -> Result<()> {
     let e = cam.exposure(0.01);
     let t_cam = time_frames(frames, |s| e.frame(&photons, s, &mut out));
 
-    println!("synthesis throughput, 512×512 frames, {} e⁻/pixel, {frames} frames, {threads} threads", a.electrons);
+    println!(
+        "synthesis throughput, 512×512 frames, {} e⁻/pixel, {frames} frames, {threads} threads",
+        a.electrons
+    );
     println!("{:<44} {:>10} {:>10}", "method", "ms/frame", "Mpix/s");
     let row = |name: &str, t: f64| println!("{:<44} {:>10.2} {:>10.1}", name, t * 1e3, mpix / t);
     row("emccd ours (eq. 5, training pairs)", t_ours);
@@ -295,10 +383,18 @@ pub fn run(a: Args) -> Result<()> {
     if a.no_python {
         return Ok(());
     }
-    let py = Command::new("python3").arg("-c").arg(PY).arg(frames.min(10).to_string()).arg(a.electrons.to_string()).output();
+    let py = Command::new("python3")
+        .arg("-c")
+        .arg(PY)
+        .arg(frames.min(10).to_string())
+        .arg(a.electrons.to_string())
+        .output();
     match py {
         Ok(o) if o.status.success() => {
-            let t_py: f64 = String::from_utf8_lossy(&o.stdout).trim().parse().unwrap_or(f64::NAN);
+            let t_py: f64 = String::from_utf8_lossy(&o.stdout)
+                .trim()
+                .parse()
+                .unwrap_or(f64::NAN);
             row("emccd-detect sim_sub_frame (Python)", t_py);
             println!();
             println!("ratio vs emccd-detect: ours {:.1}×, virtual camera {:.1}×  (same physics: PGN + read noise + ADC)", t_py / t_ours, t_py / t_cam);

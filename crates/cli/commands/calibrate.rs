@@ -53,7 +53,11 @@ impl Progress for Bar {
 
 pub fn run(a: Args) -> Result<()> {
     let m = Manifest::load(&a.manifest)?;
-    let opts = Options { crop: a.crop.max(2), window: a.window.max(2), gain_pixels: a.gain_pixels.max(1) };
+    let opts = Options {
+        crop: a.crop.max(2),
+        window: a.window.max(2),
+        gain_pixels: a.gain_pixels.max(1),
+    };
     let bar = Bar(progress(emccd_calib::total_frames(&m), "frames"));
     let cal = emccd_calib::calibrate(&m, &opts, &bar);
     bar.0.finish_and_clear();
@@ -63,9 +67,12 @@ pub fn run(a: Args) -> Result<()> {
     }
     let profile = cal.profile()?;
     if let Some(dir) = &a.report {
-        emccd_calib::report::write(&cal, dir).with_context(|| format!("writing the report to {}", dir.display()))?;
+        emccd_calib::report::write(&cal, dir)
+            .with_context(|| format!("writing the report to {}", dir.display()))?;
     }
-    profile.save(&a.out).with_context(|| format!("writing the profile to {}", a.out.display()))?;
+    profile
+        .save(&a.out)
+        .with_context(|| format!("writing the profile to {}", a.out.display()))?;
     print_summary(&cal);
     eprintln!("profile written to {}", a.out.display());
     if let Some(dir) = &a.report {
@@ -75,9 +82,16 @@ pub fn run(a: Args) -> Result<()> {
 }
 
 fn print_summary(c: &emccd_calib::Calibration) {
-    println!("{} at EM gain {} ({}×{} px)", c.camera, c.em_gain, c.width, c.height);
+    println!(
+        "{} at EM gain {} ({}×{} px)",
+        c.camera, c.em_gain, c.width, c.height
+    );
     if let Some(p) = &c.ptc {
-        let used = p.levels.iter().filter(|l| l.status == emccd_calib::ptc::LevelStatus::Included).count();
+        let used = p
+            .levels
+            .iter()
+            .filter(|l| l.status == emccd_calib::ptc::LevelStatus::Included)
+            .count();
         println!(
             "  PTC slope s = K·f²   {:.4} ± {:.4} DN   (r² = {:.5}, {used} of {} levels)",
             p.fit.slope,
@@ -87,14 +101,29 @@ fn print_summary(c: &emccd_calib::Calibration) {
         );
     }
     if let Some(b) = c.bias.first() {
-        println!("  bias (FPN median)    {:.2} DN at {} s", b.median_dn, b.exposure_s);
+        println!(
+            "  bias (FPN median)    {:.2} DN at {} s",
+            b.median_dn, b.exposure_s
+        );
         let rn: Vec<f32> = c.bias.iter().flat_map(|b| b.std.iter().copied()).collect();
-        let rms = (c.bias.iter().map(|b| b.read_noise_rms_dn.powi(2)).sum::<f64>() / c.bias.len() as f64).sqrt();
+        let rms = (c
+            .bias
+            .iter()
+            .map(|b| b.read_noise_rms_dn.powi(2))
+            .sum::<f64>()
+            / c.bias.len() as f64)
+            .sqrt();
         println!("  read noise           {:.3} DN median std, {rms:.3} DN rms (over pixels and {} exposures)", emccd_profile::median(rn), c.bias.len());
     }
     if let Some(f) = &c.fpn {
-        let mid: Vec<&emccd_calib::fpn::FpnError> = f.errors.iter().filter(|e| e.exposure_s >= 0.006 && e.exposure_s <= 0.1).collect();
-        let avg = |g: fn(&emccd_calib::fpn::FpnError) -> f64| mid.iter().map(|e| g(e)).sum::<f64>() / mid.len().max(1) as f64;
+        let mid: Vec<&emccd_calib::fpn::FpnError> = f
+            .errors
+            .iter()
+            .filter(|e| e.exposure_s >= 0.006 && e.exposure_s <= 0.1)
+            .collect();
+        let avg = |g: fn(&emccd_calib::fpn::FpnError) -> f64| {
+            mid.iter().map(|e| g(e)).sum::<f64>() / mid.len().max(1) as f64
+        };
         println!(
             "  FPN fit              shared θ = [{:.4}, {:.4}, {:.4}];  mean |error| 6–100 ms: shared {:.3} DN, per-pixel {:.3} DN; using {:?}",
             f.shared_theta[1],
@@ -106,13 +135,27 @@ fn print_summary(c: &emccd_calib::Calibration) {
         );
     }
     if let Some(b) = &c.blooming {
-        println!("  blooming x(t)        {:.4e} · t^{:.4} (± {:.4}), r² = {:.4}", b.a, b.b, b.loglog.slope_se, b.loglog.r2);
+        println!(
+            "  blooming x(t)        {:.4e} · t^{:.4} (± {:.4}), r² = {:.4}",
+            b.a, b.b, b.loglog.slope_se, b.loglog.r2
+        );
     }
     if let Some(g) = &c.gain_series {
-        let r = g.reference_e_per_dn.map_or(String::new(), |r| format!("  (reference {r:.3})"));
-        println!("  gain series          {:.4} ± {:.4} e⁻/DN{r}", g.e_per_dn, g.e_per_dn_se);
+        let r = g
+            .reference_e_per_dn
+            .map_or(String::new(), |r| format!("  (reference {r:.3})"));
+        println!(
+            "  gain series          {:.4} ± {:.4} e⁻/DN{r}",
+            g.e_per_dn, g.e_per_dn_se
+        );
         for s in &g.settings {
-            println!("    {:>6}× → G = {:.3} ± {:.3}{}", s.nominal, s.gain, s.gain_se, if s.fixed { " (anchor)" } else { "" });
+            println!(
+                "    {:>6}× → G = {:.3} ± {:.3}{}",
+                s.nominal,
+                s.gain,
+                s.gain_se,
+                if s.fixed { " (anchor)" } else { "" }
+            );
         }
     }
     for m in &c.missing {

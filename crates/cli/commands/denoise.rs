@@ -80,8 +80,11 @@ pub struct Args {
 
 /// Models that ship in `models/`, by the name `--model` accepts: `default` (natural images, the
 /// default profile) and `microscopy` (the default fine-tuned on fluorescence microscopy).
-pub const BUNDLED: [(&str, &str); 3] =
-    [("hybrid", "hybrid-unet.safetensors"), ("default", "default-unet.safetensors"), ("microscopy", "microscopy-unet.safetensors")];
+pub const BUNDLED: [(&str, &str); 3] = [
+    ("hybrid", "hybrid-unet.safetensors"),
+    ("default", "default-unet.safetensors"),
+    ("microscopy", "microscopy-unet.safetensors"),
+];
 
 /// The method `denoise` runs with neither --method nor --model: the most accurate one shipped on
 /// the low-light suite (README, "Low light"). It becomes `Hybrid` once the bundled hybrid
@@ -98,17 +101,32 @@ pub fn resolve(method: Option<Method>, model: Option<&str>) -> Result<(Method, O
         (Some(Method::Bm3d), None) => Ok((Method::Bm3d, None)),
         (None, Some(name)) => {
             let m = load_model(name)?;
-            Ok((if hybrid(&m) { Method::Hybrid } else { Method::Net }, Some(m)))
+            Ok((
+                if hybrid(&m) {
+                    Method::Hybrid
+                } else {
+                    Method::Net
+                },
+                Some(m),
+            ))
         }
         (method, name) => {
             let method = method.unwrap_or(DEFAULT_METHOD);
-            let name = name.unwrap_or(if method == Method::Hybrid { "hybrid" } else { "default" });
+            let name = name.unwrap_or(if method == Method::Hybrid {
+                "hybrid"
+            } else {
+                "default"
+            });
             let m = load_model(name)?;
             if hybrid(&m) != (method == Method::Hybrid) {
                 bail!(
                     "--model {name}: a {} model, not one for --method {}",
                     m.meta.inputs.name(),
-                    if method == Method::Hybrid { "hybrid (train one with `emccd train --inputs hybrid`)" } else { "net" }
+                    if method == Method::Hybrid {
+                        "hybrid (train one with `emccd train --inputs hybrid`)"
+                    } else {
+                        "net"
+                    }
                 );
             }
             Ok((method, Some(m)))
@@ -121,11 +139,21 @@ pub fn resolve(method: Option<Method>, model: Option<&str>) -> Result<(Method, O
 pub fn model_path(arg: &str) -> Result<PathBuf> {
     let bundled = BUNDLED.iter().find(|b| b.0 == arg);
     let path = match bundled {
-        Some(b) => Path::new(env!("CARGO_MANIFEST_DIR")).join("models").join(b.1),
+        Some(b) => Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("models")
+            .join(b.1),
         None => PathBuf::from(arg),
     };
     if !path.is_file() {
-        bail!("{}: model not found{}", path.display(), if bundled.is_some() { " (bundled models ship in models/; train one with `emccd train`)" } else { "" });
+        bail!(
+            "{}: model not found{}",
+            path.display(),
+            if bundled.is_some() {
+                " (bundled models ship in models/; train one with `emccd train`)"
+            } else {
+                ""
+            }
+        );
     }
     Ok(path)
 }
@@ -157,7 +185,10 @@ pub fn run(a: Args) -> Result<()> {
             model.meta.profile_fingerprint
         );
     }
-    let tiling = Tiling { tile: a.tile, overlap: a.overlap };
+    let tiling = Tiling {
+        tile: a.tile,
+        overlap: a.overlap,
+    };
     let several = a.inputs.len() > 1;
     if several {
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
@@ -168,7 +199,10 @@ pub fn run(a: Args) -> Result<()> {
     };
     for input in &a.inputs {
         let out = if several {
-            let stem = input.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "frame".into());
+            let stem = input
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "frame".into());
             a.out.join(format!("{stem}_denoised.tif"))
         } else {
             a.out.clone()
@@ -178,25 +212,53 @@ pub fn run(a: Args) -> Result<()> {
         for w in &info.metadata.warnings {
             eprintln!("warning: {}: {w}", input.display());
         }
-        let exposure = a
-            .exposure_s
-            .or(info.metadata.exposure_s)
-            .with_context(|| format!("{}: the header records no exposure; pass --exposure-s", input.display()))?;
+        let exposure = a.exposure_s.or(info.metadata.exposure_s).with_context(|| {
+            format!(
+                "{}: the header records no exposure; pass --exposure-s",
+                input.display()
+            )
+        })?;
         if (info.width, info.height) != (profile.width, profile.height) {
-            bail!("{}: frames are {}×{}, the profile's sensor is {}×{}", input.display(), info.width, info.height, profile.width, profile.height);
+            bail!(
+                "{}: frames are {}×{}, the profile's sensor is {}×{}",
+                input.display(),
+                info.width,
+                info.height,
+                profile.width,
+                profile.height
+            );
         }
         if !profile.exposure_in_range(exposure) {
             eprintln!("warning: {}: exposure {exposure} s is outside the calibrated range; the FPN is the model's extrapolation", input.display());
         }
-        let mut w = emccd_io::StackWriter::create(&out, info.width, info.height, emccd_io::SampleFormat::F32, Some(info.frames))?;
+        let mut w = emccd_io::StackWriter::create(
+            &out,
+            info.width,
+            info.height,
+            emccd_io::SampleFormat::F32,
+            Some(info.frames),
+        )?;
         let pb = progress(info.frames as u64, "frames");
         let mut buf = vec![0f32; info.frame_len()];
         while r.read_frame(&mut buf)? {
             if let Some(i) = buf.iter().position(|v| !v.is_finite()) {
-                bail!("{}: frame {} has a non-finite value at pixel ({}, {})", input.display(), w.frames_written() + 1, i % info.width, i / info.width);
+                bail!(
+                    "{}: frame {} has a non-finite value at pixel ({}, {})",
+                    input.display(),
+                    w.frames_written() + 1,
+                    i % info.width,
+                    i / info.width
+                );
             }
             let mut d = match &model {
-                Some(m) => Pipeline { model: m, profile: &profile, tiling, ensemble: a.ensemble.into(), device: emccd_nn::device() }.denoise_raw(&buf, exposure)?,
+                Some(m) => Pipeline {
+                    model: m,
+                    profile: &profile,
+                    tiling,
+                    ensemble: a.ensemble.into(),
+                    device: emccd_nn::device(),
+                }
+                .denoise_raw(&buf, exposure)?,
                 None => bm3d_frame(&profile, &buf, exposure)?,
             };
             if to_units != 1.0 {
@@ -207,13 +269,22 @@ pub fn run(a: Args) -> Result<()> {
         }
         w.finish()?;
         pb.finish_and_clear();
-        eprintln!("{} → {} ({} frames)", input.display(), out.display(), info.frames);
+        eprintln!(
+            "{} → {} ({} frames)",
+            input.display(),
+            out.display(),
+            info.frames
+        );
     }
     Ok(())
 }
 
 /// BM3D with variance stabilization on one raw frame, through the profile's preprocessing.
-pub fn bm3d_frame(p: &emccd_profile::CameraProfile, raw: &[f32], exposure: f64) -> Result<Vec<f32>> {
+pub fn bm3d_frame(
+    p: &emccd_profile::CameraProfile,
+    raw: &[f32],
+    exposure: f64,
+) -> Result<Vec<f32>> {
     let pre = emccd_nn::pipeline::preprocess(p, raw, exposure)?;
     Ok(emccd_nn::pipeline::bm3d_estimate(p, &pre, exposure)?)
 }

@@ -117,20 +117,34 @@ struct Camera {
 
 fn load_camera(dir: &Path, profile: Option<&str>) -> Result<Camera> {
     let mpath = dir.join("pairs.toml");
-    let text = std::fs::read_to_string(&mpath).with_context(|| format!("reading {}", mpath.display()))?;
-    let file: PairsFile = toml::from_str(&text).with_context(|| format!("parsing {}", mpath.display()))?;
+    let text =
+        std::fs::read_to_string(&mpath).with_context(|| format!("reading {}", mpath.display()))?;
+    let file: PairsFile =
+        toml::from_str(&text).with_context(|| format!("parsing {}", mpath.display()))?;
     let profile = match (profile, &file.profile) {
         (Some(p), _) => load_profile(p)?,
         // `default`, a directory relative to pairs.toml, or (as `simulate pairs` records it) as given.
         (None, Some(p)) => {
             let rel = dir.join(p);
-            let p = if p != "default" && rel.is_dir() { rel.to_string_lossy().into_owned() } else { p.clone() };
+            let p = if p != "default" && rel.is_dir() {
+                rel.to_string_lossy().into_owned()
+            } else {
+                p.clone()
+            };
             load_profile(&p).with_context(|| format!("the profile {} names", mpath.display()))?
         }
         (None, None) => load_profile("default")?,
     };
-    let name = file.camera.clone().unwrap_or_else(|| dir.display().to_string());
-    Ok(Camera { dir: dir.to_path_buf(), name, file, profile })
+    let name = file
+        .camera
+        .clone()
+        .unwrap_or_else(|| dir.display().to_string());
+    Ok(Camera {
+        dir: dir.to_path_buf(),
+        name,
+        file,
+        profile,
+    })
 }
 
 fn mean(v: impl Iterator<Item = f64>) -> f64 {
@@ -138,7 +152,13 @@ fn mean(v: impl Iterator<Item = f64>) -> f64 {
     s / n.max(1) as f64
 }
 
-fn summarize(method: &str, camera: Option<&str>, level: Option<f64>, ratio: Option<f64>, scores: &[&Score]) -> Summary {
+fn summarize(
+    method: &str,
+    camera: Option<&str>,
+    level: Option<f64>,
+    ratio: Option<f64>,
+    scores: &[&Score],
+) -> Summary {
     let pixels: usize = scores.iter().map(|x| x.pixels).sum();
     Summary {
         method: method.to_string(),
@@ -149,12 +169,17 @@ fn summarize(method: &str, camera: Option<&str>, level: Option<f64>, ratio: Opti
         psnr_db: mean(scores.iter().map(|x| x.psnr_db)),
         psnr_paper_db: mean(scores.iter().map(|x| x.psnr_paper_db)),
         ssim: mean(scores.iter().map(|x| x.ssim)),
-        s_per_512: scores.iter().map(|x| x.seconds).sum::<f64>() * (512.0 * 512.0) / pixels.max(1) as f64,
+        s_per_512: scores.iter().map(|x| x.seconds).sum::<f64>() * (512.0 * 512.0)
+            / pixels.max(1) as f64,
     }
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let cameras = a.pairs.iter().map(|d| load_camera(d, a.profile.as_deref())).collect::<Result<Vec<_>>>()?;
+    let cameras = a
+        .pairs
+        .iter()
+        .map(|d| load_camera(d, a.profile.as_deref()))
+        .collect::<Result<Vec<_>>>()?;
     let mut models = BTreeMap::new();
     for m in &a.methods {
         if m != "input" && m != "bm3d" {
@@ -175,7 +200,11 @@ pub fn run(a: Args) -> Result<()> {
             if (w, h) != (cw, ch) {
                 bail!("{}: noisy {w}×{h} and clean {cw}×{ch} differ", p.noisy);
             }
-            let prof = if (w, h) == (cam.profile.width, cam.profile.height) { cam.profile.clone() } else { cam.profile.crop(0, 0, w, h)? };
+            let prof = if (w, h) == (cam.profile.width, cam.profile.height) {
+                cam.profile.clone()
+            } else {
+                cam.profile.crop(0, 0, w, h)?
+            };
             let peak = truth.iter().copied().fold(0f32, f32::max).max(1e-6) as f64;
             let mut outputs: Vec<(String, Vec<f32>)> = Vec::new();
             for m in &a.methods {
@@ -183,8 +212,14 @@ pub fn run(a: Args) -> Result<()> {
                 let out = match m.as_str() {
                     "input" => emccd_nn::pipeline::preprocess(&prof, &raw, p.exposure_s)?,
                     "bm3d" => crate::commands::denoise::bm3d_frame(&prof, &raw, p.exposure_s)?,
-                    other => Pipeline { model: &models[other].0, profile: &prof, tiling: Default::default(), ensemble: models[other].1, device: emccd_nn::device() }
-                        .denoise_raw(&raw, p.exposure_s)?,
+                    other => Pipeline {
+                        model: &models[other].0,
+                        profile: &prof,
+                        tiling: Default::default(),
+                        ensemble: models[other].1,
+                        device: emccd_nn::device(),
+                    }
+                    .denoise_raw(&raw, p.exposure_s)?,
                 };
                 scores.push(Score {
                     method: m.clone(),
@@ -202,7 +237,19 @@ pub fn run(a: Args) -> Result<()> {
                 pb.inc(1);
             }
             if let Some(o) = &a.out {
-                let stem = if cameras.len() > 1 { format!("{}-", cam.dir.parent().and_then(|d| d.file_name()).or(cam.dir.file_name()).map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()) } else { String::new() };
+                let stem = if cameras.len() > 1 {
+                    format!(
+                        "{}-",
+                        cam.dir
+                            .parent()
+                            .and_then(|d| d.file_name())
+                            .or(cam.dir.file_name())
+                            .map(|s| s.to_string_lossy().into_owned())
+                            .unwrap_or_default()
+                    )
+                } else {
+                    String::new()
+                };
                 write_panel(o, &stem, p, w, h, &outputs, &truth, peak)?;
             }
         }
@@ -211,24 +258,48 @@ pub fn run(a: Args) -> Result<()> {
     let all_pairs: Vec<&PairEntry> = cameras.iter().flat_map(|c| &c.file.pair).collect();
     let by_mean = all_pairs.iter().all(|p| p.mean_electrons.is_some());
     // The level pairs are grouped by: mean photoelectrons where every pair records them.
-    let level = |mean_electrons: Option<f64>, photons: f64| if by_mean { mean_electrons.unwrap_or(photons) } else { photons };
+    let level = |mean_electrons: Option<f64>, photons: f64| {
+        if by_mean {
+            mean_electrons.unwrap_or(photons)
+        } else {
+            photons
+        }
+    };
     let level_of = |s: &Score| level(s.mean_electrons, s.photons);
     let levels: Vec<f64> = {
-        let mut v: Vec<f64> = all_pairs.iter().map(|p| level(p.mean_electrons, p.photons)).collect();
+        let mut v: Vec<f64> = all_pairs
+            .iter()
+            .map(|p| level(p.mean_electrons, p.photons))
+            .collect();
         v.sort_by(f64::total_cmp);
         v.dedup();
         v
     };
-    let ratio_of = |l: f64| all_pairs.iter().find(|p| p.photons == l && !by_mean).and_then(|p| p.exposure_ratio);
+    let ratio_of = |l: f64| {
+        all_pairs
+            .iter()
+            .find(|p| p.photons == l && !by_mean)
+            .and_then(|p| p.exposure_ratio)
+    };
     let mut summaries = Vec::new();
-    let camera_groups: Vec<Option<&str>> =
-        std::iter::once(None).chain(cameras.iter().map(|c| Some(c.name.as_str())).filter(|_| cameras.len() > 1)).collect();
+    let camera_groups: Vec<Option<&str>> = std::iter::once(None)
+        .chain(
+            cameras
+                .iter()
+                .map(|c| Some(c.name.as_str()))
+                .filter(|_| cameras.len() > 1),
+        )
+        .collect();
     for cam in &camera_groups {
         for m in &a.methods {
             for lvl in std::iter::once(None).chain(levels.iter().map(|&l| Some(l))) {
                 let s: Vec<&Score> = scores
                     .iter()
-                    .filter(|s| &s.method == m && cam.is_none_or(|c| s.camera == c) && lvl.is_none_or(|l| level_of(s) == l))
+                    .filter(|s| {
+                        &s.method == m
+                            && cam.is_none_or(|c| s.camera == c)
+                            && lvl.is_none_or(|l| level_of(s) == l)
+                    })
                     .collect();
                 if !s.is_empty() {
                     summaries.push(summarize(m, *cam, lvl, lvl.and_then(ratio_of), &s));
@@ -236,7 +307,11 @@ pub fn run(a: Args) -> Result<()> {
             }
         }
     }
-    let unit = if by_mean { "mean photoelectrons per pixel" } else { "photons at the scene's brightest pixel" };
+    let unit = if by_mean {
+        "mean photoelectrons per pixel"
+    } else {
+        "photons at the scene's brightest pixel"
+    };
     let v = serde_json::json!({
         "psnr_data_range": "ground-truth peak per pair; psnr_paper_db: images / 65535, range 1 (the paper's convention)",
         "lpips": "not computed: its network weights cannot be obtained offline",
@@ -245,7 +320,10 @@ pub fn run(a: Args) -> Result<()> {
         "pairs": scores,
     });
     if let Some(o) = &a.out {
-        emccd_io::write_atomic(o.join("results.json"), serde_json::to_string_pretty(&v)?.as_bytes())?;
+        emccd_io::write_atomic(
+            o.join("results.json"),
+            serde_json::to_string_pretty(&v)?.as_bytes(),
+        )?;
     }
     if a.json {
         println!("{}", serde_json::to_string_pretty(&v)?);
@@ -262,14 +340,30 @@ pub fn run(a: Args) -> Result<()> {
                 (Some(p), None) => format!("{p}"),
             };
             let c = s.camera.as_deref().unwrap_or("all");
-            println!("| {c} | {} | {l} | {} | {:.2} | {:.2} | {:.4} | {:.2} |", s.method, s.pairs, s.psnr_db, s.psnr_paper_db, s.ssim, s.s_per_512);
+            println!(
+                "| {c} | {} | {l} | {} | {:.2} | {:.2} | {:.4} | {:.2} |",
+                s.method, s.pairs, s.psnr_db, s.psnr_paper_db, s.ssim, s.s_per_512
+            );
         }
     }
     if let Some(o) = &a.out {
-        let mut csv = String::from("method,camera,scene,photons,mean_electrons,psnr_db,psnr_paper_db,ssim,seconds\n");
+        let mut csv = String::from(
+            "method,camera,scene,photons,mean_electrons,psnr_db,psnr_paper_db,ssim,seconds\n",
+        );
         for s in &scores {
             let me = s.mean_electrons.map_or(String::new(), |m| m.to_string());
-            let _ = writeln!(csv, "{},{},{},{},{me},{:.4},{:.4},{:.6},{:.4}", s.method, s.camera, s.scene, s.photons, s.psnr_db, s.psnr_paper_db, s.ssim, s.seconds);
+            let _ = writeln!(
+                csv,
+                "{},{},{},{},{me},{:.4},{:.4},{:.6},{:.4}",
+                s.method,
+                s.camera,
+                s.scene,
+                s.photons,
+                s.psnr_db,
+                s.psnr_paper_db,
+                s.ssim,
+                s.seconds
+            );
         }
         emccd_io::write_atomic(o.join("results.csv"), csv.as_bytes())?;
     }
@@ -278,10 +372,23 @@ pub fn run(a: Args) -> Result<()> {
 
 /// A 256² crop (the frame's centre) of input | each method | ground truth, side by side.
 #[allow(clippy::too_many_arguments)]
-fn write_panel(dir: &Path, prefix: &str, p: &PairEntry, w: usize, h: usize, outs: &[(String, Vec<f32>)], truth: &[f32], peak: f64) -> Result<()> {
+fn write_panel(
+    dir: &Path,
+    prefix: &str,
+    p: &PairEntry,
+    w: usize,
+    h: usize,
+    outs: &[(String, Vec<f32>)],
+    truth: &[f32],
+    peak: f64,
+) -> Result<()> {
     let c = 256.min(w).min(h);
     let (x0, y0) = ((w - c) / 2, (h - c) / 2);
-    let panels: Vec<&[f32]> = outs.iter().map(|o| o.1.as_slice()).chain(std::iter::once(truth)).collect();
+    let panels: Vec<&[f32]> = outs
+        .iter()
+        .map(|o| o.1.as_slice())
+        .chain(std::iter::once(truth))
+        .collect();
     let n = panels.len();
     let mut img = vec![0f32; n * c * c];
     for (k, src) in panels.iter().enumerate() {
@@ -291,7 +398,17 @@ fn write_panel(dir: &Path, prefix: &str, p: &PairEntry, w: usize, h: usize, outs
             }
         }
     }
-    let stem = Path::new(&p.noisy).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    emccd_io::write_png_preview(dir.join(format!("{prefix}{stem}.png")), n * c, c, &img, 0.0, peak as f32)?;
+    let stem = Path::new(&p.noisy)
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    emccd_io::write_png_preview(
+        dir.join(format!("{prefix}{stem}.png")),
+        n * c,
+        c,
+        &img,
+        0.0,
+        peak as f32,
+    )?;
     Ok(())
 }

@@ -38,7 +38,10 @@ pub fn run(a: Args) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
-    let opt = |v: Option<f64>, unit: &str| v.map(|x| format!("{x}{unit}")).unwrap_or_else(|| "unknown".into());
+    let opt = |v: Option<f64>, unit: &str| {
+        v.map(|x| format!("{x}{unit}"))
+            .unwrap_or_else(|| "unknown".into())
+    };
     println!("{}", a.file.display());
     println!("  format       {:?}", i.format);
     println!("  size         {} × {} pixels", i.width, i.height);
@@ -51,7 +54,10 @@ pub fn run(a: Args) -> Result<()> {
     };
     println!("  EM gain      {gain}");
     println!("  temperature  {}", opt(m.temperature_c, " °C"));
-    println!("  camera       {}", m.camera_model.as_deref().unwrap_or("unknown"));
+    println!(
+        "  camera       {}",
+        m.camera_model.as_deref().unwrap_or("unknown")
+    );
     if let Some((bx, by)) = m.binning {
         println!("  binning      {bx} × {by}");
     }

@@ -8,7 +8,9 @@ use emccd_camera::{preprocess, PhysicalParams, VirtualCamera};
 use emccd_io::{Metadata, SampleFormat, StackWriter};
 use serde::Serialize;
 
-use crate::common::{center_crop, expand_inputs, exposure_tag, load_profile, parse_size, progress, psnr, read_scene};
+use crate::common::{
+    center_crop, expand_inputs, exposure_tag, load_profile, parse_size, progress, psnr, read_scene,
+};
 
 /// Options shared by both simulations: the camera's truth.
 #[derive(clap::Args, Debug, Clone)]
@@ -50,7 +52,11 @@ impl CameraOpts {
     }
 
     /// A camera over `profile` (or its top-left `roi`) with the physics flags.
-    fn camera(&self, profile: &emccd_profile::CameraProfile, roi: Option<(usize, usize)>) -> Result<VirtualCamera> {
+    fn camera(
+        &self,
+        profile: &emccd_profile::CameraProfile,
+        roi: Option<(usize, usize)>,
+    ) -> Result<VirtualCamera> {
         let p = match roi {
             Some((w, h)) => profile.crop(0, 0, w, h)?,
             None => profile.clone(),
@@ -80,13 +86,25 @@ pub enum Cmd {
         #[arg(long, default_value_t = 20)]
         frames: usize,
         /// Bias exposures in seconds (comma-separated).
-        #[arg(long, value_delimiter = ',', default_value = "1e-5,1e-4,1e-3,0.003,0.006,0.01,0.02,0.05,0.1,0.2,0.5,1")]
+        #[arg(
+            long,
+            value_delimiter = ',',
+            default_value = "1e-5,1e-4,1e-3,0.003,0.006,0.01,0.02,0.05,0.1,0.2,0.5,1"
+        )]
         bias_exposures: Vec<f64>,
         /// Flat-field signal levels in DN above bias (comma-separated), at 10 ms.
-        #[arg(long, value_delimiter = ',', default_value = "20,50,120,300,700,1500,3500,8000")]
+        #[arg(
+            long,
+            value_delimiter = ',',
+            default_value = "20,50,120,300,700,1500,3500,8000"
+        )]
         flat_levels: Vec<f64>,
         /// Blooming-frame exposures in seconds (comma-separated).
-        #[arg(long, value_delimiter = ',', default_value = "0.001,0.002,0.005,0.01,0.02,0.05,0.1")]
+        #[arg(
+            long,
+            value_delimiter = ',',
+            default_value = "0.001,0.002,0.005,0.01,0.02,0.05,0.1"
+        )]
         blooming_exposures: Vec<f64>,
         #[command(flatten)]
         camera: CameraOpts,
@@ -130,21 +148,55 @@ pub enum Cmd {
 
 pub fn run(c: Cmd) -> Result<()> {
     match c {
-        Cmd::Calibration { out, frames, bias_exposures, flat_levels, blooming_exposures, camera } => {
-            calibration(&out, frames, &bias_exposures, &flat_levels, &blooming_exposures, &camera)
-        }
-        Cmd::Pairs { clean, photons, exposure_s, exposure_ratio, reference_exposure_s, reference_photons, frames, denoise, out, camera } => {
+        Cmd::Calibration {
+            out,
+            frames,
+            bias_exposures,
+            flat_levels,
+            blooming_exposures,
+            camera,
+        } => calibration(
+            &out,
+            frames,
+            &bias_exposures,
+            &flat_levels,
+            &blooming_exposures,
+            &camera,
+        ),
+        Cmd::Pairs {
+            clean,
+            photons,
+            exposure_s,
+            exposure_ratio,
+            reference_exposure_s,
+            reference_photons,
+            frames,
+            denoise,
+            out,
+            camera,
+        } => {
             check_positive("photons", &photons)?;
             check_positive("exposure-s", &[exposure_s])?;
             check_positive("exposure-ratio", &exposure_ratio)?;
             check_positive("reference-exposure-s", &[reference_exposure_s])?;
             check_positive("reference-photons", &[reference_photons])?;
             let levels: Vec<Level> = if exposure_ratio.is_empty() {
-                photons.iter().map(|&p| Level { exposure_s, photons: p, ratio: None }).collect()
+                photons
+                    .iter()
+                    .map(|&p| Level {
+                        exposure_s,
+                        photons: p,
+                        ratio: None,
+                    })
+                    .collect()
             } else {
                 exposure_ratio
                     .iter()
-                    .map(|&r| Level { exposure_s: reference_exposure_s / r, photons: reference_photons / r, ratio: Some(r) })
+                    .map(|&r| Level {
+                        exposure_s: reference_exposure_s / r,
+                        photons: reference_photons / r,
+                        ratio: Some(r),
+                    })
                     .collect()
             };
             pairs(&clean, &levels, frames, denoise.as_deref(), &out, &camera)
@@ -172,7 +224,13 @@ fn write_stack(
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
     let e = cam.exposure(exposure_s);
-    let mut w = StackWriter::create(path, cam.width(), cam.height(), SampleFormat::U16, Some(frames))?;
+    let mut w = StackWriter::create(
+        path,
+        cam.width(),
+        cam.height(),
+        SampleFormat::U16,
+        Some(frames),
+    )?;
     w.set_metadata(&Metadata {
         exposure_s: Some(exposure_s),
         em_gain: Some(cam.em_gain),
@@ -181,7 +239,11 @@ fn write_stack(
     });
     let mut buf = vec![0f32; cam.profile.len()];
     for k in 0..frames {
-        e.frame(photons, seed.wrapping_mul(1_000_003).wrapping_add(k as u64), &mut buf);
+        e.frame(
+            photons,
+            seed.wrapping_mul(1_000_003).wrapping_add(k as u64),
+            &mut buf,
+        );
         w.write_frame(&buf)?;
         pb.inc(1);
     }
@@ -204,7 +266,14 @@ struct Manifest {
     blooming: Vec<ManifestEntry>,
 }
 
-fn calibration(out: &Path, frames: usize, bias: &[f64], flats: &[f64], bloom: &[f64], opts: &CameraOpts) -> Result<()> {
+fn calibration(
+    out: &Path,
+    frames: usize,
+    bias: &[f64],
+    flats: &[f64],
+    bloom: &[f64],
+    opts: &CameraOpts,
+) -> Result<()> {
     if frames < 2 {
         bail!("--frames must be at least 2 (temporal statistics need two frames)");
     }
@@ -218,19 +287,47 @@ fn calibration(out: &Path, frames: usize, bias: &[f64], flats: &[f64], bloom: &[
     let total = (frames * (bias.len() + flats.len() + bloom.len())) as u64;
     let pb = progress(total, "frames");
     let k_qe = cam.k_dn() * cam.physics.qe;
-    let mut manifest = Manifest { camera: "virtual-897".into(), em_gain: cam.em_gain, bias: vec![], flat: vec![], blooming: vec![] };
+    let mut manifest = Manifest {
+        camera: "virtual-897".into(),
+        em_gain: cam.em_gain,
+        bias: vec![],
+        flat: vec![],
+        blooming: vec![],
+    };
     let zeros = vec![0f32; n];
     for (i, &t) in bias.iter().enumerate() {
         let file = format!("bias/bias_{}.tif", exposure_tag(t));
-        write_stack(&out.join(&file), &cam, t, &zeros, frames, opts.seed ^ (100 + i as u64), &pb)?;
-        manifest.bias.push(ManifestEntry { file, exposure_s: t });
+        write_stack(
+            &out.join(&file),
+            &cam,
+            t,
+            &zeros,
+            frames,
+            opts.seed ^ (100 + i as u64),
+            &pb,
+        )?;
+        manifest.bias.push(ManifestEntry {
+            file,
+            exposure_s: t,
+        });
     }
     let flat_t = 0.01;
     for (i, &level) in flats.iter().enumerate() {
         let photons = vec![(level / k_qe) as f32; n];
         let file = format!("flat/flat_{:02}.tif", i + 1);
-        write_stack(&out.join(&file), &cam, flat_t, &photons, frames, opts.seed ^ (200 + i as u64), &pb)?;
-        manifest.flat.push(ManifestEntry { file, exposure_s: flat_t });
+        write_stack(
+            &out.join(&file),
+            &cam,
+            flat_t,
+            &photons,
+            frames,
+            opts.seed ^ (200 + i as u64),
+            &pb,
+        )?;
+        manifest.flat.push(ManifestEntry {
+            file,
+            exposure_s: flat_t,
+        });
     }
     // Bright source in the bottom-left quadrant, faint stray light elsewhere; constant flux, so
     // the signal grows with exposure (20 000 DN at the longest exposure).
@@ -244,8 +341,19 @@ fn calibration(out: &Path, frames: usize, bias: &[f64], flats: &[f64], bloom: &[
             }
         }
         let file = format!("blooming/bloom_{}.tif", exposure_tag(t));
-        write_stack(&out.join(&file), &cam, t, &photons, frames, opts.seed ^ (300 + i as u64), &pb)?;
-        manifest.blooming.push(ManifestEntry { file, exposure_s: t });
+        write_stack(
+            &out.join(&file),
+            &cam,
+            t,
+            &photons,
+            frames,
+            opts.seed ^ (300 + i as u64),
+            &pb,
+        )?;
+        manifest.blooming.push(ManifestEntry {
+            file,
+            exposure_s: t,
+        });
     }
     pb.finish_and_clear();
     let text = format!(
@@ -264,30 +372,75 @@ fn calibration(out: &Path, frames: usize, bias: &[f64], flats: &[f64], bloom: &[
     Ok(())
 }
 
-fn write_truth(out: &Path, cam: &VirtualCamera, bias: &[f64], flats: &[f64], flat_t: f64, bloom: &[f64]) -> Result<()> {
-    cam.profile.save(out.join("truth")).context("writing the truth profile")?;
+fn write_truth(
+    out: &Path,
+    cam: &VirtualCamera,
+    bias: &[f64],
+    flats: &[f64],
+    flat_t: f64,
+    bloom: &[f64],
+) -> Result<()> {
+    cam.profile
+        .save(out.join("truth"))
+        .context("writing the truth profile")?;
     let p = &cam.profile;
     let mut s = String::new();
-    writeln!(s, "# The virtual camera's true parameters. The full truth profile (maps) is in truth/.")?;
+    writeln!(
+        s,
+        "# The virtual camera's true parameters. The full truth profile (maps) is in truth/."
+    )?;
     writeln!(s, "# Raw model: D = round(B[m/c + FPN_t] + N(0, σ²)), m ~ Gamma(Poisson(QE·φ + dark·t + CIC), G).")?;
     writeln!(s, "profile = \"truth\"")?;
     writeln!(s, "width = {}\nheight = {}", p.width, p.height)?;
     writeln!(s, "em_gain = {}", cam.em_gain)?;
     writeln!(s, "e_per_dn = {}", cam.e_per_dn)?;
     writeln!(s, "k_dn_per_e = {}  # G / c", cam.k_dn())?;
-    writeln!(s, "ptc_slope_dn = {}  # 2G/c: the EM register's f² = 2", p.slope()?)?;
-    writeln!(s, "qe = {}\ncic_e = {}\ndark_e_per_s = {}", cam.physics.qe, cam.physics.cic_e, cam.physics.dark_e_per_s)?;
-    writeln!(s, "hot_pixels = {}  # dark current {} e-/s", cam.hot_pixels.len(), cam.physics.hot_dark_e_per_s)?;
-    writeln!(s, "hot_pixel_indices = {:?}", &cam.hot_pixels[..cam.hot_pixels.len().min(1000)])?;
-    writeln!(s, "bias_dn = {}  # median FPN at {} s", p.bias_dn(), p.fpn.base_exposure_s)?;
-    writeln!(s, "read_noise_dn = {}  # median read-noise std", p.read_noise_dn())?;
-    writeln!(s, "fpn_form = \"{:?}\"\nfpn_shared_theta = {:?}", p.fpn.form, p.fpn.shared_theta)?;
+    writeln!(
+        s,
+        "ptc_slope_dn = {}  # 2G/c: the EM register's f² = 2",
+        p.slope()?
+    )?;
+    writeln!(
+        s,
+        "qe = {}\ncic_e = {}\ndark_e_per_s = {}",
+        cam.physics.qe, cam.physics.cic_e, cam.physics.dark_e_per_s
+    )?;
+    writeln!(
+        s,
+        "hot_pixels = {}  # dark current {} e-/s",
+        cam.hot_pixels.len(),
+        cam.physics.hot_dark_e_per_s
+    )?;
+    writeln!(
+        s,
+        "hot_pixel_indices = {:?}",
+        &cam.hot_pixels[..cam.hot_pixels.len().min(1000)]
+    )?;
+    writeln!(
+        s,
+        "bias_dn = {}  # median FPN at {} s",
+        p.bias_dn(),
+        p.fpn.base_exposure_s
+    )?;
+    writeln!(
+        s,
+        "read_noise_dn = {}  # median read-noise std",
+        p.read_noise_dn()
+    )?;
+    writeln!(
+        s,
+        "fpn_form = \"{:?}\"\nfpn_shared_theta = {:?}",
+        p.fpn.form, p.fpn.shared_theta
+    )?;
     if let Some(b) = p.blooming {
         writeln!(s, "blooming_a = {}\nblooming_b = {}", b.a, b.b)?;
     }
     writeln!(s, "bias_exposures_s = {bias:?}")?;
     let levels: Vec<f64> = flats.to_vec();
-    writeln!(s, "flat_signal_dn = {levels:?}  # photo-signal above bias at {flat_t} s")?;
+    writeln!(
+        s,
+        "flat_signal_dn = {levels:?}  # photo-signal above bias at {flat_t} s"
+    )?;
     writeln!(s, "\n[blooming_factor]  # x_t per blooming exposure")?;
     for &t in bloom {
         writeln!(s, "\"{t}\" = {}", p.blooming_factor(t))?;
@@ -334,15 +487,29 @@ struct Level {
     ratio: Option<f64>,
 }
 
-fn pairs(clean: &[PathBuf], levels: &[Level], frames: usize, denoise: Option<&str>, out: &Path, opts: &CameraOpts) -> Result<()> {
-    let model = denoise.map(crate::commands::denoise::load_model).transpose()?;
+fn pairs(
+    clean: &[PathBuf],
+    levels: &[Level],
+    frames: usize,
+    denoise: Option<&str>,
+    out: &Path,
+    opts: &CameraOpts,
+) -> Result<()> {
+    let model = denoise
+        .map(crate::commands::denoise::load_model)
+        .transpose()?;
     if frames == 0 {
         bail!("--frames must be at least 1");
     }
     let scenes = expand_inputs(clean)?;
-    let dirs: &[&str] = if model.is_some() { &["noisy", "clean", "preview", "denoised"] } else { &["noisy", "clean", "preview"] };
+    let dirs: &[&str] = if model.is_some() {
+        &["noisy", "clean", "preview", "denoised"]
+    } else {
+        &["noisy", "clean", "preview"]
+    };
     for d in dirs {
-        std::fs::create_dir_all(out.join(d)).with_context(|| format!("creating {}", out.join(d).display()))?;
+        std::fs::create_dir_all(out.join(d))
+            .with_context(|| format!("creating {}", out.join(d).display()))?;
     }
     let truth = opts.profile()?;
     let full = opts.camera(&truth, None)?;
@@ -360,11 +527,19 @@ fn pairs(clean: &[PathBuf], levels: &[Level], frames: usize, denoise: Option<&st
         pair: vec![],
     };
     for (si, scene) in scenes.iter().enumerate() {
-        let (sw, sh, img) = read_scene(scene).with_context(|| format!("reading scene {}", scene.display()))?;
+        let (sw, sh, img) =
+            read_scene(scene).with_context(|| format!("reading scene {}", scene.display()))?;
         let (w, h) = (sw.min(full.width()), sh.min(full.height()));
-        let cam = if (w, h) == (full.width(), full.height()) { full.clone() } else { opts.camera(&truth, Some((w, h)))? };
+        let cam = if (w, h) == (full.width(), full.height()) {
+            full.clone()
+        } else {
+            opts.camera(&truth, Some((w, h)))?
+        };
         let img = center_crop(&img, sw, sh, w, h);
-        let stem = scene.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| format!("scene{si}"));
+        let stem = scene
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| format!("scene{si}"));
         for (pi, lv) in levels.iter().enumerate() {
             let (level, exposure_s) = (lv.photons, lv.exposure_s);
             let e = cam.exposure(exposure_s);
@@ -378,20 +553,34 @@ fn pairs(clean: &[PathBuf], levels: &[Level], frames: usize, denoise: Option<&st
             let clean_rel = format!("clean/{name}.tif");
             let preview_rel = format!("preview/{name}.png");
             let seed = opts.seed.wrapping_mul(7919) ^ ((si as u64) << 20) ^ pi as u64;
-            let mut wr = StackWriter::create(out.join(&noisy_rel), w, h, SampleFormat::U16, Some(frames))?;
-            wr.set_metadata(&Metadata { exposure_s: Some(exposure_s), em_gain: Some(cam.em_gain), camera_model: Some("virtual-897".into()), ..Default::default() });
+            let mut wr =
+                StackWriter::create(out.join(&noisy_rel), w, h, SampleFormat::U16, Some(frames))?;
+            wr.set_metadata(&Metadata {
+                exposure_s: Some(exposure_s),
+                em_gain: Some(cam.em_gain),
+                camera_model: Some("virtual-897".into()),
+                ..Default::default()
+            });
             let mut raw = vec![0f32; w * h];
             let mut first = Vec::new();
             for k in 0..frames {
-                e.frame(&phot, seed.wrapping_mul(1_000_003).wrapping_add(k as u64), &mut raw);
+                e.frame(
+                    &phot,
+                    seed.wrapping_mul(1_000_003).wrapping_add(k as u64),
+                    &mut raw,
+                );
                 wr.write_frame(&raw)?;
                 if k == 0 {
                     first = raw.clone();
                 }
             }
             wr.finish()?;
-            let mut cw = StackWriter::create(out.join(&clean_rel), w, h, SampleFormat::F32, Some(1))?;
-            cw.set_metadata(&Metadata { exposure_s: Some(exposure_s), ..Default::default() });
+            let mut cw =
+                StackWriter::create(out.join(&clean_rel), w, h, SampleFormat::F32, Some(1))?;
+            cw.set_metadata(&Metadata {
+                exposure_s: Some(exposure_s),
+                ..Default::default()
+            });
             cw.write_frame(&truth)?;
             cw.finish()?;
             let raw_first = first.clone();
@@ -405,13 +594,22 @@ fn pairs(clean: &[PathBuf], levels: &[Level], frames: usize, denoise: Option<&st
             if let Some(m) = &model {
                 // The profile the camera was built from, as a user's calibrated profile.
                 let prof = cam.profile.clone();
-                let pipe = emccd_nn::pipeline::Pipeline { model: m, profile: &prof, tiling: Default::default(), ensemble: 1, device: emccd_nn::device() };
+                let pipe = emccd_nn::pipeline::Pipeline {
+                    model: m,
+                    profile: &prof,
+                    tiling: Default::default(),
+                    ensemble: 1,
+                    device: emccd_nn::device(),
+                };
                 den = pipe.denoise_raw(&raw_first, exposure_s)?;
                 let rel = format!("denoised/{name}.tif");
                 let mut dw = StackWriter::create(out.join(&rel), w, h, SampleFormat::F32, Some(1))?;
                 dw.write_frame(&den)?;
                 dw.finish()?;
-                denoised_out = Some((rel, (psnr(&den, &truth, peak as f64) * 100.0).round() / 100.0));
+                denoised_out = Some((
+                    rel,
+                    (psnr(&den, &truth, peak as f64) * 100.0).round() / 100.0,
+                ));
                 panels.push(&den);
             }
             panels.push(&truth);
@@ -419,7 +617,8 @@ fn pairs(clean: &[PathBuf], levels: &[Level], frames: usize, denoise: Option<&st
             let mut side = vec![0f32; np * w * h];
             for y in 0..h {
                 for (k, p) in panels.iter().enumerate() {
-                    side[y * np * w + k * w..y * np * w + (k + 1) * w].copy_from_slice(&p[y * w..(y + 1) * w]);
+                    side[y * np * w + k * w..y * np * w + (k + 1) * w]
+                        .copy_from_slice(&p[y * w..(y + 1) * w]);
                 }
             }
             emccd_io::write_png_preview(out.join(&preview_rel), np * w, h, &side, 0.0, peak)?;
@@ -444,12 +643,28 @@ fn pairs(clean: &[PathBuf], levels: &[Level], frames: usize, denoise: Option<&st
     pb.finish_and_clear();
     let text = format!("# Noisy/clean pairs written by `emccd simulate pairs`; paths are relative to this file.\n{}", toml::to_string_pretty(&manifest)?);
     emccd_io::write_atomic(out.join("pairs.toml"), text.as_bytes())?;
-    println!("{:<40} {:>9} {:>12} {:>14}", "pair", "photons", "PSNR in (dB)", "denoised (dB)");
+    println!(
+        "{:<40} {:>9} {:>12} {:>14}",
+        "pair", "photons", "PSNR in (dB)", "denoised (dB)"
+    );
     for p in &manifest.pair {
-        let d = p.psnr_denoised_db.map_or("–".to_string(), |v| format!("{v:.2}"));
-        println!("{:<40} {:>9} {:>12.2} {:>14}", p.noisy, p.photons, p.psnr_input_db, d);
+        let d = p
+            .psnr_denoised_db
+            .map_or("–".to_string(), |v| format!("{v:.2}"));
+        println!(
+            "{:<40} {:>9} {:>12.2} {:>14}",
+            p.noisy, p.photons, p.psnr_input_db, d
+        );
     }
-    let what = if model.is_some() { "preprocessed noisy | denoised | ground truth" } else { "preprocessed noisy | ground truth" };
-    eprintln!("wrote {} pairs to {} (previews: {what})", manifest.pair.len(), out.display());
+    let what = if model.is_some() {
+        "preprocessed noisy | denoised | ground truth"
+    } else {
+        "preprocessed noisy | ground truth"
+    };
+    eprintln!(
+        "wrote {} pairs to {} (previews: {what})",
+        manifest.pair.len(),
+        out.display()
+    );
     Ok(())
 }

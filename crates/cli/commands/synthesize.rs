@@ -62,31 +62,62 @@ pub fn run(a: Args) -> Result<()> {
             "multiplicative" => ab.multiplicative = false,
             "readout" => ab.readout = false,
             "quantization" => ab.quantization = false,
-            other => bail!("--ablate: unknown component '{other}' (multiplicative, readout, quantization)"),
+            other => bail!(
+                "--ablate: unknown component '{other}' (multiplicative, readout, quantization)"
+            ),
         }
     }
-    let (w, h, img) = read_scene(&a.input).with_context(|| format!("reading {}", a.input.display()))?;
+    let (w, h, img) =
+        read_scene(&a.input).with_context(|| format!("reading {}", a.input.display()))?;
     let prof = if (w, h) == (p.width, p.height) {
         p
     } else if w <= p.width && h <= p.height {
         p.crop(0, 0, w, h)?
     } else {
-        bail!("{}: {w}×{h} is larger than the profile's {}×{} sensor", a.input.display(), p.width, p.height);
+        bail!(
+            "{}: {w}×{h} is larger than the profile's {}×{} sensor",
+            a.input.display(),
+            p.width,
+            p.height
+        );
     };
     let (kind, model): (NoiseModelKind, Box<dyn NoiseModel>) = match a.model {
-        ModelArg::Ours => (NoiseModelKind::Ours, Box::new(OursModel::from_profile(&prof, ab)?)),
-        ModelArg::Eld => (NoiseModelKind::Eld, Box::new(EldModel::from_profile(&prof)?)),
-        ModelArg::Pgn => (NoiseModelKind::Pgn, Box::new(PgnModel::from_profile(&prof, a.exposure_s)?)),
+        ModelArg::Ours => (
+            NoiseModelKind::Ours,
+            Box::new(OursModel::from_profile(&prof, ab)?),
+        ),
+        ModelArg::Eld => (
+            NoiseModelKind::Eld,
+            Box::new(EldModel::from_profile(&prof)?),
+        ),
+        ModelArg::Pgn => (
+            NoiseModelKind::Pgn,
+            Box::new(PgnModel::from_profile(&prof, a.exposure_s)?),
+        ),
     };
-    let clean: Vec<f32> = img.iter().map(|&v| (v as f64 * a.signal_dn) as f32).collect();
+    let clean: Vec<f32> = img
+        .iter()
+        .map(|&v| (v as f64 * a.signal_dn) as f32)
+        .collect();
     let mut wr = StackWriter::create(&a.out, w, h, SampleFormat::F32, Some(a.frames))?;
-    wr.set_metadata(&Metadata { exposure_s: Some(a.exposure_s), em_gain: Some(prof.em_gain), ..Default::default() });
+    wr.set_metadata(&Metadata {
+        exposure_s: Some(a.exposure_s),
+        em_gain: Some(prof.em_gain),
+        ..Default::default()
+    });
     let mut out = vec![0f32; w * h];
     for k in 0..a.frames {
         model.synthesize(&clean, w, &mut out, a.seed.wrapping_add(k as u64));
         wr.write_frame(&out)?;
     }
     wr.finish()?;
-    eprintln!("wrote {} {:?}-model frame(s) of {}×{} to {}", a.frames, kind, w, h, a.out.display());
+    eprintln!(
+        "wrote {} {:?}-model frame(s) of {}×{} to {}",
+        a.frames,
+        kind,
+        w,
+        h,
+        a.out.display()
+    );
     Ok(())
 }

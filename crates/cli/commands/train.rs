@@ -67,6 +67,11 @@ pub struct Args {
     /// Crop side, px.
     #[arg(long, default_value_t = 128)]
     pub crop: usize,
+    /// Use each synthesized pair about this many times (in different batches, re-oriented):
+    /// synthesis then costs batch/reuse pairs per step. Worth it for --inputs hybrid, where every
+    /// pair needs a BM3D run (≈ 0.4 s per 128² crop on one core).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub reuse: u32,
     /// Multiply the profile's read noise by a factor drawn log-uniformly from LO,HI for every
     /// pair (noise model `ours`), so the model learns many read-noise-to-gain ratios and serves
     /// other cameras too. 1,1: the profile's own read noise only.
@@ -131,17 +136,34 @@ fn load_images(paths: &[PathBuf]) -> Result<Vec<(PathBuf, Image)>> {
     expand_inputs(paths)?
         .into_iter()
         .map(|p| {
-            let (w, h, data) = read_scene(&p).with_context(|| format!("reading {}", p.display()))?;
-            Ok((p, Image { width: w, height: h, data }))
+            let (w, h, data) =
+                read_scene(&p).with_context(|| format!("reading {}", p.display()))?;
+            Ok((
+                p,
+                Image {
+                    width: w,
+                    height: h,
+                    data,
+                },
+            ))
         })
         .collect()
 }
 
 pub fn run(a: Args) -> Result<()> {
     if !emccd_nn::model::ARCHS.contains(&a.arch.as_str()) {
-        bail!("--arch {}: this build has {}", a.arch, emccd_nn::model::ARCHS.join(", "));
+        bail!(
+            "--arch {}: this build has {}",
+            a.arch,
+            emccd_nn::model::ARCHS.join(", ")
+        );
     }
-    let pairs = [("--read-noise-scale", Some(&a.read_noise_scale)), ("--electrons", Some(&a.electrons)), ("--mean-electrons", a.mean_electrons.as_ref()), ("--cic", a.cic.as_ref())];
+    let pairs = [
+        ("--read-noise-scale", Some(&a.read_noise_scale)),
+        ("--electrons", Some(&a.electrons)),
+        ("--mean-electrons", a.mean_electrons.as_ref()),
+        ("--cic", a.cic.as_ref()),
+    ];
     for (name, v) in pairs.into_iter().filter_map(|(n, v)| v.map(|v| (n, v))) {
         if v.len() != 2 {
             bail!("{name} takes two comma-separated numbers, LO,HI");
@@ -151,9 +173,15 @@ pub fn run(a: Args) -> Result<()> {
     let all = load_images(&a.clean)?;
     let (train_imgs, val_imgs): (Vec<Image>, Vec<Image>) = if a.val.is_empty() {
         let (t, v): (Vec<_>, Vec<_>) = all.into_iter().enumerate().partition(|(i, _)| i % 10 != 9);
-        (t.into_iter().map(|(_, x)| x.1).collect(), v.into_iter().map(|(_, x)| x.1).collect())
+        (
+            t.into_iter().map(|(_, x)| x.1).collect(),
+            v.into_iter().map(|(_, x)| x.1).collect(),
+        )
     } else {
-        (all.into_iter().map(|x| x.1).collect(), load_images(&a.val)?.into_iter().map(|x| x.1).collect())
+        (
+            all.into_iter().map(|x| x.1).collect(),
+            load_images(&a.val)?.into_iter().map(|x| x.1).collect(),
+        )
     };
     let noise = match a.noise_model {
         NoiseArg::Ours => NoiseKind::Ours,
@@ -171,6 +199,7 @@ pub fn run(a: Args) -> Result<()> {
         steps: a.steps,
         batch: a.batch,
         crop: a.crop,
+        reuse: a.reuse,
         lr: a.lr,
         warmup: a.warmup.min(a.steps / 5),
         noise,
@@ -203,11 +232,12 @@ pub fn run(a: Args) -> Result<()> {
         profile_fingerprint: format!("{:016x}", profile.fingerprint()),
         steps: 0,
         recipe: format!(
-            "{} train / {} val images; batch {} × {}²; AdamW lr {} wd {} warm-up {} + cosine; {:?} loss; {}; read noise ×{:?}; CIC {:?}; seed {}",
+            "{} train / {} val images; batch {} × {}², each pair used ≈{}×; AdamW lr {} wd {} warm-up {} + cosine; {:?} loss; {}; read noise ×{:?}; CIC {:?}; seed {}",
             train_imgs.len(),
             val_imgs.len(),
             cfg.batch,
             cfg.crop,
+            cfg.reuse,
             cfg.lr,
             cfg.weight_decay,
             cfg.warmup,
@@ -222,13 +252,22 @@ pub fn run(a: Args) -> Result<()> {
         ),
     };
     let ckpt = PathBuf::from(format!("{}.ckpt", a.out.display()));
-    let paths = RunPaths { out: a.out.clone(), checkpoint: ckpt };
+    let paths = RunPaths {
+        out: a.out.clone(),
+        checkpoint: ckpt,
+    };
     let pb = indicatif::ProgressBar::new(a.steps);
-    pb.set_style(indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} steps {msg} ETA {eta}").expect("template").progress_chars("=> "));
+    pb.set_style(
+        indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} steps {msg} ETA {eta}")
+            .expect("template")
+            .progress_chars("=> "),
+    );
     let every = a.checkpoint_every.max(1);
     let mut report = |r: &emccd_nn::train::StepReport| {
         pb.set_position(r.step);
-        let v = r.val_psnr.map_or(String::new(), |(o, i)| format!(" val PSNR {o:.2} dB (input {i:.2})"));
+        let v = r.val_psnr.map_or(String::new(), |(o, i)| {
+            format!(" val PSNR {o:.2} dB (input {i:.2})")
+        });
         pb.set_message(format!("loss {:.5}{v}", r.loss));
         if !pb.is_hidden() {
             return true;
@@ -239,9 +278,28 @@ pub fn run(a: Args) -> Result<()> {
         }
         true
     };
-    let init = a.init.as_deref().map(crate::commands::denoise::model_path).transpose()?;
-    let model = train(train_imgs, val_imgs, &profile, cfg, meta, init.as_deref(), a.resume, &paths, &mut report)?;
+    let init = a
+        .init
+        .as_deref()
+        .map(crate::commands::denoise::model_path)
+        .transpose()?;
+    let model = train(
+        train_imgs,
+        val_imgs,
+        &profile,
+        cfg,
+        meta,
+        init.as_deref(),
+        a.resume,
+        &paths,
+        &mut report,
+    )?;
     pb.finish();
-    eprintln!("model written to {} ({} steps, {} parameters)", a.out.display(), model.meta.steps, burn::module::Module::num_params(&model.net));
+    eprintln!(
+        "model written to {} ({} steps, {} parameters)",
+        a.out.display(),
+        model.meta.steps,
+        burn::module::Module::num_params(&model.net)
+    );
     Ok(())
 }

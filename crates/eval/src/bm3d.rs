@@ -48,7 +48,11 @@ impl Transform {
 
     /// The biorthogonal 1.5 wavelet transform of 8 samples with its dual basis.
     fn bior15() -> Transform {
-        Transform { n: 8, f: bior15_matrix(), t: bior15_synthesis() }
+        Transform {
+            n: 8,
+            f: bior15_matrix(),
+            t: bior15_synthesis(),
+        }
     }
 
     /// Forward `F·B·Fᵀ`, or inverse `Tᵀ·C·T`, of an n×n block.
@@ -111,9 +115,14 @@ fn bior15_synthesis() -> Vec<f64> {
 fn dct_matrix(n: usize) -> Vec<f64> {
     let mut m = vec![0.0; n * n];
     for k in 0..n {
-        let a = if k == 0 { (1.0 / n as f64).sqrt() } else { (2.0 / n as f64).sqrt() };
+        let a = if k == 0 {
+            (1.0 / n as f64).sqrt()
+        } else {
+            (2.0 / n as f64).sqrt()
+        };
         for j in 0..n {
-            m[k * n + j] = a * (std::f64::consts::PI * (2 * j + 1) as f64 * k as f64 / (2 * n) as f64).cos();
+            m[k * n + j] =
+                a * (std::f64::consts::PI * (2 * j + 1) as f64 * k as f64 / (2 * n) as f64).cos();
         }
     }
     m
@@ -184,11 +193,24 @@ fn block(img: &[f64], w: usize, x: usize, y: usize, n: usize, out: &mut [f64]) {
 
 /// The up-to-`max_group` most similar n×n blocks to the one at (x, y) within the search window,
 /// by mean squared difference, including the reference itself; truncated to a power of two.
-fn matches(img: &[f64], w: usize, h: usize, x: usize, y: usize, p: StageParams) -> Vec<(usize, usize)> {
+fn matches(
+    img: &[f64],
+    w: usize,
+    h: usize,
+    x: usize,
+    y: usize,
+    p: StageParams,
+) -> Vec<(usize, usize)> {
     let n = p.n;
     let mut cand: Vec<(f64, usize, usize)> = Vec::with_capacity(1600);
-    let (x0, x1) = ((x as isize - SEARCH).max(0) as usize, ((x as isize + SEARCH) as usize).min(w - n));
-    let (y0, y1) = ((y as isize - SEARCH).max(0) as usize, ((y as isize + SEARCH) as usize).min(h - n));
+    let (x0, x1) = (
+        (x as isize - SEARCH).max(0) as usize,
+        ((x as isize + SEARCH) as usize).min(w - n),
+    );
+    let (y0, y1) = (
+        (y as isize - SEARCH).max(0) as usize,
+        ((y as isize + SEARCH) as usize).min(h - n),
+    );
     let lim = p.tau * (n * n) as f64;
     let mut r = [0.0; NMAX * NMAX];
     block(img, w, x, y, n, &mut r);
@@ -197,7 +219,11 @@ fn matches(img: &[f64], w: usize, h: usize, x: usize, y: usize, p: StageParams) 
             let mut d = 0.0;
             for row in 0..n {
                 let a = &img[(cy + row) * w + cx..(cy + row) * w + cx + n];
-                d += a.iter().zip(&r[row * n..(row + 1) * n]).map(|(p, q)| (p - q) * (p - q)).sum::<f64>();
+                d += a
+                    .iter()
+                    .zip(&r[row * n..(row + 1) * n])
+                    .map(|(p, q)| (p - q) * (p - q))
+                    .sum::<f64>();
                 if d > lim {
                     break;
                 }
@@ -209,7 +235,11 @@ fn matches(img: &[f64], w: usize, h: usize, x: usize, y: usize, p: StageParams) 
     }
     cand.sort_by(|a, b| a.0.total_cmp(&b.0));
     cand.truncate(p.max_group);
-    let k = if cand.is_empty() { 1 } else { 1usize << (usize::BITS - 1 - cand.len().leading_zeros()) };
+    let k = if cand.is_empty() {
+        1
+    } else {
+        1usize << (usize::BITS - 1 - cand.len().leading_zeros())
+    };
     let mut out: Vec<(usize, usize)> = cand.into_iter().take(k).map(|c| (c.1, c.2)).collect();
     if out.is_empty() {
         out.push((x, y));
@@ -237,7 +267,16 @@ fn spectrum(img: &[f64], w: usize, group: &[(usize, usize)], t: &Transform) -> V
 /// Inverts a filtered group spectrum and adds its blocks, weighted by `wt` × the Kaiser window,
 /// into the aggregation buffers.
 #[allow(clippy::too_many_arguments)]
-fn put_back(mut g: Vec<Block>, group: &[(usize, usize)], t: &Transform, win: &[f64], wt: f64, w: usize, num: &mut [f64], den: &mut [f64]) {
+fn put_back(
+    mut g: Vec<Block>,
+    group: &[(usize, usize)],
+    t: &Transform,
+    win: &[f64],
+    wt: f64,
+    w: usize,
+    num: &mut [f64],
+    den: &mut [f64],
+) {
     let n = t.n;
     haar(&mut g, n * n, true);
     let mut b = [0.0; NMAX * NMAX];
@@ -256,9 +295,18 @@ fn put_back(mut g: Vec<Block>, group: &[(usize, usize)], t: &Transform, win: &[f
 
 /// Runs `contrib` for every reference block of the stage (in parallel, one pair of buffers per
 /// worker) and returns the weighted average, `fallback` where no block landed.
-fn aggregate(w: usize, h: usize, p: StageParams, fallback: &[f64], contrib: &(dyn Fn(usize, usize, &mut [f64], &mut [f64]) + Sync)) -> Vec<f64> {
+fn aggregate(
+    w: usize,
+    h: usize,
+    p: StageParams,
+    fallback: &[f64],
+    contrib: &(dyn Fn(usize, usize, &mut [f64], &mut [f64]) + Sync),
+) -> Vec<f64> {
     let (xs, ys) = (positions(w, p.n, p.step), positions(h, p.n, p.step));
-    let refs: Vec<(usize, usize)> = ys.iter().flat_map(|&y| xs.iter().map(move |&x| (x, y))).collect();
+    let refs: Vec<(usize, usize)> = ys
+        .iter()
+        .flat_map(|&y| xs.iter().map(move |&x| (x, y)))
+        .collect();
     let (num, den) = refs
         .par_chunks(32)
         .fold(
@@ -278,7 +326,11 @@ fn aggregate(w: usize, h: usize, p: StageParams, fallback: &[f64], contrib: &(dy
                 (a, b)
             },
         );
-    num.iter().zip(&den).zip(fallback).map(|((n, d), f)| if *d > 0.0 { n / d } else { *f }).collect()
+    num.iter()
+        .zip(&den)
+        .zip(fallback)
+        .map(|((n, d), f)| if *d > 0.0 { n / d } else { *f })
+        .collect()
 }
 
 /// Denoises `noisy` (`w × h`, row-major) with noise std `sigma`, in units where the image spans
@@ -287,16 +339,40 @@ pub fn bm3d(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -> V
     assert_eq!(noisy.len(), w * h, "image size");
     let high = sigma * 255.0 / data_range > 40.0;
     let p1 = if high {
-        StageParams { n: N1, step: 4, max_group: 32, tau: 25000.0 }
+        StageParams {
+            n: N1,
+            step: 4,
+            max_group: 32,
+            tau: 25000.0,
+        }
     } else {
-        StageParams { n: N1, step: STEP, max_group: 16, tau: 3000.0 }
+        StageParams {
+            n: N1,
+            step: STEP,
+            max_group: 16,
+            tau: 3000.0,
+        }
     };
     let p2 = if high {
-        StageParams { n: 11, step: 6, max_group: 32, tau: 3500.0 }
+        StageParams {
+            n: 11,
+            step: 6,
+            max_group: 32,
+            tau: 3500.0,
+        }
     } else {
-        StageParams { n: N1, step: STEP, max_group: 32, tau: 400.0 }
+        StageParams {
+            n: N1,
+            step: STEP,
+            max_group: 32,
+            tau: 400.0,
+        }
     };
-    assert!(w >= p2.n && h >= p2.n, "BM3D needs images of at least {0}×{0}", p2.n);
+    assert!(
+        w >= p2.n && h >= p2.n,
+        "BM3D needs images of at least {0}×{0}",
+        p2.n
+    );
     let scale = 255.0 / data_range;
     let s = sigma * scale;
     let z: Vec<f64> = noisy.iter().map(|&v| v as f64 * scale).collect();
@@ -319,26 +395,50 @@ pub fn bm3d(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -> V
                 }
             }
         }
-        put_back(g, &group, &ht, &win1, 1.0 / (s * s * kept.max(1) as f64), w, num, den);
+        put_back(
+            g,
+            &group,
+            &ht,
+            &win1,
+            1.0 / (s * s * kept.max(1) as f64),
+            w,
+            num,
+            den,
+        );
     });
 
     // Stage 2: empirical Wiener filtering guided by the basic estimate.
     let dct = Transform::orthonormal(dct_matrix(p2.n), p2.n);
     let win2 = kaiser(p2.n);
-    let fin = aggregate(w, h, p2, &basic, &|x, y, num: &mut [f64], den: &mut [f64]| {
-        let group = matches(&basic, w, h, x, y, p2);
-        let gb = spectrum(&basic, w, &group, &dct);
-        let mut gn = spectrum(&z, w, &group, &dct);
-        let mut wsum = 0.0;
-        for (cn, cb) in gn.iter_mut().zip(&gb) {
-            for (vn, vb) in cn[..p2.n * p2.n].iter_mut().zip(&cb[..p2.n * p2.n]) {
-                let wf = vb * vb / (vb * vb + s * s);
-                *vn *= wf;
-                wsum += wf * wf;
+    let fin = aggregate(
+        w,
+        h,
+        p2,
+        &basic,
+        &|x, y, num: &mut [f64], den: &mut [f64]| {
+            let group = matches(&basic, w, h, x, y, p2);
+            let gb = spectrum(&basic, w, &group, &dct);
+            let mut gn = spectrum(&z, w, &group, &dct);
+            let mut wsum = 0.0;
+            for (cn, cb) in gn.iter_mut().zip(&gb) {
+                for (vn, vb) in cn[..p2.n * p2.n].iter_mut().zip(&cb[..p2.n * p2.n]) {
+                    let wf = vb * vb / (vb * vb + s * s);
+                    *vn *= wf;
+                    wsum += wf * wf;
+                }
             }
-        }
-        put_back(gn, &group, &dct, &win2, 1.0 / (s * s * wsum.max(1e-12)), w, num, den);
-    });
+            put_back(
+                gn,
+                &group,
+                &dct,
+                &win2,
+                1.0 / (s * s * wsum.max(1e-12)),
+                w,
+                num,
+                den,
+            );
+        },
+    );
     fin.into_iter().map(|v| (v / scale) as f32).collect()
 }
 
@@ -357,12 +457,21 @@ mod tests {
             let (mut c, mut r) = (vec![0.0; n * n], vec![0.0; n * n]);
             t.apply(&b, false, &mut c);
             t.apply(&c, true, &mut r);
-            assert!(b.iter().zip(&r).all(|(a, b)| (a - b).abs() < 1e-9), "n = {n}");
+            assert!(
+                b.iter().zip(&r).all(|(a, b)| (a - b).abs() < 1e-9),
+                "n = {n}"
+            );
         }
-        let mut g: Vec<Block> = (0..8).map(|k| std::array::from_fn(|i| ((i + 3 * k) % 7) as f64)).collect();
+        let mut g: Vec<Block> = (0..8)
+            .map(|k| std::array::from_fn(|i| ((i + 3 * k) % 7) as f64))
+            .collect();
         let orig = g.clone();
         haar(&mut g, NMAX * NMAX, false);
         haar(&mut g, NMAX * NMAX, true);
-        assert!(g.iter().flatten().zip(orig.iter().flatten()).all(|(a, b)| (a - b).abs() < 1e-9));
+        assert!(g
+            .iter()
+            .flatten()
+            .zip(orig.iter().flatten())
+            .all(|(a, b)| (a - b).abs() < 1e-9));
     }
 }

@@ -13,7 +13,12 @@ use rayon::prelude::*;
 /// Peak signal-to-noise ratio in dB for data range `r`: `10·log10(r² / MSE)`.
 pub fn psnr(test: &[f32], reference: &[f32], r: f64) -> f64 {
     assert_eq!(test.len(), reference.len(), "images differ in size");
-    let mse = test.iter().zip(reference).map(|(a, b)| (*a as f64 - *b as f64).powi(2)).sum::<f64>() / test.len().max(1) as f64;
+    let mse = test
+        .iter()
+        .zip(reference)
+        .map(|(a, b)| (*a as f64 - *b as f64).powi(2))
+        .sum::<f64>()
+        / test.len().max(1) as f64;
     10.0 * (r * r / mse.max(1e-300)).log10()
 }
 
@@ -32,7 +37,12 @@ pub struct SsimParams {
 
 impl Default for SsimParams {
     fn default() -> SsimParams {
-        SsimParams { sigma: 1.5, truncate: 3.5, k1: 0.01, k2: 0.03 }
+        SsimParams {
+            sigma: 1.5,
+            truncate: 3.5,
+            k1: 0.01,
+            k2: 0.03,
+        }
     }
 }
 
@@ -57,13 +67,21 @@ fn gaussian(img: &[f64], w: usize, h: usize, k: &[f64]) -> Vec<f64> {
     let mut tmp = vec![0f64; w * h];
     tmp.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         for (x, o) in row.iter_mut().enumerate() {
-            *o = k.iter().enumerate().map(|(j, kv)| kv * img[y * w + reflect(x as isize + j as isize - r, w)]).sum();
+            *o = k
+                .iter()
+                .enumerate()
+                .map(|(j, kv)| kv * img[y * w + reflect(x as isize + j as isize - r, w)])
+                .sum();
         }
     });
     let mut out = vec![0f64; w * h];
     out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         for (x, o) in row.iter_mut().enumerate() {
-            *o = k.iter().enumerate().map(|(j, kv)| kv * tmp[reflect(y as isize + j as isize - r, h) * w + x]).sum();
+            *o = k
+                .iter()
+                .enumerate()
+                .map(|(j, kv)| kv * tmp[reflect(y as isize + j as isize - r, h) * w + x])
+                .sum();
         }
     });
     out
@@ -75,7 +93,9 @@ pub fn ssim(test: &[f32], reference: &[f32], w: usize, h: usize, r: f64, p: Ssim
     assert_eq!(test.len(), w * h, "test image size");
     assert_eq!(reference.len(), w * h, "reference image size");
     let rad = (p.truncate * p.sigma + 0.5) as usize;
-    let mut k: Vec<f64> = (0..=2 * rad).map(|i| (-((i as f64 - rad as f64).powi(2)) / (2.0 * p.sigma * p.sigma)).exp()).collect();
+    let mut k: Vec<f64> = (0..=2 * rad)
+        .map(|i| (-((i as f64 - rad as f64).powi(2)) / (2.0 * p.sigma * p.sigma)).exp())
+        .collect();
     let s: f64 = k.iter().sum();
     k.iter_mut().for_each(|v| *v /= s);
     let x: Vec<f64> = test.iter().map(|&v| v as f64).collect();
@@ -90,7 +110,11 @@ pub fn ssim(test: &[f32], reference: &[f32], w: usize, h: usize, r: f64, p: Ssim
     for yy in rad..h.saturating_sub(rad) {
         for xx in rad..w.saturating_sub(rad) {
             let i = yy * w + xx;
-            let (vx, vy, vxy) = (uxx[i] - ux[i] * ux[i], uyy[i] - uy[i] * uy[i], uxy[i] - ux[i] * uy[i]);
+            let (vx, vy, vxy) = (
+                uxx[i] - ux[i] * ux[i],
+                uyy[i] - uy[i] * uy[i],
+                uxy[i] - ux[i] * uy[i],
+            );
             let num = (2.0 * ux[i] * uy[i] + c1) * (2.0 * vxy + c2);
             let den = (ux[i] * ux[i] + uy[i] * uy[i] + c1) * (vx + vy + c2);
             sum += num / den;

@@ -17,7 +17,11 @@ pub struct PoissonGaussian {
 /// Generalized Anscombe transform: noise std ≈ 1 afterwards.
 pub fn forward(z: f64, p: PoissonGaussian) -> f64 {
     let a = p.alpha * z + 0.375 * p.alpha * p.alpha + p.sigma * p.sigma - p.alpha * p.mu;
-    if a > 0.0 { 2.0 / p.alpha * a.sqrt() } else { 0.0 }
+    if a > 0.0 {
+        2.0 / p.alpha * a.sqrt()
+    } else {
+        0.0
+    }
 }
 
 /// Closed-form approximation of the exact unbiased inverse. Below the transform of a zero signal
@@ -49,7 +53,11 @@ mod tests {
     fn inverse_undoes_the_mean_of_the_transform_at_high_counts() {
         // For large signals the unbiased inverse of E[f(z)] returns z: check via the delta
         // method E[f(z)] ≈ f(E z) − f''·Var/2 … simply, a noiseless round trip is close.
-        let p = PoissonGaussian { alpha: 20.0, sigma: 3.0, mu: 0.0 };
+        let p = PoissonGaussian {
+            alpha: 20.0,
+            sigma: 3.0,
+            mu: 0.0,
+        };
         for z in [500.0, 2000.0, 10000.0] {
             let back = inverse(forward(z, p), p);
             assert!((back - z).abs() / z < 0.02, "{z} → {back}");
@@ -67,13 +75,23 @@ mod tests {
         use rand_distr::{Distribution, Normal, Poisson};
         let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
         for (lambda, sigma) in [(3.0f64, 0.5f64), (10.0, 1.0), (50.0, 2.0)] {
-            let p = PoissonGaussian { alpha: 1.0, sigma, mu: 0.0 };
+            let p = PoissonGaussian {
+                alpha: 1.0,
+                sigma,
+                mu: 0.0,
+            };
             let n = 400_000;
             let po = Poisson::new(lambda).unwrap();
             let no = Normal::new(0.0, sigma).unwrap();
-            let m = (0..n).map(|_| forward(po.sample(&mut rng) + no.sample(&mut rng), p)).sum::<f64>() / n as f64;
+            let m = (0..n)
+                .map(|_| forward(po.sample(&mut rng) + no.sample(&mut rng), p))
+                .sum::<f64>()
+                / n as f64;
             let back = inverse(m, p);
-            assert!((back / lambda - 1.0).abs() < 0.015, "λ {lambda}, σ {sigma}: {back}");
+            assert!(
+                (back / lambda - 1.0).abs() < 0.015,
+                "λ {lambda}, σ {sigma}: {back}"
+            );
         }
     }
 }

@@ -34,7 +34,10 @@ impl Error {
     pub fn with_path(self, path: impl Into<PathBuf>) -> Error {
         match self {
             e @ Error::WithPath { .. } => e,
-            e => Error::WithPath { path: path.into(), source: Box::new(e) },
+            e => Error::WithPath {
+                path: path.into(),
+                source: Box::new(e),
+            },
         }
     }
 }

@@ -69,8 +69,10 @@ impl FitsReader {
                 let meta = Metadata {
                     exposure_s: card_f64(h.get("EXPTIME")).or_else(|| card_f64(h.get("EXPOSURE"))),
                     em_gain: card_f64(h.get("EMGAIN")).or_else(|| card_f64(h.get("EM_GAIN"))),
-                    temperature_c: card_f64(h.get("CCD-TEMP")).or_else(|| card_f64(h.get("TEMPERAT"))),
-                    camera_model: card_string(h.get("INSTRUME")).or_else(|| card_string(h.get("DETECTOR"))),
+                    temperature_c: card_f64(h.get("CCD-TEMP"))
+                        .or_else(|| card_f64(h.get("TEMPERAT"))),
+                    camera_model: card_string(h.get("INSTRUME"))
+                        .or_else(|| card_string(h.get("DETECTOR"))),
                     ..Default::default()
                 };
                 found = Some((
@@ -84,8 +86,8 @@ impl FitsReader {
                 break;
             }
         }
-        let (naxis, bitpix, bzero, bscale, offset, mut metadata) =
-            found.ok_or_else(|| Error::Format("FITS: no image HDU with two or more axes".into()))?;
+        let (naxis, bitpix, bzero, bscale, offset, mut metadata) = found
+            .ok_or_else(|| Error::Format("FITS: no image HDU with two or more axes".into()))?;
         let (width, height) = (naxis[0] as usize, naxis[1] as usize);
         let frames_declared: usize = naxis[2..].iter().product::<u64>() as usize;
         let bpp = (bitpix.unsigned_abs() / 8) as usize;
@@ -114,7 +116,14 @@ impl FitsReader {
         file.seek(SeekFrom::Start(offset))?;
         Ok(FitsReader {
             file,
-            info: StackInfo { width, height, frames, pixel_type, format: Format::Fits, metadata },
+            info: StackInfo {
+                width,
+                height,
+                frames,
+                pixel_type,
+                format: Format::Fits,
+                metadata,
+            },
             bitpix,
             bzero,
             bscale,
@@ -175,7 +184,10 @@ fn card(key: &str, value: &str, comment: &str) -> [u8; 80] {
 }
 
 fn quoted(s: &str) -> String {
-    let clean: String = s.chars().filter(|c| c.is_ascii() && !c.is_ascii_control()).collect();
+    let clean: String = s
+        .chars()
+        .filter(|c| c.is_ascii() && !c.is_ascii_control())
+        .collect();
     format!("'{:<8}'", clean.replace('\'', "''"))
 }
 
@@ -271,12 +283,20 @@ impl FitsStackWriter {
         match self.sample {
             SampleFormat::U8 => {
                 for &x in frame {
-                    self.bytes.push(if x.is_nan() { 0 } else { x.round().clamp(0.0, 255.0) as u8 });
+                    self.bytes.push(if x.is_nan() {
+                        0
+                    } else {
+                        x.round().clamp(0.0, 255.0) as u8
+                    });
                 }
             }
             SampleFormat::U16 => {
                 for &x in frame {
-                    let v = if x.is_nan() { 0.0 } else { x.round().clamp(0.0, 65535.0) };
+                    let v = if x.is_nan() {
+                        0.0
+                    } else {
+                        x.round().clamp(0.0, 65535.0)
+                    };
                     let raw = (v as i32 - 32768) as i16;
                     self.bytes.extend_from_slice(&raw.to_be_bytes());
                 }
@@ -302,7 +322,10 @@ impl FitsStackWriter {
         let (naxis, naxis3) = if frames == 1 {
             (card("NAXIS", "2", "width, height"), [b' '; 80])
         } else {
-            (card("NAXIS", "3", "width, height, frames"), card("NAXIS3", &frames.to_string(), "frames"))
+            (
+                card("NAXIS", "3", "width, height, frames"),
+                card("NAXIS3", &frames.to_string(), "frames"),
+            )
         };
         self.file.seek(SeekFrom::Start(self.naxis_card * 80))?;
         self.file.write_all(&naxis)?;
@@ -321,13 +344,26 @@ mod tests {
     #[test]
     fn fits_roundtrip_u16_and_f32() {
         let dir = tempfile::tempdir().unwrap();
-        for (sample, frames) in [(SampleFormat::U16, 3usize), (SampleFormat::F32, 1), (SampleFormat::U8, 2)] {
+        for (sample, frames) in [
+            (SampleFormat::U16, 3usize),
+            (SampleFormat::F32, 1),
+            (SampleFormat::U8, 2),
+        ] {
             let p = dir.path().join(format!("x{frames}.fits"));
             let (w, h) = (9, 4);
-            let data: Vec<Vec<f32>> =
-                (0..frames).map(|k| (0..w * h).map(|i| (i as f32) * 1000.0 + k as f32 + 0.5).collect()).collect();
+            let data: Vec<Vec<f32>> = (0..frames)
+                .map(|k| {
+                    (0..w * h)
+                        .map(|i| (i as f32) * 1000.0 + k as f32 + 0.5)
+                        .collect()
+                })
+                .collect();
             let mut wr = StackWriter::create(&p, w, h, sample, None).unwrap();
-            wr.set_metadata(&Metadata { exposure_s: Some(0.05), em_gain: Some(300.0), ..Default::default() });
+            wr.set_metadata(&Metadata {
+                exposure_s: Some(0.05),
+                em_gain: Some(300.0),
+                ..Default::default()
+            });
             for f in &data {
                 wr.write_frame(f).unwrap();
             }

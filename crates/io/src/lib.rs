@@ -130,7 +130,11 @@ pub trait FrameReader: Send {
 /// The error every reader gives for a caller's buffer of the wrong size.
 pub(crate) fn check_buffer(out: &[f32], info: &StackInfo) -> Result<()> {
     if out.len() != info.frame_len() {
-        return Err(Error::Usage(format!("buffer holds {} pixels, frame has {}", out.len(), info.frame_len())));
+        return Err(Error::Usage(format!(
+            "buffer holds {} pixels, frame has {}",
+            out.len(),
+            info.frame_len()
+        )));
     }
     Ok(())
 }
@@ -151,7 +155,9 @@ fn open_inner(path: &Path) -> Result<Box<dyn FrameReader>> {
         read_up_to(&mut f, &mut magic)?
     };
     let magic = &magic[..n];
-    if magic.starts_with(b"II*\0") || magic.starts_with(b"MM\0*") || magic.starts_with(b"II+\0")
+    if magic.starts_with(b"II*\0")
+        || magic.starts_with(b"MM\0*")
+        || magic.starts_with(b"II+\0")
         || magic.starts_with(b"MM\0+")
     {
         Ok(Box::new(tiff_io::TiffReader::open(path)?))
@@ -265,13 +271,22 @@ impl StackWriter {
         frames_hint: Option<usize>,
     ) -> Result<StackWriter> {
         if width == 0 || height == 0 {
-            return Err(Error::Usage(format!("cannot write a {width}×{height} frame")).with_path(path));
+            return Err(
+                Error::Usage(format!("cannot write a {width}×{height} frame")).with_path(path),
+            );
         }
         let tmp = temp_beside(path).map_err(|e| Error::from(e).with_path(path))?;
         let inner = match fmt {
             Format::Tiff | Format::BigTiff => WriterKind::Tiff(
-                tiff_io::TiffStackWriter::new(tmp, fmt == Format::BigTiff, width, height, sample, frames_hint)
-                    .map_err(|e| e.with_path(path))?,
+                tiff_io::TiffStackWriter::new(
+                    tmp,
+                    fmt == Format::BigTiff,
+                    width,
+                    height,
+                    sample,
+                    frames_hint,
+                )
+                .map_err(|e| e.with_path(path))?,
             ),
             Format::Fits => WriterKind::Fits(
                 fits::FitsStackWriter::new(tmp, width, height, sample, frames_hint)
@@ -281,7 +296,13 @@ impl StackWriter {
                 return Err(Error::Unsupported(format!("writing {other:?} stacks")).with_path(path))
             }
         };
-        Ok(StackWriter { inner, target: path.to_path_buf(), width, height, frames: 0 })
+        Ok(StackWriter {
+            inner,
+            target: path.to_path_buf(),
+            width,
+            height,
+            frames: 0,
+        })
     }
 
     /// Appends one frame (row-major, `width·height` values).
@@ -329,16 +350,25 @@ pub fn temp_beside(path: &Path) -> std::io::Result<tempfile::NamedTempFile> {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
     };
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    tempfile::Builder::new().prefix(&format!(".{name}.")).suffix(".tmp").tempfile_in(dir)
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    tempfile::Builder::new()
+        .prefix(&format!(".{name}."))
+        .suffix(".tmp")
+        .tempfile_in(dir)
 }
 
 /// Flushes a finished temporary file to disk and renames it to `target`. Works by the temporary
 /// path, so it also covers a writer that replaced the file under that name (burn-store does).
 pub fn persist(tmp: tempfile::NamedTempFile, target: &Path) -> Result<()> {
     readable(tmp.path()).map_err(|e| Error::from(e).with_path(target))?;
-    std::fs::File::open(tmp.path()).and_then(|f| f.sync_all()).map_err(|e| Error::from(e).with_path(target))?;
-    tmp.persist(target).map_err(|e| Error::from(e.error).with_path(target))?;
+    std::fs::File::open(tmp.path())
+        .and_then(|f| f.sync_all())
+        .map_err(|e| Error::from(e).with_path(target))?;
+    tmp.persist(target)
+        .map_err(|e| Error::from(e.error).with_path(target))?;
     Ok(())
 }
 
@@ -347,12 +377,20 @@ pub fn write_atomic(path: impl AsRef<Path>, bytes: &[u8]) -> Result<()> {
     use std::io::Write;
     let path = path.as_ref();
     let mut tmp = temp_beside(path).map_err(|e| Error::from(e).with_path(path))?;
-    tmp.write_all(bytes).map_err(|e| Error::from(e).with_path(path))?;
+    tmp.write_all(bytes)
+        .map_err(|e| Error::from(e).with_path(path))?;
     persist(tmp, path)
 }
 
 /// Writes one frame as an 8-bit grayscale PNG, mapping `lo..=hi` to 0..=255 (for previews).
-pub fn write_png_preview(path: impl AsRef<Path>, width: usize, height: usize, data: &[f32], lo: f32, hi: f32) -> Result<()> {
+pub fn write_png_preview(
+    path: impl AsRef<Path>,
+    width: usize,
+    height: usize,
+    data: &[f32],
+    lo: f32,
+    hi: f32,
+) -> Result<()> {
     png_io::write_gray8(path.as_ref(), width, height, data, lo, hi)
 }
 

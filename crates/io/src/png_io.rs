@@ -40,7 +40,9 @@ impl PngReader {
             ColorType::GrayscaleAlpha => 2,
             ColorType::Rgb => 3,
             ColorType::Rgba => 4,
-            ColorType::Indexed => return Err(Error::Unsupported("PNG palette left unexpanded".into())),
+            ColorType::Indexed => {
+                return Err(Error::Unsupported("PNG palette left unexpanded".into()))
+            }
         };
         let sixteen = out.bit_depth == BitDepth::Sixteen;
         let sample = |row: &[u8], i: usize| -> f32 {
@@ -67,11 +69,18 @@ impl PngReader {
             width: w,
             height: h,
             frames: 1,
-            pixel_type: if sixteen { PixelType::U16 } else { PixelType::U8 },
+            pixel_type: if sixteen {
+                PixelType::U16
+            } else {
+                PixelType::U8
+            },
             format: Format::Png,
             metadata: Metadata::default(),
         };
-        Ok(PngReader { data: Some(data), info })
+        Ok(PngReader {
+            data: Some(data),
+            info,
+        })
     }
 }
 
@@ -84,7 +93,11 @@ impl FrameReader for PngReader {
         match self.data.take() {
             Some(d) => {
                 if out.len() != d.len() {
-                    return Err(Error::Usage(format!("buffer holds {} pixels, image has {}", out.len(), d.len())));
+                    return Err(Error::Usage(format!(
+                        "buffer holds {} pixels, image has {}",
+                        out.len(),
+                        d.len()
+                    )));
                 }
                 out.copy_from_slice(&d);
                 Ok(true)
@@ -95,26 +108,49 @@ impl FrameReader for PngReader {
 }
 
 /// Writes an 8-bit grayscale PNG (atomically), mapping `lo..=hi` linearly onto 0..=255.
-pub fn write_gray8(path: &Path, width: usize, height: usize, data: &[f32], lo: f32, hi: f32) -> Result<()> {
+pub fn write_gray8(
+    path: &Path,
+    width: usize,
+    height: usize,
+    data: &[f32],
+    lo: f32,
+    hi: f32,
+) -> Result<()> {
     write_gray8_inner(path, width, height, data, lo, hi).map_err(|e| e.with_path(path))
 }
 
-fn write_gray8_inner(path: &Path, width: usize, height: usize, data: &[f32], lo: f32, hi: f32) -> Result<()> {
+fn write_gray8_inner(
+    path: &Path,
+    width: usize,
+    height: usize,
+    data: &[f32],
+    lo: f32,
+    hi: f32,
+) -> Result<()> {
     if data.len() != width * height {
-        return Err(Error::Usage(format!("{} values for a {width}×{height} image", data.len())));
+        return Err(Error::Usage(format!(
+            "{} values for a {width}×{height} image",
+            data.len()
+        )));
     }
     let span = if hi > lo { hi - lo } else { 1.0 };
-    let bytes: Vec<u8> =
-        data.iter().map(|&v| (((v - lo) / span) * 255.0).round().clamp(0.0, 255.0) as u8).collect();
+    let bytes: Vec<u8> = data
+        .iter()
+        .map(|&v| (((v - lo) / span) * 255.0).round().clamp(0.0, 255.0) as u8)
+        .collect();
     let tmp = crate::temp_beside(path)?;
     {
         let w = std::io::BufWriter::new(tmp.as_file().try_clone()?);
         let mut enc = png::Encoder::new(w, width as u32, height as u32);
         enc.set_color(ColorType::Grayscale);
         enc.set_depth(BitDepth::Eight);
-        let mut wr = enc.write_header().map_err(|e| Error::Format(format!("PNG: {e}")))?;
-        wr.write_image_data(&bytes).map_err(|e| Error::Format(format!("PNG: {e}")))?;
-        wr.finish().map_err(|e| Error::Format(format!("PNG: {e}")))?;
+        let mut wr = enc
+            .write_header()
+            .map_err(|e| Error::Format(format!("PNG: {e}")))?;
+        wr.write_image_data(&bytes)
+            .map_err(|e| Error::Format(format!("PNG: {e}")))?;
+        wr.finish()
+            .map_err(|e| Error::Format(format!("PNG: {e}")))?;
     }
     crate::persist(tmp, path)
 }
@@ -128,7 +164,10 @@ mod tests {
         let data = [0.0, 50.0, 100.0, 200.0];
         super::write_gray8(&p, 2, 2, &data, 0.0, 100.0).unwrap();
         let (info, f) = crate::read_all(&p).unwrap();
-        assert_eq!((info.width, info.height, info.pixel_type), (2, 2, crate::PixelType::U8));
+        assert_eq!(
+            (info.width, info.height, info.pixel_type),
+            (2, 2, crate::PixelType::U8)
+        );
         assert_eq!(f[0], vec![0.0, 128.0, 255.0, 255.0]);
     }
 }

@@ -106,7 +106,13 @@ impl SifReader {
             format: Format::Sif,
             metadata,
         };
-        Ok(SifReader { file, header, info, next: 0, bytes: vec![0; frame_bytes as usize] })
+        Ok(SifReader {
+            file,
+            header,
+            info,
+            next: 0,
+            bytes: vec![0; frame_bytes as usize],
+        })
     }
 
     /// The parsed header.
@@ -126,7 +132,10 @@ impl FrameReader for SifReader {
         }
         crate::check_buffer(out, &self.info)?;
         self.file.read_exact(&mut self.bytes).map_err(|e| {
-            Error::Format(format!("frame {}: {e} (file changed while reading?)", self.next + 1))
+            Error::Format(format!(
+                "frame {}: {e} (file changed while reading?)",
+                self.next + 1
+            ))
         })?;
         for (o, c) in out.iter_mut().zip(self.bytes.chunks_exact(4)) {
             *o = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
@@ -151,14 +160,24 @@ fn read_line(r: &mut impl BufRead, limit: usize) -> Result<Vec<u8>> {
 
 fn parse_header(r: &mut BufReader<File>, file_len: u64) -> Result<SifHeader> {
     let mut magic = vec![0u8; MAGIC.len()];
-    r.read_exact(&mut magic).map_err(|_| fmt_err("shorter than the SIF magic"))?;
+    r.read_exact(&mut magic)
+        .map_err(|_| fmt_err("shorter than the SIF magic"))?;
     if magic != MAGIC {
-        return Err(fmt_err("missing the 'Andor Technology Multi-Channel File' magic"));
+        return Err(fmt_err(
+            "missing the 'Andor Technology Multi-Channel File' magic",
+        ));
     }
     read_line(r, 64)?; // "65538 1"
     let line3 = read_line(r, 4096)?;
-    let tokens: Vec<&[u8]> = line3.split(|&b| b == b' ' || b == b'\n').filter(|t| !t.is_empty()).collect();
-    let num = |t: &[u8]| std::str::from_utf8(t).ok().and_then(|s| s.trim().parse::<f64>().ok());
+    let tokens: Vec<&[u8]> = line3
+        .split(|&b| b == b' ' || b == b'\n')
+        .filter(|t| !t.is_empty())
+        .collect();
+    let num = |t: &[u8]| {
+        std::str::from_utf8(t)
+            .ok()
+            .and_then(|s| s.trim().parse::<f64>().ok())
+    };
     if tokens.len() < 6 {
         return Err(fmt_err("the acquisition line has too few fields"));
     }
@@ -175,17 +194,26 @@ fn parse_header(r: &mut BufReader<File>, file_len: u64) -> Result<SifHeader> {
         .into_iter()
         .flatten()
         .find(|&t| t != -999.0 && t.is_finite());
-    let detector = String::from_utf8_lossy(&read_line(r, 256)?).trim().to_string();
+    let detector = String::from_utf8_lossy(&read_line(r, 256)?)
+        .trim()
+        .to_string();
     let dims = read_line(r, 256)?;
-    let dims: Vec<u32> = String::from_utf8_lossy(&dims).split_whitespace().filter_map(|s| s.parse().ok()).collect();
-    let sensor = (dims.first().copied().unwrap_or(0), dims.get(1).copied().unwrap_or(0));
+    let dims: Vec<u32> = String::from_utf8_lossy(&dims)
+        .split_whitespace()
+        .filter_map(|s| s.parse().ok())
+        .collect();
+    let sensor = (
+        dims.first().copied().unwrap_or(0),
+        dims.get(1).copied().unwrap_or(0),
+    );
 
     // Find the image-structure line in the next 64 KiB by its arithmetic.
     let search_start = r.stream_position()?;
     let mut window = Vec::new();
     r.by_ref().take(64 * 1024).read_to_end(&mut window)?;
-    let (rel_end, frames, image_len, subs) =
-        find_structure(&window).ok_or_else(|| fmt_err("no consistent image-structure line (damaged or unknown version)"))?;
+    let (rel_end, frames, image_len, subs) = find_structure(&window).ok_or_else(|| {
+        fmt_err("no consistent image-structure line (damaged or unknown version)")
+    })?;
     r.seek(SeekFrom::Start(search_start + rel_end as u64))?;
 
     let mut width = 0usize;
@@ -193,13 +221,19 @@ fn parse_header(r: &mut BufReader<File>, file_len: u64) -> Result<SifHeader> {
     let mut binning = (1, 1);
     for i in 0..subs {
         let line = read_line(r, 256)?;
-        let v: Vec<i64> = String::from_utf8_lossy(&line).split_whitespace().filter_map(|s| s.parse().ok()).collect();
+        let v: Vec<i64> = String::from_utf8_lossy(&line)
+            .split_whitespace()
+            .filter_map(|s| s.parse().ok())
+            .collect();
         if v.len() < 7 {
             return Err(fmt_err(format!("sub-image {} line is incomplete", i + 1)));
         }
         let (x0, y1, x1, y0, ybin, xbin) = (v[1], v[2], v[3], v[4], v[5], v[6]);
         if xbin <= 0 || ybin <= 0 || x1 < x0 || y1 < y0 {
-            return Err(fmt_err(format!("sub-image {} has an impossible area", i + 1)));
+            return Err(fmt_err(format!(
+                "sub-image {} has an impossible area",
+                i + 1
+            )));
         }
         let w = ((x1 - x0 + 1) / xbin) as usize;
         let h = ((y1 - y0 + 1) / ybin) as usize;
@@ -207,7 +241,9 @@ fn parse_header(r: &mut BufReader<File>, file_len: u64) -> Result<SifHeader> {
             width = w;
             binning = (xbin as u32, ybin as u32);
         } else if w != width {
-            return Err(Error::Unsupported("SIF sub-images of different widths".into()));
+            return Err(Error::Unsupported(
+                "SIF sub-images of different widths".into(),
+            ));
         }
         height += h;
     }
@@ -220,8 +256,15 @@ fn parse_header(r: &mut BufReader<File>, file_len: u64) -> Result<SifHeader> {
     // One timestamp line per frame (leading spaces allowed).
     for f in 0..frames {
         let line = read_line(r, 64)?;
-        if String::from_utf8_lossy(&line).trim().parse::<i64>().is_err() {
-            return Err(fmt_err(format!("timestamp of frame {} is not a number", f + 1)));
+        if String::from_utf8_lossy(&line)
+            .trim()
+            .parse::<i64>()
+            .is_err()
+        {
+            return Err(fmt_err(format!(
+                "timestamp of frame {} is not a number",
+                f + 1
+            )));
         }
     }
     // Optional flag line: "0", or (version 65567) "1" followed by one line per frame.
@@ -270,11 +313,16 @@ fn find_structure(w: &[u8]) -> Option<(usize, usize, usize, usize)> {
             let end = w[i..].iter().position(|&b| b == b'\n').map(|p| i + p);
             if let Some(end) = end {
                 let text = std::str::from_utf8(&w[i..end]).ok();
-                let v: Option<Vec<u64>> = text.and_then(|t| t.split(' ').map(|s| s.parse().ok()).collect());
+                let v: Option<Vec<u64>> =
+                    text.and_then(|t| t.split(' ').map(|s| s.parse().ok()).collect());
                 if let Some(v) = v {
                     if v.len() == 9 {
                         let (frames, subs, total, len) = (v[5], v[6], v[7], v[8]);
-                        if frames > 0 && subs > 0 && len > 0 && frames.checked_mul(len) == Some(total) {
+                        if frames > 0
+                            && subs > 0
+                            && len > 0
+                            && frames.checked_mul(len) == Some(total)
+                        {
                             return Some((end + 1, frames as usize, len as usize, subs as usize));
                         }
                     }
@@ -292,8 +340,14 @@ mod tests {
 
     #[test]
     fn structure_line_needs_consistent_arithmetic() {
-        assert_eq!(find_structure(b"xx65538 1 512 512 1 4 1 1048576 262144\n"), Some((39, 4, 262144, 1)));
-        assert_eq!(find_structure(b"65538 1 512 512 1 4 1 1048575 262144\n"), None);
+        assert_eq!(
+            find_structure(b"xx65538 1 512 512 1 4 1 1048576 262144\n"),
+            Some((39, 4, 262144, 1))
+        );
+        assert_eq!(
+            find_structure(b"65538 1 512 512 1 4 1 1048575 262144\n"),
+            None
+        );
         assert_eq!(find_structure(b"65538 2048\n"), None);
     }
 }

@@ -56,7 +56,10 @@ impl TiffReader {
             frames += 1;
         }
         decoder.seek_to_image(0)?;
-        let metadata = description.as_deref().map(parse_description).unwrap_or_default();
+        let metadata = description
+            .as_deref()
+            .map(parse_description)
+            .unwrap_or_default();
         let info = StackInfo {
             width: w as usize,
             height: h as usize,
@@ -65,11 +68,20 @@ impl TiffReader {
             format: if big { Format::BigTiff } else { Format::Tiff },
             metadata,
         };
-        Ok(TiffReader { decoder, info, next: 0, buf: DecodingResult::U16(Vec::new()), channels })
+        Ok(TiffReader {
+            decoder,
+            info,
+            next: 0,
+            buf: DecodingResult::U16(Vec::new()),
+            channels,
+        })
     }
 }
 
-fn page_pixel_type(decoder: &mut Decoder<BufReader<File>>, ct: ColorType) -> Result<(PixelType, usize)> {
+fn page_pixel_type(
+    decoder: &mut Decoder<BufReader<File>>,
+    ct: ColorType,
+) -> Result<(PixelType, usize)> {
     // Colour images (clean training scenes such as McMaster) are read as luminance.
     let (bits, channels) = match ct {
         ColorType::Gray(b) => (b, 1),
@@ -81,28 +93,35 @@ fn page_pixel_type(decoder: &mut Decoder<BufReader<File>>, ct: ColorType) -> Res
         }
     };
     // SampleFormat: 1 = unsigned, 2 = signed, 3 = IEEE float.
-    let fmt = decoder.find_tag_unsigned::<u16>(Tag::SampleFormat)?.unwrap_or(1);
-    Ok((match (fmt, bits) {
-        (1, 8) => PixelType::U8,
-        (1, 16) => PixelType::U16,
-        (2, 16) => PixelType::I16,
-        (1, 32) => PixelType::U32,
-        (2, 32) => PixelType::I32,
-        (3, 32) => PixelType::F32,
-        (3, 64) => PixelType::F64,
-        _ => {
-            return Err(Error::Unsupported(format!(
-                "TIFF samples of {bits} bits with SampleFormat {fmt}"
-            )))
-        }
-    }, channels))
+    let fmt = decoder
+        .find_tag_unsigned::<u16>(Tag::SampleFormat)?
+        .unwrap_or(1);
+    Ok((
+        match (fmt, bits) {
+            (1, 8) => PixelType::U8,
+            (1, 16) => PixelType::U16,
+            (2, 16) => PixelType::I16,
+            (1, 32) => PixelType::U32,
+            (2, 32) => PixelType::I32,
+            (3, 32) => PixelType::F32,
+            (3, 64) => PixelType::F64,
+            _ => {
+                return Err(Error::Unsupported(format!(
+                    "TIFF samples of {bits} bits with SampleFormat {fmt}"
+                )))
+            }
+        },
+        channels,
+    ))
 }
 
 /// Reads `key=value` lines of an ImageJ-style description.
 fn parse_description(desc: &str) -> Metadata {
     let mut m = Metadata::default();
     for line in desc.lines() {
-        let Some((k, v)) = line.split_once('=') else { continue };
+        let Some((k, v)) = line.split_once('=') else {
+            continue;
+        };
         let v = v.trim();
         match k.trim() {
             "exposure_s" => m.exposure_s = v.parse().ok(),
@@ -138,7 +157,11 @@ impl FrameReader for TiffReader {
         macro_rules! conv {
             ($v:expr) => {{
                 if $v.len() < n * ch {
-                    return Err(Error::Format(format!("page {page} holds {} samples, expected {}", $v.len(), n * ch)));
+                    return Err(Error::Format(format!(
+                        "page {page} holds {} samples, expected {}",
+                        $v.len(),
+                        n * ch
+                    )));
                 }
                 if ch == 3 {
                     for (o, p) in out.iter_mut().zip($v.chunks_exact(3)) {
@@ -194,7 +217,11 @@ impl TiffStackWriter {
         frames_hint: Option<usize>,
     ) -> Result<Self> {
         let file = tmp.as_file().try_clone()?;
-        let enc = if big { Enc::Big(TiffEncoder::new_big(file)?) } else { Enc::Standard(TiffEncoder::new(file)?) };
+        let enc = if big {
+            Enc::Big(TiffEncoder::new_big(file)?)
+        } else {
+            Enc::Standard(TiffEncoder::new(file)?)
+        };
         let description = frames_hint.map(|n| {
             // ImageJ reads `images`/`slices` to present the pages as a z-stack.
             format!("ImageJ=1.54f\nimages={n}\nslices={n}\nloop=false\n")
@@ -219,7 +246,11 @@ impl TiffStackWriter {
     }
 
     pub(crate) fn write_frame(&mut self, frame: &[f32]) -> Result<()> {
-        let desc = if self.pages == 0 { self.description.clone() } else { None };
+        let desc = if self.pages == 0 {
+            self.description.clone()
+        } else {
+            None
+        };
         let (w, h) = (self.width, self.height);
         macro_rules! page {
             ($enc:expr) => {{
@@ -227,7 +258,11 @@ impl TiffStackWriter {
                     SampleFormat::U8 => {
                         self.u8buf.clear();
                         self.u8buf.extend(frame.iter().map(|&x| {
-                            if x.is_nan() { 0 } else { x.round().clamp(0.0, 255.0) as u8 }
+                            if x.is_nan() {
+                                0
+                            } else {
+                                x.round().clamp(0.0, 255.0) as u8
+                            }
                         }));
                         let mut img = $enc.new_image::<colortype::Gray8>(w, h)?;
                         if let Some(d) = &desc {
@@ -238,7 +273,11 @@ impl TiffStackWriter {
                     SampleFormat::U16 => {
                         self.u16buf.clear();
                         self.u16buf.extend(frame.iter().map(|&x| {
-                            if x.is_nan() { 0 } else { x.round().clamp(0.0, 65535.0) as u16 }
+                            if x.is_nan() {
+                                0
+                            } else {
+                                x.round().clamp(0.0, 65535.0) as u16
+                            }
                         }));
                         let mut img = $enc.new_image::<colortype::Gray16>(w, h)?;
                         if let Some(d) = &desc {
@@ -303,10 +342,19 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join(format!("s.{ext}"));
         let (w, h) = (7, 5);
-        let frames: Vec<Vec<f32>> =
-            (0..3).map(|k| (0..w * h).map(|i| (i * 100 + k * 7) as f32 + 0.25).collect()).collect();
+        let frames: Vec<Vec<f32>> = (0..3)
+            .map(|k| {
+                (0..w * h)
+                    .map(|i| (i * 100 + k * 7) as f32 + 0.25)
+                    .collect()
+            })
+            .collect();
         let mut wr = StackWriter::create(&p, w, h, sample, Some(3)).unwrap();
-        wr.set_metadata(&Metadata { exposure_s: Some(0.01), em_gain: Some(300.0), ..Default::default() });
+        wr.set_metadata(&Metadata {
+            exposure_s: Some(0.01),
+            em_gain: Some(300.0),
+            ..Default::default()
+        });
         for f in &frames {
             wr.write_frame(f).unwrap();
         }
@@ -320,7 +368,11 @@ mod tests {
         for f in &frames {
             assert!(r.read_frame(&mut buf).unwrap());
             for (a, b) in buf.iter().zip(f) {
-                let want = if sample == SampleFormat::U16 { b.round() } else { *b };
+                let want = if sample == SampleFormat::U16 {
+                    b.round()
+                } else {
+                    *b
+                };
                 assert_eq!(*a, want);
             }
         }
@@ -387,7 +439,8 @@ mod tests {
                 while let Ok(true) = res {
                     res = r.read_frame(&mut buf);
                 }
-                res.expect_err("truncated stack must not read cleanly").with_path(&p)
+                res.expect_err("truncated stack must not read cleanly")
+                    .with_path(&p)
             }
         };
         assert!(err.to_string().contains("t.tif"), "{err}");

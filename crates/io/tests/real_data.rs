@@ -9,7 +9,11 @@ use emccd_io::{open, read_all, Format, PixelType};
 fn data(rel: &str) -> PathBuf {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
     let p = root.join(rel);
-    assert!(p.exists(), "test data missing: {} (../shared must sit beside the checkout)", p.display());
+    assert!(
+        p.exists(),
+        "test data missing: {} (../shared must sit beside the checkout)",
+        p.display()
+    );
     p
 }
 
@@ -27,7 +31,10 @@ fn sif_truncated_bias_gives_whole_frames_and_a_warning() {
     // The user text says "Image 1 to 4 in series of 4"; the file holds 2 whole frames.
     assert_eq!(info.frames, 2);
     let w = info.metadata.warnings.join(" ");
-    assert!(w.contains("declares 4 frames") && w.contains("frames 3–4 are missing"), "{w}");
+    assert!(
+        w.contains("declares 4 frames") && w.contains("frames 3–4 are missing"),
+        "{w}"
+    );
     let m = &info.metadata;
     assert_eq!(m.exposure_s, Some(1e-6));
     assert_eq!(m.em_gain, Some(0.0));
@@ -86,7 +93,11 @@ fn sif_avg20_and_other_cameras() {
     assert_eq!(info.metadata.accumulations, Some(500));
     assert_eq!(info.metadata.camera_model.as_deref(), Some("DU888_BV"));
     // Spectrum counts are large and positive: the offset did not land inside the header.
-    assert!(f[0].iter().all(|&x| x > 1.0e5 && x < 1.0e7), "{:?}", &f[0][..4]);
+    assert!(
+        f[0].iter().all(|&x| x > 1.0e5 && x < 1.0e7),
+        "{:?}",
+        &f[0][..4]
+    );
 }
 
 #[test]
@@ -102,7 +113,10 @@ fn sif_corrupt_header_is_a_clear_error() {
     let p = dir.path().join("noframe.sif");
     std::fs::write(&p, &src[..src.len() - 1000]).unwrap();
     let e = open(&p).err().expect("must fail").to_string();
-    assert!(e.contains("noframe.sif") && e.contains("not one whole frame"), "{e}");
+    assert!(
+        e.contains("noframe.sif") && e.contains("not one whole frame"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -114,15 +128,21 @@ fn fits_roman_fpn_map() {
     // Reference values computed from the raw big-endian float64 data with Python's struct.
     let mu = mean(&f[0]);
     assert!((mu - 21.628675197669903).abs() < 1e-4, "mean {mu}");
-    let (lo, hi) = f[0].iter().fold((f32::MAX, f32::MIN), |(a, b), &x| (a.min(x), b.max(x)));
-    assert!((lo as f64 + 335.83285732634835).abs() < 1e-3 && (hi as f64 - 1462.2520547080253).abs() < 1e-3);
+    let (lo, hi) = f[0]
+        .iter()
+        .fold((f32::MAX, f32::MIN), |(a, b), &x| (a.min(x), b.max(x)));
+    assert!(
+        (lo as f64 + 335.83285732634835).abs() < 1e-3
+            && (hi as f64 - 1462.2520547080253).abs() < 1e-3
+    );
     // Row 13, column 1088: the image area's first pixel.
     assert!((f[0][13 * 2200 + 1088] as f64 + 72.248995709527).abs() < 1e-4);
 }
 
 #[test]
 fn lanl_tiff_stacks() {
-    let (info, frames) = read_all(data("emccd-real/lanl-calibration/gain-GS/300x-gain.tif")).unwrap();
+    let (info, frames) =
+        read_all(data("emccd-real/lanl-calibration/gain-GS/300x-gain.tif")).unwrap();
     assert_eq!((info.width, info.height), (3, 3));
     assert_eq!(info.frames, frames.len());
     assert!(info.frames >= 1000, "{}", info.frames);
@@ -147,7 +167,10 @@ fn unknown_and_missing_files_are_clear_errors() {
     std::fs::write(&p, "hello").unwrap();
     let e = open(&p).err().unwrap().to_string();
     assert!(e.contains("notes.txt") && e.contains("not a TIFF"), "{e}");
-    let e = open(dir.path().join("missing.tif")).err().unwrap().to_string();
+    let e = open(dir.path().join("missing.tif"))
+        .err()
+        .unwrap()
+        .to_string();
     assert!(e.contains("missing.tif"), "{e}");
 }
 
@@ -157,10 +180,20 @@ fn rgb_tiff_reads_as_bt601_luminance() {
     let (info, frames) = emccd_io::read_all(&path).unwrap();
     assert_eq!((info.width, info.height, info.frames), (500, 500, 1));
     // Independent decode of the same pixel's RGB with the tiff crate.
-    let mut dec = tiff::decoder::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap())).unwrap();
-    let tiff::decoder::DecodingResult::U8(rgb) = dec.read_image().unwrap() else { panic!("8-bit RGB expected") };
+    let mut dec =
+        tiff::decoder::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap()))
+            .unwrap();
+    let tiff::decoder::DecodingResult::U8(rgb) = dec.read_image().unwrap() else {
+        panic!("8-bit RGB expected")
+    };
     for i in [0usize, 1234, 250 * 500 + 250, 500 * 500 - 1] {
-        let want = 0.299 * rgb[3 * i] as f32 + 0.587 * rgb[3 * i + 1] as f32 + 0.114 * rgb[3 * i + 2] as f32;
-        assert!((frames[0][i] - want).abs() < 1e-3, "pixel {i}: {} vs {want}", frames[0][i]);
+        let want = 0.299 * rgb[3 * i] as f32
+            + 0.587 * rgb[3 * i + 1] as f32
+            + 0.114 * rgb[3 * i + 2] as f32;
+        assert!(
+            (frames[0][i] - want).abs() < 1e-3,
+            "pixel {i}: {} vs {want}",
+            frames[0][i]
+        );
     }
 }

@@ -130,7 +130,10 @@ pub struct Denoiser {
 impl Denoiser {
     /// A freshly initialized model.
     pub fn new(meta: ModelMeta, device: &Device) -> Result<Denoiser> {
-        let channels = meta.unet.map(|c| c.in_channels).or(meta.uformer.map(|c| c.in_channels));
+        let channels = meta
+            .unet
+            .map(|c| c.in_channels)
+            .or(meta.uformer.map(|c| c.in_channels));
         if channels.is_some_and(|c| c != meta.inputs.channels()) {
             return Err(Error::Model(format!(
                 "model metadata: a {} network takes {} input channels, its configuration says {}",
@@ -140,27 +143,45 @@ impl Denoiser {
             )));
         }
         if meta.inputs == Inputs::Hybrid && meta.arch != "unet" {
-            return Err(Error::Model(format!("a hybrid (BM3D-refining) network is a U-Net in this build, not {}", meta.arch)));
+            return Err(Error::Model(format!(
+                "a hybrid (BM3D-refining) network is a U-Net in this build, not {}",
+                meta.arch
+            )));
         }
         let net = match (meta.arch.as_str(), meta.unet, meta.uformer) {
             ("unet", Some(c), _) => Net::UNet(c.init(device)),
             (a, _, Some(c)) if a.starts_with("uformer") => Net::Uformer(c.init(device)),
             (a, _, _) if ARCHS.contains(&a) => {
-                return Err(Error::Model(format!("model metadata names architecture {a:?} but not its configuration")));
+                return Err(Error::Model(format!(
+                    "model metadata names architecture {a:?} but not its configuration"
+                )));
             }
-            (a, _, _) => return Err(Error::Model(format!("unknown architecture {a:?} (this build has: {})", ARCHS.join(", ")))),
+            (a, _, _) => {
+                return Err(Error::Model(format!(
+                    "unknown architecture {a:?} (this build has: {})",
+                    ARCHS.join(", ")
+                )))
+            }
         };
         Ok(Denoiser { net, meta })
     }
 
     /// Writes the model atomically (temporary file, then rename).
     pub fn save(&self, path: &Path) -> Result<()> {
-        let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        let dir = path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
         std::fs::create_dir_all(dir).map_err(|e| Error::io(path, e))?;
         let tmp = emccd_io::temp_beside(path).map_err(|e| Error::io(path, e))?;
         let meta = serde_json::to_string(&self.meta).map_err(|e| Error::Model(e.to_string()))?;
-        let mut store = SafetensorsStore::from_file(tmp.path()).metadata(META_KEY, meta).overwrite(true).skip_enum_variants(true);
-        self.net.save_into(&mut store).map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
+        let mut store = SafetensorsStore::from_file(tmp.path())
+            .metadata(META_KEY, meta)
+            .overwrite(true)
+            .skip_enum_variants(true);
+        self.net
+            .save_into(&mut store)
+            .map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
         emccd_io::persist(tmp, path).map_err(|e| Error::Model(e.to_string()))
     }
 
@@ -176,20 +197,35 @@ impl Denoiser {
         let meta = meta_of(&bytes, path)?;
         let mut d = Denoiser::new(meta, device)?;
         let mut store = SafetensorsStore::from_bytes(Some(bytes)).skip_enum_variants(true);
-        let r = d.net.load_from(&mut store).map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
+        let r = d
+            .net
+            .load_from(&mut store)
+            .map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
         if !r.missing.is_empty() {
-            return Err(Error::Model(format!("{}: weights missing for {:?}", path.display(), r.missing)));
+            return Err(Error::Model(format!(
+                "{}: weights missing for {:?}",
+                path.display(),
+                r.missing
+            )));
         }
         Ok(d)
     }
 }
 
 fn meta_of(bytes: &[u8], path: &Path) -> Result<ModelMeta> {
-    let (_, header) = safetensors::SafeTensors::read_metadata(bytes)
-        .map_err(|e| Error::Model(format!("{}: not a safetensors model file ({e})", path.display())))?;
+    let (_, header) = safetensors::SafeTensors::read_metadata(bytes).map_err(|e| {
+        Error::Model(format!(
+            "{}: not a safetensors model file ({e})",
+            path.display()
+        ))
+    })?;
     let map: HashMap<String, String> = header.metadata().clone().unwrap_or_default();
-    let text = map
-        .get(META_KEY)
-        .ok_or_else(|| Error::Model(format!("{}: safetensors file without emccd model metadata", path.display())))?;
-    serde_json::from_str(text).map_err(|e| Error::Model(format!("{}: model metadata: {e}", path.display())))
+    let text = map.get(META_KEY).ok_or_else(|| {
+        Error::Model(format!(
+            "{}: safetensors file without emccd model metadata",
+            path.display()
+        ))
+    })?;
+    serde_json::from_str(text)
+        .map_err(|e| Error::Model(format!("{}: model metadata: {e}", path.display())))
 }

@@ -42,19 +42,30 @@ pub const HYBRID_SCALE_FLOOR: f32 = 1.0;
 /// The hybrid scale: the 99.5th percentile of a slope-normalized signal estimate (the BM3D
 /// estimate at inference, the clean frame in training), floored at [`HYBRID_SCALE_FLOOR`].
 pub fn signal_scale(estimate_norm: &[f32]) -> f32 {
-    percentile(estimate_norm, 0.995).unwrap_or(HYBRID_SCALE_FLOOR).max(HYBRID_SCALE_FLOOR)
+    percentile(estimate_norm, 0.995)
+        .unwrap_or(HYBRID_SCALE_FLOOR)
+        .max(HYBRID_SCALE_FLOOR)
 }
 
 /// Hybrid inputs [3, H, W] (normalized frame, noise level, normalized estimate) for a
 /// preprocessed frame `dn` and a signal estimate `estimate` of it (both DN above bias), with the
 /// per-frame `scale` in slope units (see [`signal_scale`]).
-pub fn prepare_hybrid(dn: &[f32], estimate: &[f32], slope: f64, read_noise: &[f32], scale: f32) -> Prepared {
+pub fn prepare_hybrid(
+    dn: &[f32],
+    estimate: &[f32],
+    slope: f64,
+    read_noise: &[f32],
+    scale: f32,
+) -> Prepared {
     let n = dn.len();
     let p = prepare_scaled(dn, slope, read_noise, scale);
     let mut input = p.input;
     input.reserve_exact(n);
     input.extend(estimate.iter().map(|v| v / p.to_dn));
-    Prepared { input, to_dn: p.to_dn }
+    Prepared {
+        input,
+        to_dn: p.to_dn,
+    }
 }
 
 /// Prepares a preprocessed frame `dn` (DN above bias) with the slope `s` and read-noise std map.
@@ -75,5 +86,8 @@ pub fn prepare_scaled(dn: &[f32], slope: f64, read_noise: &[f32], scale: f32) ->
         input[i] = x[i] / scale;
         input[n + i] = (x[i].max(0.0) + r * r).sqrt() / scale;
     }
-    Prepared { input, to_dn: scale * s }
+    Prepared {
+        input,
+        to_dn: scale * s,
+    }
 }

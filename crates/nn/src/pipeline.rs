@@ -33,9 +33,20 @@ pub fn preprocess(p: &CameraProfile, raw: &[f32], exposure_s: f64) -> Result<Vec
 /// [`preprocess`] without the corrections named in `ablate` (the paper's ablations): `fpn`
 /// subtracts the bias frame of the shortest exposure instead of the exposure's modeled fixed
 /// pattern; `blooming` leaves the blooming in.
-pub fn preprocess_ablated(p: &CameraProfile, raw: &[f32], exposure_s: f64, ablate: &[String]) -> Result<Vec<f32>> {
+pub fn preprocess_ablated(
+    p: &CameraProfile,
+    raw: &[f32],
+    exposure_s: f64,
+    ablate: &[String],
+) -> Result<Vec<f32>> {
     if raw.len() != p.len() {
-        return Err(Error::Data(format!("frame has {} pixels, the profile's sensor {}×{} = {}", raw.len(), p.width, p.height, p.len())));
+        return Err(Error::Data(format!(
+            "frame has {} pixels, the profile's sensor {}×{} = {}",
+            raw.len(),
+            p.width,
+            p.height,
+            p.len()
+        )));
     }
     let off = |name: &str| ablate.iter().any(|a| a == name);
     let fpn = if off("fpn") {
@@ -45,7 +56,11 @@ pub fn preprocess_ablated(p: &CameraProfile, raw: &[f32], exposure_s: f64, ablat
         p.fpn_at(exposure_s, &mut f);
         f
     };
-    let x = if off("blooming") { 0.0 } else { p.blooming_factor(exposure_s) };
+    let x = if off("blooming") {
+        0.0
+    } else {
+        p.blooming_factor(exposure_s)
+    };
     let mut d = raw.to_vec();
     emccd_camera::preprocess(&mut d, p.width, x, &fpn);
     Ok(d)
@@ -56,23 +71,46 @@ pub fn preprocess_ablated(p: &CameraProfile, raw: &[f32], exposure_s: f64, ablat
 /// the quantization's share.
 pub fn vst_params(p: &CameraProfile, exposure_s: f64) -> Result<emccd_eval::vst::PoissonGaussian> {
     let slope = p.slope().map_err(|e| Error::Data(e.to_string()))?;
-    Ok(vst_from(slope, p.read_noise_near(exposure_s), p.quantization_dn))
+    Ok(vst_from(
+        slope,
+        p.read_noise_near(exposure_s),
+        p.quantization_dn,
+    ))
 }
 
 /// [`vst_params`] from the slope, a read-noise std map (DN) and the quantization step: training
 /// uses it with the map it synthesized, so BM3D sees what a calibration would have given.
-pub fn vst_from(slope: f64, read_noise: &[f32], quantization_dn: f64) -> emccd_eval::vst::PoissonGaussian {
+pub fn vst_from(
+    slope: f64,
+    read_noise: &[f32],
+    quantization_dn: f64,
+) -> emccd_eval::vst::PoissonGaussian {
     let rn = emccd_profile::median(read_noise.iter().copied());
-    emccd_eval::vst::PoissonGaussian { alpha: slope, sigma: (rn * rn + quantization_dn.powi(2) / 12.0).sqrt(), mu: 0.0 }
+    emccd_eval::vst::PoissonGaussian {
+        alpha: slope,
+        sigma: (rn * rn + quantization_dn.powi(2) / 12.0).sqrt(),
+        mu: 0.0,
+    }
 }
 
 /// BM3D after the generalized Anscombe transform, with the exact unbiased inverse, on a
 /// preprocessed frame (DN above bias) of the profile's size.
 pub fn bm3d_estimate(p: &CameraProfile, dn: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
     if dn.len() != p.len() {
-        return Err(Error::Data(format!("frame has {} pixels, the profile's sensor {}×{} = {}", dn.len(), p.width, p.height, p.len())));
+        return Err(Error::Data(format!(
+            "frame has {} pixels, the profile's sensor {}×{} = {}",
+            dn.len(),
+            p.width,
+            p.height,
+            p.len()
+        )));
     }
-    Ok(emccd_eval::vst::bm3d_poisson_gaussian(dn, p.width, p.height, vst_params(p, exposure_s)?))
+    Ok(emccd_eval::vst::bm3d_poisson_gaussian(
+        dn,
+        p.width,
+        p.height,
+        vst_params(p, exposure_s)?,
+    ))
 }
 
 impl Pipeline<'_> {
@@ -92,12 +130,23 @@ impl Pipeline<'_> {
             Inputs::Noisy => prepare(dn, slope, rn),
             Inputs::Hybrid => {
                 let est = bm3d_estimate(p, dn, exposure_s)?;
-                let scale = signal_scale(&est.iter().map(|v| v / slope as f32).collect::<Vec<f32>>());
+                let scale =
+                    signal_scale(&est.iter().map(|v| v / slope as f32).collect::<Vec<f32>>());
                 prepare_hybrid(dn, &est, slope, rn, scale)
             }
         };
         let multiple = self.model.meta.multiple();
-        let out = run_ensemble(&self.model.net, &prep.input, inputs.channels(), p.width, p.height, multiple, self.tiling, self.ensemble, &self.device);
+        let out = run_ensemble(
+            &self.model.net,
+            &prep.input,
+            inputs.channels(),
+            p.width,
+            p.height,
+            multiple,
+            self.tiling,
+            self.ensemble,
+            &self.device,
+        );
         Ok(out.into_iter().map(|v| v * prep.to_dn).collect())
     }
 
@@ -116,7 +165,9 @@ mod tests {
     fn ablations_switch_off_only_their_correction() {
         let p = emccd_profile::default_profile().crop(0, 0, 32, 32).unwrap();
         let t = 0.002;
-        let raw: Vec<f32> = (0..p.len()).map(|i| 300.0 + (i % 7) as f32 * 20.0).collect();
+        let raw: Vec<f32> = (0..p.len())
+            .map(|i| 300.0 + (i % 7) as f32 * 20.0)
+            .collect();
         let full = preprocess(&p, &raw, t).unwrap();
         let none = preprocess_ablated(&p, &raw, t, &["fpn".into(), "blooming".into()]).unwrap();
         // Both off: the raw frame minus the shortest exposure's bias frame, nothing else.

@@ -18,7 +18,10 @@ pub struct Tiling {
 
 impl Default for Tiling {
     fn default() -> Tiling {
-        Tiling { tile: 512, overlap: 32 }
+        Tiling {
+            tile: 512,
+            overlap: 32,
+        }
     }
 }
 
@@ -40,7 +43,10 @@ fn starts(len: usize, t: usize, o: usize) -> Vec<usize> {
         return vec![0];
     }
     let step = t - o;
-    let mut v: Vec<usize> = (0..).map(|k| k * step).take_while(|&s| s + t < len).collect();
+    let mut v: Vec<usize> = (0..)
+        .map(|k| k * step)
+        .take_while(|&s| s + t < len)
+        .collect();
     v.push(len - t);
     v
 }
@@ -49,13 +55,30 @@ fn starts(len: usize, t: usize, o: usize) -> Vec<usize> {
 /// overlap except at the frame's own edges.
 fn ramp(i: usize, s: usize, t: usize, o: usize, len: usize) -> f32 {
     let o = o.max(1) as f32;
-    let lo = if s == 0 { 1.0 } else { ((i as f32 + 0.5) / o).min(1.0) };
-    let hi = if s + t >= len { 1.0 } else { (((t - i) as f32 - 0.5) / o).min(1.0) };
+    let lo = if s == 0 {
+        1.0
+    } else {
+        ((i as f32 + 0.5) / o).min(1.0)
+    };
+    let hi = if s + t >= len {
+        1.0
+    } else {
+        (((t - i) as f32 - 0.5) / o).min(1.0)
+    };
     lo.min(hi).max(1e-3)
 }
 
 /// Runs `net` on a [C, H, W] channel-major input; returns the [H, W] output.
-pub fn run(net: &Net, input: &[f32], channels: usize, width: usize, height: usize, multiple: usize, tiling: Tiling, device: &Device) -> Vec<f32> {
+pub fn run(
+    net: &Net,
+    input: &[f32],
+    channels: usize,
+    width: usize,
+    height: usize,
+    multiple: usize,
+    tiling: Tiling,
+    device: &Device,
+) -> Vec<f32> {
     let round_up = |v: usize| v.div_ceil(multiple) * multiple;
     let (pw, ph) = (round_up(width), round_up(height));
     let t = round_up(tiling.tile.max(multiple));
@@ -76,7 +99,12 @@ pub fn run(net: &Net, input: &[f32], channels: usize, width: usize, height: usiz
                 }
             }
             let x = Tensor::<4>::from_data(TensorData::new(tile, [1, channels, th, tw]), device);
-            let out: Vec<f32> = net.forward(x).into_data().convert::<f32>().try_into_vec::<f32>().unwrap_or_default();
+            let out: Vec<f32> = net
+                .forward(x)
+                .into_data()
+                .convert::<f32>()
+                .try_into_vec::<f32>()
+                .unwrap_or_default();
             for y in 0..th {
                 let wy = ramp(y, y0, th, o, ph);
                 for x in 0..tw {
@@ -102,7 +130,11 @@ pub fn run(net: &Net, input: &[f32], channels: usize, width: usize, height: usiz
 /// bit 2 transposes, then bit 0 flips x and bit 1 flips y); returns the index in the transformed
 /// frame, whose width is `height` when transposed.
 fn dihedral(t: usize, x: usize, y: usize, width: usize, height: usize) -> usize {
-    let (mut tx, mut ty, tw, th) = if t & 4 != 0 { (y, x, height, width) } else { (x, y, width, height) };
+    let (mut tx, mut ty, tw, th) = if t & 4 != 0 {
+        (y, x, height, width)
+    } else {
+        (x, y, width, height)
+    };
     if t & 1 != 0 {
         tx = tw - 1 - tx;
     }
@@ -116,10 +148,22 @@ fn dihedral(t: usize, x: usize, y: usize, width: usize, height: usize) -> usize 
 /// `run`; 2: + horizontal flip; 4: + vertical flips; 8: + transposes). The network saw all eight
 /// orientations in training, so each is an equally good estimate with partly independent errors.
 #[allow(clippy::too_many_arguments)]
-pub fn run_ensemble(net: &Net, input: &[f32], channels: usize, width: usize, height: usize, multiple: usize, tiling: Tiling, k: usize, device: &Device) -> Vec<f32> {
+pub fn run_ensemble(
+    net: &Net,
+    input: &[f32],
+    channels: usize,
+    width: usize,
+    height: usize,
+    multiple: usize,
+    tiling: Tiling,
+    k: usize,
+    device: &Device,
+) -> Vec<f32> {
     let k = k.clamp(1, 8);
     if k == 1 {
-        return run(net, input, channels, width, height, multiple, tiling, device);
+        return run(
+            net, input, channels, width, height, multiple, tiling, device,
+        );
     }
     let n = width * height;
     let mut acc = vec![0f32; n];
@@ -132,7 +176,11 @@ pub fn run_ensemble(net: &Net, input: &[f32], channels: usize, width: usize, hei
                 }
             }
         }
-        let (tw, th) = if t & 4 != 0 { (height, width) } else { (width, height) };
+        let (tw, th) = if t & 4 != 0 {
+            (height, width)
+        } else {
+            (width, height)
+        };
         let out = run(net, &moved, channels, tw, th, multiple, tiling, device);
         for y in 0..height {
             for x in 0..width {
@@ -158,7 +206,10 @@ mod tests {
                     seen[dihedral(t, x, y, w, h)] = true;
                 }
             }
-            assert!(seen.iter().all(|&s| s), "transform {t} is not a permutation");
+            assert!(
+                seen.iter().all(|&s| s),
+                "transform {t} is not a permutation"
+            );
         }
         // Transpose then flip x: the top-left pixel goes to the top-right of the 3-wide frame.
         assert_eq!(dihedral(5, 0, 0, w, h), 2);

@@ -5,7 +5,9 @@
 //! the pair is synthesized.
 //!
 //! Every batch is a pure function of (seed, step), so a resumed run sees the same data as an
-//! uninterrupted one. Batches are synthesized on a second thread while the step runs.
+//! uninterrupted one. Pairs can be reused a few times from a sliding pool (`reuse`), which
+//! makes a hybrid step several times cheaper. Batches are synthesized on a second thread while
+//! the step runs.
 
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
@@ -101,6 +103,12 @@ pub struct TrainConfig {
     /// cameras other than the training profile. `[1, 1]`: the profile's own.
     #[serde(default = "unit_range")]
     pub read_noise_scale: [f64; 2],
+    /// Each synthesized pair is drawn about this many times (in different batches, with fresh
+    /// flips and rotations) before it leaves the pool, so that synthesis — BM3D on every crop,
+    /// for a hybrid network — costs `batch / reuse` pairs per step instead of `batch`. 1: every
+    /// pair is fresh.
+    #[serde(default = "one")]
+    pub reuse: u32,
     /// Noise model.
     pub noise: NoiseKind,
     /// Synthesis components switched off (`multiplicative`, `readout`, `quantization`).
@@ -127,6 +135,7 @@ impl Default for TrainConfig {
             cic_e: None,
             loss: Loss::Charbonnier,
             read_noise_scale: [1.0, 1.0],
+            reuse: 1,
             noise: NoiseKind::Ours,
             ablate: Vec::new(),
             seed: 897,
@@ -143,6 +152,10 @@ fn log_uniform(u: f64, [lo, hi]: [f64; 2]) -> f64 {
 
 fn unit_range() -> [f64; 2] {
     [1.0, 1.0]
+}
+
+fn one() -> u32 {
+    1
 }
 
 impl TrainConfig {
@@ -174,7 +187,14 @@ struct Batch {
 /// A hybrid sample also gets the BM3D + GAT estimate of the noisy crop (with the VST parameters
 /// a calibrated profile of this synthetic camera would give), and is scaled by the clean frame's
 /// 99.5th percentile, which the estimate's stands in for at inference.
-fn synth_sample(img: &Image, profile: &CameraProfile, cfg: &TrainConfig, inputs: Inputs, abl: Ablation, seed: u64) -> Result<(Vec<f32>, Vec<f32>)> {
+fn synth_sample(
+    img: &Image,
+    profile: &CameraProfile,
+    cfg: &TrainConfig,
+    inputs: Inputs,
+    abl: Ablation,
+    seed: u64,
+) -> Result<(Vec<f32>, Vec<f32>)> {
     let c = cfg.crop;
     let mut rng = Pcg64::seed_from_u64(seed);
     let (w, h) = (img.width, img.height);
@@ -186,61 +206,84 @@ fn synth_sample(img: &Image, profile: &CameraProfile, cfg: &TrainConfig, inputs:
     // Electrons per unit of the clean image (whose values lie in [0, 1]).
     let per_unit = match cfg.mean_electrons {
         Some(range) => {
-            let mean = img.data.iter().map(|&v| v as f64).sum::<f64>() / img.data.len().max(1) as f64;
+            let mean =
+                img.data.iter().map(|&v| v as f64).sum::<f64>() / img.data.len().max(1) as f64;
             log_uniform(rng.random(), range) / mean.max(1e-3)
         }
         None => log_uniform(rng.random(), cfg.electrons),
     };
-    let clean: Vec<f32> = img.data.iter().map(|&v| (v as f64 * per_unit * k_mean) as f32).collect();
+    let clean: Vec<f32> = img
+        .data
+        .iter()
+        .map(|&v| (v as f64 * per_unit * k_mean) as f32)
+        .collect();
     // A random read-noise map of the profile at a random offset, repeated to the image's size.
     let m = &profile.maps.read_noise[rng.random_range(0..profile.maps.read_noise.len())];
     let (pw, ph) = (profile.width, profile.height);
     let (mx, my) = (rng.random_range(0..pw), rng.random_range(0..ph));
     let [rlo, rhi] = cfg.read_noise_scale;
     // A fixed factor draws nothing, so runs without randomization keep their random sequence.
-    let rs = if rhi > rlo { log_uniform(rng.random(), [rlo, rhi]) as f32 } else { rlo as f32 };
-    let rn: Vec<f32> = (0..w * h).map(|i| rs * m[((my + i / w) % ph) * pw + (mx + i % w) % pw]).collect();
+    let rs = if rhi > rlo {
+        log_uniform(rng.random(), [rlo, rhi]) as f32
+    } else {
+        rlo as f32
+    };
+    let rn: Vec<f32> = (0..w * h)
+        .map(|i| rs * m[((my + i / w) % ph) * pw + (mx + i % w) % pw])
+        .collect();
     let mut noisy = vec![0f32; w * h];
     let noise_seed = rng.random::<u64>();
     match cfg.noise {
         NoiseKind::Ours => {
-            let model = OursModel::new(slope, profile.f_range, profile.quantization_dn, vec![rn.clone()], abl).map_err(|e| Error::Data(e.to_string()))?;
+            let model = OursModel::new(
+                slope,
+                profile.f_range,
+                profile.quantization_dn,
+                vec![rn.clone()],
+                abl,
+            )
+            .map_err(|e| Error::Data(e.to_string()))?;
             model.synthesize(&clean, w, &mut noisy, noise_seed);
         }
-        NoiseKind::Eld => EldModel::from_profile(profile).map_err(|e| Error::Data(e.to_string()))?.synthesize(&clean, w, &mut noisy, noise_seed),
+        NoiseKind::Eld => EldModel::from_profile(profile)
+            .map_err(|e| Error::Data(e.to_string()))?
+            .synthesize(&clean, w, &mut noisy, noise_seed),
         NoiseKind::Pgn => {
-            let pgn = profile.pgn.as_ref().ok_or_else(|| Error::Data("the profile has no [pgn] parameters".into()))?;
+            let pgn = profile
+                .pgn
+                .as_ref()
+                .ok_or_else(|| Error::Data("the profile has no [pgn] parameters".into()))?;
             let cic = match cfg.cic_e {
                 Some([lo, hi]) => lo + (hi - lo) * rng.random::<f64>(),
                 None => pgn.cic_e,
             };
             // The EM gain and e⁻/DN set the DN per electron; the slope they imply is the profile's.
-            PgnModel::new(pgn.em_gain, 2.0 * pgn.em_gain / slope, cic, pgn.dark_e_per_s, 0.01, pgn.read_sigma_dn, profile.quantization_dn)
-                .map_err(|e| Error::Data(e.to_string()))?
-                .with_read_noise_map(rn.clone())
-                .synthesize(&clean, w, &mut noisy, noise_seed)
+            PgnModel::new(
+                pgn.em_gain,
+                2.0 * pgn.em_gain / slope,
+                cic,
+                pgn.dark_e_per_s,
+                0.01,
+                pgn.read_sigma_dn,
+                profile.quantization_dn,
+            )
+            .map_err(|e| Error::Data(e.to_string()))?
+            .with_read_noise_map(rn.clone())
+            .synthesize(&clean, w, &mut noisy, noise_seed)
         }
     }
     let scale = match inputs {
         Inputs::Noisy => frame_scale(&noisy.iter().map(|v| v / slope as f32).collect::<Vec<f32>>()),
-        Inputs::Hybrid => signal_scale(&clean.iter().map(|v| v / slope as f32).collect::<Vec<f32>>()),
+        Inputs::Hybrid => {
+            signal_scale(&clean.iter().map(|v| v / slope as f32).collect::<Vec<f32>>())
+        }
     };
     // The crop, 8-way augmented: optional transpose, then optional flips.
     let cut = |src: &[f32]| -> Vec<f32> {
-        let mut out = vec![0f32; c * c];
-        for y in 0..c {
-            for x in 0..c {
-                let (mut u, mut v) = if mode & 4 != 0 { (y, x) } else { (x, y) };
-                if mode & 1 != 0 {
-                    u = c - 1 - u;
-                }
-                if mode & 2 != 0 {
-                    v = c - 1 - v;
-                }
-                out[y * c + x] = src[(y0 + v) * w + x0 + u];
-            }
-        }
-        out
+        let window: Vec<f32> = (0..c * c)
+            .map(|i| src[(y0 + i / c) * w + x0 + i % c])
+            .collect();
+        orient(&window, c, mode)
     };
     let (noisy_c, rn_c) = (cut(&noisy), cut(&rn));
     let p = match inputs {
@@ -255,13 +298,107 @@ fn synth_sample(img: &Image, profile: &CameraProfile, cfg: &TrainConfig, inputs:
     Ok((p.input, target))
 }
 
-fn make_batch(images: &[Image], profile: &CameraProfile, cfg: &TrainConfig, inputs: Inputs, abl: Ablation, seed: u64) -> Result<Batch> {
+/// A c×c plane in one of the 8 orientations: optional transpose (`mode & 4`), then optional
+/// horizontal (`& 1`) and vertical (`& 2`) flips.
+fn orient(src: &[f32], c: usize, mode: u8) -> Vec<f32> {
+    let mut out = vec![0f32; c * c];
+    for y in 0..c {
+        for x in 0..c {
+            let (mut u, mut v) = if mode & 4 != 0 { (y, x) } else { (x, y) };
+            if mode & 1 != 0 {
+                u = c - 1 - u;
+            }
+            if mode & 2 != 0 {
+                v = c - 1 - v;
+            }
+            out[y * c + x] = src[v * c + u];
+        }
+    }
+    out
+}
+
+/// The training pair number `k` of a run with seed `seed`: a pure function of both.
+fn pair(
+    images: &[Image],
+    profile: &CameraProfile,
+    cfg: &TrainConfig,
+    inputs: Inputs,
+    abl: Ablation,
+    seed: u64,
+    k: u64,
+) -> Result<(Vec<f32>, Vec<f32>)> {
+    let s = (seed ^ 0x5EED_9001)
+        .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        .wrapping_add(k.wrapping_mul(0xD1B5_4A32_D192_ED03));
+    let img =
+        &images[(Pcg64::seed_from_u64(s ^ 0xA5A5).random::<u64>() % images.len() as u64) as usize];
+    synth_sample(img, profile, cfg, inputs, abl, s)
+}
+
+/// Pairs synthesized once and drawn about `reuse` times: a sliding window over the sequence of
+/// pairs 0, 1, 2, …. At step t the window holds pairs [n − W, n), with W = batch·reuse and
+/// n = W + ⌈t·batch / reuse⌉, so `batch / reuse` pairs enter per step and each stays for about
+/// reuse² steps, drawn with probability 1/reuse per step. A batch is a pure function of (seed,
+/// step): a resumed run rebuilds the window and sees what an uninterrupted one would.
+struct Pool {
+    pairs: std::collections::BTreeMap<u64, (Vec<f32>, Vec<f32>)>,
+}
+
+impl Pool {
+    fn batch(
+        &mut self,
+        images: &[Image],
+        profile: &CameraProfile,
+        cfg: &TrainConfig,
+        inputs: Inputs,
+        abl: Ablation,
+        step: u64,
+    ) -> Result<Batch> {
+        let (b, r) = (cfg.batch as u64, cfg.reuse.max(1) as u64);
+        let w = b * r;
+        let n = w + (step * b).div_ceil(r);
+        let lo = n - w;
+        self.pairs = self.pairs.split_off(&lo);
+        let missing: Vec<u64> = (lo..n).filter(|k| !self.pairs.contains_key(k)).collect();
+        let fresh: Vec<(u64, (Vec<f32>, Vec<f32>))> = missing
+            .into_par_iter()
+            .map(|k| pair(images, profile, cfg, inputs, abl, cfg.seed, k).map(|p| (k, p)))
+            .collect::<Result<_>>()?;
+        self.pairs.extend(fresh);
+        let c = cfg.crop;
+        let ch = inputs.channels();
+        let mut rng = Pcg64::seed_from_u64(cfg.seed.wrapping_add(step.wrapping_mul(7919)) ^ 0xD7A3);
+        let mut input = Vec::with_capacity(cfg.batch * ch * c * c);
+        let mut target = Vec::with_capacity(cfg.batch * c * c);
+        for _ in 0..cfg.batch {
+            let (i, t) = &self.pairs[&(lo + rng.random_range(0..w))];
+            let mode = rng.random_range(0..8u8);
+            for plane in i.chunks_exact(c * c) {
+                input.extend(orient(plane, c, mode));
+            }
+            target.extend(orient(t, c, mode));
+        }
+        Ok(Batch { input, target })
+    }
+}
+
+fn make_batch(
+    images: &[Image],
+    profile: &CameraProfile,
+    cfg: &TrainConfig,
+    inputs: Inputs,
+    abl: Ablation,
+    seed: u64,
+) -> Result<Batch> {
     let c = cfg.crop;
     let samples: Vec<(Vec<f32>, Vec<f32>)> = (0..cfg.batch)
         .into_par_iter()
         .map(|b| {
-            let s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(b as u64 + 1);
-            let img = &images[(Pcg64::seed_from_u64(s ^ 0xA5A5).random::<u64>() % images.len() as u64) as usize];
+            let s = seed
+                .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                .wrapping_add(b as u64 + 1);
+            let img = &images
+                [(Pcg64::seed_from_u64(s ^ 0xA5A5).random::<u64>() % images.len() as u64) as usize];
             synth_sample(img, profile, cfg, inputs, abl, s)
         })
         .collect::<Result<_>>()?;
@@ -310,7 +447,10 @@ fn save_net_with_ids(model: &Denoiser, path: &Path) -> Result<()> {
     use burn_store::{BurnpackStore, ModuleSnapshot};
     let tmp = emccd_io::temp_beside(path).map_err(|e| Error::io(path, e))?;
     let mut store = BurnpackStore::from_file(tmp.path()).overwrite(true);
-    model.net.save_into(&mut store).map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
+    model
+        .net
+        .save_into(&mut store)
+        .map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
     emccd_io::persist(tmp, path).map_err(|e| Error::Model(e.to_string()))
 }
 
@@ -318,7 +458,9 @@ fn load_net_with_ids(meta: ModelMeta, path: &Path, device: &Device) -> Result<De
     use burn_store::{BurnpackStore, ModuleSnapshot};
     let mut d = Denoiser::new(meta, device)?;
     let mut store = BurnpackStore::from_file(path);
-    d.net.load_from(&mut store).map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
+    d.net
+        .load_from(&mut store)
+        .map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
     Ok(d)
 }
 
@@ -330,7 +472,12 @@ fn validate(model: &Denoiser, val: &Batch, n: usize, c: usize, device: &Device) 
     let ch = model.meta.inputs.channels();
     let base = model.meta.inputs.residual();
     let x = Tensor::<4>::from_data(TensorData::new(val.input.clone(), [n, ch, c, c]), device);
-    let out: Vec<f32> = net.forward(x).into_data().convert::<f32>().try_into_vec::<f32>().unwrap_or_default();
+    let out: Vec<f32> = net
+        .forward(x)
+        .into_data()
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .unwrap_or_default();
     let mut po = 0.0;
     let mut pi = 0.0;
     for b in 0..n {
@@ -339,7 +486,12 @@ fn validate(model: &Denoiser, val: &Batch, n: usize, c: usize, device: &Device) 
         let i = &val.input[(b * ch + base) * c * c..(b * ch + base + 1) * c * c];
         let peak = t.iter().copied().fold(0f32, f32::max).max(1e-6) as f64;
         let psnr = |a: &[f32]| {
-            let mse = a.iter().zip(t).map(|(x, y)| ((x - y) as f64).powi(2)).sum::<f64>() / t.len() as f64;
+            let mse = a
+                .iter()
+                .zip(t)
+                .map(|(x, y)| ((x - y) as f64).powi(2))
+                .sum::<f64>()
+                / t.len() as f64;
             10.0 * (peak * peak / mse.max(1e-20)).log10()
         };
         po += psnr(o);
@@ -363,26 +515,38 @@ pub fn train(
     paths: &RunPaths,
     report: &mut dyn FnMut(&StepReport) -> bool,
 ) -> Result<Denoiser> {
-    profile.require_complete().map_err(|e| Error::Data(e.to_string()))?;
+    profile
+        .require_complete()
+        .map_err(|e| Error::Data(e.to_string()))?;
     let c = cfg.crop;
     if train_images.is_empty() {
         return Err(Error::Data("no training images".into()));
     }
     for im in train_images.iter().chain(&val_images) {
         if im.width < c || im.height < c {
-            return Err(Error::Data(format!("a {}×{} image is smaller than the {c}-px crop", im.width, im.height)));
+            return Err(Error::Data(format!(
+                "a {}×{} image is smaller than the {c}-px crop",
+                im.width, im.height
+            )));
         }
     }
-    let mut ranges = vec![("electrons", cfg.electrons), ("read-noise scale", cfg.read_noise_scale)];
+    let mut ranges = vec![
+        ("electrons", cfg.electrons),
+        ("read-noise scale", cfg.read_noise_scale),
+    ];
     ranges.extend(cfg.mean_electrons.map(|r| ("mean electrons", r)));
     for (name, [lo, hi]) in ranges {
         if !(lo > 0.0 && hi >= lo && hi.is_finite()) {
-            return Err(Error::Data(format!("{name} range {lo}–{hi}: must be positive and increasing")));
+            return Err(Error::Data(format!(
+                "{name} range {lo}–{hi}: must be positive and increasing"
+            )));
         }
     }
     if let Some([lo, hi]) = cfg.cic_e {
         if !(lo >= 0.0 && hi >= lo && hi.is_finite()) {
-            return Err(Error::Data(format!("CIC range {lo}–{hi}: must be non-negative and increasing")));
+            return Err(Error::Data(format!(
+                "CIC range {lo}–{hi}: must be non-negative and increasing"
+            )));
         }
     }
     let mut abl = Ablation::default();
@@ -399,8 +563,10 @@ pub fn train(
     let device = crate::device().autodiff();
     let state_path = paths.checkpoint.join("state.json");
     let (mut model, mut optim, start, mut loss_ema) = if resume && state_path.is_file() {
-        let st: CkptState = serde_json::from_str(&std::fs::read_to_string(&state_path).map_err(|e| Error::io(&state_path, e))?)
-            .map_err(|e| Error::Model(format!("{}: {e}", state_path.display())))?;
+        let st: CkptState = serde_json::from_str(
+            &std::fs::read_to_string(&state_path).map_err(|e| Error::io(&state_path, e))?,
+        )
+        .map_err(|e| Error::Model(format!("{}: {e}", state_path.display())))?;
         let m = load_net_with_ids(st.meta.clone(), &paths.checkpoint.join("net.bpk"), &device)?;
         let o = AdamWConfig::new()
             .with_weight_decay(cfg.weight_decay as f32)
@@ -413,7 +579,14 @@ pub fn train(
             Some(p) => {
                 let mut m = Denoiser::load(p, &device)?;
                 // The architecture is the initial model's; the rest describes this run.
-                m.meta = ModelMeta { steps: m.meta.steps, arch: m.meta.arch.clone(), unet: m.meta.unet, uformer: m.meta.uformer, inputs: m.meta.inputs, ..meta.clone() };
+                m.meta = ModelMeta {
+                    steps: m.meta.steps,
+                    arch: m.meta.arch.clone(),
+                    unet: m.meta.unet,
+                    uformer: m.meta.uformer,
+                    inputs: m.meta.inputs,
+                    ..meta.clone()
+                };
                 m
             }
             None => {
@@ -422,10 +595,21 @@ pub fn train(
                 Denoiser::new(meta.clone(), &device)?
             }
         };
-        (m, AdamWConfig::new().with_weight_decay(cfg.weight_decay as f32).init(), 0, f64::NAN)
+        (
+            m,
+            AdamWConfig::new()
+                .with_weight_decay(cfg.weight_decay as f32)
+                .init(),
+            0,
+            f64::NAN,
+        )
     };
     if c % model.meta.multiple() != 0 {
-        return Err(Error::Data(format!("the crop ({c} px) must be a multiple of {} px for {}", model.meta.multiple(), model.meta.arch)));
+        return Err(Error::Data(format!(
+            "the crop ({c} px) must be a multiple of {} px for {}",
+            model.meta.multiple(),
+            model.meta.arch
+        )));
     }
     let base_steps = model.meta.steps.saturating_sub(start);
     let inputs = model.meta.inputs;
@@ -434,8 +618,18 @@ pub fn train(
     let val = if val_images.is_empty() {
         None
     } else {
-        let vcfg = TrainConfig { batch: (2 * val_images.len()).min(16), ..cfg.clone() };
-        Some(make_batch(&val_images, profile, &vcfg, inputs, abl, cfg.seed ^ 0x7A11D)?)
+        let vcfg = TrainConfig {
+            batch: (2 * val_images.len()).min(16),
+            ..cfg.clone()
+        };
+        Some(make_batch(
+            &val_images,
+            profile,
+            &vcfg,
+            inputs,
+            abl,
+            cfg.seed ^ 0x7A11D,
+        )?)
     };
     let nval = (2 * val_images.len()).min(16);
     let mut val_psnr = None;
@@ -444,40 +638,83 @@ pub fn train(
     let (tx, rx) = mpsc::sync_channel::<Result<Batch>>(2);
     let (imgs, prof, pcfg) = (train_images, profile.clone(), cfg.clone());
     let producer = std::thread::spawn(move || {
+        let mut pool = Pool {
+            pairs: Default::default(),
+        };
         for step in start..pcfg.steps {
-            let b = make_batch(&imgs, &prof, &pcfg, inputs, abl, pcfg.seed.wrapping_add(step.wrapping_mul(7919)));
+            let b = if pcfg.reuse > 1 {
+                pool.batch(&imgs, &prof, &pcfg, inputs, abl, step)
+            } else {
+                make_batch(
+                    &imgs,
+                    &prof,
+                    &pcfg,
+                    inputs,
+                    abl,
+                    pcfg.seed.wrapping_add(step.wrapping_mul(7919)),
+                )
+            };
             if tx.send(b).is_err() {
                 break;
             }
         }
     });
-    let save_ckpt = |model: &Denoiser, optim: &burn::optim::ModuleOptimizer, step: u64, loss: f64| -> Result<()> {
+    let save_ckpt = |model: &Denoiser,
+                     optim: &burn::optim::ModuleOptimizer,
+                     step: u64,
+                     loss: f64|
+     -> Result<()> {
         std::fs::create_dir_all(&paths.checkpoint).map_err(|e| Error::io(&paths.checkpoint, e))?;
         model.save(&paths.checkpoint.join("model.safetensors"))?;
         save_net_with_ids(model, &paths.checkpoint.join("net.bpk"))?;
         let opath = paths.checkpoint.join("optim.bin");
         let tmp = emccd_io::temp_beside(&opath).map_err(|e| Error::io(&opath, e))?;
-        optim.save(tmp.path()).map_err(|e| Error::Model(format!("saving optimizer state: {e:?}")))?;
+        optim
+            .save(tmp.path())
+            .map_err(|e| Error::Model(format!("saving optimizer state: {e:?}")))?;
         emccd_io::persist(tmp, &opath).map_err(|e| Error::Model(e.to_string()))?;
         // The state file is written last: it is what makes the checkpoint count.
-        let st = serde_json::to_string_pretty(&CkptState { step, config: cfg.clone(), loss, meta: model.meta.clone() }).map_err(|e| Error::Model(e.to_string()))?;
-        emccd_io::write_atomic(&state_path, st.as_bytes()).map_err(|e| Error::Model(e.to_string()))?;
+        let st = serde_json::to_string_pretty(&CkptState {
+            step,
+            config: cfg.clone(),
+            loss,
+            meta: model.meta.clone(),
+        })
+        .map_err(|e| Error::Model(e.to_string()))?;
+        emccd_io::write_atomic(&state_path, st.as_bytes())
+            .map_err(|e| Error::Model(e.to_string()))?;
         Ok(())
     };
     for step in start..cfg.steps {
-        let batch = rx.recv().map_err(|_| Error::Data("the pair synthesizer stopped".into()))??;
-        let x = Tensor::<4>::from_data(TensorData::new(batch.input, [cfg.batch, ch, c, c]), &device);
-        let y = Tensor::<4>::from_data(TensorData::new(batch.target, [cfg.batch, 1, c, c]), &device);
+        let batch = rx
+            .recv()
+            .map_err(|_| Error::Data("the pair synthesizer stopped".into()))??;
+        let x =
+            Tensor::<4>::from_data(TensorData::new(batch.input, [cfg.batch, ch, c, c]), &device);
+        let y =
+            Tensor::<4>::from_data(TensorData::new(batch.target, [cfg.batch, 1, c, c]), &device);
         let d = model.net.forward(x) - y;
         let loss = match cfg.loss {
             Loss::Charbonnier => (d.clone() * d + 1e-6).sqrt().mean(),
             Loss::L2 => (d.clone() * d).mean(),
         };
-        let lv = loss.clone().into_data().convert::<f64>().try_into_vec::<f64>().map(|v| v[0]).unwrap_or(f64::NAN);
+        let lv = loss
+            .clone()
+            .into_data()
+            .convert::<f64>()
+            .try_into_vec::<f64>()
+            .map(|v| v[0])
+            .unwrap_or(f64::NAN);
         if !lv.is_finite() {
-            return Err(Error::Data(format!("training diverged at step {step} (loss {lv})")));
+            return Err(Error::Data(format!(
+                "training diverged at step {step} (loss {lv})"
+            )));
         }
-        loss_ema = if loss_ema.is_nan() { lv } else { 0.98 * loss_ema + 0.02 * lv };
+        loss_ema = if loss_ema.is_nan() {
+            lv
+        } else {
+            0.98 * loss_ema + 0.02 * lv
+        };
         let grads = GradientsParams::from_grads(loss.backward(), &model.net);
         model.net = optim.step(cfg.lr_at(step), model.net, grads);
         let done = step + 1;
@@ -490,7 +727,12 @@ pub fn train(
         if done % cfg.checkpoint_every.max(1) == 0 || done == cfg.steps {
             save_ckpt(&model, &optim, done, loss_ema)?;
         }
-        if !report(&StepReport { step: done, steps: cfg.steps, loss: loss_ema, val_psnr }) {
+        if !report(&StepReport {
+            step: done,
+            steps: cfg.steps,
+            loss: loss_ema,
+            val_psnr,
+        }) {
             drop(rx);
             let _ = producer.join();
             return Ok(model);
@@ -500,4 +742,88 @@ pub fn train(
     let _ = producer.join();
     model.save(&paths.out)?;
     Ok(model)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn setup() -> (Vec<Image>, CameraProfile, TrainConfig) {
+        let (w, h) = (48, 40);
+        let data = (0..w * h)
+            .map(|i| ((i % w) as f32 / w as f32 + (i / w) as f32 / h as f32) / 2.0)
+            .collect();
+        let cfg = TrainConfig {
+            batch: 3,
+            crop: 16,
+            reuse: 4,
+            mean_electrons: Some([0.5, 16.0]),
+            ..TrainConfig::default()
+        };
+        (
+            vec![Image {
+                width: w,
+                height: h,
+                data,
+            }],
+            emccd_profile::default_profile(),
+            cfg,
+        )
+    }
+
+    /// A resumed run rebuilds the pool from scratch: its batch at a step must be the one the
+    /// uninterrupted run drew there.
+    #[test]
+    fn pool_batches_depend_only_on_seed_and_step() {
+        let (imgs, prof, cfg) = setup();
+        let abl = Ablation::default();
+        let mut running = Pool {
+            pairs: Default::default(),
+        };
+        let mut seen = Vec::new();
+        for step in 0..9 {
+            seen.push(
+                running
+                    .batch(&imgs, &prof, &cfg, Inputs::Noisy, abl, step)
+                    .unwrap(),
+            );
+        }
+        for step in [0u64, 4, 8] {
+            let fresh = Pool {
+                pairs: Default::default(),
+            }
+            .batch(&imgs, &prof, &cfg, Inputs::Noisy, abl, step)
+            .unwrap();
+            assert_eq!(fresh.input, seen[step as usize].input, "step {step}");
+            assert_eq!(fresh.target, seen[step as usize].target, "step {step}");
+        }
+        // The window slides: it holds batch·reuse pairs, batch/reuse of them new per step.
+        assert_eq!(running.pairs.len(), 12);
+        assert_eq!(
+            *running.pairs.keys().next().unwrap(),
+            (8 * 3u64).div_ceil(4)
+        );
+    }
+
+    /// Reuse draws each pair several times, re-oriented: a batch's crops are orientations of
+    /// pairs in the window, never something else.
+    #[test]
+    fn pool_draws_orientations_of_window_pairs() {
+        let (imgs, prof, cfg) = setup();
+        let abl = Ablation::default();
+        let mut pool = Pool {
+            pairs: Default::default(),
+        };
+        let b = pool
+            .batch(&imgs, &prof, &cfg, Inputs::Noisy, abl, 5)
+            .unwrap();
+        let c = cfg.crop;
+        for t in b.target.chunks_exact(c * c) {
+            let found = pool
+                .pairs
+                .values()
+                .any(|(_, pt)| (0..8u8).any(|m| orient(pt, c, m) == t));
+            assert!(found, "a drawn target is no orientation of a window pair");
+        }
+    }
 }

@@ -36,11 +36,29 @@ pub struct UformerConfig {
 
 impl UformerConfig {
     /// Uformer-T: C = 16, two blocks per stage (≈ 5.3 M parameters).
-    pub const T: UformerConfig = UformerConfig { embed: 16, depths: [2; 9], win: 8, in_channels: 2, modulator: true };
+    pub const T: UformerConfig = UformerConfig {
+        embed: 16,
+        depths: [2; 9],
+        win: 8,
+        in_channels: 2,
+        modulator: true,
+    };
     /// Uformer-S: C = 32, two blocks per stage (≈ 20.7 M).
-    pub const S: UformerConfig = UformerConfig { embed: 32, depths: [2; 9], win: 8, in_channels: 2, modulator: true };
+    pub const S: UformerConfig = UformerConfig {
+        embed: 32,
+        depths: [2; 9],
+        win: 8,
+        in_channels: 2,
+        modulator: true,
+    };
     /// Uformer-B: C = 32, depths 1,2,8,8,2,8,8,2,1 (≈ 50.9 M).
-    pub const B: UformerConfig = UformerConfig { embed: 32, depths: [1, 2, 8, 8, 2, 8, 8, 2, 1], win: 8, in_channels: 2, modulator: true };
+    pub const B: UformerConfig = UformerConfig {
+        embed: 32,
+        depths: [1, 2, 8, 8, 2, 8, 8, 2, 1],
+        win: 8,
+        in_channels: 2,
+        modulator: true,
+    };
 
     /// The configuration an architecture name stands for (`uformer-t`, `uformer-s`, `uformer-b`).
     pub fn by_name(name: &str) -> Option<UformerConfig> {
@@ -63,20 +81,45 @@ impl UformerConfig {
         let dims = [c, 2 * c, 4 * c, 8 * c, 16 * c, 16 * c, 8 * c, 4 * c, 2 * c];
         let stage = |i: usize| -> Vec<LeWin> {
             (0..self.depths[i])
-                .map(|k| LeWin::new(dims[i], HEADS[i], self.win, k % 2 == 1, self.modulator && i >= 5, device))
+                .map(|k| {
+                    LeWin::new(
+                        dims[i],
+                        HEADS[i],
+                        self.win,
+                        k % 2 == 1,
+                        self.modulator && i >= 5,
+                        device,
+                    )
+                })
                 .collect()
         };
         let down = |a: usize| {
-            Conv2dConfig::new([a, 2 * a], [4, 4]).with_stride([2, 2]).with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1)).init(device)
+            Conv2dConfig::new([a, 2 * a], [4, 4])
+                .with_stride([2, 2])
+                .with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1))
+                .init(device)
         };
-        let up = |a: usize, b: usize| ConvTranspose2dConfig::new([a, b], [2, 2]).with_stride([2, 2]).init(device);
-        let conv3 = |a: usize, b: usize| Conv2dConfig::new([a, b], [3, 3]).with_padding(PaddingConfig2d::Same).init(device);
+        let up = |a: usize, b: usize| {
+            ConvTranspose2dConfig::new([a, b], [2, 2])
+                .with_stride([2, 2])
+                .init(device)
+        };
+        let conv3 = |a: usize, b: usize| {
+            Conv2dConfig::new([a, b], [3, 3])
+                .with_padding(PaddingConfig2d::Same)
+                .init(device)
+        };
         Uformer {
             input: conv3(self.in_channels, c),
             enc: (0..4).map(stage).collect(),
             down: (0..4).map(|i| down(dims[i])).collect(),
             bottleneck: stage(4),
-            up: vec![up(16 * c, 8 * c), up(16 * c, 4 * c), up(8 * c, 2 * c), up(4 * c, c)],
+            up: vec![
+                up(16 * c, 8 * c),
+                up(16 * c, 4 * c),
+                up(8 * c, 2 * c),
+                up(4 * c, c),
+            ],
             dec: (5..9).map(stage).collect(),
             output: conv3(2 * c, 1),
         }
@@ -97,9 +140,27 @@ pub struct WindowAttention {
 
 impl WindowAttention {
     fn new(dim: usize, heads: usize, win: usize, device: &Device) -> WindowAttention {
-        let lin = |a, b| LinearConfig::new(a, b).with_initializer(Initializer::Normal { mean: 0.0, std: 0.02 }).init(device);
-        let table = Initializer::Normal { mean: 0.0, std: 0.02 }.init([(2 * win - 1) * (2 * win - 1), heads], device);
-        WindowAttention { q: lin(dim, dim), kv: lin(dim, 2 * dim), proj: lin(dim, dim), bias_table: table, heads, win }
+        let lin = |a, b| {
+            LinearConfig::new(a, b)
+                .with_initializer(Initializer::Normal {
+                    mean: 0.0,
+                    std: 0.02,
+                })
+                .init(device)
+        };
+        let table = Initializer::Normal {
+            mean: 0.0,
+            std: 0.02,
+        }
+        .init([(2 * win - 1) * (2 * win - 1), heads], device);
+        WindowAttention {
+            q: lin(dim, dim),
+            kv: lin(dim, 2 * dim),
+            proj: lin(dim, dim),
+            bias_table: table,
+            heads,
+            win,
+        }
     }
 
     /// `x`: [B·nW, N, C] tokens of whole windows; `mask`: [nW, N, N] additive, for shifted windows.
@@ -112,15 +173,28 @@ impl WindowAttention {
         let k = split(kv.clone().narrow(2, 0, c));
         let v = split(kv.narrow(2, c, c));
         let device = q.device();
-        let index = Tensor::<1, Int>::from_data(TensorData::new(relative_index(self.win), [n * n]), &device);
-        let bias = self.bias_table.val().select(0, index).reshape([n, n, h]).permute([2, 0, 1]).unsqueeze::<4>();
+        let index = Tensor::<1, Int>::from_data(
+            TensorData::new(relative_index(self.win), [n * n]),
+            &device,
+        );
+        let bias = self
+            .bias_table
+            .val()
+            .select(0, index)
+            .reshape([n, n, h])
+            .permute([2, 0, 1])
+            .unsqueeze::<4>();
         let mut attn = q.matmul(k.swap_dims(2, 3)) + bias;
         if let Some(m) = mask {
             let nw = m.dims()[0];
             let b = bw / nw;
-            attn = (attn.reshape([b, nw, h, n, n]) + m.unsqueeze_dim::<4>(1).unsqueeze::<5>()).reshape([bw, h, n, n]);
+            attn = (attn.reshape([b, nw, h, n, n]) + m.unsqueeze_dim::<4>(1).unsqueeze::<5>())
+                .reshape([bw, h, n, n]);
         }
-        let out = softmax(attn, 3).matmul(v).swap_dims(1, 2).reshape([bw, n, c]);
+        let out = softmax(attn, 3)
+            .matmul(v)
+            .swap_dims(1, 2)
+            .reshape([bw, n, c]);
         self.proj.forward(out)
     }
 }
@@ -158,7 +232,9 @@ fn shift_labels(h: usize, w: usize, win: usize, shift: usize) -> Vec<f32> {
     let mut out = Vec::with_capacity(nh * nw * n);
     for wy in 0..nh {
         for wx in 0..nw {
-            out.extend((0..n).map(|i| (region(wy * win + i / win, h) * 3 + region(wx * win + i % win, w)) as f32));
+            out.extend((0..n).map(|i| {
+                (region(wy * win + i / win, h) * 3 + region(wx * win + i % win, w)) as f32
+            }));
         }
     }
     out
@@ -168,7 +244,10 @@ fn shift_labels(h: usize, w: usize, win: usize, shift: usize) -> Vec<f32> {
 /// regions (they must not attend to each other), 0 elsewhere.
 fn shift_mask(h: usize, w: usize, win: usize, shift: usize, device: &Device) -> Tensor<3> {
     let (nwin, n) = ((h / win) * (w / win), win * win);
-    let labels = Tensor::<2>::from_data(TensorData::new(shift_labels(h, w, win, shift), [nwin, n]), device);
+    let labels = Tensor::<2>::from_data(
+        TensorData::new(shift_labels(h, w, win, shift), [nwin, n]),
+        device,
+    );
     let rows = labels.clone().unsqueeze_dim::<3>(2).expand([nwin, n, n]);
     let differ = rows.not_equal(labels.unsqueeze_dim::<3>(1).expand([nwin, n, n]));
     differ.float() * -100.0
@@ -185,9 +264,23 @@ pub struct LeFF {
 impl LeFF {
     fn new(dim: usize, device: &Device) -> LeFF {
         let hidden = 4 * dim;
-        let lin = |a, b| LinearConfig::new(a, b).with_initializer(Initializer::Normal { mean: 0.0, std: 0.02 }).init(device);
-        let dw = Conv2dConfig::new([hidden, hidden], [3, 3]).with_groups(hidden).with_padding(PaddingConfig2d::Same).init(device);
-        LeFF { up: lin(dim, hidden), dw, down: lin(hidden, dim) }
+        let lin = |a, b| {
+            LinearConfig::new(a, b)
+                .with_initializer(Initializer::Normal {
+                    mean: 0.0,
+                    std: 0.02,
+                })
+                .init(device)
+        };
+        let dw = Conv2dConfig::new([hidden, hidden], [3, 3])
+            .with_groups(hidden)
+            .with_padding(PaddingConfig2d::Same)
+            .init(device);
+        LeFF {
+            up: lin(dim, hidden),
+            dw,
+            down: lin(hidden, dim),
+        }
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {
@@ -211,14 +304,27 @@ pub struct LeWin {
 }
 
 impl LeWin {
-    fn new(dim: usize, heads: usize, win: usize, shifted: bool, modulator: bool, device: &Device) -> LeWin {
+    fn new(
+        dim: usize,
+        heads: usize,
+        win: usize,
+        shifted: bool,
+        modulator: bool,
+        device: &Device,
+    ) -> LeWin {
         LeWin {
             norm1: LayerNormConfig::new(dim).init(device),
             attn: WindowAttention::new(dim, heads, win, device),
             norm2: LayerNormConfig::new(dim).init(device),
             ff: LeFF::new(dim, device),
             // Like an embedding table: unit-normal start.
-            modulator: modulator.then(|| Initializer::Normal { mean: 0.0, std: 1.0 }.init([win * win, dim], device)),
+            modulator: modulator.then(|| {
+                Initializer::Normal {
+                    mean: 0.0,
+                    std: 1.0,
+                }
+                .init([win * win, dim], device)
+            }),
             win,
             shifted,
         }
@@ -246,13 +352,22 @@ impl LeWin {
             y = y.roll(&[-(shift as i64), -(shift as i64)], &[1, 2]);
         }
         let (nh, nw) = (h / win, w / win);
-        let mut windows = y.reshape([b, nh, win, nw, win, c]).permute([0, 1, 3, 2, 4, 5]).reshape([b * nh * nw, win * win, c]);
+        let mut windows = y
+            .reshape([b, nh, win, nw, win, c])
+            .permute([0, 1, 3, 2, 4, 5])
+            .reshape([b * nh * nw, win * win, c]);
         if let Some(m) = &self.modulator {
             windows = windows + m.val().unsqueeze::<3>();
         }
-        let mask = (shift > 0).then(|| mask.expect("blocks() builds the mask for a stage with shifted blocks").clone());
+        let mask = (shift > 0).then(|| {
+            mask.expect("blocks() builds the mask for a stage with shifted blocks")
+                .clone()
+        });
         let a = self.attn.forward(windows, mask);
-        let mut y = a.reshape([b, nh, nw, win, win, c]).permute([0, 1, 3, 2, 4, 5]).reshape([b, h, w, c]);
+        let mut y = a
+            .reshape([b, nh, nw, win, win, c])
+            .permute([0, 1, 3, 2, 4, 5])
+            .reshape([b, h, w, c]);
         if shift > 0 {
             y = y.roll(&[shift as i64, shift as i64], &[1, 2]);
         }
@@ -277,7 +392,10 @@ pub struct Uformer {
 /// built once here for all its shifted blocks.
 fn blocks(stage: &[LeWin], mut x: Tensor<4>) -> Tensor<4> {
     let [_, h, w, _] = x.dims();
-    let mask = stage.iter().find(|b| b.shift(h, w) > 0).map(|b| shift_mask(h, w, b.win, b.shift(h, w), &x.device()));
+    let mask = stage
+        .iter()
+        .find(|b| b.shift(h, w) > 0)
+        .map(|b| shift_mask(h, w, b.win, b.shift(h, w), &x.device()));
     for b in stage {
         x = b.forward(x, mask.as_ref());
     }
@@ -318,7 +436,10 @@ mod tests {
     #[test]
     fn shift_mask_separates_wrapped_regions() {
         // 16×16 with 8×8 windows shifted by 4: the last window (bottom right) holds four regions.
-        let m: Vec<f32> = shift_mask(16, 16, 8, 4, &Device::default()).into_data().try_to_vec::<f32>().unwrap();
+        let m: Vec<f32> = shift_mask(16, 16, 8, 4, &Device::default())
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
         let n = 64;
         assert_eq!(m.len(), 4 * n * n);
         let last = &m[3 * n * n..];

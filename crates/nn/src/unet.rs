@@ -26,7 +26,12 @@ pub struct UNetConfig {
 
 impl UNetConfig {
     /// The CPU default: 16 channels, 4 levels (≈ 2.5 M parameters).
-    pub const DEFAULT: UNetConfig = UNetConfig { base: 16, levels: 4, in_channels: 2, residual: 0 };
+    pub const DEFAULT: UNetConfig = UNetConfig {
+        base: 16,
+        levels: 4,
+        in_channels: 2,
+        residual: 0,
+    };
 
     /// Builds the network with freshly initialized weights.
     pub fn init(&self, device: &Device) -> UNet {
@@ -37,22 +42,40 @@ impl UNetConfig {
         let (mut ch, mut inp) = (self.base, self.in_channels);
         for _ in 0..self.levels {
             enc.push(Block::new(inp, ch, device));
-            down.push(Conv2dConfig::new([ch, ch * 2], [2, 2]).with_stride([2, 2]).init(device));
+            down.push(
+                Conv2dConfig::new([ch, ch * 2], [2, 2])
+                    .with_stride([2, 2])
+                    .init(device),
+            );
             inp = ch * 2;
             ch *= 2;
         }
         let bottom = Block::new(ch, ch, device);
         for _ in 0..self.levels {
-            up.push(ConvTranspose2dConfig::new([ch, ch / 2], [2, 2]).with_stride([2, 2]).init(device));
+            up.push(
+                ConvTranspose2dConfig::new([ch, ch / 2], [2, 2])
+                    .with_stride([2, 2])
+                    .init(device),
+            );
             dec.push(Block::new(ch, ch / 2, device));
             ch /= 2;
         }
         let out = if self.residual == 0 {
             Conv2dConfig::new([ch, 1], [1, 1]).init(device)
         } else {
-            Conv2dConfig::new([ch, 1], [1, 1]).with_initializer(Initializer::Zeros).init(device)
+            Conv2dConfig::new([ch, 1], [1, 1])
+                .with_initializer(Initializer::Zeros)
+                .init(device)
         };
-        UNet { enc, down, bottom, up, dec, out, residual: self.residual }
+        UNet {
+            enc,
+            down,
+            bottom,
+            up,
+            dec,
+            out,
+            residual: self.residual,
+        }
     }
 }
 
@@ -66,8 +89,16 @@ pub struct Block {
 
 impl Block {
     fn new(i: usize, o: usize, d: &Device) -> Block {
-        let conv = |a, b| Conv2dConfig::new([a, b], [3, 3]).with_padding(PaddingConfig2d::Same).init(d);
-        Block { c1: conv(i, o), c2: conv(o, o), act: LeakyReluConfig::new().with_negative_slope(0.2).init() }
+        let conv = |a, b| {
+            Conv2dConfig::new([a, b], [3, 3])
+                .with_padding(PaddingConfig2d::Same)
+                .init(d)
+        };
+        Block {
+            c1: conv(i, o),
+            c2: conv(o, o),
+            act: LeakyReluConfig::new().with_negative_slope(0.2).init(),
+        }
     }
 
     fn forward(&self, x: Tensor<4>) -> Tensor<4> {

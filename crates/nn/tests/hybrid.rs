@@ -10,7 +10,16 @@ mod common;
 use common::{meta, scene};
 
 fn hybrid_meta() -> ModelMeta {
-    ModelMeta { unet: Some(UNetConfig { base: 4, levels: 2, in_channels: 3, residual: Inputs::Hybrid.residual() }), inputs: Inputs::Hybrid, ..meta(4, 2) }
+    ModelMeta {
+        unet: Some(UNetConfig {
+            base: 4,
+            levels: 2,
+            in_channels: 3,
+            residual: Inputs::Hybrid.residual(),
+        }),
+        inputs: Inputs::Hybrid,
+        ..meta(4, 2)
+    }
 }
 
 #[test]
@@ -19,27 +28,59 @@ fn an_untrained_hybrid_network_returns_the_bm3d_estimate() {
     let m = Denoiser::new(hybrid_meta(), &dev).unwrap();
     // Straight through the network: the output is the third channel, exactly.
     let n = 32 * 32;
-    let input: Vec<f32> = scene(32, 32).into_iter().chain(vec![0.2; n]).chain(scene(32, 32).iter().map(|v| v * 0.7)).collect();
+    let input: Vec<f32> = scene(32, 32)
+        .into_iter()
+        .chain(vec![0.2; n])
+        .chain(scene(32, 32).iter().map(|v| v * 0.7))
+        .collect();
     let x = Tensor::<4>::from_data(TensorData::new(input.clone(), [1, 3, 32, 32]), &dev);
     let out: Vec<f32> = m.net.forward(x).into_data().try_into_vec::<f32>().unwrap();
     assert_eq!(out, input[2 * n..].to_vec());
     // Through the pipeline (normalization and back): the BM3D + GAT estimate of the frame.
     let p = emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap();
     let slope = p.slope().unwrap();
-    let clean: Vec<f32> = scene(64, 64).iter().map(|v| v * 4.0 * slope as f32 / 2.0).collect();
+    let clean: Vec<f32> = scene(64, 64)
+        .iter()
+        .map(|v| v * 4.0 * slope as f32 / 2.0)
+        .collect();
     let mut noisy = vec![0f32; clean.len()];
-    PgnModel::from_profile(&p, 0.01).unwrap().synthesize(&clean, 64, &mut noisy, 3);
-    let pipe = Pipeline { model: &m, profile: &p, tiling: Default::default(), ensemble: 1, device: dev };
+    PgnModel::from_profile(&p, 0.01)
+        .unwrap()
+        .synthesize(&clean, 64, &mut noisy, 3);
+    let pipe = Pipeline {
+        model: &m,
+        profile: &p,
+        tiling: Default::default(),
+        ensemble: 1,
+        device: dev,
+    };
     let got = pipe.denoise_preprocessed(&noisy, 0.01).unwrap();
     let want = bm3d_estimate(&p, &noisy, 0.01).unwrap();
-    let worst = got.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
-    assert!(worst < 1e-3 * slope as f32, "hybrid at initialization differs from BM3D by {worst} DN");
+    let worst = got
+        .iter()
+        .zip(&want)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0f32, f32::max);
+    assert!(
+        worst < 1e-3 * slope as f32,
+        "hybrid at initialization differs from BM3D by {worst} DN"
+    );
 }
 
 #[test]
 fn a_hybrid_needs_three_channels_and_a_unet() {
-    let bad = ModelMeta { unet: Some(UNetConfig { base: 4, levels: 2, in_channels: 2, residual: 0 }), ..hybrid_meta() };
-    let e = Denoiser::new(bad, &emccd_nn::cpu()).unwrap_err().to_string();
+    let bad = ModelMeta {
+        unet: Some(UNetConfig {
+            base: 4,
+            levels: 2,
+            in_channels: 2,
+            residual: 0,
+        }),
+        ..hybrid_meta()
+    };
+    let e = Denoiser::new(bad, &emccd_nn::cpu())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("3 input channels"), "{e}");
 }
 
@@ -55,7 +96,10 @@ fn inputs_are_the_same_for_the_same_electrons_on_any_camera() {
         let rn: Vec<f32> = read_e.iter().map(|r| r * slope / 2.0).collect();
         let est = dn.clone();
         let x: Vec<f32> = est.iter().map(|v| v / slope).collect();
-        (prepare(&dn, slope as f64, &rn).input, prepare_hybrid(&dn, &est, slope as f64, &rn, signal_scale(&x)).input)
+        (
+            prepare(&dn, slope as f64, &rn).input,
+            prepare_hybrid(&dn, &est, slope as f64, &rn, signal_scale(&x)).input,
+        )
     };
     let (a, b) = (inputs(20.14), inputs(150.0));
     for (u, v) in a.0.iter().zip(&b.0).chain(a.1.iter().zip(&b.1)) {
@@ -106,8 +150,15 @@ fn the_noise_channel_is_the_frame_channels_standard_deviation() {
         let f = &p.input[..n];
         let mean = f.iter().map(|&v| v as f64).sum::<f64>() / n as f64;
         let var = f.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
-        let ms = p.input[n..2 * n].iter().map(|&v| (v as f64).powi(2)).sum::<f64>() / n as f64;
+        let ms = p.input[n..2 * n]
+            .iter()
+            .map(|&v| (v as f64).powi(2))
+            .sum::<f64>()
+            / n as f64;
         let tol = 4.5 * (14.0f64 / n as f64).sqrt() + 1e-3;
-        assert!((var / ms - 1.0).abs() < tol, "{electrons} e⁻: Var {var:.5} vs mean square noise level {ms:.5}");
+        assert!(
+            (var / ms - 1.0).abs() < tol,
+            "{electrons} e⁻: Var {var:.5} vs mean square noise level {ms:.5}"
+        );
     }
 }

@@ -7,7 +7,16 @@ mod common;
 use common::{meta, scene};
 
 fn images() -> Vec<Image> {
-    (0..3).map(|k| Image { width: 48, height: 40, data: scene(48, 40).into_iter().map(|v| (v * (0.6 + 0.2 * k as f32)).min(1.0)).collect() }).collect()
+    (0..3)
+        .map(|k| Image {
+            width: 48,
+            height: 40,
+            data: scene(48, 40)
+                .into_iter()
+                .map(|v| (v * (0.6 + 0.2 * k as f32)).min(1.0))
+                .collect(),
+        })
+        .collect()
 }
 
 /// A small fixed-seed run in the low-light recipe (exact EMCCD chain, mean 1–16 photoelectrons,
@@ -32,12 +41,25 @@ fn a_low_light_training_run_lowers_its_loss() {
         seed: 11,
         ..TrainConfig::default()
     };
-    let paths = RunPaths { out: dir.path().join("l.safetensors"), checkpoint: dir.path().join("l.ckpt") };
+    let paths = RunPaths {
+        out: dir.path().join("l.safetensors"),
+        checkpoint: dir.path().join("l.ckpt"),
+    };
     let mut losses = Vec::new();
-    train(images(), Vec::new(), &emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap(), cfg, meta(8, 2), None, false, &paths, &mut |r| {
-        losses.push(r.loss);
-        true
-    })
+    train(
+        images(),
+        Vec::new(),
+        &emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap(),
+        cfg,
+        meta(8, 2),
+        None,
+        false,
+        &paths,
+        &mut |r| {
+            losses.push(r.loss);
+            true
+        },
+    )
     .unwrap();
     let (first, last) = (losses[0], *losses.last().unwrap());
     assert!(last < 0.7 * first, "smoothed loss {first:.5} → {last:.5}");

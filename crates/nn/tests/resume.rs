@@ -10,7 +10,16 @@ use common::{meta, scene};
 use emccd_nn::Denoiser;
 
 fn images() -> Vec<Image> {
-    (0..3).map(|k| Image { width: 48, height: 40, data: scene(48, 40).into_iter().map(|v| (v * (0.6 + 0.2 * k as f32)).min(1.0)).collect() }).collect()
+    (0..3)
+        .map(|k| Image {
+            width: 48,
+            height: 40,
+            data: scene(48, 40)
+                .into_iter()
+                .map(|v| (v * (0.6 + 0.2 * k as f32)).min(1.0))
+                .collect(),
+        })
+        .collect()
 }
 
 fn small_profile() -> emccd_profile::CameraProfile {
@@ -20,27 +29,99 @@ fn small_profile() -> emccd_profile::CameraProfile {
 #[test]
 fn a_resumed_run_matches_an_uninterrupted_one() {
     let dir = tempfile::tempdir().unwrap();
-    let cfg = TrainConfig { steps: 4, batch: 2, crop: 32, warmup: 1, val_every: 2, checkpoint_every: 2, noise: NoiseKind::Ours, ..TrainConfig::default() };
+    let cfg = TrainConfig {
+        steps: 4,
+        batch: 2,
+        crop: 32,
+        warmup: 1,
+        val_every: 2,
+        checkpoint_every: 2,
+        noise: NoiseKind::Ours,
+        ..TrainConfig::default()
+    };
     let prof = small_profile();
-    let paths = |name: &str| RunPaths { out: dir.path().join(format!("{name}.safetensors")), checkpoint: dir.path().join(format!("{name}.ckpt")) };
+    let paths = |name: &str| RunPaths {
+        out: dir.path().join(format!("{name}.safetensors")),
+        checkpoint: dir.path().join(format!("{name}.ckpt")),
+    };
     let mut seen = Vec::new();
-    let full = train(images(), images()[..1].to_vec(), &prof, cfg.clone(), meta(4, 2), None, false, &paths("full"), &mut |r| {
-        seen.push((r.step, r.loss, r.val_psnr));
-        true
-    })
+    let full = train(
+        images(),
+        images()[..1].to_vec(),
+        &prof,
+        cfg.clone(),
+        meta(4, 2),
+        None,
+        false,
+        &paths("full"),
+        &mut |r| {
+            seen.push((r.step, r.loss, r.val_psnr));
+            true
+        },
+    )
     .unwrap();
     assert_eq!(full.meta.steps, 4);
     assert!(seen.iter().all(|s| s.1.is_finite()) && seen.last().unwrap().2.is_some());
     // Interrupted after 2 steps (the checkpoint at step 2), then resumed to 4.
     let p = paths("split");
-    train(images(), images()[..1].to_vec(), &prof, cfg.clone(), meta(4, 2), None, false, &p, &mut |r| r.step < 2).unwrap();
+    train(
+        images(),
+        images()[..1].to_vec(),
+        &prof,
+        cfg.clone(),
+        meta(4, 2),
+        None,
+        false,
+        &p,
+        &mut |r| r.step < 2,
+    )
+    .unwrap();
     assert!(!p.out.exists(), "an interrupted run writes no final model");
-    let resumed = train(images(), images()[..1].to_vec(), &prof, cfg, meta(4, 2), None, true, &p, &mut |_| true).unwrap();
+    let resumed = train(
+        images(),
+        images()[..1].to_vec(),
+        &prof,
+        cfg,
+        meta(4, 2),
+        None,
+        true,
+        &p,
+        &mut |_| true,
+    )
+    .unwrap();
     assert_eq!(resumed.meta.steps, 4);
     let dev = emccd_nn::cpu();
-    let x = Tensor::<4>::from_data(TensorData::new(scene(32, 32).into_iter().chain(vec![0.1; 1024]).collect::<Vec<f32>>(), [1, 2, 32, 32]), &dev);
-    let a: Vec<f32> = Denoiser::load(&paths("full").out, &dev).unwrap().net.forward(x.clone()).into_data().try_into_vec::<f32>().unwrap();
-    let b: Vec<f32> = Denoiser::load(&p.out, &dev).unwrap().net.forward(x).into_data().try_into_vec::<f32>().unwrap();
-    let diff = a.iter().zip(&b).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
-    assert!(diff < 1e-5, "resumed and uninterrupted runs differ by {diff}");
+    let x = Tensor::<4>::from_data(
+        TensorData::new(
+            scene(32, 32)
+                .into_iter()
+                .chain(vec![0.1; 1024])
+                .collect::<Vec<f32>>(),
+            [1, 2, 32, 32],
+        ),
+        &dev,
+    );
+    let a: Vec<f32> = Denoiser::load(&paths("full").out, &dev)
+        .unwrap()
+        .net
+        .forward(x.clone())
+        .into_data()
+        .try_into_vec::<f32>()
+        .unwrap();
+    let b: Vec<f32> = Denoiser::load(&p.out, &dev)
+        .unwrap()
+        .net
+        .forward(x)
+        .into_data()
+        .try_into_vec::<f32>()
+        .unwrap();
+    let diff = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0f32, f32::max);
+    assert!(
+        diff < 1e-5,
+        "resumed and uninterrupted runs differ by {diff}"
+    );
 }

@@ -8,7 +8,12 @@ use emccd_nn::{Denoiser, ModelMeta, UformerConfig};
 mod common;
 
 fn meta(cfg: UformerConfig, arch: &str) -> ModelMeta {
-    ModelMeta { arch: arch.into(), unet: None, uformer: Some(cfg), ..common::meta(8, 2) }
+    ModelMeta {
+        arch: arch.into(),
+        unet: None,
+        uformer: Some(cfg),
+        ..common::meta(8, 2)
+    }
 }
 
 #[test]
@@ -31,32 +36,75 @@ fn parameter_counts_match_the_paper() {
 #[test]
 fn any_frame_size_runs_and_tiles_without_seams() {
     let dev = emccd_nn::cpu();
-    let cfg = UformerConfig { embed: 8, depths: [1, 1, 1, 1, 2, 1, 1, 1, 1], ..UformerConfig::T };
+    let cfg = UformerConfig {
+        embed: 8,
+        depths: [1, 1, 1, 1, 2, 1, 1, 1, 1],
+        ..UformerConfig::T
+    };
     let m = Denoiser::new(meta(cfg, "uformer-t"), &dev).unwrap();
     assert_eq!(m.meta.multiple(), 128);
     let (w, h) = (300, 200);
-    let (whole, rel) = common::tiling_mismatch(&m.net, w, h, 128, Tiling { tile: 256, overlap: 96 }, 32);
+    let (whole, rel) = common::tiling_mismatch(
+        &m.net,
+        w,
+        h,
+        128,
+        Tiling {
+            tile: 256,
+            overlap: 96,
+        },
+        32,
+    );
     assert_eq!(whole.len(), w * h);
     assert!(whole.iter().all(|v| v.is_finite()));
-    assert!(rel < 0.1, "tiled vs untiled correction differs by {rel:.3} (relative rms)");
+    assert!(
+        rel < 0.1,
+        "tiled vs untiled correction differs by {rel:.3} (relative rms)"
+    );
 }
 
 #[test]
 fn uformer_model_files_round_trip() {
     let dev = emccd_nn::cpu();
-    let cfg = UformerConfig { embed: 8, depths: [1; 9], ..UformerConfig::T };
+    let cfg = UformerConfig {
+        embed: 8,
+        depths: [1; 9],
+        ..UformerConfig::T
+    };
     let m = Denoiser::new(meta(cfg, "uformer-t"), &dev).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("u.safetensors");
     m.save(&p).unwrap();
     let back = Denoiser::load(&p, &dev).unwrap();
     assert_eq!(back.meta, m.meta);
-    let x = Tensor::<4>::from_data(TensorData::new(common::scene(128, 128).into_iter().chain(vec![0.1; 128 * 128]).collect::<Vec<f32>>(), [1, 2, 128, 128]), &dev);
-    let a: Vec<f32> = m.net.forward(x.clone()).into_data().try_into_vec::<f32>().unwrap();
-    let b: Vec<f32> = back.net.forward(x).into_data().try_into_vec::<f32>().unwrap();
+    let x = Tensor::<4>::from_data(
+        TensorData::new(
+            common::scene(128, 128)
+                .into_iter()
+                .chain(vec![0.1; 128 * 128])
+                .collect::<Vec<f32>>(),
+            [1, 2, 128, 128],
+        ),
+        &dev,
+    );
+    let a: Vec<f32> = m
+        .net
+        .forward(x.clone())
+        .into_data()
+        .try_into_vec::<f32>()
+        .unwrap();
+    let b: Vec<f32> = back
+        .net
+        .forward(x)
+        .into_data()
+        .try_into_vec::<f32>()
+        .unwrap();
     assert_eq!(a, b);
     // Metadata that names an architecture without its configuration is refused, not guessed.
-    let bad = ModelMeta { uformer: None, ..m.meta.clone() };
+    let bad = ModelMeta {
+        uformer: None,
+        ..m.meta.clone()
+    };
     let e = Denoiser::new(bad, &dev).unwrap_err().to_string();
     assert!(e.contains("not its configuration"), "{e}");
 }

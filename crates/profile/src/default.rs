@@ -54,7 +54,9 @@ pub fn default_profile() -> CameraProfile {
 
     // Read noise: a per-pixel map (median ≈ 3 DN, column structure, a few noisy pixels),
     // re-measured at 20 exposures with a 1 % measurement scatter.
-    let exposures_s: Vec<f64> = (0..20).map(|k| 1e-3 * 200f64.powf(k as f64 / 19.0)).collect();
+    let exposures_s: Vec<f64> = (0..20)
+        .map(|k| 1e-3 * 200f64.powf(k as f64 / 19.0))
+        .collect();
     let rcol: Vec<f64> = (0..w).map(|_| 0.03 * unit.sample(&mut rng)).collect();
     let base_rn: Vec<f64> = (0..n)
         .map(|i| {
@@ -64,7 +66,12 @@ pub fn default_profile() -> CameraProfile {
         .collect();
     let read_noise = exposures_s
         .iter()
-        .map(|_| base_rn.iter().map(|&s| (s * (1.0 + 0.01 * unit.sample(&mut rng))) as f32).collect())
+        .map(|_| {
+            base_rn
+                .iter()
+                .map(|&s| (s * (1.0 + 0.01 * unit.sample(&mut rng))) as f32)
+                .collect()
+        })
         .collect();
 
     let s = 20.14;
@@ -113,11 +120,21 @@ mod tests {
         assert_eq!((p.width, p.height), (512, 512));
         assert_eq!(p.ptc_slope_dn, Some(20.14));
         // FPN rises top to bottom from about 160 to 195 DN.
-        let row_mean = |y: usize| p.maps.fpn_base[y * 512..(y + 1) * 512].iter().map(|&v| v as f64).sum::<f64>() / 512.0;
+        let row_mean = |y: usize| {
+            p.maps.fpn_base[y * 512..(y + 1) * 512]
+                .iter()
+                .map(|&v| v as f64)
+                .sum::<f64>()
+                / 512.0
+        };
         assert!((row_mean(0) - 160.0).abs() < 1.0 && (row_mean(511) - 195.0).abs() < 1.0);
         assert_eq!(p.exposures_s.len(), 20);
         assert!((p.exposures_s[0] - 1e-3).abs() < 1e-12 && (p.exposures_s[19] - 0.2).abs() < 1e-12);
-        assert!((p.read_noise_dn() - 3.0).abs() < 0.1, "{}", p.read_noise_dn());
+        assert!(
+            (p.read_noise_dn() - 3.0).abs() < 0.1,
+            "{}",
+            p.read_noise_dn()
+        );
         assert!((p.blooming.unwrap().b + 0.9621).abs() < 1e-12);
         // Per-pixel and shared forms agree at the base exposure and stay close at 100 ms.
         let mut a = vec![0f32; p.len()];
@@ -128,13 +145,21 @@ mod tests {
         }
         p.fpn_at_form(FpnForm::PerPixel, 0.1, &mut a);
         p.fpn_at_form(FpnForm::Shared, 0.1, &mut b);
-        let mad = a.iter().zip(&b).map(|(x, y)| (x - y).abs() as f64).sum::<f64>() / a.len() as f64;
+        let mad = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (x - y).abs() as f64)
+            .sum::<f64>()
+            / a.len() as f64;
         assert!(mad < 1.0, "mean |per-pixel − shared| at 100 ms = {mad}");
     }
 
     #[test]
     fn default_profile_is_deterministic() {
-        assert_eq!(default_profile().fingerprint(), default_profile().fingerprint());
+        assert_eq!(
+            default_profile().fingerprint(),
+            default_profile().fingerprint()
+        );
     }
 
     #[test]

@@ -28,7 +28,10 @@ impl Error {
     pub(crate) fn at(self, path: impl Into<PathBuf>) -> Error {
         match self {
             e @ Error::WithPath { .. } => e,
-            e => Error::WithPath { path: path.into(), source: Box::new(e) },
+            e => Error::WithPath {
+                path: path.into(),
+                source: Box::new(e),
+            },
         }
     }
 }

@@ -36,7 +36,12 @@ impl CameraProfile {
             FpnForm::PerPixel if self.maps.fpn_theta.len() == 4 * n => {
                 let t = &self.maps.fpn_theta;
                 for (i, o) in out.iter_mut().enumerate() {
-                    let th = [t[i] as f64, t[n + i] as f64, t[2 * n + i] as f64, t[3 * n + i] as f64];
+                    let th = [
+                        t[i] as f64,
+                        t[n + i] as f64,
+                        t[2 * n + i] as f64,
+                        t[3 * n + i] as f64,
+                    ];
                     *o = logistic(u, th).exp() as f32;
                 }
             }

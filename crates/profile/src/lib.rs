@@ -221,7 +221,10 @@ impl CameraProfile {
     /// The photon-transfer slope, or an error saying which acquisition provides it.
     pub fn slope(&self) -> Result<f64> {
         self.ptc_slope_dn.ok_or_else(|| {
-            Error::Parameter("the profile has no photon-transfer slope: calibrate it with flat-field stacks".into())
+            Error::Parameter(
+                "the profile has no photon-transfer slope: calibrate it with flat-field stacks"
+                    .into(),
+            )
         })
     }
 
@@ -285,7 +288,10 @@ impl CameraProfile {
 
     /// Whether `exposure_s` lies inside the calibrated exposure range.
     pub fn exposure_in_range(&self, exposure_s: f64) -> bool {
-        let lo = self.fpn.base_exposure_s.min(self.exposures_s.first().copied().unwrap_or(f64::MAX));
+        let lo = self
+            .fpn
+            .base_exposure_s
+            .min(self.exposures_s.first().copied().unwrap_or(f64::MAX));
         let hi = self.exposures_s.last().copied().unwrap_or(0.0);
         exposure_s >= lo * (1.0 - 1e-9) && exposure_s <= hi * (1.0 + 1e-9)
     }
@@ -296,11 +302,16 @@ impl CameraProfile {
     /// Used to build a second, different camera for experiments.
     pub fn variant(&self, em_gain: f64, read_noise_scale: f64) -> Result<CameraProfile> {
         if !(em_gain > 0.0 && read_noise_scale > 0.0) {
-            return Err(Error::Parameter(format!("EM gain ({em_gain}) and read-noise scale ({read_noise_scale}) must be positive")));
+            return Err(Error::Parameter(format!(
+                "EM gain ({em_gain}) and read-noise scale ({read_noise_scale}) must be positive"
+            )));
         }
         let g = em_gain / self.em_gain;
         let mut p = self.clone();
-        p.camera = format!("{} at EM gain {em_gain}, read noise ×{read_noise_scale}", self.camera);
+        p.camera = format!(
+            "{} at EM gain {em_gain}, read noise ×{read_noise_scale}",
+            self.camera
+        );
         p.em_gain = em_gain;
         p.ptc_slope_dn = self.ptc_slope_dn.map(|s| s * g);
         for m in &mut p.maps.read_noise {
@@ -314,7 +325,10 @@ impl CameraProfile {
             q.em_gain = em_gain;
             q.read_sigma_dn *= read_noise_scale;
         }
-        p.provenance.notes = format!("{} Variant: EM gain {em_gain}, read noise ×{read_noise_scale}.", self.provenance.notes);
+        p.provenance.notes = format!(
+            "{} Variant: EM gain {em_gain}, read noise ×{read_noise_scale}.",
+            self.provenance.notes
+        );
         Ok(p)
     }
 
@@ -327,7 +341,9 @@ impl CameraProfile {
             height: self.height,
             ptc_slope_dn: self.ptc_slope_dn,
             f_range: self.f_range,
-            k_range_dn: self.ptc_slope_dn.map(|_| [self.k_dn(self.f_range[1]), self.k_dn(self.f_range[0])]),
+            k_range_dn: self
+                .ptc_slope_dn
+                .map(|_| [self.k_dn(self.f_range[1]), self.k_dn(self.f_range[0])]),
             quantization_dn: self.quantization_dn,
             bias_dn: Some(self.bias_dn()).filter(|v| v.is_finite()),
             read_noise_dn: Some(self.read_noise_dn()).filter(|v| v.is_finite()),
@@ -354,7 +370,10 @@ impl CameraProfile {
             }
         };
         eat(self.to_toml_string().as_bytes());
-        for m in [&self.maps.fpn_base, &self.maps.fpn_theta].into_iter().chain(self.maps.read_noise.iter()) {
+        for m in [&self.maps.fpn_base, &self.maps.fpn_theta]
+            .into_iter()
+            .chain(self.maps.read_noise.iter())
+        {
             for v in m.iter() {
                 eat(&v.to_le_bytes());
             }
@@ -382,7 +401,12 @@ impl CameraProfile {
         p.width = w;
         p.height = h;
         p.maps.fpn_base = cut(&self.maps.fpn_base);
-        p.maps.fpn_theta = self.maps.fpn_theta.chunks(n.max(1)).flat_map(|c| cut(c)).collect();
+        p.maps.fpn_theta = self
+            .maps
+            .fpn_theta
+            .chunks(n.max(1))
+            .flat_map(|c| cut(c))
+            .collect();
         p.maps.read_noise = self.maps.read_noise.iter().map(|m| cut(m)).collect();
         Ok(p)
     }
@@ -401,11 +425,17 @@ impl CameraProfile {
         }
         if let Some(b) = self.blooming {
             if !(b.a >= 0.0 && b.a.is_finite() && b.b.is_finite()) {
-                return bad(format!("blooming fit must have a ≥ 0 and finite b, got a={} b={}", b.a, b.b));
+                return bad(format!(
+                    "blooming fit must have a ≥ 0 and finite b, got a={} b={}",
+                    b.a, b.b
+                ));
             }
         }
         if !(self.f_range[0] >= 1.0 && self.f_range[1] >= self.f_range[0]) {
-            return bad(format!("f_range must satisfy 1 ≤ lo ≤ hi, got {:?}", self.f_range));
+            return bad(format!(
+                "f_range must satisfy 1 ≤ lo ≤ hi, got {:?}",
+                self.f_range
+            ));
         }
         if !(self.quantization_dn >= 0.0) {
             return bad("quantization_dn must be ≥ 0".into());
@@ -421,10 +451,16 @@ impl CameraProfile {
             return Ok(());
         }
         if self.maps.fpn_base.len() != n {
-            return bad(format!("fpn_base has {} values, expected {n}", self.maps.fpn_base.len()));
+            return bad(format!(
+                "fpn_base has {} values, expected {n}",
+                self.maps.fpn_base.len()
+            ));
         }
         if !self.maps.fpn_theta.is_empty() && self.maps.fpn_theta.len() != 4 * n {
-            return bad(format!("fpn_theta has {} values, expected 4×{n}", self.maps.fpn_theta.len()));
+            return bad(format!(
+                "fpn_theta has {} values, expected 4×{n}",
+                self.maps.fpn_theta.len()
+            ));
         }
         if self.fpn.form == FpnForm::PerPixel && self.maps.fpn_theta.is_empty() {
             return bad("fpn.form is per-pixel but the profile has no fpn_theta map".into());
@@ -439,15 +475,22 @@ impl CameraProfile {
         if self.exposures_s.is_empty() {
             return bad("a profile needs at least one read-noise map".into());
         }
-        if self.exposures_s.windows(2).any(|w| !(w[1] > w[0])) || self.exposures_s.iter().any(|&t| !(t > 0.0)) {
+        if self.exposures_s.windows(2).any(|w| !(w[1] > w[0]))
+            || self.exposures_s.iter().any(|&t| !(t > 0.0))
+        {
             return bad("exposures_s must be positive and strictly ascending".into());
         }
         for (t, m) in self.exposures_s.iter().zip(&self.maps.read_noise) {
             if m.len() != n {
-                return bad(format!("read-noise map at {t} s has {} values, expected {n}", m.len()));
+                return bad(format!(
+                    "read-noise map at {t} s has {} values, expected {n}",
+                    m.len()
+                ));
             }
             if m.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
-                return bad(format!("read-noise map at {t} s holds a negative or non-finite value"));
+                return bad(format!(
+                    "read-noise map at {t} s holds a negative or non-finite value"
+                ));
             }
         }
         if self.maps.fpn_base.iter().any(|v| !v.is_finite()) {

@@ -8,7 +8,10 @@ use std::path::Path;
 use safetensors::tensor::{Dtype, TensorView};
 use serde::{Deserialize, Serialize};
 
-use crate::{BloomingFit, CameraProfile, EldParams, Error, FpnFit, PgnParams, ProfileMaps, Provenance, Result};
+use crate::{
+    BloomingFit, CameraProfile, EldParams, Error, FpnFit, PgnParams, ProfileMaps, Provenance,
+    Result,
+};
 
 /// Name of the scalar file inside a profile directory.
 pub const PROFILE_TOML: &str = "profile.toml";
@@ -56,12 +59,23 @@ fn f32_bytes(v: &[f32]) -> Vec<u8> {
 
 fn tensor_f32(view: &TensorView<'_>, name: &str, shape: &[usize]) -> Result<Vec<f32>> {
     if view.dtype() != Dtype::F32 {
-        return Err(Error::Format(format!("{name}: dtype {:?}, expected F32", view.dtype())));
+        return Err(Error::Format(format!(
+            "{name}: dtype {:?}, expected F32",
+            view.dtype()
+        )));
     }
     if view.shape() != shape {
-        return Err(Error::Format(format!("{name}: shape {:?}, expected {:?}", view.shape(), shape)));
+        return Err(Error::Format(format!(
+            "{name}: shape {:?}, expected {:?}",
+            view.shape(),
+            shape
+        )));
     }
-    Ok(view.data().chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect())
+    Ok(view
+        .data()
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect())
 }
 
 impl CameraProfile {
@@ -77,7 +91,8 @@ impl CameraProfile {
             quantization_dn: self.quantization_dn,
             adc_max_dn: self.adc_max_dn,
             bias_dn: Some((self.bias_dn() * 1000.0).round() / 1000.0).filter(|v| v.is_finite()),
-            read_noise_dn: Some((self.read_noise_dn() * 1000.0).round() / 1000.0).filter(|v| v.is_finite()),
+            read_noise_dn: Some((self.read_noise_dn() * 1000.0).round() / 1000.0)
+                .filter(|v| v.is_finite()),
             exposures_s: self.exposures_s.clone(),
             fpn: self.fpn.clone(),
             blooming: self.blooming,
@@ -111,11 +126,20 @@ impl CameraProfile {
         let mut tensors: Vec<(&str, TensorView<'_>)> = Vec::new();
         // A profile without bias frames has no maps at all (an empty tensor would be misread).
         if !self.maps.fpn_base.is_empty() {
-            tensors.push(("fpn_base", TensorView::new(Dtype::F32, vec![h, w], &base).map_err(st_err)?));
-            tensors.push(("read_noise_std", TensorView::new(Dtype::F32, vec![e, h, w], &rn).map_err(st_err)?));
+            tensors.push((
+                "fpn_base",
+                TensorView::new(Dtype::F32, vec![h, w], &base).map_err(st_err)?,
+            ));
+            tensors.push((
+                "read_noise_std",
+                TensorView::new(Dtype::F32, vec![e, h, w], &rn).map_err(st_err)?,
+            ));
         }
         if !self.maps.fpn_theta.is_empty() {
-            tensors.push(("fpn_theta", TensorView::new(Dtype::F32, vec![4, h, w], &theta).map_err(st_err)?));
+            tensors.push((
+                "fpn_theta",
+                TensorView::new(Dtype::F32, vec![4, h, w], &theta).map_err(st_err)?,
+            ));
         }
         let mut meta = HashMap::new();
         meta.insert("format".to_string(), "emccd-profile-maps".to_string());
@@ -130,7 +154,11 @@ impl CameraProfile {
     pub fn load(dir: impl AsRef<Path>) -> Result<CameraProfile> {
         let dir = dir.as_ref();
         if !dir.is_dir() {
-            return Err(Error::Format("not a profile directory (expected profile.toml and maps.safetensors inside)".into()).at(dir));
+            return Err(Error::Format(
+                "not a profile directory (expected profile.toml and maps.safetensors inside)"
+                    .into(),
+            )
+            .at(dir));
         }
         let tpath = dir.join(PROFILE_TOML);
         let text = std::fs::read_to_string(&tpath).map_err(|e| Error::from(e).at(&tpath))?;
@@ -148,11 +176,17 @@ impl CameraProfile {
         let st = safetensors::SafeTensors::deserialize(&bytes).map_err(|e| st_err(e).at(&mpath))?;
         let (h, w, e) = (t.height, t.width, t.exposures_s.len());
         let get = |name: &str, shape: &[usize]| -> Result<Vec<f32>> {
-            let v = st.tensor(name).map_err(|_| Error::Format(format!("missing tensor {name}")))?;
+            let v = st
+                .tensor(name)
+                .map_err(|_| Error::Format(format!("missing tensor {name}")))?;
             tensor_f32(&v, name, shape)
         };
         let has = |name: &str| st.names().contains(&name);
-        let fpn_base = if has("fpn_base") || e > 0 { get("fpn_base", &[h, w]).map_err(|e| e.at(&mpath))? } else { Vec::new() };
+        let fpn_base = if has("fpn_base") || e > 0 {
+            get("fpn_base", &[h, w]).map_err(|e| e.at(&mpath))?
+        } else {
+            Vec::new()
+        };
         let fpn_theta = if has("fpn_theta") {
             get("fpn_theta", &[4, h, w]).map_err(|e| e.at(&mpath))?
         } else {
@@ -179,7 +213,11 @@ impl CameraProfile {
             eld: t.eld,
             pgn: t.pgn,
             provenance: t.provenance,
-            maps: ProfileMaps { fpn_base, fpn_theta, read_noise },
+            maps: ProfileMaps {
+                fpn_base,
+                fpn_theta,
+                read_noise,
+            },
         };
         p.validate().map_err(|e| e.at(dir))?;
         Ok(p)
@@ -202,10 +240,15 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     {
         // Temporary files are owner-only; a saved profile is readable like any other output.
         use std::os::unix::fs::PermissionsExt;
-        tmp.as_file().set_permissions(std::fs::Permissions::from_mode(0o644)).map_err(|e| Error::from(e).at(path))?;
+        tmp.as_file()
+            .set_permissions(std::fs::Permissions::from_mode(0o644))
+            .map_err(|e| Error::from(e).at(path))?;
     }
-    tmp.as_file().sync_all().map_err(|e| Error::from(e).at(path))?;
-    tmp.persist(path).map_err(|e| Error::from(e.error).at(path))?;
+    tmp.as_file()
+        .sync_all()
+        .map_err(|e| Error::from(e).at(path))?;
+    tmp.persist(path)
+        .map_err(|e| Error::from(e.error).at(path))?;
     Ok(())
 }
 
@@ -231,9 +274,13 @@ mod tests {
         let maps = dir.path().join(super::MAPS_FILE);
         let b = std::fs::read(&maps).unwrap();
         std::fs::write(&maps, &b[..b.len() / 2]).unwrap();
-        let e = crate::CameraProfile::load(dir.path()).unwrap_err().to_string();
+        let e = crate::CameraProfile::load(dir.path())
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("maps.safetensors"), "{e}");
-        let e = crate::CameraProfile::load(dir.path().join("nope")).unwrap_err().to_string();
+        let e = crate::CameraProfile::load(dir.path().join("nope"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("not a profile directory"), "{e}");
     }
 }
