@@ -244,8 +244,8 @@ enum WriterKind {
 
 impl StackWriter {
     /// Creates a writer for `path`; the format comes from the extension (`.tif`/`.tiff`, `.btf`
-    /// for BigTIFF, `.fits`). `frames_hint` (if known) makes TIFF stacks carry an ImageJ
-    /// description so Fiji opens them as stacks, and is required for FITS.
+    /// for BigTIFF, `.fits`). `frames_hint` (the number of frames, if known) is required for
+    /// FITS, whose header states it; TIFF pages need none.
     pub fn create(
         path: impl AsRef<Path>,
         width: usize,
@@ -315,6 +315,18 @@ impl StackWriter {
                 self.width,
                 self.height,
                 self.width * self.height
+            ))
+            .with_path(&self.target));
+        }
+        // A non-finite value would be written as garbage (NaN, ±inf, or 0 after rounding to an
+        // integer type) and look like data: refuse it, saying where it is.
+        if let Some(i) = frame.iter().position(|v| !v.is_finite()) {
+            return Err(Error::Usage(format!(
+                "frame {} has a non-finite value ({}) at pixel x={}, y={}; nothing was written",
+                self.frames,
+                frame[i],
+                i % self.width,
+                i / self.width
             ))
             .with_path(&self.target));
         }

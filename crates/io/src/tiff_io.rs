@@ -1,7 +1,11 @@
 //! TIFF and BigTIFF stacks through the `tiff` crate: one page per frame.
 //!
-//! Stacks written here carry an ImageJ description (`images=N`, `slices=N`) on the first page so
-//! Fiji opens them as stacks, plus `exposure_s=`/`em_gain=` lines that this reader reads back.
+//! Stacks written here carry no ImageJ description: an `ImageJ=` description with `images=N`
+//! tells readers (tifffile, Fiji) that the frames lie contiguously after the first page's data,
+//! but the `tiff` crate writes each page's directory between frames, so those readers would
+//! read every frame after the first from the wrong offset. Without it they walk the page chain,
+//! which is correct, and still open a multi-page file as a stack. Camera metadata goes in plain
+//! `exposure_s=`/`em_gain=` lines on the first page, which this reader reads back.
 
 use std::fs::File;
 use std::io::BufReader;
@@ -222,10 +226,9 @@ impl TiffStackWriter {
         } else {
             Enc::Standard(TiffEncoder::new(file)?)
         };
-        let description = frames_hint.map(|n| {
-            // ImageJ reads `images`/`slices` to present the pages as a z-stack.
-            format!("ImageJ=1.54f\nimages={n}\nslices={n}\nloop=false\n")
-        });
+        // The frame count is not recorded: see the module documentation.
+        let _ = frames_hint;
+        let description = None;
         Ok(TiffStackWriter {
             tmp,
             enc,
