@@ -130,7 +130,7 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
     let o = emccd(&["evaluate", "pairs", "--method", "m.safetensors@9"], d);
     assert_eq!(o.status.code(), Some(2));
     assert!(
-        String::from_utf8_lossy(&o.stderr).contains("1 to 8"),
+        String::from_utf8_lossy(&o.stderr).contains("1, 2, 4 or 8"),
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );

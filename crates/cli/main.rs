@@ -1,6 +1,38 @@
 //! `emccd`: the command-line front end. Glue only: parsing, progress bars, messages and exit
 //! codes; the work is done by the library crates under `crates/`.
 
+// The standard `println!`/`eprintln!` panic when the stream is closed (`emccd info f | head -1`,
+// or a log reader that went away in the middle of a batch). These shadow them for the whole
+// binary: stdout closed means nobody reads the rest, so the program ends quietly, as the
+// error handler in `main` does for a closed pipe; stderr closed loses only the messages, and
+// the work (a batch of files) goes on.
+macro_rules! println {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        if let Err(e) = writeln!(std::io::stdout(), $($t)*) {
+            if e.kind() == std::io::ErrorKind::BrokenPipe {
+                std::process::exit(0);
+            }
+        }
+    }};
+}
+macro_rules! print {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        if let Err(e) = write!(std::io::stdout(), $($t)*) {
+            if e.kind() == std::io::ErrorKind::BrokenPipe {
+                std::process::exit(0);
+            }
+        }
+    }};
+}
+macro_rules! eprintln {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($t)*);
+    }};
+}
+
 mod commands;
 mod common;
 

@@ -60,22 +60,41 @@ pub struct Args {
     /// Denoiser. Default: bm3d, or the method --model was trained for when one is given.
     #[arg(long, value_enum)]
     pub method: Option<Method>,
-    /// Exposure in seconds, where the file header does not record it.
-    #[arg(long)]
+    /// Exposure in seconds, where the file header does not record it (overrides the header).
+    #[arg(long, allow_negative_numbers = true)]
     pub exposure_s: Option<f64>,
+    /// Denoise exposures more than 2× outside the profile's calibrated range, with the fixed
+    /// pattern extrapolated from the calibration's model (otherwise an error: the pattern there
+    /// is a guess, and so is the output).
+    #[arg(long)]
+    pub extrapolate: bool,
     /// Output units.
     #[arg(long, value_enum, default_value = "dn")]
     pub units: Units,
-    /// Tile side for large frames, px (a 512×512 frame runs in one piece).
-    #[arg(long, default_value_t = 512)]
+    /// Tile side for large frames, px, at least 64 (a 512×512 frame runs in one piece).
+    #[arg(long, default_value_t = 512, value_parser = parse_tile)]
     pub tile: usize,
     /// Overlap between tiles, px.
     #[arg(long, default_value_t = 32)]
     pub overlap: usize,
     /// Average the network over this many flips/transposes of each frame (1, 2, 4 or 8):
     /// a geometric self-ensemble, slightly higher PSNR for proportionally more time.
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=8))]
+    #[arg(long, default_value_t = 1, value_parser = parse_ensemble)]
     pub ensemble: u8,
+}
+
+fn parse_tile(s: &str) -> std::result::Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(t) if t >= 64 => Ok(t),
+        _ => Err("a tile is at least 64 px".into()),
+    }
+}
+
+fn parse_ensemble(s: &str) -> std::result::Result<u8, String> {
+    match s.parse::<u8>() {
+        Ok(k @ (1 | 2 | 4 | 8)) => Ok(k),
+        _ => Err("the self-ensemble is 1, 2, 4 or 8 orientations".into()),
+    }
 }
 
 /// Models that ship in `models/`, by the name `--model` accepts: `default` (natural images, the
@@ -167,9 +186,9 @@ pub fn load_model(arg: &str) -> Result<Denoiser> {
 /// `microscopy@8` is the bundled microscopy model averaged over 8 orientations.
 pub fn model_spec(arg: &str) -> Result<(&str, usize)> {
     match arg.rsplit_once('@') {
-        Some((name, k)) => match k.parse::<usize>() {
-            Ok(k @ 1..=8) => Ok((name, k)),
-            _ => bail!("{arg}: the self-ensemble after `@` must be 1 to 8 orientations"),
+        Some((name, k)) => match parse_ensemble(k) {
+            Ok(k) => Ok((name, k.into())),
+            Err(e) => bail!("{arg}: after `@`, {e}"),
         },
         None => Ok((arg, 1)),
     }
@@ -189,7 +208,18 @@ pub fn run(a: Args) -> Result<()> {
         tile: a.tile,
         overlap: a.overlap,
     };
+    if a.overlap * 2 >= a.tile {
+        bail!(
+            "--overlap {} must be less than half of --tile {}",
+            a.overlap,
+            a.tile
+        );
+    }
+    profile
+        .require_complete()
+        .with_context(|| format!("profile {}: it cannot denoise", a.profile))?;
     let several = a.inputs.len() > 1;
+    let outs = output_paths(&a.inputs, &a.out, several)?;
     if several {
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     }
@@ -197,27 +227,26 @@ pub fn run(a: Args) -> Result<()> {
         Units::Dn => 1.0f32,
         Units::Electrons => (2.0 / profile.slope()?) as f32,
     };
-    for input in &a.inputs {
-        let out = if several {
-            let stem = input
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_else(|| "frame".into());
-            a.out.join(format!("{stem}_denoised.tif"))
-        } else {
-            a.out.clone()
-        };
+    for (input, out) in a.inputs.iter().zip(outs) {
         let mut r = emccd_io::open(input)?;
         let info = r.info().clone();
         for w in &info.metadata.warnings {
             eprintln!("warning: {}: {w}", input.display());
         }
-        let exposure = a.exposure_s.or(info.metadata.exposure_s).with_context(|| {
-            format!(
+        let (exposure, source) = match (a.exposure_s, info.metadata.exposure_s) {
+            (Some(t), _) => (t, "--exposure-s"),
+            (None, Some(t)) => (t, "the file header"),
+            (None, None) => bail!(
                 "{}: the header records no exposure; pass --exposure-s",
                 input.display()
-            )
-        })?;
+            ),
+        };
+        if !(exposure.is_finite() && exposure > 0.0) {
+            bail!(
+                "{}: exposure {exposure} s (from {source}) must be a positive number of seconds",
+                input.display()
+            );
+        }
         if (info.width, info.height) != (profile.width, profile.height) {
             bail!(
                 "{}: frames are {}×{}, the profile's sensor is {}×{}",
@@ -229,7 +258,12 @@ pub fn run(a: Args) -> Result<()> {
             );
         }
         if !profile.exposure_in_range(exposure) {
-            eprintln!("warning: {}: exposure {exposure} s is outside the calibrated range; the FPN is the model's extrapolation", input.display());
+            let (lo, hi) = profile.exposure_range();
+            let what = format!("{}: exposure {exposure} s (from {source}) is outside the calibrated range {lo}–{hi} s", input.display());
+            if (exposure < lo / 2.0 || exposure > hi * 2.0) && !a.extrapolate {
+                bail!("{what}; its fixed pattern would be extrapolated far from the calibration. Calibrate with bias frames at this exposure, or pass --extrapolate to use the model's extrapolation");
+            }
+            eprintln!("warning: {what}; the fixed pattern is the model's extrapolation");
         }
         let mut w = emccd_io::StackWriter::create(
             &out,
@@ -277,6 +311,53 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// Where each input's result goes: `out` itself for one input, `OUT/STEM_denoised.tif` for
+/// several. Refused before anything runs: an output that is one of the inputs (it would be
+/// replaced, or overwritten before it is read) and two inputs that would share an output.
+fn output_paths(inputs: &[PathBuf], out: &std::path::Path, several: bool) -> Result<Vec<PathBuf>> {
+    let outs: Vec<PathBuf> = inputs
+        .iter()
+        .map(|input| {
+            if several {
+                let stem = input
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| "frame".into());
+                out.join(format!("{stem}_denoised.tif"))
+            } else {
+                out.to_path_buf()
+            }
+        })
+        .collect();
+    // Compare files, not spellings: `./x.tif` and `x.tif` are one file.
+    let canon = |p: &std::path::Path| match (
+        p.parent().filter(|d| !d.as_os_str().is_empty()),
+        p.file_name(),
+    ) {
+        (Some(d), Some(f)) => d
+            .canonicalize()
+            .map(|d| d.join(f))
+            .unwrap_or_else(|_| p.to_path_buf()),
+        (None, Some(f)) => std::env::current_dir()
+            .map(|d| d.join(f))
+            .unwrap_or_else(|_| p.to_path_buf()),
+        _ => p.to_path_buf(),
+    };
+    let ins: Vec<PathBuf> = inputs.iter().map(|p| canon(p)).collect();
+    for (o, input) in outs.iter().zip(inputs) {
+        let co = canon(o);
+        if let Some(k) = ins.iter().position(|i| *i == co) {
+            bail!("{}: the output for {} is the input {}; choose another -o, the input is never overwritten", o.display(), input.display(), inputs[k].display());
+        }
+    }
+    for (i, o) in outs.iter().enumerate() {
+        if let Some(j) = outs[..i].iter().position(|p| p == o) {
+            bail!("{} and {} would both be written to {}; denoise them in separate runs (different -o) or rename one", inputs[j].display(), inputs[i].display(), o.display());
+        }
+    }
+    Ok(outs)
 }
 
 /// BM3D with variance stabilization on one raw frame, through the profile's preprocessing.

@@ -22,7 +22,11 @@ fn value(frame: usize, i: usize) -> f32 {
 
 fn write(path: &Path, sample: SampleFormat, frames: usize) {
     let mut w = StackWriter::create(path, W, H, sample, Some(frames)).unwrap();
-    w.set_metadata(&Metadata { exposure_s: Some(0.05), em_gain: Some(300.0), ..Metadata::default() });
+    w.set_metadata(&Metadata {
+        exposure_s: Some(0.05),
+        em_gain: Some(300.0),
+        ..Metadata::default()
+    });
     for k in 0..frames {
         let f: Vec<f32> = (0..W * H).map(|i| value(k, i)).collect();
         w.write_frame(&f).unwrap();
@@ -52,7 +56,9 @@ fn python_ok() -> bool {
         .map(|o| o.status.success())
         .unwrap_or(false);
     if !ok && std::env::var_os("EMCCD_REQUIRE_PYTHON").is_some() {
-        panic!("python3 with numpy, tifffile and astropy is required (EMCCD_REQUIRE_PYTHON is set)");
+        panic!(
+            "python3 with numpy, tifffile and astropy is required (EMCCD_REQUIRE_PYTHON is set)"
+        );
     }
     if !ok {
         eprintln!("skipped: python3 with numpy, tifffile and astropy is not installed");
@@ -68,16 +74,34 @@ fn check(name: &str, sample: SampleFormat) {
     for frames in COUNTS {
         let path = dir.path().join(name);
         write(&path, sample, frames);
-        let out = Command::new("python3").arg("-c").arg(SCRIPT).arg(&path).output().unwrap();
-        assert!(out.status.success(), "{name}: {}", String::from_utf8_lossy(&out.stderr));
+        let out = Command::new("python3")
+            .arg("-c")
+            .arg(SCRIPT)
+            .arg(&path)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
         let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-        let shape: Vec<usize> = v["shape"].as_array().unwrap().iter().map(|x| x.as_u64().unwrap() as usize).collect();
+        let shape: Vec<usize> = v["shape"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_u64().unwrap() as usize)
+            .collect();
         assert_eq!(shape, vec![frames, H, W], "{name}: shape");
         let values = v["values"].as_array().unwrap();
         for k in 0..frames {
             for i in 0..W * H {
                 let got = values[k * W * H + i].as_f64().unwrap();
-                assert_eq!(got, value(k, i) as f64, "{name}, {frames} frames: frame {k}, pixel {i}");
+                assert_eq!(
+                    got,
+                    value(k, i) as f64,
+                    "{name}, {frames} frames: frame {k}, pixel {i}"
+                );
             }
         }
     }
@@ -131,9 +155,16 @@ fn non_finite_frames_are_refused_and_nothing_is_written() {
         let mut f = vec![1.0; W * H];
         f[2 * W + 5] = f32::NAN;
         let e = w.write_frame(&f).unwrap_err().to_string();
-        assert!(e.contains("frame 1") && e.contains("x=5, y=2") && e.contains(name), "{e}");
+        assert!(
+            e.contains("frame 1") && e.contains("x=5, y=2") && e.contains(name),
+            "{e}"
+        );
         drop(w);
         assert!(!path.exists(), "{name} was written");
     }
-    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "a temporary file was left");
+    assert_eq!(
+        std::fs::read_dir(dir.path()).unwrap().count(),
+        0,
+        "a temporary file was left"
+    );
 }

@@ -25,6 +25,28 @@ pub struct Pipeline<'a> {
     pub device: Device,
 }
 
+/// Checks that the profile can correct and describe a frame of `len` pixels at `exposure_s`:
+/// it has a slope and bias maps (a gain-series calibration has neither), the sizes agree, and
+/// the exposure is a positive number of seconds (a header or flag can say anything).
+fn usable(p: &CameraProfile, len: usize, exposure_s: f64) -> Result<()> {
+    p.require_complete()
+        .map_err(|e| Error::Data(format!("this profile cannot denoise: {e}")))?;
+    if len != p.len() {
+        return Err(Error::Data(format!(
+            "frame has {len} pixels, the profile's sensor {}×{} = {}",
+            p.width,
+            p.height,
+            p.len()
+        )));
+    }
+    if !(exposure_s.is_finite() && exposure_s > 0.0) {
+        return Err(Error::Data(format!(
+            "exposure {exposure_s} s: it must be a positive number of seconds"
+        )));
+    }
+    Ok(())
+}
+
 /// The preprocessed frame (DN above bias) at `exposure_s`: blooming and FPN removed.
 pub fn preprocess(p: &CameraProfile, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
     preprocess_ablated(p, raw, exposure_s, &[])
@@ -39,15 +61,7 @@ pub fn preprocess_ablated(
     exposure_s: f64,
     ablate: &[String],
 ) -> Result<Vec<f32>> {
-    if raw.len() != p.len() {
-        return Err(Error::Data(format!(
-            "frame has {} pixels, the profile's sensor {}×{} = {}",
-            raw.len(),
-            p.width,
-            p.height,
-            p.len()
-        )));
-    }
+    usable(p, raw.len(), exposure_s)?;
     let off = |name: &str| ablate.iter().any(|a| a == name);
     let fpn = if off("fpn") {
         p.maps.fpn_base.clone()
@@ -70,6 +84,7 @@ pub fn preprocess_ablated(
 /// gain = the photon-transfer slope, Gaussian σ = the median read noise at the exposure with
 /// the quantization's share.
 pub fn vst_params(p: &CameraProfile, exposure_s: f64) -> Result<emccd_eval::vst::PoissonGaussian> {
+    usable(p, p.len(), exposure_s)?;
     let slope = p.slope().map_err(|e| Error::Data(e.to_string()))?;
     Ok(vst_from(
         slope,
@@ -96,15 +111,7 @@ pub fn vst_from(
 /// BM3D after the generalized Anscombe transform, with the exact unbiased inverse, on a
 /// preprocessed frame (DN above bias) of the profile's size.
 pub fn bm3d_estimate(p: &CameraProfile, dn: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
-    if dn.len() != p.len() {
-        return Err(Error::Data(format!(
-            "frame has {} pixels, the profile's sensor {}×{} = {}",
-            dn.len(),
-            p.width,
-            p.height,
-            p.len()
-        )));
-    }
+    usable(p, dn.len(), exposure_s)?;
     Ok(emccd_eval::vst::bm3d_poisson_gaussian(
         dn,
         p.width,
@@ -123,6 +130,7 @@ impl Pipeline<'_> {
     /// Denoises a preprocessed frame (DN above bias) of the profile's size.
     pub fn denoise_preprocessed(&self, dn: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
         let p = self.profile;
+        usable(p, dn.len(), exposure_s)?;
         let slope = p.slope().map_err(|e| Error::Data(e.to_string()))?;
         let rn = p.read_noise_near(exposure_s);
         let inputs = self.model.meta.inputs;
@@ -183,5 +191,34 @@ mod tests {
         }
         // The full preprocessing removes blooming too (x(2 ms) ≈ 6 %): it differs from both.
         assert!(full.iter().zip(&nb).any(|(a, b)| (a - b).abs() > 1.0));
+    }
+
+    /// Profiles without bias maps (a gain-series calibration) and exposures that are not a
+    /// positive number of seconds are errors, not panics or NaN frames.
+    #[test]
+    fn unusable_profiles_and_exposures_are_errors() {
+        let p = emccd_profile::default_profile().crop(0, 0, 16, 16).unwrap();
+        let raw = vec![300.0; p.len()];
+        for t in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            let e = preprocess(&p, &raw, t).unwrap_err().to_string();
+            assert!(e.contains("positive number of seconds"), "{t}: {e}");
+            assert!(bm3d_estimate(&p, &raw, t).is_err(), "{t}");
+        }
+        let mut bare = p.clone();
+        bare.exposures_s.clear();
+        bare.maps.read_noise.clear();
+        bare.maps.fpn_base.clear();
+        bare.maps.fpn_theta.clear();
+        bare.validate().unwrap();
+        for e in [
+            preprocess(&bare, &raw, 0.01).unwrap_err(),
+            bm3d_estimate(&bare, &raw, 0.01).unwrap_err(),
+        ] {
+            assert!(e.to_string().contains("cannot denoise"), "{e}");
+        }
+        assert!(preprocess(&p, &raw[1..], 0.01)
+            .unwrap_err()
+            .to_string()
+            .contains("pixels"));
     }
 }

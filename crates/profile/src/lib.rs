@@ -231,6 +231,9 @@ impl CameraProfile {
     /// Whether bias frames were calibrated (FPN and read-noise maps exist).
     pub fn has_bias(&self) -> bool {
         !self.exposures_s.is_empty()
+            && self.maps.read_noise.len() == self.exposures_s.len()
+            && self.maps.read_noise.iter().all(|m| m.len() == self.len())
+            && self.maps.fpn_base.len() == self.len()
     }
 
     /// Checks that every part synthesis and simulation need is present.
@@ -286,13 +289,18 @@ impl CameraProfile {
         &self.maps.read_noise[i]
     }
 
-    /// Whether `exposure_s` lies inside the calibrated exposure range.
-    pub fn exposure_in_range(&self, exposure_s: f64) -> bool {
+    /// The calibrated exposure range (shortest, longest), s.
+    pub fn exposure_range(&self) -> (f64, f64) {
         let lo = self
             .fpn
             .base_exposure_s
             .min(self.exposures_s.first().copied().unwrap_or(f64::MAX));
-        let hi = self.exposures_s.last().copied().unwrap_or(0.0);
+        (lo, self.exposures_s.last().copied().unwrap_or(0.0))
+    }
+
+    /// Whether `exposure_s` lies inside the calibrated exposure range.
+    pub fn exposure_in_range(&self, exposure_s: f64) -> bool {
+        let (lo, hi) = self.exposure_range();
         exposure_s >= lo * (1.0 - 1e-9) && exposure_s <= hi * (1.0 + 1e-9)
     }
 

@@ -1,0 +1,266 @@
+//! Bad input at the command line: each case exits 2 with a message naming what is wrong, leaves
+//! no output, and never touches an input. Regression tests for what a hostile but fair user
+//! found (issue 12): inputs overwritten, outputs shared, exposures that are not exposures,
+//! profiles that cannot denoise, absurd tiling, closed pipes.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use common::{emccd, ok};
+
+/// A 512² u16 raw frame of the default profile's sensor (bias + a little signal), with an
+/// exposure in its description, at `d/name`.
+fn raw_frame(d: &Path, name: &str, exposure_s: Option<f64>) {
+    if let Some(parent) = d.join(name).parent() {
+        std::fs::create_dir_all(parent).unwrap();
+    }
+    let mut w =
+        emccd_io::StackWriter::create(d.join(name), 512, 512, emccd_io::SampleFormat::U16, Some(1))
+            .unwrap();
+    w.set_metadata(&emccd_io::Metadata {
+        exposure_s,
+        ..Default::default()
+    });
+    w.write_frame(
+        &(0..512 * 512)
+            .map(|i| 500.0 + (i % 13) as f32 * 30.0)
+            .collect::<Vec<f32>>(),
+    )
+    .unwrap();
+    w.finish().unwrap();
+}
+
+fn fails_with(o: &std::process::Output, want: &str) {
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains(want), "wanted {want:?} in: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+fn files(d: &Path) -> Vec<String> {
+    let mut v: Vec<String> = walk(d)
+        .into_iter()
+        .map(|p| p.strip_prefix(d).unwrap().display().to_string())
+        .collect();
+    v.sort();
+    v
+}
+
+fn walk(d: &Path) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(d).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            out.extend(walk(&p));
+        } else {
+            out.push(p);
+        }
+    }
+    out
+}
+
+#[test]
+fn inputs_are_never_overwritten_and_outputs_never_shared() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    raw_frame(d, "x.tif", Some(0.01));
+    raw_frame(d, "a/x.tif", Some(0.01));
+    raw_frame(d, "b/x.tif", Some(0.01));
+    raw_frame(d, "out/y_denoised.tif", Some(0.01));
+    raw_frame(d, "y.tif", Some(0.01));
+    let before: Vec<(String, Vec<u8>)> = files(d)
+        .into_iter()
+        .map(|f| (f.clone(), std::fs::read(d.join(&f)).unwrap()))
+        .collect();
+    // The output is the input itself, spelled the same or differently.
+    fails_with(
+        &emccd(&["denoise", "x.tif", "-o", "x.tif"], d),
+        "is the input",
+    );
+    fails_with(
+        &emccd(&["denoise", "x.tif", "-o", "./a/../x.tif"], d),
+        "is the input",
+    );
+    // Two inputs with one file name from different folders.
+    fails_with(
+        &emccd(&["denoise", "a/x.tif", "b/x.tif", "-o", "out"], d),
+        "would both be written",
+    );
+    // An input that is another input's output, in the output folder.
+    fails_with(
+        &emccd(&["denoise", "y.tif", "out/y_denoised.tif", "-o", "out"], d),
+        "is the input",
+    );
+    let after: Vec<(String, Vec<u8>)> = files(d)
+        .into_iter()
+        .map(|f| (f.clone(), std::fs::read(d.join(&f)).unwrap()))
+        .collect();
+    assert_eq!(before, after, "a file was written or changed");
+}
+
+#[test]
+fn exposures_must_be_positive_seconds_and_near_the_calibration() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    raw_frame(d, "x.tif", Some(0.01));
+    raw_frame(d, "neg.tif", Some(-1.0));
+    for t in ["-1", "0", "NaN", "inf"] {
+        fails_with(
+            &emccd(&["denoise", "x.tif", "-o", "o.tif", "--exposure-s", t], d),
+            "must be a positive number of seconds",
+        );
+    }
+    // From a header it is the same error, saying where the number came from.
+    fails_with(
+        &emccd(&["denoise", "neg.tif", "-o", "o.tif"], d),
+        "from the file header",
+    );
+    // Far outside the calibrated range the fixed pattern is a guess: an error unless asked for.
+    fails_with(
+        &emccd(
+            &["denoise", "x.tif", "-o", "o.tif", "--exposure-s", "10"],
+            d,
+        ),
+        "--extrapolate",
+    );
+    assert!(!d.join("o.tif").exists());
+    // Bad tiling and self-ensembles are usage errors.
+    for args in [
+        ["--tile", "0"],
+        ["--tile", "32"],
+        ["--ensemble", "3"],
+        ["--ensemble", "0"],
+    ] {
+        let o = emccd(&["denoise", "x.tif", "-o", "o.tif", args[0], args[1]], d);
+        assert_eq!(o.status.code(), Some(2), "{args:?}");
+    }
+    fails_with(
+        &emccd(
+            &[
+                "denoise",
+                "x.tif",
+                "-o",
+                "o.tif",
+                "--tile",
+                "64",
+                "--overlap",
+                "32",
+            ],
+            d,
+        ),
+        "--overlap",
+    );
+    assert!(!d.join("o.tif").exists());
+    assert_eq!(files(d).len(), 2, "{:?}", files(d));
+}
+
+/// A profile without bias maps (what a gain-series calibration writes) cannot preprocess a
+/// frame: a clear error, not an index out of bounds.
+#[test]
+fn a_profile_without_bias_maps_cannot_denoise() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    raw_frame(d, "x.tif", Some(0.01));
+    let mut p = emccd_profile::default_profile();
+    p.exposures_s.clear();
+    p.maps.read_noise.clear();
+    p.maps.fpn_base.clear();
+    p.maps.fpn_theta.clear();
+    p.save(d.join("gain-only")).unwrap();
+    for method in ["bm3d", "net", "hybrid"] {
+        fails_with(
+            &emccd(
+                &[
+                    "denoise",
+                    "x.tif",
+                    "-o",
+                    "o.tif",
+                    "--profile",
+                    "gain-only",
+                    "--method",
+                    method,
+                ],
+                d,
+            ),
+            "cannot denoise",
+        );
+    }
+    assert!(!d.join("o.tif").exists());
+}
+
+/// Frames smaller than a BM3D block (11×11) are denoised, not a panic.
+#[test]
+fn bm3d_denoises_tiny_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    emccd_profile::default_profile()
+        .crop(0, 0, 8, 6)
+        .unwrap()
+        .save(d.join("tiny"))
+        .unwrap();
+    let mut w =
+        emccd_io::StackWriter::create(d.join("t.tif"), 8, 6, emccd_io::SampleFormat::U16, Some(2))
+            .unwrap();
+    for k in 0..2 {
+        w.write_frame(
+            &(0..48)
+                .map(|i| 500.0 + ((i * 7 + k) % 5) as f32 * 40.0)
+                .collect::<Vec<f32>>(),
+        )
+        .unwrap();
+    }
+    w.finish().unwrap();
+    ok(&emccd(
+        &[
+            "denoise",
+            "t.tif",
+            "-o",
+            "o.tif",
+            "--profile",
+            "tiny",
+            "--method",
+            "bm3d",
+            "--exposure-s",
+            "0.01",
+        ],
+        d,
+    ));
+    let (info, frames) = emccd_io::read_all(d.join("o.tif")).unwrap();
+    assert_eq!((info.width, info.height, info.frames), (8, 6, 2));
+    assert!(frames.iter().flatten().all(|v| v.is_finite()));
+}
+
+/// A reader that went away: stdout closed ends the program quietly (exit 0, no panic); stderr
+/// closed loses only messages, and every file of the batch is still written.
+#[cfg(unix)]
+#[test]
+fn closed_pipes_are_no_panic_and_lose_no_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    raw_frame(d, "a.tif", Some(0.01));
+    raw_frame(d, "b.tif", Some(0.01));
+    let bin = env!("CARGO_BIN_EXE_emccd");
+    // `true` exits at once, so the pipe is closed by the time emccd writes.
+    let run = |script: &str| {
+        Command::new("sh")
+            .arg("-c")
+            .arg(script)
+            .arg(bin)
+            .current_dir(d)
+            .output()
+            .unwrap()
+    };
+    let o = run(r#"(sleep 0.5; "$0" info --json a.tif; echo "rc=$?" >&2) | true"#);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("rc=0") && !err.contains("panicked"), "{err}");
+    let o = run(
+        r#"(sleep 0.5; "$0" denoise a.tif b.tif -o out --method bm3d 2>&1; echo "rc=$?" > rc.txt) | true"#,
+    );
+    let rc = std::fs::read_to_string(d.join("rc.txt")).unwrap();
+    assert_eq!(rc.trim(), "rc=0", "{}", String::from_utf8_lossy(&o.stderr));
+    for f in ["out/a_denoised.tif", "out/b_denoised.tif"] {
+        assert!(d.join(f).is_file(), "{f} missing");
+    }
+}
