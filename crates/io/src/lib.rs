@@ -45,6 +45,18 @@ pub enum PixelType {
     F64,
 }
 
+impl PixelType {
+    /// Bytes per sample on disk.
+    pub fn bytes(self) -> usize {
+        match self {
+            PixelType::U8 => 1,
+            PixelType::U16 | PixelType::I16 => 2,
+            PixelType::U32 | PixelType::I32 | PixelType::F32 => 4,
+            PixelType::F64 => 8,
+        }
+    }
+}
+
 /// The container format of a file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -148,7 +160,25 @@ pub fn open(path: impl AsRef<Path>) -> Result<Box<dyn FrameReader>> {
     open_inner(path).map_err(|e| e.with_path(path))
 }
 
+/// The largest frame a reader accepts, in pixels (2²⁸: a 16384² frame, 1 GiB as `f32`). Every
+/// caller allocates a frame buffer from the header's size before decoding a pixel, so a damaged
+/// or hostile header (65535² in a 1 kB file) must be refused here, not discovered by the
+/// allocator. EMCCD sensors are at most 1024²; mosaics and processed images far below this.
+pub const MAX_FRAME_PIXELS: usize = 1 << 28;
+
 fn open_inner(path: &Path) -> Result<Box<dyn FrameReader>> {
+    let r = open_any(path)?;
+    let i = r.info();
+    match i.width.checked_mul(i.height) {
+        Some(n) if n <= MAX_FRAME_PIXELS => Ok(r),
+        _ => Err(Error::Format(format!(
+            "the header claims {}×{} pixels per frame, beyond the {MAX_FRAME_PIXELS}-pixel limit of this reader (a damaged header?)",
+            i.width, i.height
+        ))),
+    }
+}
+
+fn open_any(path: &Path) -> Result<Box<dyn FrameReader>> {
     let mut magic = [0u8; 36];
     let n = {
         let mut f = File::open(path)?;

@@ -47,6 +47,20 @@ impl TiffReader {
             None => None,
         };
         let (pixel_type, channels) = page_pixel_type(&mut decoder, ct)?;
+        // Uncompressed pages must fit in the file: a header claiming more is damaged, and would
+        // otherwise have callers allocate its claim before the first read fails.
+        let compression = decoder
+            .find_tag_unsigned::<u16>(Tag::Compression)?
+            .unwrap_or(1);
+        if compression == 1 {
+            let bytes = (w as u128) * (h as u128) * channels as u128 * pixel_type.bytes() as u128;
+            let len = std::fs::metadata(path)?.len();
+            if bytes > len as u128 {
+                return Err(Error::Format(format!(
+                    "page 0 claims {w}×{h} uncompressed pixels ({bytes} bytes), but the file holds {len} bytes"
+                )));
+            }
+        }
         // Walk the IFD chain to count pages; every page must match the first.
         let mut frames = 1;
         while decoder.more_images() {
@@ -260,13 +274,9 @@ impl TiffStackWriter {
                 match self.sample {
                     SampleFormat::U8 => {
                         self.u8buf.clear();
-                        self.u8buf.extend(frame.iter().map(|&x| {
-                            if x.is_nan() {
-                                0
-                            } else {
-                                x.round().clamp(0.0, 255.0) as u8
-                            }
-                        }));
+                        // Finite: the stack writer refuses NaN and infinities.
+                        self.u8buf
+                            .extend(frame.iter().map(|&x| x.round().clamp(0.0, 255.0) as u8));
                         let mut img = $enc.new_image::<colortype::Gray8>(w, h)?;
                         if let Some(d) = &desc {
                             img.encoder().write_tag(Tag::ImageDescription, d.as_str())?;
@@ -275,13 +285,9 @@ impl TiffStackWriter {
                     }
                     SampleFormat::U16 => {
                         self.u16buf.clear();
-                        self.u16buf.extend(frame.iter().map(|&x| {
-                            if x.is_nan() {
-                                0
-                            } else {
-                                x.round().clamp(0.0, 65535.0) as u16
-                            }
-                        }));
+                        // Finite: the stack writer refuses NaN and infinities.
+                        self.u16buf
+                            .extend(frame.iter().map(|&x| x.round().clamp(0.0, 65535.0) as u16));
                         let mut img = $enc.new_image::<colortype::Gray16>(w, h)?;
                         if let Some(d) = &desc {
                             img.encoder().write_tag(Tag::ImageDescription, d.as_str())?;
@@ -418,7 +424,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("c.tif");
         let mut wr = StackWriter::create(&p, 4, 1, SampleFormat::U16, None).unwrap();
-        wr.write_frame(&[-5.0, 1.6, 70000.0, f32::NAN]).unwrap();
+        wr.write_frame(&[-5.0, 1.6, 70000.0, 0.4]).unwrap();
         wr.finish().unwrap();
         let (_, f) = crate::read_all(&p).unwrap();
         assert_eq!(f[0], vec![0.0, 2.0, 65535.0, 0.0]);

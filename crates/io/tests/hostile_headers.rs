@@ -1,0 +1,72 @@
+//! Headers that claim more than the file holds: refused when the file is opened, with the file
+//! named, before any caller allocates a frame buffer of the claimed size.
+
+use std::path::Path;
+
+/// A little-endian classic TIFF whose one page claims `w`×`h` float32 pixels with the given
+/// compression, followed by `payload` bytes of "data".
+fn tiff(path: &Path, w: u32, h: u32, compression: u16, payload: usize) {
+    let entries: [(u16, u16, u32); 10] = [
+        (256, 4, w),  // ImageWidth, LONG
+        (257, 4, h),  // ImageLength
+        (258, 3, 32), // BitsPerSample, SHORT
+        (259, 3, compression as u32),
+        (262, 3, 1),              // PhotometricInterpretation: min-is-black
+        (273, 4, 8),              // StripOffsets: right after the header
+        (277, 3, 1),              // SamplesPerPixel
+        (278, 4, h),              // RowsPerStrip
+        (279, 4, payload as u32), // StripByteCounts
+        (339, 3, 3),              // SampleFormat: IEEE float
+    ];
+    let ifd = 8 + payload as u32;
+    let mut b = Vec::new();
+    b.extend_from_slice(b"II*\0");
+    b.extend_from_slice(&ifd.to_le_bytes());
+    b.extend(std::iter::repeat_n(0u8, payload));
+    b.extend_from_slice(&(entries.len() as u16).to_le_bytes());
+    for (tag, typ, v) in entries {
+        b.extend_from_slice(&tag.to_le_bytes());
+        b.extend_from_slice(&typ.to_le_bytes());
+        b.extend_from_slice(&1u32.to_le_bytes());
+        if typ == 3 {
+            b.extend_from_slice(&(v as u16).to_le_bytes());
+            b.extend_from_slice(&[0, 0]);
+        } else {
+            b.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    b.extend_from_slice(&0u32.to_le_bytes());
+    std::fs::write(path, b).unwrap();
+}
+
+#[test]
+fn claimed_sizes_beyond_the_file_or_the_limit_are_refused_at_open() {
+    let dir = tempfile::tempdir().unwrap();
+    // A sane control: 16×16 float32 with its 1024 bytes present opens.
+    let good = dir.path().join("good.tif");
+    tiff(&good, 16, 16, 1, 16 * 16 * 4);
+    let (info, f) = emccd_io::read_first(&good).unwrap();
+    assert_eq!((info.width, info.height, f.len()), (16, 16, 256));
+    for (name, w, h, compression, want) in [
+        // 1 kB claiming 65535² float32 uncompressed (17 GB): more than the file holds.
+        ("big.tif", 65535, 65535, 1, "but the file holds"),
+        // 4294967295²: its byte count overflows 64 bits (the check counts in 128).
+        (
+            "huge.tif",
+            u32::MAX,
+            u32::MAX,
+            1,
+            "(73786976260478468100 bytes), but the file holds",
+        ),
+        // Deflate-compressed, so the file size proves nothing: the pixel limit decides.
+        ("deflate.tif", 65535, 65535, 8, "limit"),
+    ] {
+        let p = dir.path().join(name);
+        tiff(&p, w, h, compression, 1024);
+        let e = match emccd_io::open(&p) {
+            Ok(_) => panic!("{name} opened"),
+            Err(e) => e.to_string(),
+        };
+        assert!(e.contains(want) && e.contains(name), "{name}: {e}");
+    }
+}
