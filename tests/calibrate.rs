@@ -345,6 +345,6 @@ fn bad_input_is_a_clear_error_and_writes_nothing() {
         d,
         "em_gain = 300\n[[bias]]\nfile = \"cut.tif\"\nexposure_s = 0.01\n",
         "cut.tif",
-        "",
+        "truncated",
     );
 }

@@ -132,7 +132,28 @@ fn simulate_pairs_and_info() {
         ],
         dir.path(),
     ));
-    assert!(out.contains("PSNR"), "{out}");
+    // The PSNR it prints is the one `evaluate` computes from the files it wrote (two code
+    // paths: the simulator's own scoring, and a reader of pairs.toml and the stacks).
+    let printed: f64 = out
+        .lines()
+        .find(|l| l.starts_with("noisy/field2-avg50_p50.tif"))
+        .and_then(|l| l.split_whitespace().nth(2))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no PSNR row in {out}"));
+    let table = ok(&emccd(
+        &["evaluate", "pairs", "--method", "input"],
+        dir.path(),
+    ));
+    let scored: f64 = table
+        .lines()
+        .find(|l| l.starts_with("| all | input | all |"))
+        .and_then(|l| l.split('|').nth(5))
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or_else(|| panic!("no input row in {table}"));
+    assert!(
+        (printed - scored).abs() < 0.011,
+        "simulate printed {printed} dB, evaluate scored {scored} dB"
+    );
     let p = dir.path().join("pairs");
     let m: toml::Value =
         toml::from_str(&std::fs::read_to_string(p.join("pairs.toml")).unwrap()).unwrap();
