@@ -136,22 +136,6 @@ fn exposures_must_be_positive_seconds_and_near_the_calibration() {
         let o = emccd(&["denoise", "x.tif", "-o", "o.tif", args[0], args[1]], d);
         assert_eq!(o.status.code(), Some(2), "{args:?}");
     }
-    fails_with(
-        &emccd(
-            &[
-                "denoise",
-                "x.tif",
-                "-o",
-                "o.tif",
-                "--tile",
-                "64",
-                "--overlap",
-                "32",
-            ],
-            d,
-        ),
-        "--overlap",
-    );
     assert!(!d.join("o.tif").exists());
     assert_eq!(files(d).len(), 2, "{:?}", files(d));
 }

@@ -3,15 +3,19 @@
 
 // The standard `println!`/`eprintln!` panic when the stream is closed (`emccd info f | head -1`,
 // or a log reader that went away in the middle of a batch). These shadow them for the whole
-// binary: stdout closed means nobody reads the rest, so the program ends quietly, as the
-// error handler in `main` does for a closed pipe; stderr closed loses only the messages, and
-// the work (a batch of files) goes on.
+// binary: once stdout is closed nobody reads the rest, so later output is dropped while the
+// command finishes its work (files it writes after its table, temporary files it removes);
+// stderr closed loses only the messages.
+static STDOUT_CLOSED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 macro_rules! println {
     ($($t:tt)*) => {{
         use std::io::Write as _;
-        if let Err(e) = writeln!(std::io::stdout(), $($t)*) {
-            if e.kind() == std::io::ErrorKind::BrokenPipe {
-                std::process::exit(0);
+        use std::sync::atomic::Ordering;
+        if !crate::STDOUT_CLOSED.load(Ordering::Relaxed) {
+            if let Err(e) = writeln!(std::io::stdout(), $($t)*) {
+                if e.kind() == std::io::ErrorKind::BrokenPipe {
+                    crate::STDOUT_CLOSED.store(true, Ordering::Relaxed);
+                }
             }
         }
     }};
@@ -19,9 +23,12 @@ macro_rules! println {
 macro_rules! print {
     ($($t:tt)*) => {{
         use std::io::Write as _;
-        if let Err(e) = write!(std::io::stdout(), $($t)*) {
-            if e.kind() == std::io::ErrorKind::BrokenPipe {
-                std::process::exit(0);
+        use std::sync::atomic::Ordering;
+        if !crate::STDOUT_CLOSED.load(Ordering::Relaxed) {
+            if let Err(e) = write!(std::io::stdout(), $($t)*) {
+                if e.kind() == std::io::ErrorKind::BrokenPipe {
+                    crate::STDOUT_CLOSED.store(true, Ordering::Relaxed);
+                }
             }
         }
     }};

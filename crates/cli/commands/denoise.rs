@@ -74,7 +74,7 @@ pub struct Args {
     /// Tile side for large frames, px, at least 64 (a 512×512 frame runs in one piece).
     #[arg(long, default_value_t = 512, value_parser = parse_tile)]
     pub tile: usize,
-    /// Overlap between tiles, px.
+    /// Overlap between tiles, px (at most half a tile; more is reduced to that).
     #[arg(long, default_value_t = 32)]
     pub overlap: usize,
     /// Average the network over this many flips/transposes of each frame (1, 2, 4 or 8):
@@ -208,13 +208,6 @@ pub fn run(a: Args) -> Result<()> {
         tile: a.tile,
         overlap: a.overlap,
     };
-    if a.overlap * 2 >= a.tile {
-        bail!(
-            "--overlap {} must be less than half of --tile {}",
-            a.overlap,
-            a.tile
-        );
-    }
     profile
         .require_complete()
         .with_context(|| format!("profile {}: it cannot denoise", a.profile))?;

@@ -333,8 +333,9 @@ fn aggregate(
         .collect()
 }
 
-/// BM3D of an image smaller than the largest block: mirrored (whole-sample symmetric, so a
-/// one-pixel side repeats) to at least [`NMAX`] on each side, filtered, and cut back.
+/// BM3D of an image smaller than the largest block: mirrored (half-sample symmetric: the edge
+/// pixel repeats, so a one-pixel side works too) to at least [`NMAX`] on each side, filtered,
+/// and cut back.
 fn bm3d_padded(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -> Vec<f32> {
     let mirror = |i: usize, n: usize| {
         let k = i % (2 * n);
@@ -355,6 +356,7 @@ fn bm3d_padded(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -
 /// Denoises `noisy` (`w × h`, row-major) with noise std `sigma`, in units where the image spans
 /// about `data_range` (the matching thresholds are defined for 8-bit data).
 pub fn bm3d(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -> Vec<f32> {
+    assert_eq!(noisy.len(), w * h, "image size");
     if w == 0 || h == 0 {
         return Vec::new();
     }

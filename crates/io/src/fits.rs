@@ -42,10 +42,51 @@ fn card_string(v: Option<&Value>) -> Option<String> {
     }
 }
 
+/// Reads the primary header's `NAXISn` cards before `fitsrs` multiplies them (it does so
+/// unchecked, and a damaged header can hold any 64-bit values): their product must stay below
+/// 2⁵² pixels (a limit of 2²⁸-pixel frames times 2²⁴ frames), so the arithmetic cannot overflow;
+/// the frame size itself is then checked against the reader's limit and the file's length.
+fn check_primary_axes(path: &Path) -> Result<()> {
+    use std::io::Read;
+    let mut f = BufReader::new(File::open(path)?);
+    let mut card = [0u8; 80];
+    let mut total: u64 = 1;
+    // At most 36 header blocks of 36 cards: far more than any camera writes.
+    for _ in 0..36 * 36 {
+        if f.read_exact(&mut card).is_err() {
+            return Ok(()); // a short file: fitsrs reports it
+        }
+        let key = std::str::from_utf8(&card[..8]).unwrap_or("").trim_end();
+        if key == "END" {
+            break;
+        }
+        if key
+            .strip_prefix("NAXIS")
+            .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+        {
+            let v = std::str::from_utf8(&card[10..])
+                .unwrap_or("")
+                .split('/')
+                .next()
+                .unwrap_or("")
+                .trim();
+            let v: u64 = v
+                .parse()
+                .map_err(|_| Error::Format(format!("FITS header: {key} = {v:?} is not a size")))?;
+            total = total
+                .checked_mul(v)
+                .filter(|&t| t <= (crate::MAX_FRAME_PIXELS as u64).saturating_mul(1 << 24))
+                .ok_or_else(|| Error::Format(format!("FITS header: the axes multiply to more pixels than any file holds ({key} = {v}; a damaged header?)")))?;
+        }
+    }
+    Ok(())
+}
+
 impl FitsReader {
     /// Opens a file and locates its image data.
     pub fn open(path: &Path) -> Result<FitsReader> {
         let file_len = std::fs::metadata(path)?.len();
+        check_primary_axes(path)?;
         let mut hdus = Fits::from_reader(BufReader::new(File::open(path)?));
         let mut found = None;
         while let Some(hdu) = hdus.next() {
@@ -89,10 +130,14 @@ impl FitsReader {
         let (naxis, bitpix, bzero, bscale, offset, mut metadata) = found
             .ok_or_else(|| Error::Format("FITS: no image HDU with two or more axes".into()))?;
         let (width, height) = (naxis[0] as usize, naxis[1] as usize);
-        let frames_declared: usize = naxis[2..].iter().product::<u64>() as usize;
+        let frames_declared = naxis[2..]
+            .iter()
+            .try_fold(1u64, |a, &n| a.checked_mul(n))
+            .unwrap_or(u64::MAX);
+        let frames_declared = usize::try_from(frames_declared).unwrap_or(usize::MAX);
         let bpp = (bitpix.unsigned_abs() / 8) as usize;
-        let frame_bytes = width * height * bpp;
-        let whole = (file_len.saturating_sub(offset) / frame_bytes as u64) as usize;
+        let frame_bytes = crate::frame_bytes(width, height, bpp)?;
+        let whole = (file_len.saturating_sub(offset) / frame_bytes) as usize;
         let frames = whole.min(frames_declared);
         if frames == 0 {
             return Err(Error::Format(format!(
@@ -128,7 +173,7 @@ impl FitsReader {
             bzero,
             bscale,
             next: 0,
-            bytes: vec![0; frame_bytes],
+            bytes: vec![0; frame_bytes as usize],
         })
     }
 }

@@ -166,6 +166,17 @@ pub fn open(path: impl AsRef<Path>) -> Result<Box<dyn FrameReader>> {
 /// allocator. EMCCD sensors are at most 1024²; mosaics and processed images far below this.
 pub const MAX_FRAME_PIXELS: usize = 1 << 28;
 
+/// Bytes of one `width`×`height` frame of `bytes_per_sample`, for readers to compute before they
+/// trust a header: an error past [`MAX_FRAME_PIXELS`] (or on overflow), never zero.
+pub(crate) fn frame_bytes(width: usize, height: usize, bytes_per_sample: usize) -> Result<u64> {
+    match width.checked_mul(height) {
+        Some(n) if n > 0 && n <= MAX_FRAME_PIXELS && bytes_per_sample > 0 => Ok((n * bytes_per_sample) as u64),
+        _ => Err(Error::Format(format!(
+            "the header claims {width}×{height} pixels per frame of {bytes_per_sample}-byte samples; a frame must hold 1 to {MAX_FRAME_PIXELS} pixels (a damaged header?)"
+        ))),
+    }
+}
+
 fn open_inner(path: &Path) -> Result<Box<dyn FrameReader>> {
     let r = open_any(path)?;
     let i = r.info();

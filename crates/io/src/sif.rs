@@ -66,7 +66,7 @@ impl SifReader {
         let mut file = BufReader::new(File::open(path)?);
         let file_len = file.get_ref().metadata()?.len();
         let header = parse_header(&mut file, file_len)?;
-        let frame_bytes = (header.width * header.height * 4) as u64;
+        let frame_bytes = crate::frame_bytes(header.width, header.height, 4)?;
         let available = file_len.saturating_sub(header.data_offset) / frame_bytes;
         let frames = (available as usize).min(header.frames_declared);
         let mut metadata = Metadata {
@@ -84,7 +84,7 @@ impl SifReader {
                 "truncated: the header declares {} frames ({} bytes of pixel data) but the file holds \
                  {} bytes after the header, so only frames 1–{} are whole; frames {}–{} are missing",
                 header.frames_declared,
-                frame_bytes * header.frames_declared as u64,
+                frame_bytes.saturating_mul(header.frames_declared as u64),
                 have,
                 frames,
                 frames + 1,
@@ -235,8 +235,9 @@ fn parse_header(r: &mut BufReader<File>, file_len: u64) -> Result<SifHeader> {
                 i + 1
             )));
         }
-        let w = ((x1 - x0 + 1) / xbin) as usize;
-        let h = ((y1 - y0 + 1) / ybin) as usize;
+        // Differences and sums in i128: a damaged header can hold any 64-bit values.
+        let w = ((x1 as i128 - x0 as i128 + 1) / xbin as i128) as usize;
+        let h = ((y1 as i128 - y0 as i128 + 1) / ybin as i128) as usize;
         if i == 0 {
             width = w;
             binning = (xbin as u32, ybin as u32);
@@ -245,9 +246,9 @@ fn parse_header(r: &mut BufReader<File>, file_len: u64) -> Result<SifHeader> {
                 "SIF sub-images of different widths".into(),
             ));
         }
-        height += h;
+        height = height.saturating_add(h);
     }
-    if width * height != image_len {
+    if width.checked_mul(height) != Some(image_len) {
         return Err(fmt_err(format!(
             "sub-images cover {}×{} pixels but the image length is {image_len}",
             width, height

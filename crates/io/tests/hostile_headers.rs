@@ -70,3 +70,35 @@ fn claimed_sizes_beyond_the_file_or_the_limit_are_refused_at_open() {
         assert!(e.contains(want) && e.contains(name), "{name}: {e}");
     }
 }
+
+/// A FITS header whose axes multiply past 64 bits, and one whose frame is beyond the limit.
+#[test]
+fn fits_axes_beyond_the_limit_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, n1, n2) in [
+        ("wide.fits", 4294967296u64, 4294967296u64),
+        ("big.fits", 65536, 65536),
+    ] {
+        let mut h = String::new();
+        for card in [
+            "SIMPLE  =                    T".to_string(),
+            "BITPIX  =                   16".into(),
+            "NAXIS   =                    3".into(),
+            format!("NAXIS1  = {n1:>20}"),
+            format!("NAXIS2  = {n2:>20}"),
+            format!("NAXIS3  = {:>20}", u32::MAX),
+            "END".into(),
+        ] {
+            h.push_str(&format!("{card:<80}"));
+        }
+        let mut b = h.into_bytes();
+        b.resize(2880 * 2, b' ');
+        let p = dir.path().join(name);
+        std::fs::write(&p, b).unwrap();
+        let e = match emccd_io::open(&p) {
+            Ok(_) => panic!("{name} opened"),
+            Err(e) => e.to_string(),
+        };
+        assert!(e.contains(name), "{name}: {e}");
+    }
+}
