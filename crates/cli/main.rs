@@ -7,31 +7,31 @@
 // command finishes its work (files it writes after its table, temporary files it removes);
 // stderr closed loses only the messages.
 static STDOUT_CLOSED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
-macro_rules! println {
-    ($($t:tt)*) => {{
-        use std::io::Write as _;
-        use std::sync::atomic::Ordering;
-        if !crate::STDOUT_CLOSED.load(Ordering::Relaxed) {
-            if let Err(e) = writeln!(std::io::stdout(), $($t)*) {
-                if e.kind() == std::io::ErrorKind::BrokenPipe {
-                    crate::STDOUT_CLOSED.store(true, Ordering::Relaxed);
-                }
+
+/// Writes to stdout unless it was found closed; a broken pipe marks it closed.
+fn write_stdout(args: std::fmt::Arguments) {
+    use std::io::Write as _;
+    use std::sync::atomic::Ordering;
+    if !STDOUT_CLOSED.load(Ordering::Relaxed) {
+        if let Err(e) = std::io::stdout().write_fmt(args) {
+            if e.kind() == std::io::ErrorKind::BrokenPipe {
+                STDOUT_CLOSED.store(true, Ordering::Relaxed);
             }
         }
-    }};
+    }
+}
+macro_rules! println {
+    () => {
+        crate::write_stdout(format_args!("\n"))
+    };
+    ($($t:tt)*) => {
+        crate::write_stdout(format_args!("{}\n", format_args!($($t)*)))
+    };
 }
 macro_rules! print {
-    ($($t:tt)*) => {{
-        use std::io::Write as _;
-        use std::sync::atomic::Ordering;
-        if !crate::STDOUT_CLOSED.load(Ordering::Relaxed) {
-            if let Err(e) = write!(std::io::stdout(), $($t)*) {
-                if e.kind() == std::io::ErrorKind::BrokenPipe {
-                    crate::STDOUT_CLOSED.store(true, Ordering::Relaxed);
-                }
-            }
-        }
-    }};
+    ($($t:tt)*) => {
+        crate::write_stdout(format_args!($($t)*))
+    };
 }
 macro_rules! eprintln {
     ($($t:tt)*) => {{

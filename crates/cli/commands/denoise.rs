@@ -234,12 +234,8 @@ pub fn run(a: Args) -> Result<()> {
                 input.display()
             ),
         };
-        if !(exposure.is_finite() && exposure > 0.0) {
-            bail!(
-                "{}: exposure {exposure} s (from {source}) must be a positive number of seconds",
-                input.display()
-            );
-        }
+        emccd_nn::pipeline::check_exposure(exposure)
+            .with_context(|| format!("{}: the exposure from {source}", input.display()))?;
         if (info.width, info.height) != (profile.width, profile.height) {
             bail!(
                 "{}: frames are {}×{}, the profile's sensor is {}×{}",

@@ -166,27 +166,32 @@ pub fn open(path: impl AsRef<Path>) -> Result<Box<dyn FrameReader>> {
 /// allocator. EMCCD sensors are at most 1024²; mosaics and processed images far below this.
 pub const MAX_FRAME_PIXELS: usize = 1 << 28;
 
-/// Bytes of one `width`×`height` frame of `bytes_per_sample`, for readers to compute before they
-/// trust a header: an error past [`MAX_FRAME_PIXELS`] (or on overflow), never zero.
-pub(crate) fn frame_bytes(width: usize, height: usize, bytes_per_sample: usize) -> Result<u64> {
+/// Pixels of one `width`×`height` frame, or an error past [`MAX_FRAME_PIXELS`] (or on
+/// overflow): what every reader's header must pass before a frame buffer is allocated.
+fn frame_pixels(width: usize, height: usize) -> Result<usize> {
     match width.checked_mul(height) {
-        Some(n) if n > 0 && n <= MAX_FRAME_PIXELS && bytes_per_sample > 0 => Ok((n * bytes_per_sample) as u64),
+        Some(n) if n <= MAX_FRAME_PIXELS => Ok(n),
         _ => Err(Error::Format(format!(
-            "the header claims {width}×{height} pixels per frame of {bytes_per_sample}-byte samples; a frame must hold 1 to {MAX_FRAME_PIXELS} pixels (a damaged header?)"
+            "the header claims {width}×{height} pixels per frame, beyond the {MAX_FRAME_PIXELS}-pixel limit of this reader (a damaged header?)"
         ))),
+    }
+}
+
+/// Bytes of one `width`×`height` frame of `bytes_per_sample`, for readers that divide by it
+/// before they trust a header: [`frame_pixels`]' limit, and never zero.
+pub(crate) fn frame_bytes(width: usize, height: usize, bytes_per_sample: usize) -> Result<u64> {
+    match frame_pixels(width, height)? * bytes_per_sample {
+        0 => Err(Error::Format(format!(
+            "the header claims an empty frame ({width}×{height} pixels of {bytes_per_sample}-byte samples)"
+        ))),
+        n => Ok(n as u64),
     }
 }
 
 fn open_inner(path: &Path) -> Result<Box<dyn FrameReader>> {
     let r = open_any(path)?;
-    let i = r.info();
-    match i.width.checked_mul(i.height) {
-        Some(n) if n <= MAX_FRAME_PIXELS => Ok(r),
-        _ => Err(Error::Format(format!(
-            "the header claims {}×{} pixels per frame, beyond the {MAX_FRAME_PIXELS}-pixel limit of this reader (a damaged header?)",
-            i.width, i.height
-        ))),
-    }
+    frame_pixels(r.info().width, r.info().height)?;
+    Ok(r)
 }
 
 fn open_any(path: &Path) -> Result<Box<dyn FrameReader>> {

@@ -317,22 +317,25 @@ fn orient(src: &[f32], c: usize, mode: u8) -> Vec<f32> {
     out
 }
 
-/// The training pair number `k` of a run with seed `seed`: a pure function of both.
-fn pair(
+/// The training pair with sample seed `s`: the image (chosen by `s`) and its synthesized crop.
+fn sample(
     images: &[Image],
     profile: &CameraProfile,
     cfg: &TrainConfig,
     inputs: Inputs,
     abl: Ablation,
-    seed: u64,
-    k: u64,
+    s: u64,
 ) -> Result<(Vec<f32>, Vec<f32>)> {
-    let s = (seed ^ 0x5EED_9001)
-        .wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        .wrapping_add(k.wrapping_mul(0xD1B5_4A32_D192_ED03));
     let img =
         &images[(Pcg64::seed_from_u64(s ^ 0xA5A5).random::<u64>() % images.len() as u64) as usize];
     synth_sample(img, profile, cfg, inputs, abl, s)
+}
+
+/// The sample seed of pair number `k` of a pooled run with seed `seed`.
+fn pair_seed(seed: u64, k: u64) -> u64 {
+    (seed ^ 0x5EED_9001)
+        .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        .wrapping_add(k.wrapping_mul(0xD1B5_4A32_D192_ED03))
 }
 
 /// Pairs synthesized once and drawn about `reuse` times: a sliding window over the sequence of
@@ -362,7 +365,9 @@ impl Pool {
         let missing: Vec<u64> = (lo..n).filter(|k| !self.pairs.contains_key(k)).collect();
         let fresh: Vec<(u64, (Vec<f32>, Vec<f32>))> = missing
             .into_par_iter()
-            .map(|k| pair(images, profile, cfg, inputs, abl, cfg.seed, k).map(|p| (k, p)))
+            .map(|k| {
+                sample(images, profile, cfg, inputs, abl, pair_seed(cfg.seed, k)).map(|p| (k, p))
+            })
             .collect::<Result<_>>()?;
         self.pairs.extend(fresh);
         let c = cfg.crop;
@@ -397,9 +402,7 @@ fn make_batch(
             let s = seed
                 .wrapping_mul(0x9E37_79B9_7F4A_7C15)
                 .wrapping_add(b as u64 + 1);
-            let img = &images
-                [(Pcg64::seed_from_u64(s ^ 0xA5A5).random::<u64>() % images.len() as u64) as usize];
-            synth_sample(img, profile, cfg, inputs, abl, s)
+            sample(images, profile, cfg, inputs, abl, s)
         })
         .collect::<Result<_>>()?;
     let mut input = Vec::with_capacity(cfg.batch * inputs.channels() * c * c);
