@@ -93,6 +93,14 @@ fn inputs_are_never_overwritten_and_outputs_never_shared() {
         &emccd(&["denoise", "y.tif", "out/y_denoised.tif", "-o", "out"], d),
         "is the input",
     );
+    // `synthesize` writes noise onto an image: never over that image.
+    fails_with(
+        &emccd(
+            &["synthesize", "x.tif", "-o", "./x.tif", "--model", "ours"],
+            d,
+        ),
+        "is the input",
+    );
     let after: Vec<(String, Vec<u8>)> = files(d)
         .into_iter()
         .map(|f| (f.clone(), std::fs::read(d.join(&f)).unwrap()))
@@ -196,24 +204,28 @@ fn bm3d_denoises_tiny_frames() {
         .unwrap();
     }
     w.finish().unwrap();
-    ok(&emccd(
-        &[
-            "denoise",
-            "t.tif",
-            "-o",
-            "o.tif",
-            "--profile",
-            "tiny",
-            "--method",
-            "bm3d",
-            "--exposure-s",
-            "0.01",
-        ],
-        d,
-    ));
-    let (info, frames) = emccd_io::read_all(d.join("o.tif")).unwrap();
-    assert_eq!((info.width, info.height, info.frames), (8, 6, 2));
-    assert!(frames.iter().flatten().all(|v| v.is_finite()));
+    // Both classical methods; ivst bins this dim frame 4×4 (2×2 blocks) before BM3D.
+    for method in ["bm3d", "ivst"] {
+        let out = format!("o-{method}.tif");
+        ok(&emccd(
+            &[
+                "denoise",
+                "t.tif",
+                "-o",
+                &out,
+                "--profile",
+                "tiny",
+                "--method",
+                method,
+                "--exposure-s",
+                "0.01",
+            ],
+            d,
+        ));
+        let (info, frames) = emccd_io::read_all(d.join(&out)).unwrap();
+        assert_eq!((info.width, info.height, info.frames), (8, 6, 2));
+        assert!(frames.iter().flatten().all(|v| v.is_finite()), "{method}");
+    }
 }
 
 /// A reader that went away: stdout closed ends the program quietly (exit 0, no panic); stderr
@@ -247,4 +259,25 @@ fn closed_pipes_are_no_panic_and_lose_no_work() {
     for f in ["out/a_denoised.tif", "out/b_denoised.tif"] {
         assert!(d.join(f).is_file(), "{f} missing");
     }
+}
+
+/// A `simulate pairs` that fails (a scene that is no image) leaves no folders behind, except
+/// those that existed before; the reason is said once, with the file named.
+#[test]
+fn a_failed_simulation_leaves_nothing_and_says_why_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("bad.png"), "not an image").unwrap();
+    std::fs::create_dir(d.join("kept")).unwrap();
+    for out in ["fresh", "kept"] {
+        let o = emccd(&["simulate", "pairs", "--clean", "bad.png", "-o", out], d);
+        fails_with(&o, "bad.png");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(err.matches("unrecognized first bytes").count(), 1, "{err}");
+    }
+    assert!(
+        !d.join("fresh").exists(),
+        "a folder this run created was left"
+    );
+    assert!(d.join("kept").is_dir() && files(&d.join("kept")).is_empty());
 }

@@ -334,6 +334,27 @@ fn bad_input_is_a_clear_error_and_writes_nothing() {
         "sat.tif",
         "brighter than the ADC range",
     );
+    // Flats that are not flats: all zero (below the bias), or frames that never vary.
+    write_u16(
+        &d.join("zero.tif"),
+        16,
+        16,
+        &[vec![0.0; 256], vec![0.0; 256]],
+    );
+    write_u16(
+        &d.join("still.tif"),
+        16,
+        16,
+        &[vec![900.0; 256], vec![900.0; 256]],
+    );
+    for f in ["zero.tif", "still.tif"] {
+        expect_failure(
+            d,
+            &format!("em_gain = 300\n[[bias]]\nfile = \"good.tif\"\nexposure_s = 0.01\n[[flat]]\nfile = \"{f}\"\nexposure_s = 0.01\n"),
+            f,
+            "not a flat field",
+        );
+    }
     // A truncated stack.
     let bytes = std::fs::read(d.join("good.tif")).unwrap();
     let big: Vec<Vec<f32>> = (0..6).map(|k| noise(k, 4096, 500.0)).collect();

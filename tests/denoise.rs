@@ -223,3 +223,61 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("absent.safetensors"));
 }
+
+/// With neither --method nor --model, `denoise` runs `ivst` (the most accurate method shipped on
+/// the low-light suite), which at a fraction of a photoelectron per pixel is not plain BM3D.
+#[test]
+fn the_default_method_is_iterative_bm3d() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let p = emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap();
+    p.save(d.join("prof")).unwrap();
+    // About 0.5 photoelectrons per pixel (K = s/2 DN each) on the bias, as a camera records it.
+    let slope = p.slope().unwrap();
+    let clean: Vec<f32> = (0..64 * 64)
+        .map(|i| (0.5 + 0.45 * ((i % 64) as f32 / 9.0).sin()) * slope as f32 / 2.0)
+        .collect();
+    let mut noisy = vec![0f32; clean.len()];
+    emccd_camera::NoiseModel::synthesize(
+        &emccd_camera::PgnModel::from_profile(&p, 0.01).unwrap(),
+        &clean,
+        64,
+        &mut noisy,
+        5,
+    );
+    let mut fpn = vec![0f32; p.len()];
+    p.fpn_at(0.01, &mut fpn);
+    let raw: Vec<f32> = noisy
+        .iter()
+        .zip(&fpn)
+        .map(|(n, f)| (n + f).round())
+        .collect();
+    let mut w = emccd_io::StackWriter::create(
+        d.join("raw.tif"),
+        64,
+        64,
+        emccd_io::SampleFormat::U16,
+        Some(1),
+    )
+    .unwrap();
+    w.write_frame(&raw).unwrap();
+    w.finish().unwrap();
+    let run = |extra: &[&str], out: &str| {
+        let mut args = vec![
+            "denoise",
+            "raw.tif",
+            "-o",
+            out,
+            "--profile",
+            "prof",
+            "--exposure-s",
+            "0.01",
+        ];
+        args.extend_from_slice(extra);
+        ok(&emccd(&args, d));
+        emccd_io::read_all(d.join(out)).unwrap().1.concat()
+    };
+    let default = run(&[], "default.tif");
+    assert_eq!(default, run(&["--method", "ivst"], "ivst.tif"));
+    assert_ne!(default, run(&["--method", "bm3d"], "bm3d.tif"));
+}

@@ -14,6 +14,8 @@ Cameras (--camera):
   unseen      EM gain 150, slope 37.5 DN, read noise 10 DN (the README's "unseen camera")
   lowlight-a  EM gain 300, slope 150 DN, read noise 12 DN, CIC 0.02 e-, hot pixels 5e-4
   lowlight-b  EM gain 1000, slope 30 DN, read noise 5 DN, CIC 0.05 e-, hot pixels 2e-3
+  tune        EM gain 500, slope 80 DN, read noise 8 DN, CIC 0.03 e-, hot pixels 1e-3 (validation:
+              for choosing settings, on scenes outside the low-light suite)
 
 Test pairs are either at fixed photons at a scene's brightest pixel (--photons, the default
 mode) or at fixed *mean* photoelectrons per pixel (--mean-electrons, how the low-light suite
@@ -54,6 +56,11 @@ CAMERAS = {
     "lowlight-b": dict(camera=dict(em_gain=1000.0, full_well_serial=2e6, dark_current=0.05, cic=0.05,
                                    read_noise=333.3, bias=6667.0, eperdn=66.67),
                        hot_fraction=2e-3, flat_e=[2.0, 5.0, 12.0, 30.0, 70.0, 150.0]),
+    # For choosing settings and checkpoints (held-out validation, never a reported figure):
+    # between A and B, on scenes that are not in the low-light suite.
+    "tune": dict(camera=dict(em_gain=500.0, full_well_serial=1.5e6, dark_current=0.02, cic=0.03,
+                             read_noise=100.0, bias=3000.0, eperdn=12.5),
+                 hot_fraction=1e-3, flat_e=[2.0, 5.0, 12.0, 30.0, 70.0, 150.0]),
 }
 HOT_RATE = 400.0  # e-/s
 BIAS_EXPOSURES = [1e-4, 1e-3, 3e-3, 0.01, 0.03, 0.1, 0.3]

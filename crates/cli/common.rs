@@ -132,3 +132,21 @@ pub fn psnr(x: &[f32], reference: &[f32], data_range: f64) -> f64 {
         / x.len() as f64;
     10.0 * (data_range * data_range / mse.max(1e-30)).log10()
 }
+
+/// The file a path names, for comparing files rather than spellings (`./x.tif`, `a/../x.tif`
+/// and `x.tif` are one file); the file itself need not exist yet.
+pub fn canonical(p: &Path) -> PathBuf {
+    match (
+        p.parent().filter(|d| !d.as_os_str().is_empty()),
+        p.file_name(),
+    ) {
+        (Some(d), Some(f)) => d
+            .canonicalize()
+            .map(|d| d.join(f))
+            .unwrap_or_else(|_| p.to_path_buf()),
+        (None, Some(f)) => std::env::current_dir()
+            .map(|d| d.join(f))
+            .unwrap_or_else(|_| p.to_path_buf()),
+        _ => p.to_path_buf(),
+    }
+}

@@ -99,9 +99,16 @@ fn main() {
         }) {
             std::process::exit(0);
         }
-        eprintln!("error: {e}");
+        let mut last = e.to_string();
+        eprintln!("error: {last}");
+        // A cause that its wrapper already spells out (an error with its file attached prints
+        // the error itself too) is said once.
         for cause in e.chain().skip(1) {
-            eprintln!("  caused by: {cause}");
+            let c = cause.to_string();
+            if !last.contains(&c) {
+                eprintln!("  caused by: {c}");
+            }
+            last = c;
         }
         std::process::exit(2);
     }

@@ -438,6 +438,17 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
             }
             let (median_dn, variance_dn2, variance_se_dn2, pixels) =
                 ptc::level_stats(&signal, &var, width, crop);
+            // Every recorded frame carries at least read noise, and a flat lies above the bias:
+            // frames that never vary (a constant or all-zero stack) or sit at or below the bias
+            // are not a flat field, and would drag the slope anywhere.
+            if variance_dn2 <= 0.0 || median_dn <= 0.0 || !median_dn.is_finite() {
+                return Err(Error::input(
+                    &c.file,
+                    format!(
+                        "not a flat field: median {median_dn:.2} DN above the bias and temporal variance {variance_dn2:.3} DN² (a flat is brighter than the bias and its frames vary)"
+                    ),
+                ));
+            }
             let saturated_fraction = st.saturated as f64 / (st.frames * n) as f64;
             let status = if saturated_fraction > 1e-4 {
                 LevelStatus::Saturated

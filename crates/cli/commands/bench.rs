@@ -173,7 +173,12 @@ fn denoise_bench(
             let peak = truth.iter().copied().fold(0f32, f32::max).max(1.0) as f64;
             let pre = emccd_nn::pipeline::preprocess(&profile, &raw, 0.01)?;
             let t = Instant::now();
-            let bm = crate::commands::denoise::bm3d_frame(&profile, &raw, 0.01)?;
+            let bm = crate::commands::denoise::classical_frame(
+                &profile,
+                &raw,
+                0.01,
+                emccd_nn::Base::Bm3d,
+            )?;
             bm_secs += t.elapsed().as_secs_f64();
             let (a, c) = (
                 crate::common::psnr(&pre, &truth, peak),

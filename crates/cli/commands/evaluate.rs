@@ -182,7 +182,7 @@ pub fn run(a: Args) -> Result<()> {
         .collect::<Result<Vec<_>>>()?;
     let mut models = BTreeMap::new();
     for m in &a.methods {
-        if m != "input" && m != "bm3d" {
+        if !["input", "bm3d", "ivst"].contains(&m.as_str()) && !m.starts_with("ivst:") {
             let (name, k) = crate::commands::denoise::model_spec(m)?;
             models.insert(m.clone(), (crate::commands::denoise::load_model(name)?, k));
         }
@@ -211,7 +211,19 @@ pub fn run(a: Args) -> Result<()> {
                 let t = std::time::Instant::now();
                 let out = match m.as_str() {
                     "input" => emccd_nn::pipeline::preprocess(&prof, &raw, p.exposure_s)?,
-                    "bm3d" => crate::commands::denoise::bm3d_frame(&prof, &raw, p.exposure_s)?,
+                    "bm3d" | "ivst" => crate::commands::denoise::classical_frame(
+                        &prof,
+                        &raw,
+                        p.exposure_s,
+                        m.parse().map_err(|e: String| anyhow::anyhow!(e))?,
+                    )?,
+                    spec if spec.starts_with("ivst:") => {
+                        let passes: emccd_eval::vst::Schedule = spec[5..]
+                            .parse()
+                            .map_err(|e: String| anyhow::anyhow!("{spec}: {e}"))?;
+                        let pre = emccd_nn::pipeline::preprocess(&prof, &raw, p.exposure_s)?;
+                        emccd_nn::pipeline::bm3d_passes(&prof, &pre, p.exposure_s, &passes.0)?
+                    }
                     other => Pipeline {
                         model: &models[other].0,
                         profile: &prof,

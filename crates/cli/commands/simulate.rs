@@ -507,10 +507,33 @@ fn pairs(
     } else {
         &["noisy", "clean", "preview"]
     };
-    for d in dirs {
-        std::fs::create_dir_all(out.join(d))
-            .with_context(|| format!("creating {}", out.join(d).display()))?;
+    // Folders this run creates hold only what it writes: on failure they are removed again, so
+    // a failed run leaves nothing behind (folders that existed before are left alone).
+    let mut created: Vec<PathBuf> = Vec::new();
+    for dir in std::iter::once(out.to_path_buf()).chain(dirs.iter().map(|d| out.join(d))) {
+        if !dir.exists() {
+            created.push(dir.clone());
+        }
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     }
+    let r = write_pairs(&scenes, levels, frames, model.as_ref(), out, opts);
+    if r.is_err() {
+        // `out` first if this run made it: everything under it is then this run's.
+        for d in &created {
+            let _ = std::fs::remove_dir_all(d);
+        }
+    }
+    r
+}
+
+fn write_pairs(
+    scenes: &[PathBuf],
+    levels: &[Level],
+    frames: usize,
+    model: Option<&emccd_nn::Denoiser>,
+    out: &Path,
+    opts: &CameraOpts,
+) -> Result<()> {
     let truth = opts.profile()?;
     let full = opts.camera(&truth, None)?;
     let pb = progress((scenes.len() * levels.len()) as u64, "pairs");

@@ -67,6 +67,12 @@ pub fn run(a: Args) -> Result<()> {
             ),
         }
     }
+    if crate::common::canonical(&a.out) == crate::common::canonical(&a.input) {
+        bail!(
+            "{}: the output is the input image; choose another -o, the input is never overwritten",
+            a.out.display()
+        );
+    }
     let (w, h, img) =
         read_scene(&a.input).with_context(|| format!("reading {}", a.input.display()))?;
     let prof = if (w, h) == (p.width, p.height) {

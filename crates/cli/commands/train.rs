@@ -51,6 +51,11 @@ pub struct Args {
     /// starts at zero, so training starts at BM3D's quality; U-Net only).
     #[arg(long, value_enum, default_value = "noisy")]
     pub inputs: InputsArg,
+    /// --inputs hybrid: the estimate the network corrects: `bm3d` (BM3D + GAT, one pass) or
+    /// `ivst` (BM3D with iterative variance stabilization and binning, better below a few
+    /// photoelectrons per pixel; `emccd denoise --method ivst`).
+    #[arg(long, default_value = "bm3d", value_parser = ["bm3d", "ivst"])]
+    pub hybrid_base: String,
     /// Noise model of the synthesized pairs.
     #[arg(long, value_enum, default_value = "ours")]
     pub noise_model: NoiseArg,
@@ -195,7 +200,12 @@ pub fn run(a: Args) -> Result<()> {
     if inputs == Inputs::Hybrid && a.arch != "unet" {
         bail!("--inputs hybrid: the refinement network is a U-Net in this build (--arch unet)");
     }
+    let base: emccd_nn::Base = a
+        .hybrid_base
+        .parse()
+        .map_err(|e: String| anyhow::anyhow!(e))?;
     let cfg = TrainConfig {
+        base,
         steps: a.steps,
         batch: a.batch,
         crop: a.crop,
@@ -227,6 +237,7 @@ pub fn run(a: Args) -> Result<()> {
         }),
         uformer: UformerConfig::by_name(&a.arch),
         inputs,
+        base,
         noise_model: noise.name().into(),
         ablate: a.ablate.clone(),
         profile_fingerprint: format!("{:016x}", profile.fingerprint()),

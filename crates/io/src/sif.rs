@@ -186,7 +186,23 @@ fn parse_header(r: &mut BufReader<File>, file_len: u64) -> Result<SifHeader> {
     // After the temperature come a few single binary bytes; the numeric fields that follow are
     // 0, exposure, cycle time, accumulated cycle time, accumulations, stack cycle time,
     // pixel readout time, 0, 1, EM gain, … and (index 33) a second temperature field.
-    let n: Vec<f64> = tokens[6..].iter().filter_map(|t| num(t)).collect();
+    // Those single binary bytes are the only tokens that may be skipped: any other token that
+    // is not a number is damage, and skipping it would shift every later field (a wrong
+    // exposure, EM gain or temperature read without complaint).
+    let mut n = Vec::with_capacity(tokens.len());
+    for (i, t) in tokens[6..].iter().enumerate() {
+        match num(t) {
+            Some(v) => n.push(v),
+            None if t.len() == 1 && !t[0].is_ascii_graphic() => {}
+            None => {
+                return Err(fmt_err(format!(
+                    "damaged acquisition line: field {} ({:?}) is not a number",
+                    i + 7,
+                    String::from_utf8_lossy(t)
+                )))
+            }
+        }
+    }
     if n.len() < 10 {
         return Err(fmt_err("the acquisition line has too few numeric fields"));
     }

@@ -102,3 +102,44 @@ fn fits_axes_beyond_the_limit_are_refused() {
         assert!(e.contains(name), "{name}: {e}");
     }
 }
+
+/// One character of a real SIF header changed (a digit of the cycle-time field turned into a
+/// letter): an error naming the damage, not a file that opens with every later field shifted
+/// (a wrong exposure, EM gain 0, 1 °C).
+#[test]
+fn a_damaged_sif_acquisition_line_is_an_error() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/emccd-real/andor-sif/ixon897_avg20.sif");
+    let mut bytes = std::fs::read(&src).unwrap();
+    // The acquisition line (the third) holds "… 0 1 1.02968 …": 0, the exposure, the cycle time.
+    let line3 = bytes
+        .iter()
+        .enumerate()
+        .filter(|(_, &b)| b == b'\n')
+        .nth(1)
+        .unwrap()
+        .0
+        + 1;
+    let at = line3 + find(&bytes[line3..], b" 1.02968 ").unwrap() + 3;
+    assert_eq!(bytes[at], b'0');
+    bytes[at] = b'x';
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("damaged.sif");
+    std::fs::write(&p, &bytes).unwrap();
+    let e = emccd_io::open(&p)
+        .err()
+        .expect("a damaged header must not open")
+        .to_string();
+    assert!(
+        e.contains("damaged acquisition line") && e.contains("1.x2968"),
+        "{e}"
+    );
+    assert!(e.contains("damaged.sif"), "{e}");
+    // The undamaged file still opens, with its 1 s exposure.
+    let r = emccd_io::open(&src).unwrap();
+    assert_eq!(r.info().metadata.exposure_s, Some(1.0));
+}
+
+fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).position(|w| w == needle)
+}

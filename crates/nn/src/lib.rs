@@ -18,7 +18,7 @@ pub mod uformer;
 pub mod unet;
 
 pub use error::{Error, Result};
-pub use model::{Denoiser, Inputs, ModelMeta, Net};
+pub use model::{Base, Denoiser, Inputs, ModelMeta, Net};
 pub use uformer::{Uformer, UformerConfig};
 pub use unet::{UNet, UNetConfig};
 

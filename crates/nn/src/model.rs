@@ -79,6 +79,56 @@ impl Inputs {
     }
 }
 
+/// The classical estimate a refinement network ([`Inputs::Hybrid`]) is given and corrects.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Base {
+    /// BM3D after the generalized Anscombe transform, one pass (files without the key).
+    #[default]
+    Bm3d,
+    /// BM3D with iterative variance stabilization and binning, the passes chosen from the
+    /// frame's light level ([`emccd_eval::vst::bm3d_adaptive`]): better below a few counts.
+    Ivst,
+}
+
+impl Base {
+    /// The estimate of a preprocessed frame (DN above bias) with noise `p`.
+    pub fn estimate(
+        self,
+        dn: &[f32],
+        w: usize,
+        h: usize,
+        p: emccd_eval::vst::PoissonGaussian,
+    ) -> Vec<f32> {
+        match self {
+            Base::Bm3d => emccd_eval::vst::bm3d_poisson_gaussian(dn, w, h, p),
+            Base::Ivst => emccd_eval::vst::bm3d_adaptive(dn, w, h, p),
+        }
+    }
+
+    /// Lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Base::Bm3d => "bm3d",
+            Base::Ivst => "ivst",
+        }
+    }
+
+    /// Every base, for parsers.
+    pub const ALL: [Base; 2] = [Base::Bm3d, Base::Ivst];
+}
+
+impl std::str::FromStr for Base {
+    type Err = String;
+
+    fn from_str(s: &str) -> std::result::Result<Base, String> {
+        Base::ALL
+            .into_iter()
+            .find(|b| b.name() == s)
+            .ok_or_else(|| format!("{s:?}: the base estimate is bm3d or ivst"))
+    }
+}
+
 /// Everything a model file says about itself.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ModelMeta {
@@ -93,6 +143,9 @@ pub struct ModelMeta {
     /// What the network is given (files without the key are denoisers).
     #[serde(default)]
     pub inputs: Inputs,
+    /// The estimate a refinement network corrects (files without the key: one BM3D pass).
+    #[serde(default)]
+    pub base: Base,
     /// Noise model the training pairs were synthesized with.
     pub noise_model: String,
     /// Ablated components (empty for the full model).

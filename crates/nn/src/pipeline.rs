@@ -116,12 +116,31 @@ pub fn vst_from(
 /// BM3D after the generalized Anscombe transform, with the exact unbiased inverse, on a
 /// preprocessed frame (DN above bias) of the profile's size.
 pub fn bm3d_estimate(p: &CameraProfile, dn: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+    bm3d_passes(
+        p,
+        dn,
+        exposure_s,
+        &[emccd_eval::vst::Pass {
+            lambda: 1.0,
+            bin: 1,
+        }],
+    )
+}
+
+/// [`bm3d_estimate`] with iterative variance stabilization ([`emccd_eval::vst::bm3d_iterative`]).
+pub fn bm3d_passes(
+    p: &CameraProfile,
+    dn: &[f32],
+    exposure_s: f64,
+    passes: &[emccd_eval::vst::Pass],
+) -> Result<Vec<f32>> {
     usable(p, dn.len(), exposure_s)?;
-    Ok(emccd_eval::vst::bm3d_poisson_gaussian(
+    Ok(emccd_eval::vst::bm3d_iterative(
         dn,
         p.width,
         p.height,
         vst_params(p, exposure_s)?,
+        passes,
     ))
 }
 
@@ -142,7 +161,12 @@ impl Pipeline<'_> {
         let prep = match inputs {
             Inputs::Noisy => prepare(dn, slope, rn),
             Inputs::Hybrid => {
-                let est = bm3d_estimate(p, dn, exposure_s)?;
+                let est = self.model.meta.base.estimate(
+                    dn,
+                    p.width,
+                    p.height,
+                    vst_params(p, exposure_s)?,
+                );
                 let scale =
                     signal_scale(&est.iter().map(|v| v / slope as f32).collect::<Vec<f32>>());
                 prepare_hybrid(dn, &est, slope, rn, scale)

@@ -21,7 +21,7 @@ use rand_pcg::Pcg64;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::model::{Denoiser, Inputs, ModelMeta};
+use crate::model::{Denoiser, Inputs, ModelMeta, Net};
 use crate::norm::{frame_scale, prepare_hybrid, prepare_scaled, signal_scale};
 use crate::{Error, Result};
 
@@ -109,6 +109,9 @@ pub struct TrainConfig {
     /// pair is fresh.
     #[serde(default = "one")]
     pub reuse: u32,
+    /// The estimate a refinement network is trained to correct.
+    #[serde(default)]
+    pub base: crate::Base,
     /// Noise model.
     pub noise: NoiseKind,
     /// Synthesis components switched off (`multiplicative`, `readout`, `quantization`).
@@ -136,6 +139,7 @@ impl Default for TrainConfig {
             loss: Loss::Charbonnier,
             read_noise_scale: [1.0, 1.0],
             reuse: 1,
+            base: crate::Base::Bm3d,
             noise: NoiseKind::Ours,
             ablate: Vec::new(),
             seed: 897,
@@ -290,7 +294,7 @@ fn synth_sample(
         Inputs::Noisy => prepare_scaled(&noisy_c, slope, &rn_c, scale),
         Inputs::Hybrid => {
             let vst = crate::pipeline::vst_from(slope, &rn_c, profile.quantization_dn);
-            let est = emccd_eval::vst::bm3d_poisson_gaussian(&noisy_c, c, c, vst);
+            let est = cfg.base.estimate(&noisy_c, c, c, vst);
             prepare_hybrid(&noisy_c, &est, slope, &rn_c, scale)
         }
     };
@@ -581,6 +585,15 @@ pub fn train(
         let m = match init {
             Some(p) => {
                 let mut m = Denoiser::load(p, &device)?;
+                // A refinement network moved onto another base estimate would apply its
+                // corrections for the old base's errors: it restarts as the identity on the new
+                // base (its output layer zeroed), keeping what its other layers learned.
+                if m.meta.inputs == Inputs::Hybrid && m.meta.base != meta.base {
+                    m.net = match m.net {
+                        Net::UNet(u) => Net::UNet(u.with_zero_output()),
+                        other => other,
+                    };
+                }
                 // The architecture is the initial model's; the rest describes this run.
                 m.meta = ModelMeta {
                     steps: m.meta.steps,

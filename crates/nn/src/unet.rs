@@ -138,4 +138,13 @@ impl UNet {
         }
         base + self.out.forward(h)
     }
+
+    /// The same network with its output layer zeroed: it then returns its residual channel
+    /// unchanged. A refinement network moved onto another base estimate starts from that
+    /// estimate's quality this way, keeping the features it learned.
+    pub fn with_zero_output(mut self) -> UNet {
+        self.out.weight = self.out.weight.map(|w| w.zeros_like());
+        self.out.bias = self.out.bias.map(|b| b.map(|b| b.zeros_like()));
+        self
+    }
 }

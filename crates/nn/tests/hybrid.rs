@@ -162,3 +162,33 @@ fn the_noise_channel_is_the_frame_channels_standard_deviation() {
         );
     }
 }
+
+/// A trained refinement network moved onto another base estimate (`train --init` with another
+/// `--hybrid-base`) restarts as the identity on it: with its output layer zeroed it returns the
+/// estimate channel exactly, whatever its other layers learned.
+#[test]
+fn a_zeroed_output_layer_makes_a_trained_hybrid_the_identity() {
+    let dev = emccd_nn::cpu();
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../models/hybrid-unet.safetensors");
+    let m = Denoiser::load(&path, &dev).unwrap();
+    assert_eq!(m.meta.inputs, Inputs::Hybrid);
+    let n = 32 * 32;
+    let input: Vec<f32> = scene(32, 32)
+        .into_iter()
+        .chain(vec![0.2; n])
+        .chain(scene(32, 32).iter().map(|v| v * 0.7))
+        .collect();
+    let run = |net: &emccd_nn::Net| -> Vec<f32> {
+        let x = Tensor::<4>::from_data(TensorData::new(input.clone(), [1, 3, 32, 32]), &dev);
+        net.forward(x).into_data().try_into_vec::<f32>().unwrap()
+    };
+    // The trained network corrects its estimate…
+    assert_ne!(run(&m.net), input[2 * n..].to_vec());
+    // …and with the output layer zeroed it passes it through.
+    let zeroed = match m.net {
+        emccd_nn::Net::UNet(u) => emccd_nn::Net::UNet(u.with_zero_output()),
+        other => panic!("the bundled hybrid is a U-Net, not {other:?}"),
+    };
+    assert_eq!(run(&zeroed), input[2 * n..].to_vec());
+}

@@ -154,11 +154,14 @@ mod tests {
         assert!(mad < 1.0, "mean |per-pixel − shared| at 100 ms = {mad}");
     }
 
+    /// The generator is pinned: the profile it builds is the one the bundled `profiles/default`
+    /// files hold and the bundled models were trained for (their metadata records this
+    /// fingerprint). A change to the generator, its seed or the random streams shows up here.
     #[test]
-    fn default_profile_is_deterministic() {
+    fn default_profile_is_pinned() {
         assert_eq!(
-            default_profile().fingerprint(),
-            default_profile().fingerprint()
+            format!("{:016x}", default_profile().fingerprint()),
+            "ecdca5badda28228"
         );
     }
 

@@ -16,6 +16,7 @@ pub fn meta(base: usize, levels: usize) -> ModelMeta {
         }),
         uformer: None,
         inputs: Default::default(),
+        base: Default::default(),
         noise_model: "ours".into(),
         ablate: vec![],
         profile_fingerprint: "0".into(),
