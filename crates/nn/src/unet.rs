@@ -143,8 +143,14 @@ impl UNet {
     /// unchanged. A refinement network moved onto another base estimate starts from that
     /// estimate's quality this way, keeping the features it learned.
     pub fn with_zero_output(mut self) -> UNet {
-        self.out.weight = self.out.weight.map(|w| w.zeros_like());
-        self.out.bias = self.out.bias.map(|b| b.map(|b| b.zeros_like()));
+        // A fresh tensor does not keep gradients: mark the zeros as trainable again, or the
+        // layer would stay zero (and the network the identity) through any training.
+        let zero = |t: Tensor<4>| burn::module::Parameter::set_require_grad(t.zeros_like(), true);
+        self.out.weight = self.out.weight.map(zero);
+        self.out.bias = self
+            .out
+            .bias
+            .map(|b| b.map(|b| burn::module::Parameter::set_require_grad(b.zeros_like(), true)));
         self
     }
 }

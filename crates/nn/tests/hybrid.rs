@@ -192,3 +192,65 @@ fn a_zeroed_output_layer_makes_a_trained_hybrid_the_identity() {
     };
     assert_eq!(run(&zeroed), input[2 * n..].to_vec());
 }
+
+/// Moving the bundled hybrid onto the iterative base (`train --init hybrid --hybrid-base ivst`)
+/// starts at the identity on that base and then learns: after a few steps its output layer is
+/// no longer zero. (A zeroed layer that lost its trainable mark stayed zero for good.)
+#[test]
+fn a_hybrid_moved_onto_another_base_learns_again() {
+    use emccd_nn::train::{train, Image, NoiseKind, RunPaths, TrainConfig};
+    let dir = tempfile::tempdir().unwrap();
+    let bundled = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../models/hybrid-unet.safetensors");
+    let cfg = TrainConfig {
+        steps: 3,
+        batch: 2,
+        crop: 32,
+        lr: 1e-3,
+        warmup: 1,
+        noise: NoiseKind::Pgn,
+        mean_electrons: Some([1.0, 4.0]),
+        base: emccd_nn::Base::Ivst,
+        val_every: 100,
+        checkpoint_every: 100,
+        seed: 5,
+        ..TrainConfig::default()
+    };
+    let start = Denoiser::load(&bundled, &emccd_nn::cpu()).unwrap();
+    let meta = ModelMeta {
+        base: emccd_nn::Base::Ivst,
+        ..start.meta.clone()
+    };
+    let paths = RunPaths {
+        out: dir.path().join("h.safetensors"),
+        checkpoint: dir.path().join("h.ckpt"),
+    };
+    let images = vec![Image {
+        width: 48,
+        height: 40,
+        data: scene(48, 40),
+    }];
+    let m = train(
+        images,
+        Vec::new(),
+        &emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap(),
+        cfg,
+        meta,
+        Some(&bundled),
+        false,
+        &paths,
+        &mut |_| true,
+    )
+    .unwrap();
+    assert_eq!(m.meta.base, emccd_nn::Base::Ivst);
+    // The output layer's weights: read back from the saved file.
+    let bytes = std::fs::read(&paths.out).unwrap();
+    let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    let w = st.tensor("out.weight").unwrap();
+    let v: Vec<f32> = w
+        .data()
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    assert!(v.iter().any(|&x| x != 0.0), "the output layer stayed zero");
+}
