@@ -281,3 +281,70 @@ fn a_failed_simulation_leaves_nothing_and_says_why_once() {
     );
     assert!(d.join("kept").is_dir() && files(&d.join("kept")).is_empty());
 }
+
+/// `--hybrid-base` names the estimate a refinement network corrects: a plain denoiser has none,
+/// and saying one is an error rather than a base recorded in its model file.
+#[test]
+fn a_plain_denoiser_has_no_base_estimate() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let img = common::shared("clean/natural/Kodak24/kodim01.png");
+    let o = emccd(
+        &[
+            "train",
+            "--clean",
+            img.to_str().unwrap(),
+            "--hybrid-base",
+            "ivst",
+            "--steps",
+            "2",
+            "-o",
+            "m.safetensors",
+        ],
+        d,
+    );
+    fails_with(&o, "only a refinement network");
+    assert!(files(d).is_empty(), "{:?}", files(d));
+}
+
+/// Stopped by Ctrl-C or SIGTERM in the middle of writing, a run leaves no hidden temporary file
+/// (their destructors do not run when a signal ends the process).
+#[cfg(unix)]
+#[test]
+fn an_interrupted_run_leaves_no_temporary_files() {
+    let img = common::shared("clean/natural/Kodak24/kodim01.png");
+    for signal in ["-INT", "-TERM"] {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let child = Command::new(env!("CARGO_BIN_EXE_emccd"))
+            .args(["simulate", "pairs", "--clean", img.to_str().unwrap()])
+            .args(["--photons", "20", "--frames", "100000", "-o", "p"])
+            .current_dir(d)
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let tmp_exists = || files(d).iter().any(|f| f.ends_with(".tmp"));
+        let t0 = std::time::Instant::now();
+        while !tmp_exists() && t0.elapsed().as_secs() < 60 {
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+        assert!(tmp_exists(), "the run never started writing");
+        let k = Command::new("kill")
+            .args([signal, &child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(k.success());
+        let out = child.wait_with_output().unwrap();
+        assert_eq!(out.status.code(), Some(130), "{signal}");
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains("interrupted"),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let left: Vec<String> = files(d)
+            .into_iter()
+            .filter(|f| f.ends_with(".tmp"))
+            .collect();
+        assert!(left.is_empty(), "{signal}: left {left:?}");
+    }
+}

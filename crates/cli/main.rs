@@ -68,7 +68,8 @@ enum Command {
     Simulate(commands::simulate::Cmd),
     /// Add noise from one of the noise models to clean images (training-pair synthesis).
     Synthesize(commands::synthesize::Args),
-    /// Denoise raw EMCCD frames: profile preprocessing, then BM3D + GAT, a network, or both.
+    /// Denoise raw EMCCD frames: profile preprocessing, then iterative BM3D (default), one BM3D
+    /// pass, a network, or BM3D refined by a network.
     Denoise(commands::denoise::Args),
     /// PSNR/SSIM of denoisers (input, BM3D, models) on virtual-camera pairs.
     Evaluate(commands::evaluate::Args),
@@ -80,6 +81,13 @@ enum Command {
 
 fn main() {
     let cli = Cli::parse();
+    // Stopped by Ctrl-C or SIGTERM: the destructors that remove half-written outputs do not run,
+    // so remove them here; everything already renamed into place is complete.
+    let _ = ctrlc::set_handler(|| {
+        let n = emccd_io::remove_live_temps();
+        eprintln!("\ninterrupted: {n} unfinished output(s) removed");
+        std::process::exit(130);
+    });
     let result = match cli.command {
         Command::Info(a) => commands::info::run(a),
         Command::Calibrate(a) => commands::calibrate::run(a),

@@ -438,14 +438,13 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
             }
             let (median_dn, variance_dn2, variance_se_dn2, pixels) =
                 ptc::level_stats(&signal, &var, width, crop);
-            // Every recorded frame carries at least read noise, and a flat lies above the bias:
-            // frames that never vary (a constant or all-zero stack) or sit at or below the bias
-            // are not a flat field, and would drag the slope anywhere.
-            if variance_dn2 <= 0.0 || median_dn <= 0.0 || !median_dn.is_finite() {
+            // Every recorded frame carries at least read noise: frames that never vary (a
+            // constant or all-zero stack) are not a recording, and would drag the slope anywhere.
+            if !(variance_dn2 > 0.0 && variance_dn2.is_finite() && median_dn.is_finite()) {
                 return Err(Error::input(
                     &c.file,
                     format!(
-                        "not a flat field: median {median_dn:.2} DN above the bias and temporal variance {variance_dn2:.3} DN² (a flat is brighter than the bias and its frames vary)"
+                        "not a flat field: its frames do not vary (temporal variance {variance_dn2:.3} DN², median {median_dn:.2} DN above the bias); every recorded frame carries read noise"
                     ),
                 ));
             }

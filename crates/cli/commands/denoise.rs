@@ -21,10 +21,11 @@ pub enum Units {
 /// Denoising method.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Method {
-    /// BM3D + GAT refined by a network (bundled model `hybrid`): the network sees the frame,
-    /// its noise level and BM3D's estimate, and corrects the estimate; it starts from BM3D's
-    /// quality and learns to improve on it (still in training: the README gives its figures).
-    /// BM3D's time plus the network's.
+    /// A classical estimate refined by a network (bundled model `hybrid`): the network sees the
+    /// frame, its noise level and the estimate its model file names (one BM3D + GAT pass, or
+    /// iterative BM3D), and corrects it; it starts from that estimate's quality and learns to
+    /// improve on it (still in training: the README gives its figures). The estimate's time
+    /// plus the network's.
     Hybrid,
     /// The network alone (bundled models `default`, `microscopy`): the fastest.
     #[value(alias = "network")]
@@ -35,7 +36,8 @@ pub enum Method {
     /// BM3D with iterative variance stabilization (Azzari & Foi 2016): up to four BM3D passes,
     /// each on the data mixed with the previous estimate and, below a few photoelectrons per
     /// pixel, summed over 2×2–4×4 bins; the passes are chosen from the frame's light level.
-    /// Better than `bm3d` below about 4 e⁻ per pixel, the same above; up to 2× its time.
+    /// Better than `bm3d` below about 8 e⁻ per pixel (4 counts), the same above; up to about
+    /// 2.3× its time.
     Ivst,
 }
 

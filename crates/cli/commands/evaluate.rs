@@ -29,8 +29,10 @@ pub struct Args {
     /// else the bundled default.
     #[arg(long)]
     pub profile: Option<String>,
-    /// Methods: `input`, `bm3d`, `hybrid` (BM3D refined by the bundled hybrid network), or a
-    /// model file (`default`, `microscopy` = the bundled networks; a hybrid model file runs as
+    /// Methods: `input`, `bm3d` (one BM3D + GAT pass), `ivst` (iterative BM3D, the default of
+    /// `denoise`), `ivst:λ/b,λ/b,…` (iterative BM3D with these passes: the data's weight and the
+    /// bin side, e.g. `ivst:1/3,0.7/2,0.4/1`), `hybrid` (the bundled BM3D-refining network), or
+    /// a model file (`default`, `microscopy` = the bundled networks; a hybrid model file runs as
     /// the hybrid method); repeatable. `MODEL@8` averages the model over 8 flips/transposes
     /// (self-ensemble; 2, 4, 8).
     #[arg(long = "method", required = true, num_args = 1..)]
@@ -101,6 +103,16 @@ struct Summary {
     ssim: f64,
     /// Seconds per 512×512 frame, from the time per pixel on these frames.
     s_per_512: f64,
+}
+
+/// A CSV field, quoted where it holds a comma, quote or line break (RFC 4180): method names
+/// such as `ivst:1/2,0.5/1` and camera names have commas.
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
 }
 
 fn read_first(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
@@ -181,8 +193,14 @@ pub fn run(a: Args) -> Result<()> {
         .map(|d| load_camera(d, a.profile.as_deref()))
         .collect::<Result<Vec<_>>>()?;
     let mut models = BTreeMap::new();
+    let mut schedules = BTreeMap::new();
     for m in &a.methods {
-        if !["input", "bm3d", "ivst"].contains(&m.as_str()) && !m.starts_with("ivst:") {
+        if let Some(spec) = m.strip_prefix("ivst:") {
+            let s: emccd_eval::vst::Schedule = spec
+                .parse()
+                .map_err(|e: String| anyhow::anyhow!("--method {m}: {e}"))?;
+            schedules.insert(m.clone(), s);
+        } else if !["input", "bm3d", "ivst"].contains(&m.as_str()) {
             let (name, k) = crate::commands::denoise::model_spec(m)?;
             models.insert(m.clone(), (crate::commands::denoise::load_model(name)?, k));
         }
@@ -217,12 +235,14 @@ pub fn run(a: Args) -> Result<()> {
                         p.exposure_s,
                         m.parse().map_err(|e: String| anyhow::anyhow!(e))?,
                     )?,
-                    spec if spec.starts_with("ivst:") => {
-                        let passes: emccd_eval::vst::Schedule = spec[5..]
-                            .parse()
-                            .map_err(|e: String| anyhow::anyhow!("{spec}: {e}"))?;
+                    spec if schedules.contains_key(spec) => {
                         let pre = emccd_nn::pipeline::preprocess(&prof, &raw, p.exposure_s)?;
-                        emccd_nn::pipeline::bm3d_passes(&prof, &pre, p.exposure_s, &passes.0)?
+                        emccd_nn::pipeline::bm3d_passes(
+                            &prof,
+                            &pre,
+                            p.exposure_s,
+                            &schedules[spec].0,
+                        )?
                     }
                     other => Pipeline {
                         model: &models[other].0,
@@ -367,9 +387,9 @@ pub fn run(a: Args) -> Result<()> {
             let _ = writeln!(
                 csv,
                 "{},{},{},{},{me},{:.4},{:.4},{:.6},{:.4}",
-                s.method,
-                s.camera,
-                s.scene,
+                csv_field(&s.method),
+                csv_field(&s.camera),
+                csv_field(&s.scene),
                 s.photons,
                 s.psnr_db,
                 s.psnr_paper_db,

@@ -53,9 +53,10 @@ pub struct Args {
     pub inputs: InputsArg,
     /// --inputs hybrid: the estimate the network corrects: `bm3d` (BM3D + GAT, one pass) or
     /// `ivst` (BM3D with iterative variance stabilization and binning, better below a few
-    /// photoelectrons per pixel; `emccd denoise --method ivst`).
-    #[arg(long, default_value = "bm3d", value_parser = ["bm3d", "ivst"])]
-    pub hybrid_base: String,
+    /// photoelectrons per pixel; `emccd denoise --method ivst`). Default: the --init model's
+    /// base, else bm3d. Another base than the --init model's restarts its output layer at zero.
+    #[arg(long, value_parser = ["bm3d", "ivst"])]
+    pub hybrid_base: Option<String>,
     /// Noise model of the synthesized pairs.
     #[arg(long, value_enum, default_value = "ours")]
     pub noise_model: NoiseArg,
@@ -200,10 +201,16 @@ pub fn run(a: Args) -> Result<()> {
     if inputs == Inputs::Hybrid && a.arch != "unet" {
         bail!("--inputs hybrid: the refinement network is a U-Net in this build (--arch unet)");
     }
-    let base: emccd_nn::Base = a
-        .hybrid_base
-        .parse()
-        .map_err(|e: String| anyhow::anyhow!(e))?;
+    let base: emccd_nn::Base = match (&a.hybrid_base, &a.init) {
+        (Some(_), _) if inputs != Inputs::Hybrid => {
+            bail!("--hybrid-base: only a refinement network (--inputs hybrid) has a base estimate")
+        }
+        (Some(b), _) => b.parse().map_err(|e: String| anyhow::anyhow!(e))?,
+        (None, Some(init)) => {
+            emccd_nn::Denoiser::read_meta(&crate::commands::denoise::model_path(init)?)?.base
+        }
+        (None, None) => emccd_nn::Base::Bm3d,
+    };
     let cfg = TrainConfig {
         base,
         steps: a.steps,

@@ -100,7 +100,8 @@ impl Schedule {
 /// BM3D with iterative variance stabilization, the schedule chosen from the frame's mean count
 /// ([`Schedule::for_counts`]).
 pub fn bm3d_adaptive(frame: &[f32], w: usize, h: usize, p: PoissonGaussian) -> Vec<f32> {
-    let mean = frame.iter().map(|&v| v as f64).sum::<f64>() / frame.len().max(1) as f64;
+    let finite = frame.iter().filter(|v| v.is_finite());
+    let mean = finite.clone().map(|&v| v as f64).sum::<f64>() / finite.count().max(1) as f64;
     let counts = ((mean - p.mu) / p.alpha).max(0.0);
     bm3d_iterative(frame, w, h, p, &Schedule::for_counts(counts).0)
 }
@@ -111,7 +112,8 @@ impl std::str::FromStr for Schedule {
     fn from_str(s: &str) -> Result<Schedule, String> {
         let passes = s
             .split(',')
-            .map(|t| {
+            .enumerate()
+            .map(|(k, t)| {
                 let (l, b) = t.trim().split_once('/').unwrap_or((t.trim(), "1"));
                 let lambda: f64 = l
                     .parse()
@@ -121,6 +123,11 @@ impl std::str::FromStr for Schedule {
                     .map_err(|_| format!("pass {t:?}: the bin is not a whole number"))?;
                 if !(lambda > 0.0 && lambda <= 1.0) || !(1..=8).contains(&bin) {
                     return Err(format!("pass {t:?}: λ must be in (0, 1] and the bin 1–8"));
+                }
+                if k == 0 && lambda != 1.0 {
+                    return Err(format!(
+                        "pass {t:?}: the first pass has no estimate to mix in; its λ is 1"
+                    ));
                 }
                 Ok(Pass { lambda, bin })
             })
@@ -200,13 +207,23 @@ pub fn bm3d_iterative(
 }
 
 /// Sums of `b × b` blocks; the frame is mirrored at its right and bottom edges to whole blocks,
-/// so every sum has `b²` samples and the noise model of the sums holds at the edges too.
+/// so every sum has `b²` samples and the mean of the sums is `b²` times the pixels' at the edges
+/// too (a mirrored pixel counted twice makes an edge sum's variance somewhat larger than the
+/// model's; that touches one row or column of blocks).
 fn bin_sum(frame: &[f32], w: usize, h: usize, b: usize) -> (Vec<f32>, usize, usize) {
     if b == 1 {
         return (frame.to_vec(), w, h);
     }
     let (bw, bh) = (w.div_ceil(b), h.div_ceil(b));
-    let mirror = |i: usize, n: usize| if i < n { i } else { (2 * n - 1 - i).min(n - 1) };
+    // Reflection with period 2n: valid for bins of any size, even wider than the frame.
+    let mirror = |i: usize, n: usize| {
+        let k = i % (2 * n);
+        if k < n {
+            k
+        } else {
+            2 * n - 1 - k
+        }
+    };
     let mut out = vec![0f32; bw * bh];
     for by in 0..bh {
         for bx in 0..bw {
@@ -275,6 +292,18 @@ mod tests {
             assert!(s.iter().all(|&v| (v - 2.5 * (b * b) as f32).abs() < 1e-5));
             let back = unbin(&vec![1.25; bw * bh], bw, bh, b, w, h);
             assert!(back.iter().all(|&v| (v - 1.25).abs() < 1e-6));
+        }
+        // Bins wider than the frame (a 1×1 or 2×1 frame in a 4×4 bin) reflect as often as needed.
+        for (w, h) in [(1, 1), (2, 1), (1, 3)] {
+            let (s, bw, bh) = bin_sum(&vec![1.0; w * h], w, h, 4);
+            assert_eq!((bw, bh, s), (1, 1, vec![16.0]));
+            let p = PoissonGaussian {
+                alpha: 1.0,
+                sigma: 0.1,
+                mu: 0.0,
+            };
+            let out = bm3d_adaptive(&vec![0.2; w * h], w, h, p);
+            assert!(out.len() == w * h && out.iter().all(|v| v.is_finite()));
         }
         // A ramp in x is reproduced between the block centres (bilinear interpolation).
         let (w, h, b) = (12, 6, 3);
@@ -361,7 +390,16 @@ mod tests {
         );
         assert_eq!(s.to_string(), "1/3,0.6/2,0.4/1");
         assert_eq!(s.to_string().parse::<Schedule>().unwrap(), s);
-        for bad in ["", "x/2", "0/1", "1.5/1", "1/0", "1/9", "1/2.5"] {
+        for bad in [
+            "",
+            "x/2",
+            "0/1",
+            "1.5/1",
+            "1/0",
+            "1/9",
+            "1/2.5",
+            "0.5/2,0.3/1",
+        ] {
             assert!(bad.parse::<Schedule>().is_err(), "{bad:?} accepted");
         }
         // Fewer and smaller bins as the light grows; one plain pass at 4 counts and above.

@@ -412,10 +412,12 @@ pub fn temp_beside(path: &Path) -> std::io::Result<tempfile::NamedTempFile> {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    tempfile::Builder::new()
+    let tmp = tempfile::Builder::new()
         .prefix(&format!(".{name}."))
         .suffix(".tmp")
-        .tempfile_in(dir)
+        .tempfile_in(dir)?;
+    live_temps().insert(tmp.path().to_path_buf());
+    Ok(tmp)
 }
 
 /// Flushes a finished temporary file to disk and renames it to `target`. Works by the temporary
@@ -425,9 +427,32 @@ pub fn persist(tmp: tempfile::NamedTempFile, target: &Path) -> Result<()> {
     std::fs::File::open(tmp.path())
         .and_then(|f| f.sync_all())
         .map_err(|e| Error::from(e).with_path(target))?;
+    let was = tmp.path().to_path_buf();
     tmp.persist(target)
         .map_err(|e| Error::from(e.error).with_path(target))?;
+    live_temps().remove(&was);
     Ok(())
+}
+
+/// Temporary files made by [`temp_beside`] and not yet renamed into place.
+fn live_temps() -> std::sync::MutexGuard<'static, std::collections::BTreeSet<PathBuf>> {
+    static LIVE: std::sync::Mutex<std::collections::BTreeSet<PathBuf>> =
+        std::sync::Mutex::new(std::collections::BTreeSet::new());
+    // A panic while the set was held leaves it usable: it only lists paths.
+    LIVE.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Removes every temporary output still being written, for a program that is being stopped
+/// (Ctrl-C, SIGTERM) and will not run the destructors that normally remove them. Returns how
+/// many were removed.
+pub fn remove_live_temps() -> usize {
+    let mut live = live_temps();
+    let n = live
+        .iter()
+        .filter(|p| std::fs::remove_file(p).is_ok())
+        .count();
+    live.clear();
+    n
 }
 
 /// Writes `bytes` to `path` atomically (temporary file, then rename).

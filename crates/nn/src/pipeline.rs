@@ -1,7 +1,7 @@
 //! Denoising a raw frame: preprocess with the profile (paper eq. 4: `B⁻¹(D) − FPN_t`), build the
 //! camera-independent input, run the network tiled, and return the photo-signal in DN above bias.
-//! A hybrid network first gets the BM3D + GAT estimate of the frame ([`bm3d_estimate`]) and
-//! refines it.
+//! A hybrid network first gets the classical estimate its model file names (one BM3D + GAT pass,
+//! [`bm3d_estimate`], or iterative BM3D, [`crate::Base`]) and refines it.
 
 use burn::prelude::*;
 use emccd_profile::CameraProfile;

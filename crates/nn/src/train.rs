@@ -627,6 +627,12 @@ pub fn train(
             model.meta.arch
         )));
     }
+    // The base estimate is the model's (a resumed run's checkpoint records it), whatever the
+    // command line said: a refinement network is only ever trained on the base it is saved with.
+    let cfg = TrainConfig {
+        base: model.meta.base,
+        ..cfg
+    };
     let base_steps = model.meta.steps.saturating_sub(start);
     let inputs = model.meta.inputs;
     let ch = inputs.channels();
