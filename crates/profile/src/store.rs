@@ -47,6 +47,19 @@ struct TomlProfile {
     #[serde(skip_serializing_if = "Option::is_none")]
     pgn: Option<PgnParams>,
     provenance: Provenance,
+    /// FNV-1a 64 of the maps file written with this one (hex): the two files are renamed into
+    /// place one after the other, and a load must not pair a new toml with old maps or the
+    /// reverse. Absent in profiles written before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    maps_fnv1a64: Option<String>,
+}
+
+/// FNV-1a, 64 bits: a checksum that pairs the two files of a profile (not a security measure).
+fn fnv1a64(bytes: &[u8]) -> String {
+    let h = bytes.iter().fold(0xcbf29ce484222325u64, |h, &b| {
+        (h ^ b as u64).wrapping_mul(0x100000001b3)
+    });
+    format!("{h:016x}")
 }
 
 fn f32_bytes(v: &[f32]) -> Vec<u8> {
@@ -99,16 +112,13 @@ impl CameraProfile {
             eld: self.eld.clone(),
             pgn: self.pgn.clone(),
             provenance: self.provenance.clone(),
+            maps_fnv1a64: None,
         }
     }
 
     /// The `profile.toml` text.
     pub fn to_toml_string(&self) -> String {
-        let body = toml::to_string_pretty(&self.to_toml_struct()).expect("profile serializes");
-        format!(
-            "# emccd camera profile. Per-pixel maps are in {MAPS_FILE} beside this file.\n\
-             # Model (paper eq. 1): D = B[K(I + f·Np) + FPN_t] + Nr + Nq, with s = K·f².\n{body}"
-        )
+        toml_text(&self.to_toml_struct())
     }
 
     /// Writes `dir/profile.toml` and `dir/maps.safetensors`, each atomically.
@@ -145,8 +155,12 @@ impl CameraProfile {
         meta.insert("format".to_string(), "emccd-profile-maps".to_string());
         meta.insert("exposures_s".to_string(), format!("{:?}", self.exposures_s));
         let bytes = safetensors::serialize(tensors, Some(meta)).map_err(st_err)?;
+        let toml = TomlProfile {
+            maps_fnv1a64: Some(fnv1a64(&bytes)),
+            ..self.to_toml_struct()
+        };
         write_atomic(&dir.join(MAPS_FILE), &bytes)?;
-        write_atomic(&dir.join(PROFILE_TOML), self.to_toml_string().as_bytes())?;
+        write_atomic(&dir.join(PROFILE_TOML), toml_text(&toml).as_bytes())?;
         Ok(())
     }
 
@@ -173,6 +187,16 @@ impl CameraProfile {
         }
         let mpath = dir.join(MAPS_FILE);
         let bytes = std::fs::read(&mpath).map_err(|e| Error::from(e).at(&mpath))?;
+        if let Some(want) = &t.maps_fnv1a64 {
+            if *want != fnv1a64(&bytes) {
+                return Err(Error::Format(format!(
+                    "{MAPS_FILE} is not the maps file saved with {PROFILE_TOML} (checksum differs): \
+                     a save interrupted between its two files, or files from two profiles; save \
+                     or copy the profile again"
+                ))
+                .at(dir));
+            }
+        }
         let st = safetensors::SafeTensors::deserialize(&bytes).map_err(|e| st_err(e).at(&mpath))?;
         let (h, w, e) = (t.height, t.width, t.exposures_s.len());
         let get = |name: &str, shape: &[usize]| -> Result<Vec<f32>> {
@@ -222,6 +246,14 @@ impl CameraProfile {
         p.validate().map_err(|e| e.at(dir))?;
         Ok(p)
     }
+}
+
+fn toml_text(t: &TomlProfile) -> String {
+    let body = toml::to_string_pretty(t).expect("profile serializes");
+    format!(
+        "# emccd camera profile. Per-pixel maps are in {MAPS_FILE} beside this file.\n\
+         # Model (paper eq. 1): D = B[K(I + f·Np) + FPN_t] + Nr + Nq, with s = K·f².\n{body}"
+    )
 }
 
 fn st_err(e: safetensors::SafeTensorError) -> Error {
@@ -282,5 +314,38 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("not a profile directory"), "{e}");
+    }
+
+    /// A torn pair (the toml of one save with the maps of another, of the same size) does not
+    /// load; a toml from before the checksum existed still does.
+    #[test]
+    fn the_two_files_of_a_profile_must_belong_together() {
+        let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+        let p = default_profile().crop(0, 0, 8, 8).unwrap();
+        p.save(a.path()).unwrap();
+        default_profile()
+            .crop(100, 100, 8, 8)
+            .unwrap()
+            .save(b.path())
+            .unwrap();
+        let maps = |d: &std::path::Path| d.join(super::MAPS_FILE);
+        let own = std::fs::read(maps(a.path())).unwrap();
+        std::fs::copy(maps(b.path()), maps(a.path())).unwrap();
+        let e = crate::CameraProfile::load(a.path())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not the maps file saved with"), "{e}");
+        std::fs::write(maps(a.path()), own).unwrap();
+        assert_eq!(crate::CameraProfile::load(a.path()).unwrap(), p);
+        let toml = a.path().join(super::PROFILE_TOML);
+        let text = std::fs::read_to_string(&toml).unwrap();
+        assert!(text.contains("maps_fnv1a64"));
+        let old: String = text
+            .lines()
+            .filter(|l| !l.starts_with("maps_fnv1a64"))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        std::fs::write(&toml, old).unwrap();
+        assert_eq!(crate::CameraProfile::load(a.path()).unwrap(), p);
     }
 }
