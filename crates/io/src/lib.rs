@@ -272,6 +272,18 @@ pub enum SampleFormat {
     F32,
 }
 
+/// Whether a classic TIFF of `frames` such frames would pass its 4 GiB limit (with room for
+/// the page headers).
+pub fn needs_bigtiff(width: usize, height: usize, sample: SampleFormat, frames: usize) -> bool {
+    let bytes = match sample {
+        SampleFormat::U8 => 1u128,
+        SampleFormat::U16 => 2,
+        SampleFormat::F32 => 4,
+    };
+    let data = width as u128 * height as u128 * bytes * frames as u128;
+    data + 1024 * frames as u128 + (1 << 20) > u32::MAX as u128
+}
+
 /// Writes a stack frame by frame to a temporary file that is renamed into place by
 /// [`StackWriter::finish`]; dropped unfinished, it removes the temporary file and leaves any
 /// existing target untouched.
@@ -321,6 +333,14 @@ impl StackWriter {
                 Error::Usage(format!("cannot write a {width}×{height} frame")).with_path(path),
             );
         }
+        // Classic TIFF addresses its file with 32-bit offsets: a stack known to outgrow them is
+        // written as BigTIFF, which Fiji and tifffile read under a .tif name just the same.
+        let fmt = match frames_hint {
+            Some(n) if fmt == Format::Tiff && needs_bigtiff(width, height, sample, n) => {
+                Format::BigTiff
+            }
+            _ => fmt,
+        };
         let tmp = temp_beside(path).map_err(|e| Error::from(e).with_path(path))?;
         let inner = match fmt {
             Format::Tiff | Format::BigTiff => WriterKind::Tiff(

@@ -143,3 +143,34 @@ fn a_damaged_sif_acquisition_line_is_an_error() {
 fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
     hay.windows(needle.len()).position(|w| w == needle)
 }
+
+/// A stack known to outgrow classic TIFF's 32-bit offsets is written as BigTIFF even under a
+/// .tif name (readers take BigTIFF there), instead of failing after hours of work at 4 GiB.
+#[test]
+fn stacks_beyond_4_gib_are_written_as_bigtiff() {
+    use emccd_io::{needs_bigtiff, SampleFormat};
+    // 512² float32 frames are 1 MiB each: 4000 fit in 4 GiB, 4095 do not with their headers.
+    assert!(!needs_bigtiff(512, 512, SampleFormat::F32, 4000));
+    assert!(needs_bigtiff(512, 512, SampleFormat::F32, 4095));
+    assert!(!needs_bigtiff(512, 512, SampleFormat::U16, 8000));
+    let dir = tempfile::tempdir().unwrap();
+    for (frames_hint, version) in [(2, 42u16), (5000, 43)] {
+        let p = dir.path().join(format!("s{frames_hint}.tif"));
+        let mut w =
+            emccd_io::StackWriter::create(&p, 512, 512, SampleFormat::F32, Some(frames_hint))
+                .unwrap();
+        for _ in 0..2 {
+            w.write_frame(&vec![1.5; 512 * 512]).unwrap();
+        }
+        w.finish().unwrap();
+        let b = std::fs::read(&p).unwrap();
+        assert_eq!(
+            u16::from_le_bytes([b[2], b[3]]),
+            version,
+            "{frames_hint} frames announced"
+        );
+        let (info, frames) = emccd_io::read_all(&p).unwrap();
+        assert_eq!(info.frames, 2);
+        assert!(frames.iter().flatten().all(|&v| v == 1.5));
+    }
+}
