@@ -22,17 +22,22 @@ fn hybrid_meta() -> ModelMeta {
     }
 }
 
+/// A 32×32 hybrid input: frame, noise level, and an estimate (the frame × 0.7).
+fn three_channels() -> Vec<f32> {
+    scene(32, 32)
+        .into_iter()
+        .chain(vec![0.2; 32 * 32])
+        .chain(scene(32, 32).iter().map(|v| v * 0.7))
+        .collect()
+}
+
 #[test]
 fn an_untrained_hybrid_network_returns_the_bm3d_estimate() {
     let dev = emccd_nn::cpu();
     let m = Denoiser::new(hybrid_meta(), &dev).unwrap();
     // Straight through the network: the output is the third channel, exactly.
     let n = 32 * 32;
-    let input: Vec<f32> = scene(32, 32)
-        .into_iter()
-        .chain(vec![0.2; n])
-        .chain(scene(32, 32).iter().map(|v| v * 0.7))
-        .collect();
+    let input = three_channels();
     let x = Tensor::<4>::from_data(TensorData::new(input.clone(), [1, 3, 32, 32]), &dev);
     let out: Vec<f32> = m.net.forward(x).into_data().try_into_vec::<f32>().unwrap();
     assert_eq!(out, input[2 * n..].to_vec());
@@ -174,11 +179,7 @@ fn a_zeroed_output_layer_makes_a_trained_hybrid_the_identity() {
     let m = Denoiser::load(&path, &dev).unwrap();
     assert_eq!(m.meta.inputs, Inputs::Hybrid);
     let n = 32 * 32;
-    let input: Vec<f32> = scene(32, 32)
-        .into_iter()
-        .chain(vec![0.2; n])
-        .chain(scene(32, 32).iter().map(|v| v * 0.7))
-        .collect();
+    let input = three_channels();
     let run = |net: &emccd_nn::Net| -> Vec<f32> {
         let x = Tensor::<4>::from_data(TensorData::new(input.clone(), [1, 3, 32, 32]), &dev);
         net.forward(x).into_data().try_into_vec::<f32>().unwrap()
