@@ -293,9 +293,26 @@ fn synth_sample(
     let p = match inputs {
         Inputs::Noisy => prepare_scaled(&noisy_c, slope, &rn_c, scale),
         Inputs::Hybrid => {
-            let vst = crate::pipeline::vst_from(slope, &rn_c, profile.quantization_dn);
-            let est = cfg.base.estimate(&noisy_c, c, c, vst);
-            prepare_hybrid(&noisy_c, &est, slope, &rn_c, scale)
+            // The base estimate is made on a window reaching CONTEXT px beyond the crop (where
+            // the image allows) and then cut: run on the crop alone, BM3D would see few similar
+            // blocks near its edges and leave errors there that a whole frame never shows, and
+            // the network would learn to fix those instead of what inference needs.
+            const CONTEXT: usize = 32;
+            let (wx0, wy0) = (x0.saturating_sub(CONTEXT), y0.saturating_sub(CONTEXT));
+            let (wx1, wy1) = ((x0 + c + CONTEXT).min(w), (y0 + c + CONTEXT).min(h));
+            let (ww, wh) = (wx1 - wx0, wy1 - wy0);
+            let window: Vec<f32> = (0..ww * wh)
+                .map(|i| noisy[(wy0 + i / ww) * w + wx0 + i % ww])
+                .collect();
+            let rn_w: Vec<f32> = (0..ww * wh)
+                .map(|i| rn[(wy0 + i / ww) * w + wx0 + i % ww])
+                .collect();
+            let vst = crate::pipeline::vst_from(slope, &rn_w, profile.quantization_dn);
+            let est_w = cfg.base.estimate(&window, ww, wh, vst);
+            let est: Vec<f32> = (0..c * c)
+                .map(|i| est_w[(y0 - wy0 + i / c) * ww + x0 - wx0 + i % c])
+                .collect();
+            prepare_hybrid(&noisy_c, &orient(&est, c, mode), slope, &rn_c, scale)
         }
     };
     let target = cut(&clean).iter().map(|v| v / p.to_dn).collect();
