@@ -375,10 +375,7 @@ pub fn classical_frame(
     base: emccd_nn::Base,
 ) -> Result<Vec<f32>> {
     let pre = emccd_nn::pipeline::preprocess(p, raw, exposure)?;
-    Ok(base.estimate(
-        &pre,
-        p.width,
-        p.height,
-        emccd_nn::pipeline::vst_params(p, exposure)?,
-    ))
+    Ok(emccd_nn::pipeline::classical_estimate(
+        p, &pre, exposure, base,
+    )?)
 }

@@ -333,18 +333,21 @@ fn aggregate(
         .collect()
 }
 
+/// Index `i` of a side of `n` samples extended by half-sample symmetric reflection (period
+/// `2n`, the edge sample repeats): valid for any `i`, however far beyond the side.
+pub(crate) fn mirror(i: usize, n: usize) -> usize {
+    let k = i % (2 * n);
+    if k < n {
+        k
+    } else {
+        2 * n - 1 - k
+    }
+}
+
 /// BM3D of an image smaller than the largest block: mirrored (half-sample symmetric: the edge
 /// pixel repeats, so a one-pixel side works too) to at least [`NMAX`] on each side, filtered,
 /// and cut back.
 fn bm3d_padded(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -> Vec<f32> {
-    let mirror = |i: usize, n: usize| {
-        let k = i % (2 * n);
-        if k < n {
-            k
-        } else {
-            2 * n - 1 - k
-        }
-    };
     let (pw, ph) = (w.max(NMAX), h.max(NMAX));
     let padded: Vec<f32> = (0..pw * ph)
         .map(|i| noisy[mirror(i / pw, h) * w + mirror(i % pw, w)])

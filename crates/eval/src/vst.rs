@@ -39,16 +39,7 @@ pub fn inverse(d: f64, p: PoissonGaussian) -> f64 {
 
 /// BM3D after the transform, back to the data's units (one pass, no binning).
 pub fn bm3d_poisson_gaussian(frame: &[f32], w: usize, h: usize, p: PoissonGaussian) -> Vec<f32> {
-    bm3d_iterative(
-        frame,
-        w,
-        h,
-        p,
-        &[Pass {
-            lambda: 1.0,
-            bin: 1,
-        }],
-    )
+    bm3d_iterative(frame, w, h, p, &Schedule::single().0)
 }
 
 /// One pass of [`bm3d_iterative`].
@@ -215,15 +206,8 @@ fn bin_sum(frame: &[f32], w: usize, h: usize, b: usize) -> (Vec<f32>, usize, usi
         return (frame.to_vec(), w, h);
     }
     let (bw, bh) = (w.div_ceil(b), h.div_ceil(b));
-    // Reflection with period 2n: valid for bins of any size, even wider than the frame.
-    let mirror = |i: usize, n: usize| {
-        let k = i % (2 * n);
-        if k < n {
-            k
-        } else {
-            2 * n - 1 - k
-        }
-    };
+    // The reflection holds for bins of any size, even wider than the frame.
+    use crate::bm3d::mirror;
     let mut out = vec![0f32; bw * bh];
     for by in 0..bh {
         for bx in 0..bw {

@@ -116,18 +116,24 @@ pub fn vst_from(
 /// BM3D after the generalized Anscombe transform, with the exact unbiased inverse, on a
 /// preprocessed frame (DN above bias) of the profile's size.
 pub fn bm3d_estimate(p: &CameraProfile, dn: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
-    bm3d_passes(
-        p,
-        dn,
-        exposure_s,
-        &[emccd_eval::vst::Pass {
-            lambda: 1.0,
-            bin: 1,
-        }],
-    )
+    classical_estimate(p, dn, exposure_s, crate::Base::Bm3d)
 }
 
-/// [`bm3d_estimate`] with iterative variance stabilization ([`emccd_eval::vst::bm3d_iterative`]).
+/// The classical estimate `base` of a preprocessed frame (DN above bias) of the profile's size,
+/// with the profile's noise parameters: what `denoise --method bm3d|ivst` returns, and what a
+/// hybrid network refines.
+pub fn classical_estimate(
+    p: &CameraProfile,
+    dn: &[f32],
+    exposure_s: f64,
+    base: crate::Base,
+) -> Result<Vec<f32>> {
+    usable(p, dn.len(), exposure_s)?;
+    Ok(base.estimate(dn, p.width, p.height, vst_params(p, exposure_s)?))
+}
+
+/// Iterative BM3D with the given passes ([`emccd_eval::vst::bm3d_iterative`]) instead of the
+/// schedule [`crate::Base::Ivst`] picks (for comparing schedules).
 pub fn bm3d_passes(
     p: &CameraProfile,
     dn: &[f32],
@@ -161,12 +167,7 @@ impl Pipeline<'_> {
         let prep = match inputs {
             Inputs::Noisy => prepare(dn, slope, rn),
             Inputs::Hybrid => {
-                let est = self.model.meta.base.estimate(
-                    dn,
-                    p.width,
-                    p.height,
-                    vst_params(p, exposure_s)?,
-                );
+                let est = classical_estimate(p, dn, exposure_s, self.model.meta.base)?;
                 let scale =
                     signal_scale(&est.iter().map(|v| v / slope as f32).collect::<Vec<f32>>());
                 prepare_hybrid(dn, &est, slope, rn, scale)

@@ -283,12 +283,7 @@ fn synth_sample(
         }
     };
     // The crop, 8-way augmented: optional transpose, then optional flips.
-    let cut = |src: &[f32]| -> Vec<f32> {
-        let window: Vec<f32> = (0..c * c)
-            .map(|i| src[(y0 + i / c) * w + x0 + i % c])
-            .collect();
-        orient(&window, c, mode)
-    };
+    let cut = |src: &[f32]| orient(&sub_image(src, w, x0, y0, c, c), c, mode);
     let (noisy_c, rn_c) = (cut(&noisy), cut(&rn));
     let p = match inputs {
         Inputs::Noisy => prepare_scaled(&noisy_c, slope, &rn_c, scale),
@@ -301,22 +296,23 @@ fn synth_sample(
             let (wx0, wy0) = (x0.saturating_sub(CONTEXT), y0.saturating_sub(CONTEXT));
             let (wx1, wy1) = ((x0 + c + CONTEXT).min(w), (y0 + c + CONTEXT).min(h));
             let (ww, wh) = (wx1 - wx0, wy1 - wy0);
-            let window: Vec<f32> = (0..ww * wh)
-                .map(|i| noisy[(wy0 + i / ww) * w + wx0 + i % ww])
-                .collect();
-            let rn_w: Vec<f32> = (0..ww * wh)
-                .map(|i| rn[(wy0 + i / ww) * w + wx0 + i % ww])
-                .collect();
+            let window = sub_image(&noisy, w, wx0, wy0, ww, wh);
+            let rn_w = sub_image(&rn, w, wx0, wy0, ww, wh);
             let vst = crate::pipeline::vst_from(slope, &rn_w, profile.quantization_dn);
             let est_w = cfg.base.estimate(&window, ww, wh, vst);
-            let est: Vec<f32> = (0..c * c)
-                .map(|i| est_w[(y0 - wy0 + i / c) * ww + x0 - wx0 + i % c])
-                .collect();
+            let est = sub_image(&est_w, ww, x0 - wx0, y0 - wy0, c, c);
             prepare_hybrid(&noisy_c, &orient(&est, c, mode), slope, &rn_c, scale)
         }
     };
     let target = cut(&clean).iter().map(|v| v / p.to_dn).collect();
     Ok((p.input, target))
+}
+
+/// The `ww × wh` window at (`x0`, `y0`) of a row-major image `w` pixels wide.
+fn sub_image(src: &[f32], w: usize, x0: usize, y0: usize, ww: usize, wh: usize) -> Vec<f32> {
+    (0..ww * wh)
+        .map(|i| src[(y0 + i / ww) * w + x0 + i % ww])
+        .collect()
 }
 
 /// A c×c plane in one of the 8 orientations: optional transpose (`mode & 4`), then optional
