@@ -626,13 +626,16 @@ impl Calibration {
                         }
                     }
                 }
+                // The constant form's map is the pool of every exposure (less noise than one),
+                // and its curve is flat, so the shared evaluation agrees with it.
+                let constant = f.chosen == FpnForm::Constant;
                 (
                     FpnFit {
                         form: f.chosen,
                         base_exposure_s: b0.exposure_s,
-                        shared_theta: f.shared_theta,
+                        shared_theta: if constant { [0.0; 4] } else { f.shared_theta },
                     },
-                    b0.mean.clone(),
+                    if constant { f.pooled.clone() } else { b0.mean.clone() },
                     theta,
                 )
             }

@@ -1,7 +1,13 @@
 //! The fixed pattern against exposure (paper §3.2, Fig. 3): `ln FPN_t = σ(ln t; θ)` with the
 //! four-parameter logistic `σ(u) = θ0 + θ1/(1 + exp(−θ2(u − θ3)))`, fitted per pixel and in the
 //! shared form `ln FPN_t(p) = ln base(p) + σ(u) − σ(u0)` on the base map at the shortest
-//! exposure (θ0 cancels there and is fixed at 0).
+//! exposure (θ0 cancels there and is fixed at 0), beside the constant form (no exposure
+//! dependence: one map pooled over every exposure).
+//!
+//! The form the profile uses is chosen by leave-one-exposure-out error: each form is fitted to all
+//! exposures but one (an interior one) and scored on the one left out. Scored on the exposures they were fitted
+//! to, four per-pixel coefficients always win — with five exposures they fit the maps' noise and
+//! come out below the noise floor — so in-sample errors are shown but never decide.
 
 use rayon::prelude::*;
 use serde::Serialize;
@@ -24,6 +30,14 @@ pub struct FpnError {
     /// What a perfect prediction would still show: the measured map's own noise,
     /// mean over pixels of √(2/π)·σ/√N, DN.
     pub noise_floor_dn: f64,
+    /// Held out: the shared form fitted to the other exposures, mean |predicted − measured| here
+    /// (on the scored pixels, see [`FpnResult::heldout_pixels`]), DN; NaN at the shortest and
+    /// longest exposure, which are never left out (that would score extrapolation).
+    pub shared_heldout_dn: f64,
+    /// Held out: the per-pixel form, same (NaN without per-pixel fits), DN.
+    pub per_pixel_heldout_dn: f64,
+    /// Held out: the other exposures' pooled map, same, DN.
+    pub constant_heldout_dn: f64,
 }
 
 /// One pixel's curve for the report (paper Fig. 3b).
@@ -58,14 +72,28 @@ pub struct FpnResult {
     pub per_pixel: bool,
     /// Errors per exposure.
     pub errors: Vec<FpnError>,
-    /// The form with the lower mean error, written into the profile.
+    /// Pixels the held-out errors are averaged over (a regular subset of at most
+    /// [`HELDOUT_PIXELS`], the same for every form).
+    pub heldout_pixels: usize,
+    /// Mean held-out error over the interior exposures per form, DN: constant, shared, per-pixel
+    /// (NaN when not fitted).
+    pub heldout_mean_dn: [f64; 3],
+    /// The form with the lowest mean held-out error (ties go to the simpler form), written into
+    /// the profile.
     pub chosen: FpnForm,
     /// Example pixel.
     pub example: PixelCurve,
     /// Per-pixel θ maps (4 planes), empty unless `per_pixel`.
     #[serde(skip)]
     pub theta_maps: Vec<f32>,
+    /// The constant form's map: every exposure's bias mean, weighted by its frames, DN.
+    #[serde(skip)]
+    pub pooled: Vec<f32>,
 }
+
+/// At most this many pixels (a regular subset) are refitted per held-out exposure: the mean
+/// error over them is a precise estimate of the mean over all, at a fraction of the time.
+pub const HELDOUT_PIXELS: usize = 16384;
 
 #[inline]
 fn sig(u: f64, th2: f64, th3: f64) -> f64 {
@@ -96,8 +124,82 @@ fn pixel_model(u: f64, t: &[f64; 4]) -> (f64, [f64; 4]) {
     )
 }
 
-/// Fits both forms. `means[i]`/`stds[i]` are the bias maps at `exposures[i]` (ascending) from
-/// `frames[i]` frames each.
+/// The shared curve through `points` (mean log ratios to the map at `u[0]`): a grid start (θ1 by
+/// linear least squares for each θ2, θ3), then Levenberg–Marquardt.
+fn fit_shared(u: &[f64], points: &[f64]) -> crate::fit::LsqFit<3> {
+    let (umin, umax) = (u[0], u[u.len() - 1]);
+    let mut best = (f64::INFINITY, [0.0, 1.0, 0.5 * (umin + umax)]);
+    for &t2 in &[0.2, 0.4, 0.7, 1.0, 1.5, 2.5, 4.0] {
+        for k in 0..=40 {
+            let t3 = umin - 3.0 + (umax - umin + 6.0) * k as f64 / 40.0;
+            let g: Vec<f64> = u
+                .iter()
+                .map(|&x| sig(x, t2, t3) - sig(u[0], t2, t3))
+                .collect();
+            let gg: f64 = g.iter().map(|v| v * v).sum();
+            if gg <= 0.0 {
+                continue;
+            }
+            let t1 = g.iter().zip(points).map(|(a, b)| a * b).sum::<f64>() / gg;
+            let sse: f64 = g
+                .iter()
+                .zip(points)
+                .map(|(a, b)| (b - t1 * a).powi(2))
+                .sum();
+            if sse < best.0 {
+                best = (sse, [t1, t2, t3]);
+            }
+        }
+    }
+    let clamp3 = |t: &mut [f64; 3]| {
+        t[1] = t[1].clamp(0.01, 20.0);
+        t[2] = t[2].clamp(umin - 15.0, umax + 15.0);
+    };
+    levenberg_marquardt(
+        u,
+        points,
+        best.1,
+        |x, t| shared_model(x, u[0], t),
+        clamp3,
+        200,
+    )
+}
+
+/// One pixel's own curve through its log bias `y` at `u`, started from the shared shape
+/// (θ2, θ3) with θ0, θ1 by linear least squares.
+fn fit_pixel(u: &[f64], y: &[f64], t2: f64, t3: f64) -> [f64; 4] {
+    let e = u.len() as f64;
+    let s: Vec<f64> = u.iter().map(|&x| sig(x, t2, t3)).collect();
+    let (ms, my) = (s.iter().sum::<f64>() / e, y.iter().sum::<f64>() / e);
+    let sxx: f64 = s.iter().map(|v| (v - ms).powi(2)).sum();
+    let a1 = if sxx > 0.0 {
+        s.iter()
+            .zip(y)
+            .map(|(a, b)| (a - ms) * (b - my))
+            .sum::<f64>()
+            / sxx
+    } else {
+        0.0
+    };
+    let (umin, umax) = (u[0], u[u.len() - 1]);
+    let clamp4 = |t: &mut [f64; 4]| {
+        t[2] = t[2].clamp(0.01, 20.0);
+        t[3] = t[3].clamp(umin - 15.0, umax + 15.0);
+    };
+    levenberg_marquardt(u, y, [my - a1 * ms, a1, t2, t3], pixel_model, clamp4, 30).params
+}
+
+/// The frame-weighted mean of the maps `idx` at pixel `p`.
+fn pooled_at(means: &[Vec<f32>], frames: &[usize], idx: &[usize], p: usize) -> f64 {
+    let w: f64 = idx.iter().map(|&i| frames[i].max(1) as f64).sum();
+    idx.iter()
+        .map(|&i| frames[i].max(1) as f64 * means[i][p] as f64)
+        .sum::<f64>()
+        / w
+}
+
+/// Fits the three forms and scores each on held-out exposures. `means[i]`/`stds[i]` are the
+/// bias maps at `exposures[i]` (ascending) from `frames[i]` frames each.
 pub fn fit(
     exposures: &[f64],
     means: &[Vec<f32>],
@@ -144,49 +246,18 @@ pub fn fit(
                 / kept as f64
         })
         .collect();
-    // Grid start (θ1 by linear least squares for each θ2, θ3), then Levenberg–Marquardt.
-    let (umin, umax) = (u[0], u[e - 1]);
-    let mut best = (f64::INFINITY, [0.0, 1.0, 0.5 * (umin + umax)]);
-    for &t2 in &[0.2, 0.4, 0.7, 1.0, 1.5, 2.5, 4.0] {
-        for k in 0..=40 {
-            let t3 = umin - 3.0 + (umax - umin + 6.0) * k as f64 / 40.0;
-            let g: Vec<f64> = u
-                .iter()
-                .map(|&x| sig(x, t2, t3) - sig(u[0], t2, t3))
-                .collect();
-            let gg: f64 = g.iter().map(|v| v * v).sum();
-            if gg <= 0.0 {
-                continue;
-            }
-            let t1 = g.iter().zip(&points).map(|(a, b)| a * b).sum::<f64>() / gg;
-            let sse: f64 = g
-                .iter()
-                .zip(&points)
-                .map(|(a, b)| (b - t1 * a).powi(2))
-                .sum();
-            if sse < best.0 {
-                best = (sse, [t1, t2, t3]);
-            }
-        }
-    }
-    let clamp3 = |t: &mut [f64; 3]| {
-        t[1] = t[1].clamp(0.01, 20.0);
-        t[2] = t[2].clamp(umin - 15.0, umax + 15.0);
-    };
-    let sh = levenberg_marquardt(
-        &u,
-        &points,
-        best.1,
-        |x, t| shared_model(x, u[0], t),
-        clamp3,
-        200,
-    );
+    let sh = fit_shared(&u, &points);
     let [t1, t2, t3] = sh.params;
     let shared_theta = [0.0, t1, t2, t3];
     let shared_se = [0.0, sh.se[0], sh.se[1], sh.se[2]];
+    let log_bias = |p: usize, idx: &[usize]| -> Vec<f64> {
+        idx.iter().map(|&i| (means[i][p] as f64).ln()).collect()
+    };
 
-    // Per-pixel fits start from the shared curve's shape.
+    // Per-pixel fits start from the shared curve's shape; they need one exposure more than
+    // their four coefficients.
     let per_pixel = e >= 5;
+    let all: Vec<usize> = (0..e).collect();
     let theta_maps: Vec<f32> = if per_pixel {
         let thetas: Vec<[f32; 4]> = (0..n)
             .into_par_iter()
@@ -194,30 +265,7 @@ pub fn fit(
                 if !usable[p] {
                     return [f32::NAN; 4];
                 }
-                let y: Vec<f64> = (0..e).map(|i| (means[i][p] as f64).ln()).collect();
-                let s: Vec<f64> = u.iter().map(|&x| sig(x, t2, t3)).collect();
-                // Linear start: θ0, θ1 for the shared shape.
-                let (ms, my) = (
-                    s.iter().sum::<f64>() / e as f64,
-                    y.iter().sum::<f64>() / e as f64,
-                );
-                let sxx: f64 = s.iter().map(|v| (v - ms).powi(2)).sum();
-                let a1 = if sxx > 0.0 {
-                    s.iter()
-                        .zip(&y)
-                        .map(|(a, b)| (a - ms) * (b - my))
-                        .sum::<f64>()
-                        / sxx
-                } else {
-                    0.0
-                };
-                let init = [my - a1 * ms, a1, t2, t3];
-                let clamp4 = |t: &mut [f64; 4]| {
-                    t[2] = t[2].clamp(0.01, 20.0);
-                    t[3] = t[3].clamp(umin - 15.0, umax + 15.0);
-                };
-                let f = levenberg_marquardt(&u, &y, init, pixel_model, clamp4, 30);
-                f.params.map(|v| v as f32)
+                fit_pixel(&u, &log_bias(p, &all), t2, t3).map(|v| v as f32)
             })
             .collect();
         let mut planes = vec![0f32; 4 * n];
@@ -230,6 +278,52 @@ pub fn fit(
     } else {
         Vec::new()
     };
+    let pooled: Vec<f32> = (0..n)
+        .map(|p| pooled_at(means, frames, &all, p) as f32)
+        .collect();
+
+    // Leave one exposure out: every form refitted to the other exposures predicts this one, on a
+    // regular subset of pixels. Only interior exposures are left out: a fold at either end would
+    // score extrapolation, where per-pixel curves through a few noisy points can run off to
+    // absurd values, while a profile is used inside its calibrated range (and at most 2×
+    // beyond it, on request). The shared form's base is the shortest remaining exposure.
+    let stride = n.div_ceil(HELDOUT_PIXELS).max(1);
+    let scored: Vec<usize> = (0..n).step_by(stride).collect();
+    let heldout: Vec<[f64; 3]> = (0..e)
+        .into_par_iter()
+        .map(|i| {
+            if i == 0 || i == e - 1 {
+                return [f64::NAN; 3];
+            }
+            let rest: Vec<usize> = (0..e).filter(|&j| j != i).collect();
+            let j0 = rest[0];
+            let ur: Vec<f64> = rest.iter().map(|&j| u[j]).collect();
+            let pr: Vec<f64> = rest.iter().map(|&j| points[j] - points[j0]).collect();
+            let f = fit_shared(&ur, &pr).params;
+            let k = shared_model(u[i], u[j0], &f).0.exp();
+            let (mut ec, mut es, mut ep) = (0.0, 0.0, 0.0);
+            for &p in &scored {
+                let m = means[i][p] as f64;
+                ec += (pooled_at(means, frames, &rest, p) - m).abs();
+                es += (means[j0][p] as f64 * k - m).abs();
+                if per_pixel {
+                    let pred = if usable[p] {
+                        let th = fit_pixel(&ur, &log_bias(p, &rest), f[1], f[2]);
+                        pixel_model(u[i], &th).0.exp()
+                    } else {
+                        means[j0][p] as f64
+                    };
+                    ep += (pred - m).abs();
+                }
+            }
+            let ns = scored.len() as f64;
+            [
+                ec / ns,
+                es / ns,
+                if per_pixel { ep / ns } else { f64::NAN },
+            ]
+        })
+        .collect();
 
     let pixel_pred = |p: usize, x: f64| -> f64 {
         let th = [
@@ -272,15 +366,26 @@ pub fn fit(
                 noise_floor_dn: (2.0 / std::f64::consts::PI).sqrt() * fl
                     / nn
                     / (frames[i].max(1) as f64).sqrt(),
+                constant_heldout_dn: heldout[i][0],
+                shared_heldout_dn: heldout[i][1],
+                per_pixel_heldout_dn: heldout[i][2],
             }
         })
         .collect();
-    let mean_err = |f: fn(&FpnError) -> f64| errors.iter().map(f).sum::<f64>() / e as f64;
-    let chosen = if per_pixel && mean_err(|x| x.per_pixel_mae_dn) < mean_err(|x| x.shared_mae_dn) {
-        FpnForm::PerPixel
-    } else {
-        FpnForm::Shared
-    };
+    let heldout_mean_dn: [f64; 3] = std::array::from_fn(|k| {
+        heldout[1..e - 1].iter().map(|h| h[k]).sum::<f64>() / (e - 2) as f64
+    });
+    // Simplest first; a more complex form must do strictly better on held-out exposures.
+    let mut chosen = FpnForm::Constant;
+    let mut best = heldout_mean_dn[0];
+    for (form, err) in [
+        (FpnForm::Shared, heldout_mean_dn[1]),
+        (FpnForm::PerPixel, heldout_mean_dn[2]),
+    ] {
+        if err < best {
+            (chosen, best) = (form, err);
+        }
+    }
     // Example pixel: the paper shows (195, 5); take it when the sensor is that large and the
     // pixel is an inlier, else the first inlier near the centre.
     let h = n / width.max(1);
@@ -316,9 +421,12 @@ pub fn fit(
         outliers: n - kept,
         per_pixel,
         errors,
+        heldout_pixels: scored.len(),
+        heldout_mean_dn,
         chosen,
         example,
         theta_maps,
+        pooled,
     })
 }
 
@@ -328,6 +436,7 @@ pub fn predict(r: &FpnResult, base: &[f32], form: FpnForm, exposure_s: f64) -> V
     let u = exposure_s.ln();
     let u0 = r.exposures_s[0].ln();
     match form {
+        FpnForm::Constant => r.pooled.clone(),
         FpnForm::PerPixel if r.per_pixel => (0..n)
             .map(|p| {
                 let t = &r.theta_maps;
@@ -350,6 +459,79 @@ pub fn predict(r: &FpnResult, base: &[f32], form: FpnForm, exposure_s: f64) -> V
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    /// Bias maps at `t` from a per-pixel truth `truth(p, t)` (DN) measured with `frames` frames
+    /// of read noise `sigma` each: the maps carry noise σ/√frames.
+    fn noisy_maps(
+        t: &[f64],
+        n: usize,
+        sigma: f64,
+        frames: usize,
+        truth: impl Fn(usize, f64) -> f64,
+    ) -> (Vec<Vec<f32>>, Vec<Vec<f32>>) {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(12);
+        let noise = Normal::new(0.0, sigma / (frames as f64).sqrt()).unwrap();
+        let means = t
+            .iter()
+            .map(|&x| {
+                (0..n)
+                    .map(|p| (truth(p, x) + noise.sample(&mut rng)) as f32)
+                    .collect()
+            })
+            .collect();
+        (means, vec![vec![sigma as f32; n]; t.len()])
+    }
+
+    fn mean(v: impl Iterator<Item = f64>) -> f64 {
+        let (s, k) = v.fold((0.0, 0usize), |(s, k), x| (s + x, k + 1));
+        s / k as f64
+    }
+
+    #[test]
+    fn a_flat_bias_is_recognised_though_per_pixel_fits_beat_the_noise_floor_in_sample() {
+        // The camera: five exposures, bias that does not change with exposure. Four
+        // coefficients per pixel through five noisy points fit the noise: in-sample they come
+        // out below the noise floor. Held out, the pooled map wins.
+        let t = [0.001, 0.003, 0.01, 0.03, 0.1];
+        let n = 4096;
+        let (means, stds) = noisy_maps(&t, n, 3.0, 10, |p, _| 160.0 + (p % 64) as f64 * 0.5);
+        let r = fit(&t, &means, &stds, &[10; 5], 64).unwrap();
+        let floor = mean(r.errors.iter().map(|e| e.noise_floor_dn));
+        let in_sample = mean(r.errors.iter().map(|e| e.per_pixel_mae_dn));
+        assert!(in_sample < floor, "in-sample {in_sample} vs floor {floor}");
+        assert_eq!(r.chosen, FpnForm::Constant, "{:?}", r.heldout_mean_dn);
+        // The pooled map is five maps' average: its error to the truth is σ/√(5·10).
+        let err = mean((0..n).map(|p| (r.pooled[p] as f64 - 160.0 - (p % 64) as f64 * 0.5).abs()));
+        let expect = (2.0 / std::f64::consts::PI).sqrt() * 3.0 / 50f64.sqrt();
+        assert!((err / expect - 1.0).abs() < 0.1, "pooled error {err} vs {expect}");
+        // Its prediction is what the profile evaluates.
+        assert_eq!(predict(&r, &means[0], FpnForm::Constant, 0.02), r.pooled);
+    }
+
+    #[test]
+    fn held_out_exposures_pick_a_curve_when_the_bias_follows_one() {
+        let t = [1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3, 1.0];
+        let n = 4096;
+        let u0 = 0.3f64.ln();
+        // One curve for all pixels: the shared form is the truth, and the per-pixel form
+        // contains it; the constant form does not.
+        let shared = |p: usize, x: f64| {
+            (160.0 + (p % 64) as f64 * 0.5) * (0.105 * (sig(x.ln(), 1.2, u0) - sig(1e-4f64.ln(), 1.2, u0))).exp()
+        };
+        let (means, stds) = noisy_maps(&t, n, 1.0, 10, shared);
+        let r = fit(&t, &means, &stds, &[10; 9], 64).unwrap();
+        assert_ne!(r.chosen, FpnForm::Constant, "{:?}", r.heldout_mean_dn);
+        // Each pixel its own amplitude (θ1 from 0 to 0.3): only the per-pixel form holds it.
+        let own = |p: usize, x: f64| {
+            let th1 = 0.3 * (p % 97) as f64 / 96.0;
+            (170.0 + (p % 64) as f64 * 0.5) * (th1 * sig(x.ln(), 1.2, u0)).exp()
+        };
+        let (means, stds) = noisy_maps(&t, n, 1.0, 10, own);
+        let r = fit(&t, &means, &stds, &[10; 9], 64).unwrap();
+        assert_eq!(r.chosen, FpnForm::PerPixel, "{:?}", r.heldout_mean_dn);
+    }
 
     #[test]
     fn recovers_a_shared_curve_without_noise() {

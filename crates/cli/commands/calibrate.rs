@@ -125,12 +125,16 @@ fn print_summary(c: &emccd_calib::Calibration) {
             mid.iter().map(|e| g(e)).sum::<f64>() / mid.len().max(1) as f64
         };
         println!(
-            "  FPN fit              shared θ = [{:.4}, {:.4}, {:.4}];  mean |error| 6–100 ms: shared {:.3} DN, per-pixel {:.3} DN; using {:?}",
+            "  FPN fit              shared θ = [{:.4}, {:.4}, {:.4}];  mean |error| 6–100 ms: shared {:.3} DN, per-pixel {:.3} DN",
             f.shared_theta[1],
             f.shared_theta[2],
             f.shared_theta[3],
             avg(|e| e.shared_mae_dn),
             avg(|e| e.per_pixel_mae_dn),
+        );
+        let [hc, hs, hp] = f.heldout_mean_dn;
+        println!(
+            "  FPN form             {:?}: mean |error| on a held-out exposure constant {hc:.3}, shared {hs:.3}, per-pixel {hp:.3} DN",
             f.chosen
         );
     }

@@ -13,6 +13,9 @@ pub enum FpnForm {
     PerPixel,
     /// One coefficient set; `ln FPN_t(p) = ln base(p) + σ(ln t) − σ(ln t0)`.
     Shared,
+    /// No exposure dependence: `FPN_t(p) = base(p)`, the bias map pooled over every calibrated
+    /// exposure (chosen when neither curve predicts a held-out exposure better).
+    Constant,
 }
 
 /// `σ(u; θ) = θ0 + θ1 / (1 + exp(−θ2·(u − θ3)))`.
@@ -33,6 +36,7 @@ impl CameraProfile {
         let n = self.len();
         assert_eq!(out.len(), n, "output buffer must hold one frame");
         match form {
+            FpnForm::Constant => out.copy_from_slice(&self.maps.fpn_base),
             FpnForm::PerPixel if self.maps.fpn_theta.len() == 4 * n => {
                 let t = &self.maps.fpn_theta;
                 for (i, o) in out.iter_mut().enumerate() {
