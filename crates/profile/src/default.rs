@@ -115,7 +115,7 @@ mod tests {
 
     #[test]
     fn default_profile_matches_the_paper_numbers() {
-        let p = default_profile();
+        let mut p = default_profile();
         p.validate().unwrap();
         assert_eq!((p.width, p.height), (512, 512));
         assert_eq!(p.ptc_slope_dn, Some(20.14));
@@ -152,6 +152,16 @@ mod tests {
             .sum::<f64>()
             / a.len() as f64;
         assert!(mad < 1.0, "mean |per-pixel − shared| at 100 ms = {mad}");
+        // The constant form is the base map at every exposure, and survives a save and load.
+        p.fpn.form = FpnForm::Constant;
+        for t in [1e-3, 0.2] {
+            p.fpn_at(t, &mut a);
+            assert_eq!(a, p.maps.fpn_base);
+        }
+        let d = tempfile::tempdir().unwrap();
+        p.save(d.path()).unwrap();
+        let q = CameraProfile::load(d.path()).unwrap();
+        assert_eq!(q.fpn.form, FpnForm::Constant);
     }
 
     /// The generator is pinned: the profile it builds is the one the bundled `profiles/default`
