@@ -30,12 +30,30 @@ pub fn cpu() -> Device {
 }
 
 /// The device inference and training run on: the GPU when the binary was built with a GPU
-/// backend (`--features vulkan` or `wgpu`), else the flex CPU backend. `BURN_DEVICE=flex`
-/// (or `vulkan`, `wgpu`) overrides the choice at run time.
+/// backend (`--features vulkan` or `wgpu`) and a GPU answers, else the flex CPU backend.
+/// `BURN_DEVICE=flex` (or `vulkan`, `wgpu`) overrides the choice at run time.
+///
+/// A GPU build on a machine whose driver cannot be loaded (no Vulkan ICD, or NVIDIA's without
+/// the glvnd libraries it links) would otherwise abort at the first tensor, from a thread of the
+/// GPU runtime; it is tried once here and, failing, the run goes on on the CPU with a warning.
 pub fn device() -> Device {
     #[cfg(any(feature = "vulkan", feature = "wgpu"))]
     {
-        Device::default()
+        static CHOSEN: std::sync::OnceLock<Device> = std::sync::OnceLock::new();
+        CHOSEN
+            .get_or_init(|| {
+                let d = Device::default();
+                if format!("{d:?}").contains("Flex") || answers(&d) {
+                    d
+                } else {
+                    eprintln!(
+                        "warning: this build runs networks on the GPU, but no GPU adapter could be \
+                         opened (is the Vulkan driver installed?); running on the CPU instead"
+                    );
+                    Device::flex()
+                }
+            })
+            .clone()
     }
     #[cfg(not(any(feature = "vulkan", feature = "wgpu")))]
     {
@@ -44,6 +62,26 @@ pub fn device() -> Device {
         }
         Device::flex()
     }
+}
+
+/// Whether a small computation on `device` comes back right. The GPU runtime reports a missing
+/// adapter by panicking (in its own thread, then in this one): the panic is caught, and its
+/// message kept off the terminal, since the caller falls back and says so in one line.
+#[cfg(any(feature = "vulkan", feature = "wgpu"))]
+fn answers(device: &Device) -> bool {
+    use burn::tensor::Tensor;
+    let hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    let ok = std::panic::catch_unwind(|| {
+        Tensor::<1>::from_floats([1.0f32, 2.0], device)
+            .sum()
+            .into_data()
+            .to_vec::<f32>()
+            .is_ok_and(|v| v == [3.0])
+    })
+    .unwrap_or(false);
+    std::panic::set_hook(hook);
+    ok
 }
 
 /// A short name of `device`'s backend, for reports.
