@@ -149,8 +149,25 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
         d,
     );
     ok(&out);
-    assert!(String::from_utf8_lossy(&out.stdout).contains("denoised (dB)"));
-    assert!(d.join("p2/denoised/field2-avg50_p20.tif").is_file());
+    // The PSNR it prints is the written denoised frame's against the written truth (range: the
+    // truth's peak), recomputed here from the files.
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let row = stdout
+        .lines()
+        .find(|l| l.starts_with("noisy/field2-avg50_p20.tif"))
+        .unwrap_or_else(|| panic!("no row for the pair in {stdout}"));
+    let printed: f64 = row.split_whitespace().last().unwrap().parse().unwrap();
+    let (_, den) = emccd_io::read_all(d.join("p2/denoised/field2-avg50_p20.tif")).unwrap();
+    let (_, truth) = emccd_io::read_all(d.join("p2/clean/field2-avg50_p20.tif")).unwrap();
+    let peak = truth[0].iter().copied().fold(0f32, f32::max).max(1.0) as f64;
+    let mse = den[0]
+        .iter()
+        .zip(&truth[0])
+        .map(|(a, b)| (*a as f64 - *b as f64).powi(2))
+        .sum::<f64>()
+        / truth[0].len() as f64;
+    let psnr = 10.0 * (peak * peak / mse).log10();
+    assert!((printed - psnr).abs() < 0.006, "printed {printed} dB, files give {psnr:.3} dB");
 
     // Bad input: a frame of another size than the profile's sensor, a missing model.
     let mut w = emccd_io::StackWriter::create(
