@@ -25,6 +25,37 @@ impl Default for Tiling {
     }
 }
 
+/// Where the tiles of a frame go: the frame padded to the network's multiple, the tile size
+/// along each axis, the overlap actually used, and the tile origins.
+#[derive(Clone, Debug)]
+pub struct Layout {
+    /// Padded width and height.
+    pub padded: (usize, usize),
+    /// Tile width and height.
+    pub tile: (usize, usize),
+    /// Overlap, px.
+    pub overlap: usize,
+    /// Tile origins along x and along y.
+    pub starts: (Vec<usize>, Vec<usize>),
+}
+
+impl Tiling {
+    /// The layout of a `width`×`height` frame for a network needing multiples of `multiple`.
+    pub fn layout(&self, width: usize, height: usize, multiple: usize) -> Layout {
+        let round_up = |v: usize| v.div_ceil(multiple) * multiple;
+        let (pw, ph) = (round_up(width), round_up(height));
+        let t = round_up(self.tile.max(multiple));
+        let (tw, th) = (t.min(pw), t.min(ph));
+        let o = self.overlap.min(tw / 2).min(th / 2);
+        Layout {
+            padded: (pw, ph),
+            tile: (tw, th),
+            overlap: o,
+            starts: (starts(pw, tw, o), starts(ph, th, o)),
+        }
+    }
+}
+
 fn reflect(i: isize, n: usize) -> usize {
     let n = n as isize;
     let mut i = i;
@@ -79,15 +110,16 @@ pub fn run(
     tiling: Tiling,
     device: &Device,
 ) -> Vec<f32> {
-    let round_up = |v: usize| v.div_ceil(multiple) * multiple;
-    let (pw, ph) = (round_up(width), round_up(height));
-    let t = round_up(tiling.tile.max(multiple));
-    let (tw, th) = (t.min(pw), t.min(ph));
-    let o = tiling.overlap.min(tw / 2).min(th / 2);
+    let Layout {
+        padded: (pw, ph),
+        tile: (tw, th),
+        overlap: o,
+        starts: (xs, ys),
+    } = tiling.layout(width, height, multiple);
     let mut acc = vec![0f32; pw * ph];
     let mut wsum = vec![0f32; pw * ph];
-    for &y0 in &starts(ph, th, o) {
-        for &x0 in &starts(pw, tw, o) {
+    for &y0 in &ys {
+        for &x0 in &xs {
             let mut tile = vec![0f32; channels * tw * th];
             for c in 0..channels {
                 for y in 0..th {
