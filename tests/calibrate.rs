@@ -86,7 +86,11 @@ fn recovers_the_virtual_camera_truth() {
     // FPN: the paper's claim, mean error below 1 DN per pixel from 6 ms to 100 ms.
     // The virtual camera's pixels each follow their own curve (the bundled profile's θ maps):
     // chosen on held-out exposures, the per-pixel form must win.
-    assert_eq!(res["fpn"]["chosen"], "per-pixel", "{}", res["fpn"]["heldout_mean_dn"]);
+    assert_eq!(
+        res["fpn"]["chosen"], "per-pixel",
+        "{}",
+        res["fpn"]["heldout_mean_dn"]
+    );
     for e in res["fpn"]["errors"].as_array().unwrap() {
         let t = e["exposure_s"].as_f64().unwrap();
         if (0.006..=0.1).contains(&t) {

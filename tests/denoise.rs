@@ -167,7 +167,10 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
         .sum::<f64>()
         / truth[0].len() as f64;
     let psnr = 10.0 * (peak * peak / mse).log10();
-    assert!((printed - psnr).abs() < 0.006, "printed {printed} dB, files give {psnr:.3} dB");
+    assert!(
+        (printed - psnr).abs() < 0.006,
+        "printed {printed} dB, files give {psnr:.3} dB"
+    );
 
     // Bad input: a frame of another size than the profile's sensor, a missing model.
     let mut w = emccd_io::StackWriter::create(

@@ -635,7 +635,11 @@ impl Calibration {
                         base_exposure_s: b0.exposure_s,
                         shared_theta: if constant { [0.0; 4] } else { f.shared_theta },
                     },
-                    if constant { f.pooled.clone() } else { b0.mean.clone() },
+                    if constant {
+                        f.pooled.clone()
+                    } else {
+                        b0.mean.clone()
+                    },
                     theta,
                 )
             }

@@ -317,11 +317,7 @@ pub fn fit(
                 }
             }
             let ns = scored.len() as f64;
-            [
-                ec / ns,
-                es / ns,
-                if per_pixel { ep / ns } else { f64::NAN },
-            ]
+            [ec / ns, es / ns, if per_pixel { ep / ns } else { f64::NAN }]
         })
         .collect();
 
@@ -505,7 +501,10 @@ mod tests {
         // The pooled map is five maps' average: its error to the truth is σ/√(5·10).
         let err = mean((0..n).map(|p| (r.pooled[p] as f64 - 160.0 - (p % 64) as f64 * 0.5).abs()));
         let expect = (2.0 / std::f64::consts::PI).sqrt() * 3.0 / 50f64.sqrt();
-        assert!((err / expect - 1.0).abs() < 0.1, "pooled error {err} vs {expect}");
+        assert!(
+            (err / expect - 1.0).abs() < 0.1,
+            "pooled error {err} vs {expect}"
+        );
         // Its prediction is what the profile evaluates.
         assert_eq!(predict(&r, &means[0], FpnForm::Constant, 0.02), r.pooled);
     }
@@ -518,7 +517,8 @@ mod tests {
         // One curve for all pixels: the shared form is the truth, and the per-pixel form
         // contains it; the constant form does not.
         let shared = |p: usize, x: f64| {
-            (160.0 + (p % 64) as f64 * 0.5) * (0.105 * (sig(x.ln(), 1.2, u0) - sig(1e-4f64.ln(), 1.2, u0))).exp()
+            (160.0 + (p % 64) as f64 * 0.5)
+                * (0.105 * (sig(x.ln(), 1.2, u0) - sig(1e-4f64.ln(), 1.2, u0))).exp()
         };
         let (means, stds) = noisy_maps(&t, n, 1.0, 10, shared);
         let r = fit(&t, &means, &stds, &[10; 9], 64).unwrap();

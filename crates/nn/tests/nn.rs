@@ -134,3 +134,58 @@ fn self_ensemble_averages_the_network_over_flips_and_transposes() {
     let plain = run(&net, &input, 2, w, h, 4, tiles, &dev);
     assert!(got.iter().zip(&plain).any(|(a, b)| (a - b).abs() > 1e-4));
 }
+
+/// The bundled default model's output on a fixed input is pinned: a change to the architecture
+/// code, the weight loading or the backend that alters what the shipped model computes fails
+/// here. Tolerance 10⁻⁴ relative to the output's range: the flex backend may sum in another
+/// order on another CPU (differences near 10⁻⁶), while a real change moves outputs by far more.
+#[test]
+fn the_bundled_default_model_output_is_pinned() {
+    let dev = emccd_nn::cpu();
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../models/default-unet.safetensors");
+    let m = Denoiser::load(&path, &dev).unwrap();
+    let (w, h) = (64, 48);
+    let img = scene(w, h);
+    let mut input = img.clone();
+    input.extend(img.iter().map(|v| (v.max(0.0) + 0.01).sqrt() * 0.1));
+    let out = run(
+        &m.net,
+        &input,
+        2,
+        w,
+        h,
+        m.meta.multiple(),
+        Tiling::default(),
+        &dev,
+    );
+    let n = out.len() as f64;
+    let mean = out.iter().map(|&v| v as f64).sum::<f64>() / n;
+    let sd = (out.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / n).sqrt();
+    let mut got: Vec<f64> = [0, 1, 700, 1500, 2000, w * h - 1]
+        .iter()
+        .map(|&i| out[i] as f64)
+        .collect();
+    got.extend([mean, sd]);
+    println!("default model: {got:?}");
+    let range = out.iter().copied().fold(f32::MIN, f32::max) as f64
+        - out.iter().copied().fold(f32::MAX, f32::min) as f64;
+    for (k, (g, p)) in got.iter().zip(PINNED_DEFAULT).enumerate() {
+        assert!(
+            (g - p).abs() <= 1e-4 * range,
+            "value {k}: {g} vs pinned {p} (all {got:?})"
+        );
+    }
+}
+
+// Pinned 2026-11-24: six pixels, then the mean and standard deviation.
+const PINNED_DEFAULT: [f64; 8] = [
+    0.5655593872070313,
+    0.5752136707305908,
+    0.6192550659179688,
+    0.4959999620914459,
+    0.21416346728801727,
+    0.30742761492729187,
+    0.49846835787563276,
+    0.20267293108121018,
+];

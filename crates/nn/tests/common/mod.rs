@@ -77,9 +77,8 @@ pub fn tiling_mismatch(
         !bx.is_empty() || !by.is_empty(),
         "the frame is one tile: no seam to test"
     );
-    let in_band = |x: usize, y: usize| {
-        bx.iter().any(|r| r.contains(&x)) || by.iter().any(|r| r.contains(&y))
-    };
+    let in_band =
+        |x: usize, y: usize| bx.iter().any(|r| r.contains(&x)) || by.iter().any(|r| r.contains(&y));
     let (mut num, mut den, mut snum, mut sden) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
     for y in margin..h - margin {
         for x in margin..w - margin {
