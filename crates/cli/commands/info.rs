@@ -47,7 +47,17 @@ pub fn run(a: Args) -> Result<()> {
     println!("  size         {} × {} pixels", i.width, i.height);
     println!("  frames       {}", i.frames);
     println!("  pixel type   {:?}", i.pixel_type);
-    println!("  exposure     {}", opt(m.exposure_s, " s"));
+    // A header's exposure is shown as recorded; one that `denoise` would refuse is marked.
+    let bad = m.exposure_s.is_some_and(|t| !(t.is_finite() && t > 0.0));
+    println!(
+        "  exposure     {}{}",
+        opt(m.exposure_s, " s"),
+        if bad {
+            "  (not a positive number of seconds: give --exposure-s to denoise)"
+        } else {
+            ""
+        }
+    );
     let gain = match m.em_gain {
         Some(g) if g == 0.0 => "0 (EM register off)".to_string(),
         g => opt(g, ""),

@@ -90,7 +90,15 @@ impl FitsReader {
         let mut hdus = Fits::from_reader(BufReader::new(File::open(path)?));
         let mut found = None;
         while let Some(hdu) = hdus.next() {
-            let hdu = hdu.map_err(|e| Error::Format(format!("FITS header: {e}")))?;
+            let hdu = hdu.map_err(|e| {
+                // The parser reports a header cut off before its END card as a bare I/O error.
+                let what = format!("{e}");
+                Error::Format(if what.contains("UnexpectedEof") {
+                    "FITS header: the file ends inside a header (no END card)".into()
+                } else {
+                    format!("FITS header: {what}")
+                })
+            })?;
             let image = match hdu {
                 HDU::Primary(h) | HDU::XImage(h) => h,
                 _ => continue,

@@ -1,0 +1,78 @@
+#!/usr/bin/env python3
+"""Writes the committed bad-input corpus, tests/corpus/bad/ (issue 12): small damaged files of
+every kind emccd reads. `tests/bad_input.rs` runs each through the commands that read it; each
+must exit 2 with a message naming the file, and leave no output and no temporary file.
+
+File names say what is wrong; the prefix says what reads it: `frames-` (TIFF/SIF/FITS given to
+`denoise` and `info`), `manifest-` (`calibrate`), `model-` (`denoise --model`), `profile-`
+(a directory given to `denoise --profile`). Standard library only; rerun to regenerate.
+"""
+import os
+import struct
+import sys
+
+OUT = sys.argv[1] if len(sys.argv) > 1 else os.path.join(os.path.dirname(__file__), "..", "tests", "corpus", "bad")
+os.makedirs(OUT, exist_ok=True)
+
+
+def put(name, data):
+    with open(os.path.join(OUT, name), "wb") as f:
+        f.write(data)
+
+
+def tiff(width, height, bits=16, fmt=1, strip_offset=None, strip_bytes=None, data=b""):
+    """A little-endian one-page TIFF; the strip follows the IFD unless offsets are forced."""
+    entries = []
+    ifd_offset = 8
+    n = 9
+    data_offset = ifd_offset + 2 + 12 * n + 4
+    if strip_offset is None:
+        strip_offset = data_offset
+    if strip_bytes is None:
+        strip_bytes = min(width * height * bits // 8, 0xFFFFFFFF)
+    for tag, typ, val in [
+        (256, 4, width), (257, 4, height), (258, 3, bits), (259, 3, 1), (262, 3, 1),
+        (273, 4, strip_offset), (277, 3, 1), (279, 4, strip_bytes), (339, 3, fmt),
+    ]:
+        entries.append(struct.pack("<HHII", tag, typ, 1, val) if typ == 4 else struct.pack("<HHIHH", tag, typ, 1, val, 0))
+    return b"II*\0" + struct.pack("<I", ifd_offset) + struct.pack("<H", n) + b"".join(entries) + struct.pack("<I", 0) + data
+
+
+def fits(cards, data=b""):
+    h = b"".join(c.ljust(80).encode() for c in cards)
+    h += b" " * (-len(h) % 2880)
+    return h + data
+
+
+# Frames
+put("frames-not-an-image.tif", b"this is a text file, not a TIFF\n" * 4)
+put("frames-truncated-header.tif", b"II*\0\x08\0")
+put("frames-huge-dimensions.tif", tiff(4294967295, 4294967295, data=b"\0" * 64))
+put("frames-65535-square-float.tif", tiff(65535, 65535, bits=32, fmt=3, data=b"\0" * 64))
+put("frames-strip-past-the-end.tif", tiff(512, 512, strip_offset=10_000_000, data=b"\0" * 64))
+put("frames-truncated-strip.tif", tiff(512, 512, data=b"\0" * 1000))
+put("frames-not-a-sif.sif", b"Andor Technology Multi-Channel File\n")
+put("frames-garbage.sif", bytes(range(256)) * 4)
+put("frames-not-fits.fits", b"NOT A FITS FILE" * 200)
+put("frames-no-end-card.fits", fits(["SIMPLE  =                    T", "BITPIX  =                   16", "NAXIS   =                    2", "NAXIS1  =                  512", "NAXIS2  =                  512"]))
+put("frames-huge-naxis.fits", fits(["SIMPLE  =                    T", "BITPIX  =                   16", "NAXIS   =                    2", "NAXIS1  =           2147483647", "NAXIS2  =           2147483647", "END"]))
+put("frames-truncated-data.fits", fits(["SIMPLE  =                    T", "BITPIX  =                   16", "NAXIS   =                    2", "NAXIS1  =                  512", "NAXIS2  =                  512", "EXPTIME =                 0.01", "END"], b"\0" * 2880))
+put("frames-negative-exposure.fits", fits(["SIMPLE  =                    T", "BITPIX  =                    8", "NAXIS   =                    2", "NAXIS1  =                  512", "NAXIS2  =                  512", "EXPTIME =                 -1.0", "END"], b"\0" * (512 * 512 + (-(512 * 512) % 2880))))
+
+# Calibration manifests
+put("manifest-not-toml.toml", b"[[bias]\nfile = \n")
+put("manifest-missing-file.toml", b'em_gain = 300.0\n[[bias]]\nfile = "no-such-stack.tif"\nexposure_s = 0.01\n')
+put("manifest-negative-exposure.toml", b'em_gain = 300.0\n[[bias]]\nfile = "frames-truncated-strip.tif"\nexposure_s = -0.01\n')
+put("manifest-damaged-stack.toml", b'em_gain = 300.0\n[[bias]]\nfile = "frames-truncated-strip.tif"\nexposure_s = 0.01\n')
+put("manifest-empty.toml", b"")
+
+# Model files
+put("model-not-safetensors.safetensors", b"not a model at all")
+put("model-header-past-the-end.safetensors", struct.pack("<Q", 1 << 40) + b"{}")
+put("model-no-metadata.safetensors", (lambda h: struct.pack("<Q", len(h)) + h + b"\0" * 4)(b'{"w":{"dtype":"F32","shape":[1],"data_offsets":[0,4]}}'))
+
+# Profiles (directories)
+os.makedirs(os.path.join(OUT, "profile-garbage"), exist_ok=True)
+put(os.path.join("profile-garbage", "profile.toml"), b"format_version = \"x\"\n[[[")
+os.makedirs(os.path.join(OUT, "profile-no-maps"), exist_ok=True)
+put(os.path.join("profile-no-maps", "profile.toml"), b"format_version = 1\n")
