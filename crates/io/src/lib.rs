@@ -168,7 +168,7 @@ pub const MAX_FRAME_PIXELS: usize = 1 << 28;
 
 /// Pixels of one `width`×`height` frame, or an error past [`MAX_FRAME_PIXELS`] (or on
 /// overflow): what every reader's header must pass before a frame buffer is allocated.
-fn frame_pixels(width: usize, height: usize) -> Result<usize> {
+pub(crate) fn frame_pixels(width: usize, height: usize) -> Result<usize> {
     match width.checked_mul(height) {
         Some(n) if n <= MAX_FRAME_PIXELS => Ok(n),
         _ => Err(Error::Format(format!(
