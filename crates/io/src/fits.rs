@@ -82,59 +82,70 @@ fn check_primary_axes(path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// What the first image HDU with two or more axes holds: axes, BITPIX, BZERO, BSCALE, data
+/// offset and metadata.
+type Found = (Vec<u64>, i32, f64, f64, u64, Metadata);
+
+/// Walks the HDUs to the first image with two or more axes.
+fn find_image(path: &Path) -> Result<Option<Found>> {
+    let mut hdus = Fits::from_reader(BufReader::new(File::open(path)?));
+    let mut found = None;
+    while let Some(hdu) = hdus.next() {
+        let hdu = hdu.map_err(|e| {
+            // The parser reports a header cut off before its END card as a bare I/O error.
+            let what = format!("{e}");
+            Error::Format(if what.contains("UnexpectedEof") {
+                "FITS header: the file ends inside a header (no END card)".into()
+            } else {
+                format!("FITS header: {what}")
+            })
+        })?;
+        let image = match hdu {
+            HDU::Primary(h) | HDU::XImage(h) => h,
+            _ => continue,
+        };
+        let x = image.get_header().get_xtension();
+        let naxis = x.get_naxis().to_vec();
+        if naxis.len() >= 2 && naxis.iter().all(|&n| n > 0) {
+            let bitpix: i32 = match x.get_bitpix() {
+                Bitpix::U8 => 8,
+                Bitpix::I16 => 16,
+                Bitpix::I32 => 32,
+                Bitpix::I64 => 64,
+                Bitpix::F32 => -32,
+                Bitpix::F64 => -64,
+            };
+            let h = image.get_header();
+            let meta = Metadata {
+                exposure_s: card_f64(h.get("EXPTIME")).or_else(|| card_f64(h.get("EXPOSURE"))),
+                em_gain: card_f64(h.get("EMGAIN")).or_else(|| card_f64(h.get("EM_GAIN"))),
+                temperature_c: card_f64(h.get("CCD-TEMP")).or_else(|| card_f64(h.get("TEMPERAT"))),
+                camera_model: card_string(h.get("INSTRUME"))
+                    .or_else(|| card_string(h.get("DETECTOR"))),
+                ..Default::default()
+            };
+            found = Some((
+                naxis,
+                bitpix,
+                card_f64(h.get("BZERO")).unwrap_or(0.0),
+                card_f64(h.get("BSCALE")).unwrap_or(1.0),
+                image.get_data_unit_byte_offset(),
+                meta,
+            ));
+            break;
+        }
+    }
+    Ok(found)
+}
+
 impl FitsReader {
     /// Opens a file and locates its image data.
     pub fn open(path: &Path) -> Result<FitsReader> {
         let file_len = std::fs::metadata(path)?.len();
         check_primary_axes(path)?;
-        let mut hdus = Fits::from_reader(BufReader::new(File::open(path)?));
-        let mut found = None;
-        while let Some(hdu) = hdus.next() {
-            let hdu = hdu.map_err(|e| {
-                // The parser reports a header cut off before its END card as a bare I/O error.
-                let what = format!("{e}");
-                Error::Format(if what.contains("UnexpectedEof") {
-                    "FITS header: the file ends inside a header (no END card)".into()
-                } else {
-                    format!("FITS header: {what}")
-                })
-            })?;
-            let image = match hdu {
-                HDU::Primary(h) | HDU::XImage(h) => h,
-                _ => continue,
-            };
-            let x = image.get_header().get_xtension();
-            let naxis = x.get_naxis().to_vec();
-            if naxis.len() >= 2 && naxis.iter().all(|&n| n > 0) {
-                let bitpix: i32 = match x.get_bitpix() {
-                    Bitpix::U8 => 8,
-                    Bitpix::I16 => 16,
-                    Bitpix::I32 => 32,
-                    Bitpix::I64 => 64,
-                    Bitpix::F32 => -32,
-                    Bitpix::F64 => -64,
-                };
-                let h = image.get_header();
-                let meta = Metadata {
-                    exposure_s: card_f64(h.get("EXPTIME")).or_else(|| card_f64(h.get("EXPOSURE"))),
-                    em_gain: card_f64(h.get("EMGAIN")).or_else(|| card_f64(h.get("EM_GAIN"))),
-                    temperature_c: card_f64(h.get("CCD-TEMP"))
-                        .or_else(|| card_f64(h.get("TEMPERAT"))),
-                    camera_model: card_string(h.get("INSTRUME"))
-                        .or_else(|| card_string(h.get("DETECTOR"))),
-                    ..Default::default()
-                };
-                found = Some((
-                    naxis,
-                    bitpix,
-                    card_f64(h.get("BZERO")).unwrap_or(0.0),
-                    card_f64(h.get("BSCALE")).unwrap_or(1.0),
-                    image.get_data_unit_byte_offset(),
-                    meta,
-                ));
-                break;
-            }
-        }
+        // fitsrs 0.4.1 panics on some malformed cards (a value of a lone quote slices
+        // s[1..0]; found by fuzzing): such a header is an error like any other damage.
+        let found = crate::quietly("FITS header", || find_image(path))?;
         let (naxis, bitpix, bzero, bscale, offset, mut metadata) = found
             .ok_or_else(|| Error::Format("FITS: no image HDU with two or more axes".into()))?;
         let (width, height) = (naxis[0] as usize, naxis[1] as usize);

@@ -160,6 +160,36 @@ pub fn open(path: impl AsRef<Path>) -> Result<Box<dyn FrameReader>> {
     open_inner(path).map_err(|e| e.with_path(path))
 }
 
+/// Runs `f`, turning a panic inside it — a third-party parser meeting input it was not written
+/// for — into an error about `what`, with the panic's message kept off the terminal (the error
+/// carries it).
+pub(crate) fn quietly<T>(what: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
+    use std::cell::Cell;
+    thread_local!(static QUIET: Cell<bool> = const { Cell::new(false) });
+    static HOOK: std::sync::Once = std::sync::Once::new();
+    HOOK.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !QUIET.with(Cell::get) {
+                previous(info)
+            }
+        }));
+    });
+    QUIET.with(|q| q.set(true));
+    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f));
+    QUIET.with(|q| q.set(false));
+    r.unwrap_or_else(|p| {
+        let msg = p
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| p.downcast_ref::<String>().cloned())
+            .unwrap_or_default();
+        Err(Error::Format(format!(
+            "{what}: damaged beyond what the parser handles ({msg})"
+        )))
+    })
+}
+
 /// The largest frame a reader accepts, in pixels (2²⁸: a 16384² frame, 1 GiB as `f32`). Every
 /// caller allocates a frame buffer from the header's size before decoding a pixel, so a damaged
 /// or hostile header (65535² in a 1 kB file) must be refused here, not discovered by the

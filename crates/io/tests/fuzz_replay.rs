@@ -47,3 +47,21 @@ fn tiff_crashes_found_by_fuzzing_are_refused_or_bounded() {
     // All of them claim frames far beyond the limit.
     assert_eq!(refused, files.len());
 }
+
+#[test]
+fn fits_crashes_found_by_fuzzing_are_errors() {
+    // Each holds a header card whose value is a lone quote, on which fitsrs 0.4.1 panics
+    // (slicing s[1..0]); the reader turns that into an error naming the damage.
+    let files = inputs("fits");
+    assert!(files.len() >= 9);
+    for f in &files {
+        let e = match emccd_io::fits::FitsReader::open(f) {
+            Ok(mut r) => {
+                replay(&mut r, f);
+                continue;
+            }
+            Err(e) => e.to_string(),
+        };
+        assert!(e.contains("FITS header"), "{}: {e}", f.display());
+    }
+}
