@@ -41,10 +41,6 @@ impl TiffReader {
         let big = head[2] == 43 || head[3] == 43;
         let mut decoder = Decoder::new(BufReader::new(file))?.with_limits(Limits::default());
         let (w, h) = decoder.dimensions()?;
-        // The pixel limit every reader applies before a caller sizes a frame buffer from the
-        // header (a compressed page's claim is not bounded by the file's length; found by
-        // fuzzing: 1.7·10⁹×8 pixels in a few hundred bytes).
-        crate::frame_pixels(w as usize, h as usize)?;
         let ct = decoder.colortype()?;
         let description = match decoder.find_tag(Tag::ImageDescription)? {
             Some(v) => v.into_string().ok(),
@@ -65,6 +61,10 @@ impl TiffReader {
                 )));
             }
         }
+        // The pixel limit every reader applies before a caller sizes a frame buffer from the
+        // header (a compressed page's claim is not bounded by the file's length; found by
+        // fuzzing: 1.7·10⁹×8 pixels in a few hundred bytes).
+        crate::frame_pixels(w as usize, h as usize)?;
         // Walk the IFD chain to count pages; every page must match the first.
         let mut frames = 1;
         while decoder.more_images() {
