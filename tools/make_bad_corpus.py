@@ -7,6 +7,7 @@ File names say what is wrong; the prefix says what reads it: `frames-` (TIFF/SIF
 `denoise` and `info`), `manifest-` (`calibrate`), `model-` (`denoise --model`), `profile-`
 (a directory given to `denoise --profile`). Standard library only; rerun to regenerate.
 """
+import json
 import os
 import struct
 import sys
@@ -70,6 +71,13 @@ put("manifest-empty.toml", b"")
 put("model-not-safetensors.safetensors", b"not a model at all")
 put("model-header-past-the-end.safetensors", struct.pack("<Q", 1 << 40) + b"{}")
 put("model-no-metadata.safetensors", (lambda h: struct.pack("<Q", len(h)) + h + b"\0" * 4)(b'{"w":{"dtype":"F32","shape":[1],"data_offsets":[0,4]}}'))
+
+def model_meta(meta):
+    h = json.dumps({"__metadata__": {"emccd_model": json.dumps(meta)}}).encode()
+    h += b" " * (-len(h) % 8)
+    return struct.pack("<Q", len(h)) + h
+put("model-million-channels.safetensors", model_meta({"arch": "unet", "unet": {"base": 1000000, "levels": 4, "in_channels": 2}, "noise_model": "ours", "ablate": [], "profile_fingerprint": "0", "steps": 0, "recipe": ""}))
+put("model-seventy-levels.safetensors", model_meta({"arch": "unet", "unet": {"base": 16, "levels": 70, "in_channels": 2}, "noise_model": "ours", "ablate": [], "profile_fingerprint": "0", "steps": 0, "recipe": ""}))
 
 # Profiles (directories)
 os.makedirs(os.path.join(OUT, "profile-garbage"), exist_ok=True)

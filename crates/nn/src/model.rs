@@ -253,7 +253,7 @@ impl Denoiser {
         let r = d
             .net
             .load_from(&mut store)
-            .map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
+            .map_err(|e| import_error(path, e))?;
         if !r.missing.is_empty() {
             return Err(Error::Model(format!(
                 "{}: weights missing for {:?}",
@@ -279,6 +279,56 @@ fn meta_of(bytes: &[u8], path: &Path) -> Result<ModelMeta> {
             path.display()
         ))
     })?;
-    serde_json::from_str(text)
-        .map_err(|e| Error::Model(format!("{}: model metadata: {e}", path.display())))
+    let meta: ModelMeta = serde_json::from_str(text)
+        .map_err(|e| Error::Model(format!("{}: model metadata: {e}", path.display())))?;
+    check_size(&meta)
+        .map_err(|e| Error::Model(format!("{}: model metadata: {e}", path.display())))?;
+    Ok(meta)
+}
+
+/// Refuses network sizes no emccd model has, before anything is built from them: a damaged or
+/// hostile file could otherwise ask for a million channels, or 70 levels whose channel count
+/// doubles past the integer range.
+fn check_size(meta: &ModelMeta) -> std::result::Result<(), String> {
+    if let Some(c) = meta.unet {
+        if !(1..=512).contains(&c.base) || !(1..=8).contains(&c.levels) {
+            return Err(format!(
+                "a U-Net of {} channels and {} levels is outside what emccd builds (1–512, 1–8)",
+                c.base, c.levels
+            ));
+        }
+    }
+    if let Some(c) = meta.uformer {
+        if !(1..=512).contains(&c.embed)
+            || c.depths.iter().any(|&d| d > 64)
+            || !(1..=64).contains(&c.win)
+        {
+            return Err(format!(
+                "a Uformer with embedding {}, depths {:?} and windows of {} px is outside what emccd builds",
+                c.embed, c.depths, c.win
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// burn's import error, shortened: a file whose weights disagree with its metadata lists every
+/// tensor (kilobytes of text); say how many and show the first.
+fn import_error(path: &Path, e: impl std::fmt::Display) -> Error {
+    let text = e.to_string();
+    let n = text.matches("ShapeMismatch").count();
+    if n == 0 {
+        return Error::Model(format!("{}: {text}", path.display()));
+    }
+    let first: String = text
+        .split("ShapeMismatch")
+        .nth(1)
+        .unwrap_or("")
+        .chars()
+        .take(160)
+        .collect();
+    Error::Model(format!(
+        "{}: {n} weights have other shapes than the metadata's network (the file's metadata and weights disagree); the first:{first}…",
+        path.display()
+    ))
 }

@@ -189,3 +189,44 @@ const PINNED_DEFAULT: [f64; 8] = [
     0.49846835787563276,
     0.20267293108121018,
 ];
+
+/// A model file whose weights disagree with its metadata's network is an error of a few lines
+/// (burn lists every tensor), and sizes no emccd model has are refused before anything is built.
+#[test]
+fn model_metadata_that_disagrees_or_is_absurd_is_a_short_error() {
+    let dev = emccd_nn::cpu();
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = std::fs::read(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../models/default-unet.safetensors"),
+    )
+    .unwrap();
+    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let header = std::str::from_utf8(&bytes[8..8 + n]).unwrap();
+    for (name, from, to, want) in [
+        (
+            "wide.safetensors",
+            "\\\"base\\\":16",
+            "\\\"base\\\":32",
+            "weights have other shapes",
+        ),
+        (
+            "deep.safetensors",
+            "\\\"levels\\\":4",
+            "\\\"levels\\\":70",
+            "outside what emccd builds",
+        ),
+    ] {
+        assert!(header.contains(from), "{from} not in the header");
+        let mut h = header.replacen(from, to, 1).into_bytes();
+        h.resize(h.len().next_multiple_of(8), b' ');
+        let mut file = (h.len() as u64).to_le_bytes().to_vec();
+        file.extend(&h);
+        file.extend(&bytes[8 + n..]);
+        let p = dir.path().join(name);
+        std::fs::write(&p, file).unwrap();
+        let e = Denoiser::load(&p, &dev).unwrap_err().to_string();
+        assert!(e.contains(want) && e.contains(name), "{e}");
+        assert!(e.len() < 600, "{} characters: {e}", e.len());
+    }
+}
