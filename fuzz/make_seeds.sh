@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
 # Writes fuzz/seeds/: small valid inputs of every kind (synthetic TIFF and FITS from numpy and
 # tifffile, the small Andor SIF files of ../shared/data and the head of a larger one, the
-# example manifests, the bundled profile's profile.toml). Not committed: ../shared's files keep
+# example manifests, the bundled profile's profile.toml, a tiny trained model). Not committed: ../shared's files keep
 # their own licence.
 set -euo pipefail
 cd "$(dirname "$0")"
 S=../../shared/data/emccd-real/andor-sif
-mkdir -p seeds/{tiff,sif,fits,manifest,profile}
+mkdir -p seeds/{tiff,sif,fits,manifest,profile,model}
 cp "$S/ccd_cli0.sif" "$S/ixon888_spectrum_raman.sif" seeds/sif/
 head -c 12000 "$S/ixon897_binned_gain56.sif" >seeds/sif/ixon897_binned_head.sif
 chmod u+w seeds/sif/*
@@ -26,3 +26,8 @@ open("seeds/fits/f32-cube.fits", "wb").write(fits(["SIMPLE  =                   
 PY
 cp ../examples/*.toml seeds/manifest/
 cp ../profiles/default/profile.toml seeds/profile/default.toml
+# A 557-parameter U-Net (2 channels, 1 level), one training step.
+F=../../shared/data/clean/microscopy/fmd-confocal-bpae
+cargo run -q --release --manifest-path ../Cargo.toml -- train --clean "$F/field1-avg50.png" --val "$F/field2-avg50.png" \
+    --steps 1 --batch 1 --crop 32 --base 2 --levels 1 --checkpoint-every 1 --warmup 1 -o "$PWD/seeds/model/tiny.safetensors" 2>/dev/null
+rm -rf seeds/model/tiny.safetensors.ckpt

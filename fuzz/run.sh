@@ -7,7 +7,7 @@ set -uo pipefail
 cd "$(dirname "$0")"
 export AFL_SKIP_CPUFREQ=1 AFL_NO_UI=1 AFL_I_DONT_CARE_ABOUT_MISSING_CRASHES=1 AFL_NO_AFFINITY=1
 mkdir -p out
-for t in ${TARGETS:-tiff sif fits manifest profile}; do
+for t in ${TARGETS:-tiff sif fits manifest profile model}; do
     rm -rf "out/$t"
     cargo afl fuzz -i "seeds/$t" -o "out/$t" -E "${EXECS:-1000000}" -t 2000 "target/release/$t" >"out/$t.log" 2>&1
     s=out/$t/default/fuzzer_stats

@@ -1,6 +1,8 @@
 //! Shared by the frame-reader targets: the input goes to a file (the readers take paths), and
 //! every frame the reader accepts is decoded, as `denoise` would.
 
+#![allow(dead_code)] // each target uses its part
+
 use emccd_io::FrameReader;
 use std::path::PathBuf;
 
