@@ -287,7 +287,19 @@ pub fn fit(
     // score extrapolation, where per-pixel curves through a few noisy points can run off to
     // absurd values, while a profile is used inside its calibrated range (and at most 2×
     // beyond it, on request). The shared form's base is the shortest remaining exposure.
-    let stride = n.div_ceil(HELDOUT_PIXELS).max(1);
+    // A stride sharing no factor with the width, so the scored pixels walk through every column
+    // (a stride of 16 on a 512-wide sensor would see only columns 0, 16, 32, … and miss
+    // column-periodic patterns such as even/odd readout channels).
+    let gcd = |mut a: usize, mut b: usize| {
+        while b != 0 {
+            (a, b) = (b, a % b);
+        }
+        a
+    };
+    let mut stride = n.div_ceil(HELDOUT_PIXELS).max(1);
+    while stride > 1 && gcd(stride, width.max(1)) != 1 {
+        stride += 1;
+    }
     let scored: Vec<usize> = (0..n).step_by(stride).collect();
     let heldout: Vec<[f64; 3]> = (0..e)
         .into_par_iter()
@@ -371,17 +383,42 @@ pub fn fit(
     let heldout_mean_dn: [f64; 3] = std::array::from_fn(|k| {
         heldout[1..e - 1].iter().map(|h| h[k]).sum::<f64>() / (e - 2) as f64
     });
-    // Simplest first; a more complex form must do strictly better on held-out exposures.
-    let mut chosen = FpnForm::Constant;
-    let mut best = heldout_mean_dn[0];
-    for (form, err) in [
-        (FpnForm::Shared, heldout_mean_dn[1]),
-        (FpnForm::PerPixel, heldout_mean_dn[2]),
-    ] {
-        if err < best {
-            (chosen, best) = (form, err);
+    // Simplest first; a more complex form must do strictly better on held-out exposures. With
+    // four exposures a fold leaves the shared curve two informative points for three
+    // coefficients, so its held-out score means nothing (nor do the curve's standard errors):
+    // there the curve is kept when some exposure's mean log ratio to the base map is more than
+    // 3 standard errors from zero, the error following from the maps' own noise.
+    let chosen = if e < 5 {
+        let se = |k: usize| {
+            let v: f64 = (0..n)
+                .filter(|&p| inlier[p])
+                .map(|p| {
+                    let rel = |i: usize| {
+                        stds[i][p] as f64 / (frames[i].max(1) as f64).sqrt() / means[i][p] as f64
+                    };
+                    rel(k).powi(2) + rel(0).powi(2)
+                })
+                .sum();
+            v.sqrt() / kept as f64
+        };
+        if (1..e).any(|k| points[k].abs() > 3.0 * se(k)) {
+            FpnForm::Shared
+        } else {
+            FpnForm::Constant
         }
-    }
+    } else {
+        let mut chosen = FpnForm::Constant;
+        let mut best = heldout_mean_dn[0];
+        for (form, err) in [
+            (FpnForm::Shared, heldout_mean_dn[1]),
+            (FpnForm::PerPixel, heldout_mean_dn[2]),
+        ] {
+            if err < best {
+                (chosen, best) = (form, err);
+            }
+        }
+        chosen
+    };
     // Example pixel: the paper shows (195, 5); take it when the sensor is that large and the
     // pixel is an inlier, else the first inlier near the centre.
     let h = n / width.max(1);
@@ -507,6 +544,33 @@ mod tests {
         );
         // Its prediction is what the profile evaluates.
         assert_eq!(predict(&r, &means[0], FpnForm::Constant, 0.02), r.pooled);
+    }
+
+    #[test]
+    fn four_exposures_keep_a_curve_only_when_its_amplitude_is_significant() {
+        let t = [1e-3, 1e-2, 0.1, 1.0];
+        let n = 4096;
+        let (means, stds) = noisy_maps(&t, n, 3.0, 10, |p, _| 160.0 + (p % 64) as f64 * 0.5);
+        let r = fit(&t, &means, &stds, &[10; 4], 64).unwrap();
+        assert_eq!(
+            r.chosen,
+            FpnForm::Constant,
+            "{:?} ± {:?}",
+            r.shared_theta,
+            r.shared_se
+        );
+        let u0 = 0.05f64.ln();
+        let curve =
+            |p: usize, x: f64| (160.0 + (p % 64) as f64 * 0.5) * (0.1 * sig(x.ln(), 1.5, u0)).exp();
+        let (means, stds) = noisy_maps(&t, n, 3.0, 10, curve);
+        let r = fit(&t, &means, &stds, &[10; 4], 64).unwrap();
+        assert_eq!(
+            r.chosen,
+            FpnForm::Shared,
+            "{:?} ± {:?}",
+            r.shared_theta,
+            r.shared_se
+        );
     }
 
     #[test]

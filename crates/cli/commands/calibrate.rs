@@ -133,9 +133,19 @@ fn print_summary(c: &emccd_calib::Calibration) {
             avg(|e| e.per_pixel_mae_dn),
         );
         let [hc, hs, hp] = f.heldout_mean_dn;
+        let dn = |v: f64| {
+            if v.is_nan() {
+                "—".to_string()
+            } else {
+                format!("{v:.3}")
+            }
+        };
         println!(
-            "  FPN form             {:?}: mean |error| on a held-out exposure constant {hc:.3}, shared {hs:.3}, per-pixel {hp:.3} DN",
-            f.chosen
+            "  FPN form             {:?}: mean |error| on a held-out exposure constant {}, shared {}, per-pixel {} DN",
+            f.chosen,
+            dn(hc),
+            dn(hs),
+            dn(hp)
         );
     }
     if let Some(b) = &c.blooming {

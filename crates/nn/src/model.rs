@@ -183,6 +183,7 @@ pub struct Denoiser {
 impl Denoiser {
     /// A freshly initialized model.
     pub fn new(meta: ModelMeta, device: &Device) -> Result<Denoiser> {
+        check_size(&meta).map_err(|e| Error::Model(format!("model configuration: {e}")))?;
         let channels = meta
             .unet
             .map(|c| c.in_channels)
@@ -291,16 +292,18 @@ fn meta_of(bytes: &[u8], path: &Path) -> Result<ModelMeta> {
 /// doubles past the integer range.
 fn check_size(meta: &ModelMeta) -> std::result::Result<(), String> {
     if let Some(c) = meta.unet {
-        if !(1..=512).contains(&c.base) || !(1..=8).contains(&c.levels) {
+        // Channels double at every level: bound the deepest level's width, not only the first.
+        if !(1..=512).contains(&c.base) || !(1..=8).contains(&c.levels) || c.base << c.levels > 4096
+        {
             return Err(format!(
-                "a U-Net of {} channels and {} levels is outside what emccd builds (1–512, 1–8)",
+                "a U-Net of {} channels and {} levels is outside what emccd builds (1–512 channels, 1–8 levels, at most 4096 channels at the deepest level)",
                 c.base, c.levels
             ));
         }
     }
     if let Some(c) = meta.uformer {
-        if !(1..=512).contains(&c.embed)
-            || c.depths.iter().any(|&d| d > 64)
+        if !(1..=128).contains(&c.embed)
+            || c.depths.iter().sum::<usize>() > 64
             || !(1..=64).contains(&c.win)
         {
             return Err(format!(
