@@ -160,24 +160,36 @@ pub fn open(path: impl AsRef<Path>) -> Result<Box<dyn FrameReader>> {
     open_inner(path).map_err(|e| e.with_path(path))
 }
 
-/// Runs `f`, turning a panic inside it — a third-party parser meeting input it was not written
-/// for — into an error about `what`, with the panic's message kept off the terminal (the error
-/// carries it).
-pub(crate) fn quietly<T>(what: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
-    use std::cell::Cell;
-    thread_local!(static QUIET: Cell<bool> = const { Cell::new(false) });
+thread_local!(static QUIET_HERE: std::cell::Cell<bool> = const { std::cell::Cell::new(false) });
+/// Callers of [`catch_quietly_everywhere`] in progress.
+static QUIET_EVERYWHERE: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
+/// The one panic hook of the process that can stay silent: it wraps whatever hook was set before
+/// and passes a panic on unless this thread is in [`quietly`] or some thread is in
+/// [`catch_quietly_everywhere`]. Installed once; every silencing in emccd goes through it, so no
+/// caller swaps the process's hook under another.
+fn install_quiet_hook() {
     static HOOK: std::sync::Once = std::sync::Once::new();
     HOOK.call_once(|| {
         let previous = std::panic::take_hook();
         std::panic::set_hook(Box::new(move |info| {
-            if !QUIET.with(Cell::get) {
+            let silent = QUIET_HERE.with(std::cell::Cell::get)
+                || QUIET_EVERYWHERE.load(std::sync::atomic::Ordering::SeqCst) > 0;
+            if !silent {
                 previous(info)
             }
         }));
     });
-    QUIET.with(|q| q.set(true));
+}
+
+/// Runs `f`, turning a panic inside it — a third-party parser meeting input it was not written
+/// for — into an error about `what`, with the panic's message kept off the terminal (the error
+/// carries it).
+pub(crate) fn quietly<T>(what: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
+    install_quiet_hook();
+    QUIET_HERE.with(|q| q.set(true));
     let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f));
-    QUIET.with(|q| q.set(false));
+    QUIET_HERE.with(|q| q.set(false));
     r.unwrap_or_else(|p| {
         let msg = p
             .downcast_ref::<&str>()
@@ -188,6 +200,18 @@ pub(crate) fn quietly<T>(what: &str, f: impl FnOnce() -> Result<T>) -> Result<T>
             "{what}: damaged beyond what the parser handles ({msg})"
         )))
     })
+}
+
+/// Runs `f` and catches a panic from it, with every thread's panic messages kept off the
+/// terminal meanwhile: for probing a runtime that reports failure by panicking in threads of its
+/// own (a GPU backend without an adapter), where the caller says in one line what it does next.
+pub fn catch_quietly_everywhere<T>(f: impl FnOnce() -> T) -> std::thread::Result<T> {
+    use std::sync::atomic::Ordering::SeqCst;
+    install_quiet_hook();
+    QUIET_EVERYWHERE.fetch_add(1, SeqCst);
+    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f));
+    QUIET_EVERYWHERE.fetch_sub(1, SeqCst);
+    r
 }
 
 /// The largest frame a reader accepts, in pixels (2²⁸: a 16384² frame, 1 GiB as `f32`). Every
