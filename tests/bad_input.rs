@@ -405,7 +405,11 @@ fn the_bad_input_corpus_is_refused_cleanly() {
             v
         } else if name.starts_with("manifest-") {
             vec![vec!["calibrate", name, "-o", "prof"]]
-        } else if name.starts_with("model-") {
+        } else if let Some(flag) = [("model-", "--model"), ("profile-", "--profile")]
+            .into_iter()
+            .find_map(|(prefix, flag)| name.starts_with(prefix).then_some(flag))
+        {
+            // A good frame denoised with the damaged model or profile.
             vec![vec![
                 "denoise",
                 "good.tif",
@@ -413,18 +417,7 @@ fn the_bad_input_corpus_is_refused_cleanly() {
                 "out.tif",
                 "--exposure-s",
                 "0.01",
-                "--model",
-                name,
-            ]]
-        } else if name.starts_with("profile-") {
-            vec![vec![
-                "denoise",
-                "good.tif",
-                "-o",
-                "out.tif",
-                "--exposure-s",
-                "0.01",
-                "--profile",
+                flag,
                 name,
             ]]
         } else {

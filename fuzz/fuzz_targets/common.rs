@@ -4,7 +4,7 @@
 #![allow(dead_code)] // each target uses its part
 
 use emccd_io::FrameReader;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// A per-process scratch file in memory-backed /dev/shm where there is one.
 pub fn scratch(ext: &str) -> PathBuf {
@@ -23,4 +23,18 @@ pub fn drain(r: &mut dyn FrameReader) {
     // in pixels, so this allocation is bounded by the input.
     let mut buf = vec![0f32; n];
     while let Ok(true) = r.read_frame(&mut buf) {}
+}
+
+/// A reader target: the input written to a scratch file named `*.ext`, opened with `open`, and
+/// every frame it accepts decoded. It may refuse the bytes, never panic, hang or allocate beyond
+/// what the file holds.
+pub fn fuzz_reader<R: FrameReader>(ext: &str, open: fn(&Path) -> emccd_io::Result<R>) {
+    let path = scratch(ext);
+    afl::fuzz!(|data: &[u8]| {
+        if std::fs::write(&path, data).is_ok() {
+            if let Ok(mut r) = open(&path) {
+                drain(&mut r);
+            }
+        }
+    });
 }

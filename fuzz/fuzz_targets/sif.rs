@@ -1,15 +1,7 @@
-//! The SIF reader on arbitrary bytes: it may refuse them, never panic, hang or allocate
-//! beyond what the file holds.
+//! The SIF reader on arbitrary bytes (see `common::fuzz_reader`).
 
 mod common;
 
 fn main() {
-    let path = common::scratch("sif");
-    afl::fuzz!(|data: &[u8]| {
-        if std::fs::write(&path, data).is_ok() {
-            if let Ok(mut r) = emccd_io::sif::SifReader::open(&path) {
-                common::drain(&mut r);
-            }
-        }
-    });
+    common::fuzz_reader("sif", emccd_io::sif::SifReader::open);
 }

@@ -1,15 +1,7 @@
-//! The TIFF reader on arbitrary bytes: it may refuse them, never panic, hang or allocate
-//! beyond what the file holds.
+//! The TIFF reader on arbitrary bytes (see `common::fuzz_reader`).
 
 mod common;
 
 fn main() {
-    let path = common::scratch("tif");
-    afl::fuzz!(|data: &[u8]| {
-        if std::fs::write(&path, data).is_ok() {
-            if let Ok(mut r) = emccd_io::tiff_io::TiffReader::open(&path) {
-                common::drain(&mut r);
-            }
-        }
-    });
+    common::fuzz_reader("tif", emccd_io::tiff_io::TiffReader::open);
 }

@@ -91,6 +91,16 @@ pub struct FpnResult {
     pub pooled: Vec<f32>,
 }
 
+/// An FPN error for reports: DN to three decimals, a dash where it was not computed (NaN: the
+/// end exposures are never held out; no per-pixel fit with fewer than five exposures).
+pub fn error_text(v: f64) -> String {
+    if v.is_nan() {
+        "—".to_string()
+    } else {
+        format!("{v:.3}")
+    }
+}
+
 /// At most this many pixels (a regular subset) are refitted per held-out exposure: the mean
 /// error over them is a precise estimate of the mean over all, at a fraction of the time.
 pub const HELDOUT_PIXELS: usize = 16384;

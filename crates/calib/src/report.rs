@@ -464,8 +464,10 @@ pub fn write(c: &Calibration, dir: &Path) -> std::io::Result<()> {
             "FPN form used",
             format!("{:?}", f.chosen),
             &format!(
-                "lowest mean error on a held-out exposure: constant {hc:.3}, shared {hs:.3}, per-pixel {} DN",
-                if hp.is_nan() { "—".to_string() } else { format!("{hp:.3}") }
+                "lowest mean error on a held-out exposure: constant {}, shared {}, per-pixel {} DN",
+                crate::fpn::error_text(hc),
+                crate::fpn::error_text(hs),
+                crate::fpn::error_text(hp)
             ),
         );
     }
@@ -573,14 +575,7 @@ table{{border-collapse:collapse;font-size:14px}} td,th{{border:1px solid #ccc;pa
             .unwrap_or(0);
         let _ = write!(h, "<h2>Fixed pattern (paper Fig. 3)</h2><div class=row><div><p>FPN at {} s</p>{}</div>{}</div>", c.bias[i].exposure_s, heat_map(&c.bias[i].mean, c.width, c.height, "DN"), fpn_curve_plot(c));
         let _ = write!(h, "<p>Mean absolute prediction error per pixel. <b>Held out</b> (what chose the form, {:?}): each form fitted to the other exposures predicts this one, on {} regularly spaced pixels (the shortest and longest exposures are not left out: that would score extrapolation); the constant form is the other exposures' pooled map. <b>Fitted</b>: the forms fitted to every exposure, scored on the same ones (all pixels) — below the noise floor means the form fits the maps' noise. The noise floor is what a perfect prediction would still show, from the finite number of bias frames.</p><table><tr><th rowspan=2>exposure s</th><th colspan=3>held out DN</th><th colspan=3>fitted DN</th><th rowspan=2>noise floor DN</th></tr><tr><th>constant</th><th>shared</th><th>per-pixel</th><th>shared</th><th>shared, inliers</th><th>per-pixel</th></tr>", f.chosen, f.heldout_pixels);
-        // Not computed (the end exposures are never left out; no per-pixel fit): a dash.
-        let dn = |v: f64| {
-            if v.is_nan() {
-                "—".to_string()
-            } else {
-                format!("{v:.3}")
-            }
-        };
+        let dn = crate::fpn::error_text;
         for e in &f.errors {
             let _ = write!(
                 h,

@@ -133,13 +133,7 @@ fn print_summary(c: &emccd_calib::Calibration) {
             avg(|e| e.per_pixel_mae_dn),
         );
         let [hc, hs, hp] = f.heldout_mean_dn;
-        let dn = |v: f64| {
-            if v.is_nan() {
-                "—".to_string()
-            } else {
-                format!("{v:.3}")
-            }
-        };
+        let dn = emccd_calib::fpn::error_text;
         println!(
             "  FPN form             {:?}: mean |error| on a held-out exposure constant {}, shared {}, per-pixel {} DN",
             f.chosen,

@@ -174,8 +174,7 @@ fn the_noise_channel_is_the_frame_channels_standard_deviation() {
 #[test]
 fn a_zeroed_output_layer_makes_a_trained_hybrid_the_identity() {
     let dev = emccd_nn::cpu();
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../models/hybrid-unet.safetensors");
+    let path = common::bundled("hybrid");
     let m = Denoiser::load(&path, &dev).unwrap();
     assert_eq!(m.meta.inputs, Inputs::Hybrid);
     let n = 32 * 32;
@@ -201,8 +200,7 @@ fn a_zeroed_output_layer_makes_a_trained_hybrid_the_identity() {
 fn a_hybrid_moved_onto_another_base_learns_again() {
     use emccd_nn::train::{train, Image, NoiseKind, RunPaths, TrainConfig};
     let dir = tempfile::tempdir().unwrap();
-    let bundled = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../models/hybrid-unet.safetensors");
+    let bundled = common::bundled("hybrid");
     let cfg = TrainConfig {
         steps: 3,
         batch: 2,

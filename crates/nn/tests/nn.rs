@@ -142,8 +142,7 @@ fn self_ensemble_averages_the_network_over_flips_and_transposes() {
 #[test]
 fn the_bundled_default_model_output_is_pinned() {
     let dev = emccd_nn::cpu();
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../models/default-unet.safetensors");
+    let path = common::bundled("default");
     let m = Denoiser::load(&path, &dev).unwrap();
     let (w, h) = (64, 48);
     let img = scene(w, h);
@@ -196,11 +195,7 @@ const PINNED_DEFAULT: [f64; 8] = [
 fn model_metadata_that_disagrees_or_is_absurd_is_a_short_error() {
     let dev = emccd_nn::cpu();
     let dir = tempfile::tempdir().unwrap();
-    let bytes = std::fs::read(
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../models/default-unet.safetensors"),
-    )
-    .unwrap();
+    let bytes = std::fs::read(common::bundled("default")).unwrap();
     let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
     let header = std::str::from_utf8(&bytes[8..8 + n]).unwrap();
     for (name, from, to, want) in [

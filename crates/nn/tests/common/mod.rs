@@ -4,6 +4,12 @@
 use emccd_nn::tile::{run, Tiling};
 use emccd_nn::{ModelMeta, Net, UNetConfig};
 
+/// A bundled model file, `models/NAME-unet.safetensors` at the repository root.
+pub fn bundled(name: &str) -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join(format!("../../models/{name}-unet.safetensors"))
+}
+
 /// Metadata of a small U-Net.
 pub fn meta(base: usize, levels: usize) -> ModelMeta {
     ModelMeta {
