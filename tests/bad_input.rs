@@ -70,6 +70,12 @@ fn inputs_are_never_overwritten_and_outputs_never_shared() {
     raw_frame(d, "b/x.tif", Some(0.01));
     raw_frame(d, "out/y_denoised.tif", Some(0.01));
     raw_frame(d, "y.tif", Some(0.01));
+    raw_frame(d, "sim/clean/y_p20.tif", Some(0.01));
+    std::fs::copy(
+        common::repo("models/default-unet.safetensors"),
+        d.join("m.safetensors"),
+    )
+    .unwrap();
     let before: Vec<(String, Vec<u8>)> = files(d)
         .into_iter()
         .map(|f| (f.clone(), std::fs::read(d.join(&f)).unwrap()))
@@ -100,6 +106,52 @@ fn inputs_are_never_overwritten_and_outputs_never_shared() {
             d,
         ),
         "is the input",
+    );
+    // `simulate pairs`: two scenes with one name would write the same pairs, and a scene where
+    // another scene's pair goes would be replaced before it is read.
+    fails_with(
+        &emccd(
+            &[
+                "simulate", "pairs", "--clean", "a/x.tif", "b/x.tif", "-o", "sim2",
+            ],
+            d,
+        ),
+        "have the same name",
+    );
+    fails_with(
+        &emccd(
+            &[
+                "simulate",
+                "pairs",
+                "--photons",
+                "20",
+                "--clean",
+                "y.tif",
+                "sim/clean/y_p20.tif",
+                "-o",
+                "sim",
+            ],
+            d,
+        ),
+        "is an input scene",
+    );
+    // `train` never writes over the model it starts from.
+    fails_with(
+        &emccd(
+            &[
+                "train",
+                "--clean",
+                "x.tif",
+                "--init",
+                "m.safetensors",
+                "--steps",
+                "1",
+                "-o",
+                "./m.safetensors",
+            ],
+            d,
+        ),
+        "is the --init model",
     );
     let after: Vec<(String, Vec<u8>)> = files(d)
         .into_iter()

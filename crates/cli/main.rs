@@ -50,6 +50,11 @@ use clap::{Parser, Subcommand};
 #[derive(Parser, Debug)]
 #[command(name = "emccd", version, about, long_about = None, propagate_version = true)]
 struct Cli {
+    /// Read files beyond the readers' default limits (frames of 2²⁸ pixels, 2²⁴ frames, 4 GiB
+    /// in one allocation), which refuse damaged headers before they are believed. For good
+    /// files that are larger; what a file's own length bounds is checked regardless.
+    #[arg(long, global = true)]
+    no_limits: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -81,6 +86,9 @@ enum Command {
 
 fn main() {
     let cli = Cli::parse();
+    if cli.no_limits {
+        emccd_io::Limits::set_process(emccd_io::Limits::NONE);
+    }
     // Stopped by Ctrl-C or SIGTERM: the destructors that remove half-written outputs do not run,
     // so remove them here; everything already renamed into place is complete.
     let _ = ctrlc::set_handler(|| {

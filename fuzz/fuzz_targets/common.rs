@@ -1,12 +1,14 @@
-//! Shared by the frame-reader targets: the input goes to a file (the readers take paths), and
-//! every frame the reader accepts is decoded, as `denoise` would.
+//! Shared by the frame-reader targets: the input is read from memory with the default limits,
+//! and every frame the reader accepts is decoded, as `denoise` would.
 
 #![allow(dead_code)] // each target uses its part
 
-use emccd_io::FrameReader;
-use std::path::{Path, PathBuf};
+use emccd_io::{FrameReader, Limits};
+use std::io::Cursor;
+use std::path::PathBuf;
 
-/// A per-process scratch file in memory-backed /dev/shm where there is one.
+/// A per-process scratch file in memory-backed /dev/shm where there is one (for loaders that
+/// take paths).
 pub fn scratch(ext: &str) -> PathBuf {
     let dir = if std::path::Path::new("/dev/shm").is_dir() {
         PathBuf::from("/dev/shm")
@@ -25,16 +27,15 @@ pub fn drain(r: &mut dyn FrameReader) {
     while let Ok(true) = r.read_frame(&mut buf) {}
 }
 
-/// A reader target: the input written to a scratch file named `*.ext`, opened with `open`, and
+/// A reader target: the input opened from memory with `new` and the default [`Limits`], and
 /// every frame it accepts decoded. It may refuse the bytes, never panic, hang or allocate beyond
-/// what the file holds.
-pub fn fuzz_reader<R: FrameReader>(ext: &str, open: fn(&Path) -> emccd_io::Result<R>) {
-    let path = scratch(ext);
+/// what the input holds.
+pub fn fuzz_reader<R: FrameReader>(
+    new: fn(Cursor<Vec<u8>>, Limits) -> emccd_io::Result<R>,
+) {
     afl::fuzz!(|data: &[u8]| {
-        if std::fs::write(&path, data).is_ok() {
-            if let Ok(mut r) = open(&path) {
-                drain(&mut r);
-            }
+        if let Ok(mut r) = new(Cursor::new(data.to_vec()), Limits::GENEROUS) {
+            drain(&mut r);
         }
     });
 }

@@ -3,5 +3,5 @@
 mod common;
 
 fn main() {
-    common::fuzz_reader("fits", emccd_io::fits::FitsReader::open);
+    common::fuzz_reader(emccd_io::fits::FitsReader::new);
 }

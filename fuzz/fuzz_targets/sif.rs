@@ -3,5 +3,5 @@
 mod common;
 
 fn main() {
-    common::fuzz_reader("sif", emccd_io::sif::SifReader::open);
+    common::fuzz_reader(emccd_io::sif::SifReader::new);
 }

@@ -3,5 +3,5 @@
 mod common;
 
 fn main() {
-    common::fuzz_reader("tif", emccd_io::tiff_io::TiffReader::open);
+    common::fuzz_reader(emccd_io::tiff_io::TiffReader::new);
 }

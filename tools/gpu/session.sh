@@ -8,6 +8,8 @@
 #                                                # s after this call began; return after SECONDS
 #   bash tools/gpu/session.sh wait  SECONDS   # follow the runs; copy their latest models to $OUT
 #   bash tools/gpu/session.sh finish SECONDS  # wait for the runs (at most SECONDS), collect to $OUT
+#   bash tools/gpu/session.sh levers SECONDS  # set-up, then one U-Net run per lever at once, each
+#                                             # the low-light recipe with one change; then `finish`
 #
 # The work tree carries (ignored, see .git/info/exclude): .gl/ (the Vulkan loader and glvnd debs
 # of the device README's recipe, all of them: NVIDIA's Vulkan ICD is libGLX_nvidia.so.0, which
@@ -16,6 +18,7 @@
 # images: Kodak 1–24, BSD68, FMD confocal fields 1–4). The whole tree must stay under 64 MiB;
 # move models/ you do not need out of it for the call.
 #
+# Env (levers): LEVERS ("name:extra args;…"), LEVER_STEPS (steps of every run, default 1500).
 # Env: PROBE_S (probe seconds, default 100), UF_SIZES (Uformer sizes to time, default "t s b").
 set -uo pipefail
 phase=${1:?phase}
@@ -84,9 +87,22 @@ running() {
 collect() {
     local tag=$1
     cp "$R/session.log" "$OUT/session.log" 2>/dev/null
-    cat "$R"/*.train.log >"$OUT/train.log" 2>/dev/null
+    tail -n +1 "$R"/*.train.log >"$OUT/train.log" 2>/dev/null
     [ -f "$R/unet.safetensors" ] && cp "$R/unet.safetensors" "$OUT/unet.safetensors" ||
         cp "$R/unet.safetensors.ckpt/model.safetensors" "$OUT/unet-$tag.safetensors" 2>/dev/null
+    local l n
+    for l in "$R"/lever-*.train.log; do
+        [ -f "$l" ] || continue
+        n=$(basename "$l" .train.log)
+        # Files come back up to 16 MiB: larger models are only evaluated there (`finish`).
+        if [ "$(stat -c %s "$R/$n.safetensors.ckpt/model.safetensors" 2>/dev/null || echo 0)" -gt 16000000 ]; then
+            continue
+        elif [ -f "$R/$n.safetensors" ]; then
+            cp "$R/$n.safetensors" "$OUT/$n.safetensors"
+        else
+            cp "$R/$n.safetensors.ckpt/model.safetensors" "$OUT/$n-$tag.safetensors" 2>/dev/null
+        fi
+    done
     local uf=$R/uformer.safetensors
     [ -f "$uf" ] || uf=$R/uformer.safetensors.ckpt/model.safetensors
     [ -f "$uf" ] && split -b 15M -d "$uf" "$OUT/uformer-$tag.safetensors.part"
@@ -148,6 +164,24 @@ EOF
     tail -n 2 "$R"/*.train.log
     collect a
     ;;
+levers)
+    vulkan_env
+    rm -f "$R/pids"
+    python3 -c "import lzma, shutil, sys; shutil.copyfileobj(lzma.open('.gpu/emccd.xz'), open(sys.argv[1], 'wb'))" "$B" && chmod +x "$B"
+    nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee -a "$R/session.log"
+    IFS=';' read -ra runs <<<"${LEVERS:?LEVERS}"
+    for r in "${runs[@]}"; do
+        name=${r%%:*}
+        extra=${r#*:}
+        log "lever $name: $RECIPE $UNET $extra --steps ${LEVER_STEPS:-1500}"
+        setsid nohup bash -c "'$B' train $RECIPE $UNET $extra $(TRAIN_DATA) --steps ${LEVER_STEPS:-1500} --checkpoint-every 250 -o '$R/lever-$name.safetensors' 2>&1 | { while IFS= read -r l; do echo \"\$(date +%s) \$l\"; done; } > '$R/lever-$name.train.log'" >/dev/null 2>&1 &
+        echo $! >>"$R/pids"
+    done
+    sleep 20
+    while running && [ $(($(date +%s) - T0)) -lt $((secs - 25)) ]; do sleep 15; done
+    tail -n 2 "$R"/*.train.log
+    collect a
+    ;;
 wait)
     while [ $(($(date +%s) - T0)) -lt $((secs - 25)) ]; do sleep 15; done
     tail -n 3 "$R"/*.train.log
@@ -155,8 +189,20 @@ wait)
     collect b
     ;;
 finish)
-    while [ $(($(date +%s) - T0)) -lt $((secs - 40)) ] && running; do sleep 10; done
+    while [ $(($(date +%s) - T0)) -lt $((secs - ${EVAL_S:-40})) ] && running; do sleep 10; done
     tail -n 3 "$R"/*.train.log
+    # The lever models on the validation camera (.gpu/tune.tar.xz: out/tune's pairs and profile).
+    if [ -f .gpu/tune.tar.xz ] && ls "$R"/lever-*.train.log >/dev/null 2>&1; then
+        mkdir -p "$R/tune" && tar xJf .gpu/tune.tar.xz -C "$R/tune"
+        ms=()
+        for l in "$R"/lever-*.train.log; do
+            n=${l%.train.log}
+            m=$n.safetensors
+            [ -f "$m" ] || m=$n.safetensors.ckpt/model.safetensors
+            [ -f "$m" ] && ms+=(--method "$m")
+        done
+        "$B" evaluate "$R/tune/pairs" "${ms[@]}" 2>&1 | tee "$OUT/eval.md"
+    fi
     collect c
     ;;
 esac

@@ -507,6 +507,7 @@ fn pairs(
     } else {
         &["noisy", "clean", "preview"]
     };
+    check_outputs(&scenes, levels, dirs, out)?;
     // Folders this run creates hold only what it writes: on failure they are removed again, so
     // a failed run leaves nothing behind (folders that existed before are left alone).
     let mut created: Vec<PathBuf> = Vec::new();
@@ -524,6 +525,56 @@ fn pairs(
         }
     }
     r
+}
+
+/// The stem of scene `si`'s output names.
+fn scene_stem(si: usize, scene: &Path) -> String {
+    scene
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| format!("scene{si}"))
+}
+
+/// The name of a scene's pair at one light level.
+fn pair_name(stem: &str, lv: &Level) -> String {
+    match lv.ratio {
+        Some(r) => format!("{stem}_r{r}"),
+        None => format!("{stem}_p{}", lv.photons),
+    }
+}
+
+/// Refuses, before anything is written, a run that would overwrite its own outputs (two scenes
+/// with one file stem, from different folders) or an input scene (one that lies where an
+/// output goes, which would be replaced before it is read).
+fn check_outputs(scenes: &[PathBuf], levels: &[Level], dirs: &[&str], out: &Path) -> Result<()> {
+    let mut by_stem: std::collections::HashMap<String, &Path> = Default::default();
+    for (si, scene) in scenes.iter().enumerate() {
+        if let Some(other) = by_stem.insert(scene_stem(si, scene), scene) {
+            bail!(
+                "scenes {} and {} have the same name, so their pairs would overwrite each other; rename one",
+                other.display(),
+                scene.display()
+            );
+        }
+    }
+    let inputs: std::collections::HashSet<PathBuf> =
+        scenes.iter().map(|p| crate::common::canonical(p)).collect();
+    for (si, scene) in scenes.iter().enumerate() {
+        for lv in levels {
+            let name = pair_name(&scene_stem(si, scene), lv);
+            for d in dirs {
+                let ext = if *d == "preview" { "png" } else { "tif" };
+                let o = out.join(d).join(format!("{name}.{ext}"));
+                if inputs.contains(&crate::common::canonical(&o)) {
+                    bail!(
+                        "{}: an output of this run is an input scene; choose another -o, inputs are never overwritten",
+                        o.display()
+                    );
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 fn write_pairs(
@@ -559,19 +610,13 @@ fn write_pairs(
             opts.camera(&truth, Some((w, h)))?
         };
         let img = center_crop(&img, sw, sh, w, h);
-        let stem = scene
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_else(|| format!("scene{si}"));
+        let stem = scene_stem(si, scene);
         for (pi, lv) in levels.iter().enumerate() {
             let (level, exposure_s) = (lv.photons, lv.exposure_s);
             let e = cam.exposure(exposure_s);
             let phot: Vec<f32> = img.iter().map(|&v| (v as f64 * level) as f32).collect();
             let truth = e.ground_truth(&phot);
-            let name = match lv.ratio {
-                Some(r) => format!("{stem}_r{r}"),
-                None => format!("{stem}_p{level}"),
-            };
+            let name = pair_name(&stem, lv);
             let noisy_rel = format!("noisy/{name}.tif");
             let clean_rel = format!("clean/{name}.tif");
             let preview_rel = format!("preview/{name}.png");

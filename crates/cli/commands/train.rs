@@ -46,6 +46,10 @@ pub struct Args {
     /// U-Net levels.
     #[arg(long, default_value_t = 4)]
     pub levels: usize,
+    /// U-Net denoiser: output the clean frame directly instead of a correction added to the
+    /// noisy frame (which, at a few photoelectrons, has to cancel every EM spike exactly).
+    #[arg(long)]
+    pub direct: bool,
     /// What the network is given: `noisy` (the frame and its noise level: a denoiser), or
     /// `hybrid` (also the BM3D + GAT estimate, which the network corrects; its output layer
     /// starts at zero, so training starts at BM3D's quality; U-Net only).
@@ -198,6 +202,9 @@ pub fn run(a: Args) -> Result<()> {
         InputsArg::Noisy => Inputs::Noisy,
         InputsArg::Hybrid => Inputs::Hybrid,
     };
+    if a.direct && (inputs == Inputs::Hybrid || a.arch != "unet") {
+        bail!("--direct: only a U-Net denoiser (--arch unet --inputs noisy) has a direct output");
+    }
     if inputs == Inputs::Hybrid && a.arch != "unet" {
         bail!("--inputs hybrid: the refinement network is a U-Net in this build (--arch unet)");
     }
@@ -241,6 +248,7 @@ pub fn run(a: Args) -> Result<()> {
             levels: a.levels,
             in_channels: inputs.channels(),
             residual: inputs.residual(),
+            direct: a.direct,
         }),
         uformer: UformerConfig::by_name(&a.arch),
         inputs,
@@ -281,6 +289,7 @@ pub fn run(a: Args) -> Result<()> {
             .progress_chars("=> "),
     );
     let every = a.checkpoint_every.max(1);
+    let t0 = std::time::Instant::now();
     let mut report = |r: &emccd_nn::train::StepReport| {
         pb.set_position(r.step);
         let v = r.val_psnr.map_or(String::new(), |(o, i)| {
@@ -290,9 +299,14 @@ pub fn run(a: Args) -> Result<()> {
         if !pb.is_hidden() {
             return true;
         }
-        // Without a terminal the bar is hidden: log a line at every checkpoint instead.
+        // Without a terminal the bar is hidden: log a line at every checkpoint instead, with
+        // the seconds since this process started (learning curves against wall-clock).
         if r.step % every == 0 || r.step == r.steps {
-            eprintln!("step {}/{}: loss {:.5}{v}", r.step, r.steps, r.loss);
+            let t = t0.elapsed().as_secs_f64();
+            eprintln!(
+                "step {}/{}: loss {:.5}{v} at {t:.0} s",
+                r.step, r.steps, r.loss
+            );
         }
         true
     };
@@ -301,6 +315,14 @@ pub fn run(a: Args) -> Result<()> {
         .as_deref()
         .map(crate::commands::denoise::model_path)
         .transpose()?;
+    if let Some(i) = &init {
+        if crate::common::canonical(i) == crate::common::canonical(&a.out) {
+            bail!(
+                "{}: the output is the --init model; choose another -o, inputs are never overwritten",
+                a.out.display()
+            );
+        }
+    }
     let model = train(
         train_imgs,
         val_imgs,

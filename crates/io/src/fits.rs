@@ -12,13 +12,16 @@ use fitsrs::card::Value;
 use fitsrs::hdu::header::Bitpix;
 use fitsrs::{Fits, HDU};
 
-use crate::{Error, Format, FrameReader, Metadata, PixelType, Result, SampleFormat, StackInfo};
+use crate::{
+    Error, Format, FrameReader, Limits, Metadata, PixelType, Result, SampleFormat, StackInfo,
+};
 
 const BLOCK: usize = 2880;
 
-/// Streams the frames of the first image HDU that has at least two axes.
-pub struct FitsReader {
-    file: BufReader<File>,
+/// Streams the frames of the first image HDU that has at least two axes (from a file or any
+/// seekable source).
+pub struct FitsReader<R = File> {
+    file: BufReader<R>,
     info: StackInfo,
     bitpix: i32,
     bzero: f64,
@@ -42,13 +45,11 @@ fn card_string(v: Option<&Value>) -> Option<String> {
     }
 }
 
-/// Reads the primary header's `NAXISn` cards before `fitsrs` multiplies them (it does so
-/// unchecked, and a damaged header can hold any 64-bit values): their product must stay below
-/// 2⁵² pixels (a limit of 2²⁸-pixel frames times 2²⁴ frames), so the arithmetic cannot overflow;
-/// the frame size itself is then checked against the reader's limit and the file's length.
-fn check_primary_axes(path: &Path) -> Result<()> {
-    use std::io::Read;
-    let mut f = BufReader::new(File::open(path)?);
+/// Reads the primary header's `NAXISn` cards (from the start of `f`) before `fitsrs` multiplies
+/// them (it does so unchecked, and a damaged header can hold any 64-bit values): their product
+/// must stay below 2⁵² pixels, so the arithmetic cannot overflow; the frame size itself is then
+/// checked against the reader's limits and the file's length.
+fn check_primary_axes(f: &mut impl Read) -> Result<()> {
     let mut card = [0u8; 80];
     let mut total: u64 = 1;
     // At most 36 header blocks of 36 cards: far more than any camera writes.
@@ -75,7 +76,7 @@ fn check_primary_axes(path: &Path) -> Result<()> {
                 .map_err(|_| Error::Format(format!("FITS header: {key} = {v:?} is not a size")))?;
             total = total
                 .checked_mul(v)
-                .filter(|&t| t <= (crate::MAX_FRAME_PIXELS as u64).saturating_mul(1 << 24))
+                .filter(|&t| t <= 1 << 52)
                 .ok_or_else(|| Error::Format(format!("FITS header: the axes multiply to more pixels than any file holds ({key} = {v}; a damaged header?)")))?;
         }
     }
@@ -86,9 +87,30 @@ fn check_primary_axes(path: &Path) -> Result<()> {
 /// offset and metadata.
 type Found = (Vec<u64>, i32, f64, f64, u64, Metadata);
 
-/// Walks the HDUs to the first image with two or more axes.
-fn find_image(path: &Path) -> Result<Option<Found>> {
-    let mut hdus = Fits::from_reader(BufReader::new(File::open(path)?));
+/// `fitsrs` wants a `Debug` source; this one prints as its type, so readers need not be `Debug`.
+struct Src<'a, R>(&'a mut BufReader<R>);
+
+impl<R> std::fmt::Debug for Src<'_, R> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("FITS source")
+    }
+}
+
+impl<R: Read> Read for Src<'_, R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        self.0.read(buf)
+    }
+}
+
+impl<R: Seek> Seek for Src<'_, R> {
+    fn seek(&mut self, pos: SeekFrom) -> std::io::Result<u64> {
+        self.0.seek(pos)
+    }
+}
+
+/// Walks the HDUs (from the start of `f`) to the first image with two or more axes.
+fn find_image<R: Read + Seek>(f: &mut BufReader<R>) -> Result<Option<Found>> {
+    let mut hdus = Fits::from_reader(Src(f));
     let mut found = None;
     while let Some(hdu) = hdus.next() {
         let hdu = hdu.map_err(|e| {
@@ -139,13 +161,22 @@ fn find_image(path: &Path) -> Result<Option<Found>> {
 }
 
 impl FitsReader {
-    /// Opens a file and locates its image data.
+    /// Opens a file with the process's [`Limits`].
     pub fn open(path: &Path) -> Result<FitsReader> {
-        let file_len = std::fs::metadata(path)?.len();
-        check_primary_axes(path)?;
+        FitsReader::new(File::open(path)?, Limits::process())
+    }
+}
+
+impl<R: Read + Seek> FitsReader<R> {
+    /// Reads the headers and locates the image data.
+    pub fn new(source: R, limits: Limits) -> Result<FitsReader<R>> {
+        let mut file = BufReader::new(source);
+        let file_len = crate::stream_len(&mut file)?;
+        check_primary_axes(&mut file)?;
+        file.seek(SeekFrom::Start(0))?;
         // fitsrs 0.4.1 panics on some malformed cards (a value of a lone quote slices
         // s[1..0]; found by fuzzing): such a header is an error like any other damage.
-        let found = crate::quietly("FITS header", || find_image(path))?;
+        let found = crate::quietly("FITS header", || find_image(&mut file))?;
         let (naxis, bitpix, bzero, bscale, offset, mut metadata) = found
             .ok_or_else(|| Error::Format("FITS: no image HDU with two or more axes".into()))?;
         let (width, height) = (naxis[0] as usize, naxis[1] as usize);
@@ -155,9 +186,10 @@ impl FitsReader {
             .unwrap_or(u64::MAX);
         let frames_declared = usize::try_from(frames_declared).unwrap_or(usize::MAX);
         let bpp = (bitpix.unsigned_abs() / 8) as usize;
-        let frame_bytes = crate::frame_bytes(width, height, bpp)?;
+        let frame_bytes = limits.frame(width, height, bpp)? as u64 * bpp as u64;
         let whole = (file_len.saturating_sub(offset) / frame_bytes) as usize;
         let frames = whole.min(frames_declared);
+        limits.stack(frames as u64)?;
         if frames == 0 {
             return Err(Error::Format(format!(
                 "FITS data ends early: {width}×{height} frame of {frame_bytes} bytes at offset {offset}, file is {file_len} bytes"
@@ -176,7 +208,6 @@ impl FitsReader {
             (64, _, _) | (-64, _, _) => PixelType::F64,
             _ => PixelType::F32,
         };
-        let mut file = BufReader::new(File::open(path)?);
         file.seek(SeekFrom::Start(offset))?;
         Ok(FitsReader {
             file,
@@ -197,7 +228,7 @@ impl FitsReader {
     }
 }
 
-impl FrameReader for FitsReader {
+impl<R: Read + Seek + Send> FrameReader for FitsReader<R> {
     fn info(&self) -> &StackInfo {
         &self.info
     }

@@ -20,7 +20,7 @@ pub mod sif;
 pub mod tiff_io;
 
 use std::fs::File;
-use std::io::Read;
+use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
 pub use error::{Error, Result};
@@ -151,13 +151,22 @@ pub(crate) fn check_buffer(out: &[f32], info: &StackInfo) -> Result<()> {
     Ok(())
 }
 
-/// Opens an image or stack, choosing the reader from the file's first bytes.
+/// Opens an image or stack, choosing the reader from the file's first bytes, with the process's
+/// [`Limits`].
 ///
 /// Errors name the file. A truncated SIF opens with the whole frames it holds and a warning in
 /// [`Metadata::warnings`].
 pub fn open(path: impl AsRef<Path>) -> Result<Box<dyn FrameReader>> {
+    open_with(path, Limits::process())
+}
+
+/// [`open`] with the given limits.
+pub fn open_with(path: impl AsRef<Path>, limits: Limits) -> Result<Box<dyn FrameReader>> {
     let path = path.as_ref();
-    open_inner(path).map_err(|e| e.with_path(path))
+    File::open(path)
+        .map_err(Error::from)
+        .and_then(|f| from_reader(f, limits))
+        .map_err(|e| e.with_path(path))
 }
 
 thread_local!(static QUIET_HERE: std::cell::Cell<bool> = const { std::cell::Cell::new(false) });
@@ -214,66 +223,137 @@ pub fn catch_quietly_everywhere<T>(f: impl FnOnce() -> T) -> std::thread::Result
     r
 }
 
-/// The largest frame a reader accepts, in pixels (2²⁸: a 16384² frame, 1 GiB as `f32`). Every
-/// caller allocates a frame buffer from the header's size before decoding a pixel, so a damaged
-/// or hostile header (65535² in a 1 kB file) must be refused here, not discovered by the
-/// allocator. EMCCD sensors are at most 1024²; mosaics and processed images far below this.
-pub const MAX_FRAME_PIXELS: usize = 1 << 28;
-
-/// Pixels of one `width`×`height` frame, or an error past [`MAX_FRAME_PIXELS`] (or on
-/// overflow): what every reader's header must pass before a frame buffer is allocated.
-pub(crate) fn frame_pixels(width: usize, height: usize) -> Result<usize> {
-    match width.checked_mul(height) {
-        Some(n) if n <= MAX_FRAME_PIXELS => Ok(n),
-        _ => Err(Error::Format(format!(
-            "the header claims {width}×{height} pixels per frame, beyond the {MAX_FRAME_PIXELS}-pixel limit of this reader (a damaged header?)"
-        ))),
-    }
+/// How much a file's header may claim before a reader allocates for the claim.
+///
+/// Every caller sizes a frame buffer from the header before decoding a pixel, so a damaged or
+/// hostile header (65535² pixels in a 1 kB file) must be refused by the reader, not discovered
+/// by the allocator. Independently of these limits, a reader never believes a header that claims
+/// more uncompressed data than the file holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Limits {
+    /// Pixels in one frame.
+    pub frame_pixels: usize,
+    /// Frames in one stack.
+    pub frames: usize,
+    /// Bytes of one allocation sized from a header (a frame's samples as stored, or decoded).
+    pub bytes: u64,
 }
 
-/// Bytes of one `width`×`height` frame of `bytes_per_sample`, for readers that divide by it
-/// before they trust a header: [`frame_pixels`]' limit, and never zero.
-pub(crate) fn frame_bytes(width: usize, height: usize, bytes_per_sample: usize) -> Result<u64> {
-    match frame_pixels(width, height)? * bytes_per_sample {
-        0 => Err(Error::Format(format!(
-            "the header claims an empty frame ({width}×{height} pixels of {bytes_per_sample}-byte samples)"
-        ))),
-        n => Ok(n as u64),
-    }
-}
-
-fn open_inner(path: &Path) -> Result<Box<dyn FrameReader>> {
-    let r = open_any(path)?;
-    frame_pixels(r.info().width, r.info().height)?;
-    Ok(r)
-}
-
-fn open_any(path: &Path) -> Result<Box<dyn FrameReader>> {
-    let mut magic = [0u8; 36];
-    let n = {
-        let mut f = File::open(path)?;
-        read_up_to(&mut f, &mut magic)?
+impl Limits {
+    /// The default: frames up to 2²⁸ pixels (16384², 1 GiB as `f32`), 2²⁴ frames, 4 GiB in one
+    /// allocation. EMCCD sensors are at most 1024²; mosaics and processed images far below this.
+    pub const GENEROUS: Limits = Limits {
+        frame_pixels: 1 << 28,
+        frames: 1 << 24,
+        bytes: 1 << 32,
     };
+
+    /// No limits (`emccd --no-limits`), for good files beyond the defaults; what the file's own
+    /// length bounds is still checked.
+    pub const NONE: Limits = Limits {
+        frame_pixels: usize::MAX,
+        frames: usize::MAX,
+        bytes: u64::MAX,
+    };
+
+    /// The limits [`open`] applies: [`Limits::GENEROUS`] unless [`Limits::set_process`] said
+    /// otherwise.
+    pub fn process() -> Limits {
+        *PROCESS_LIMITS.read().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Sets the limits of every later [`open`] in this process (the CLI's `--no-limits`).
+    pub fn set_process(limits: Limits) {
+        *PROCESS_LIMITS.write().unwrap_or_else(|e| e.into_inner()) = limits;
+    }
+
+    /// Pixels of one `width`×`height` frame of `bytes_per_sample`-byte samples, or an error if
+    /// the frame is empty or passes a limit (pixels; bytes as stored or as `f32`).
+    pub fn frame(&self, width: usize, height: usize, bytes_per_sample: usize) -> Result<usize> {
+        let n = width
+            .checked_mul(height)
+            .filter(|&n| n <= self.frame_pixels)
+            .ok_or_else(|| {
+                Error::Format(format!(
+                    "the header claims {width}×{height} pixels per frame, beyond the limit of {} pixels (a damaged header? `--no-limits` lifts it)",
+                    self.frame_pixels
+                ))
+            })?;
+        if n == 0 || bytes_per_sample == 0 {
+            return Err(Error::Format(format!(
+                "the header claims an empty frame ({width}×{height} pixels of {bytes_per_sample}-byte samples)"
+            )));
+        }
+        let bytes = (n as u128) * (bytes_per_sample.max(4) as u128);
+        if bytes > self.bytes as u128 {
+            return Err(Error::Format(format!(
+                "a {width}×{height} frame takes {bytes} bytes, beyond the limit of {} bytes (a damaged header? `--no-limits` lifts it)",
+                self.bytes
+            )));
+        }
+        Ok(n)
+    }
+
+    /// An error if a stack of `frames` passes the frame limit.
+    pub fn stack(&self, frames: u64) -> Result<()> {
+        if frames > self.frames as u64 {
+            return Err(Error::Format(format!(
+                "the file claims {frames} frames, beyond the limit of {} (a damaged header? `--no-limits` lifts it)",
+                self.frames
+            )));
+        }
+        Ok(())
+    }
+}
+
+impl Default for Limits {
+    fn default() -> Limits {
+        Limits::GENEROUS
+    }
+}
+
+static PROCESS_LIMITS: std::sync::RwLock<Limits> = std::sync::RwLock::new(Limits::GENEROUS);
+
+/// The length of a stream, its position kept.
+pub(crate) fn stream_len(r: &mut impl Seek) -> std::io::Result<u64> {
+    let pos = r.stream_position()?;
+    let end = r.seek(SeekFrom::End(0))?;
+    r.seek(SeekFrom::Start(pos))?;
+    Ok(end)
+}
+
+/// Opens an image or stack from any seekable source (a file, bytes in memory), choosing the
+/// reader from its first bytes; the source is read through a buffer.
+pub fn from_reader<R: Read + Seek + Send + 'static>(
+    mut source: R,
+    limits: Limits,
+) -> Result<Box<dyn FrameReader>> {
+    let mut magic = [0u8; 36];
+    let n = read_up_to(&mut source, &mut magic)?;
+    source.seek(SeekFrom::Start(0))?;
     let magic = &magic[..n];
-    if magic.starts_with(b"II*\0")
+    let r: Box<dyn FrameReader> = if magic.starts_with(b"II*\0")
         || magic.starts_with(b"MM\0*")
         || magic.starts_with(b"II+\0")
         || magic.starts_with(b"MM\0+")
     {
-        Ok(Box::new(tiff_io::TiffReader::open(path)?))
+        Box::new(tiff_io::TiffReader::new(source, limits)?)
     } else if magic.starts_with(sif::MAGIC) {
-        Ok(Box::new(sif::SifReader::open(path)?))
+        Box::new(sif::SifReader::new(source, limits)?)
     } else if magic.starts_with(b"SIMPLE  =") {
-        Ok(Box::new(fits::FitsReader::open(path)?))
+        Box::new(fits::FitsReader::new(source, limits)?)
     } else if magic.starts_with(b"\x89PNG\r\n\x1a\n") {
-        Ok(Box::new(png_io::PngReader::open(path)?))
+        Box::new(png_io::PngReader::new(source, limits)?)
     } else if n == 0 {
-        Err(Error::Format("the file is empty".into()))
+        return Err(Error::Format("the file is empty".into()));
     } else {
-        Err(Error::Unsupported(
+        return Err(Error::Unsupported(
             "not a TIFF, BigTIFF, Andor SIF, FITS or PNG file (unrecognized first bytes)".into(),
-        ))
-    }
+        ));
+    };
+    // Whatever the format said, the caller's frame buffer is sized from this.
+    limits.frame(r.info().width, r.info().height, r.info().pixel_type.bytes())?;
+    Ok(r)
 }
 
 fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {

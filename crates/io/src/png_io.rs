@@ -2,12 +2,12 @@
 //! luminance with the ITU-R BT.601 weights that PIL's `convert("L")` uses), previews out.
 
 use std::fs::File;
-use std::io::BufReader;
+use std::io::{BufReader, Read, Seek};
 use std::path::Path;
 
 use png::{BitDepth, ColorType, Transformations};
 
-use crate::{Error, Format, FrameReader, Metadata, PixelType, Result, StackInfo};
+use crate::{Error, Format, FrameReader, Limits, Metadata, PixelType, Result, StackInfo};
 
 /// A single-image PNG, decoded to luminance in the file's own scale (0–255 or 0–65535).
 pub struct PngReader {
@@ -23,15 +23,24 @@ fn png_err(e: png::DecodingError) -> Error {
 }
 
 impl PngReader {
-    /// Decodes the whole image (PNGs are single frames).
+    /// Decodes a whole file (PNGs are single frames) with the process's [`Limits`].
     pub fn open(path: &Path) -> Result<PngReader> {
-        let mut dec = png::Decoder::new(BufReader::new(File::open(path)?));
+        PngReader::new(File::open(path)?, Limits::process())
+    }
+
+    /// Decodes the whole image from any seekable source.
+    pub fn new(source: impl Read + Seek, limits: Limits) -> Result<PngReader> {
+        let source = BufReader::new(source);
+        let bytes = usize::try_from(limits.bytes).unwrap_or(usize::MAX);
+        let mut dec = png::Decoder::new_with_limits(source, png::Limits { bytes });
         // Expand palettes and sub-byte gray to 8 bits; keep 16-bit samples.
         dec.set_transformations(Transformations::EXPAND);
         let mut reader = dec.read_info().map_err(png_err)?;
         let size = reader
             .output_buffer_size()
             .ok_or_else(|| Error::Format("PNG: image too large".into()))?;
+        let (w, h) = (reader.info().width as usize, reader.info().height as usize);
+        limits.frame(w, h, 4)?;
         let mut buf = vec![0u8; size];
         let out = reader.next_frame(&mut buf).map_err(png_err)?;
         let (w, h) = (out.width as usize, out.height as usize);

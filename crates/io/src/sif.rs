@@ -14,7 +14,7 @@ use std::fs::File;
 use std::io::{BufRead, BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
 
-use crate::{Error, Format, FrameReader, Metadata, PixelType, Result, StackInfo};
+use crate::{Error, Format, FrameReader, Limits, Metadata, PixelType, Result, StackInfo};
 
 /// The first bytes of every SIF file.
 pub const MAGIC: &[u8] = b"Andor Technology Multi-Channel File\n";
@@ -50,9 +50,9 @@ pub struct SifHeader {
     pub data_offset: u64,
 }
 
-/// Streams the frames of a SIF file.
-pub struct SifReader {
-    file: BufReader<File>,
+/// Streams the frames of a SIF file (or any seekable source).
+pub struct SifReader<R = File> {
+    file: BufReader<R>,
     header: SifHeader,
     info: StackInfo,
     next: usize,
@@ -60,15 +60,23 @@ pub struct SifReader {
 }
 
 impl SifReader {
+    /// Opens a file with the process's [`Limits`].
+    pub fn open(path: &Path) -> Result<SifReader> {
+        SifReader::new(File::open(path)?, Limits::process())
+    }
+}
+
+impl<R: Read + Seek> SifReader<R> {
     /// Parses the header. A file cut short yields its whole frames, with a warning saying how
     /// many of the declared frames are missing.
-    pub fn open(path: &Path) -> Result<SifReader> {
-        let mut file = BufReader::new(File::open(path)?);
-        let file_len = file.get_ref().metadata()?.len();
+    pub fn new(source: R, limits: Limits) -> Result<SifReader<R>> {
+        let mut file = BufReader::new(source);
+        let file_len = crate::stream_len(&mut file)?;
         let header = parse_header(&mut file, file_len)?;
-        let frame_bytes = crate::frame_bytes(header.width, header.height, 4)?;
+        let frame_bytes = limits.frame(header.width, header.height, 4)? as u64 * 4;
         let available = file_len.saturating_sub(header.data_offset) / frame_bytes;
         let frames = (available as usize).min(header.frames_declared);
+        limits.stack(frames as u64)?;
         let mut metadata = Metadata {
             exposure_s: Some(header.exposure_s),
             em_gain: Some(header.em_gain),
@@ -121,7 +129,7 @@ impl SifReader {
     }
 }
 
-impl FrameReader for SifReader {
+impl<R: Read + Seek + Send> FrameReader for SifReader<R> {
     fn info(&self) -> &StackInfo {
         &self.info
     }
@@ -158,7 +166,7 @@ fn read_line(r: &mut impl BufRead, limit: usize) -> Result<Vec<u8>> {
     Ok(line)
 }
 
-fn parse_header(r: &mut BufReader<File>, file_len: u64) -> Result<SifHeader> {
+fn parse_header(r: &mut (impl BufRead + Seek), file_len: u64) -> Result<SifHeader> {
     let mut magic = vec![0u8; MAGIC.len()];
     r.read_exact(&mut magic)
         .map_err(|_| fmt_err("shorter than the SIF magic"))?;

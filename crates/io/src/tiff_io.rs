@@ -8,19 +8,21 @@
 //! `exposure_s=`/`em_gain=` lines on the first page, which this reader reads back.
 
 use std::fs::File;
-use std::io::BufReader;
+use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
 
-use tiff::decoder::{Decoder, DecodingResult, Limits};
+use tiff::decoder::{Decoder, DecodingResult};
 use tiff::encoder::{colortype, TiffEncoder, TiffKindBig, TiffKindStandard};
 use tiff::tags::Tag;
 use tiff::ColorType;
 
-use crate::{Error, Format, FrameReader, Metadata, PixelType, Result, SampleFormat, StackInfo};
+use crate::{
+    Error, Format, FrameReader, Limits, Metadata, PixelType, Result, SampleFormat, StackInfo,
+};
 
-/// Streams the pages of a TIFF or BigTIFF file.
-pub struct TiffReader {
-    decoder: Decoder<BufReader<File>>,
+/// Streams the pages of a TIFF or BigTIFF file (or any seekable source).
+pub struct TiffReader<R: Read + Seek = File> {
+    decoder: Decoder<BufReader<R>>,
     info: StackInfo,
     next: usize,
     buf: DecodingResult,
@@ -29,17 +31,27 @@ pub struct TiffReader {
 }
 
 impl TiffReader {
-    /// Opens a file, counts its pages and reads the first page's metadata.
+    /// Opens a file with the process's [`Limits`].
     pub fn open(path: &Path) -> Result<TiffReader> {
-        let file = File::open(path)?;
+        TiffReader::new(File::open(path)?, Limits::process())
+    }
+}
+
+impl<R: Read + Seek> TiffReader<R> {
+    /// Reads the header, counts the pages and reads the first page's metadata.
+    pub fn new(source: R, limits: Limits) -> Result<TiffReader<R>> {
+        let mut source = BufReader::new(source);
         let mut head = [0u8; 4];
-        {
-            use std::io::Read;
-            let mut f = File::open(path)?;
-            f.read_exact(&mut head)?;
-        }
+        source.read_exact(&mut head)?;
+        let len = crate::stream_len(&mut source)?;
+        source.seek(SeekFrom::Start(0))?;
         let big = head[2] == 43 || head[3] == 43;
-        let mut decoder = Decoder::new(BufReader::new(file))?.with_limits(Limits::default());
+        let mut tl = tiff::decoder::Limits::default();
+        let cap = usize::try_from(limits.bytes).unwrap_or(usize::MAX);
+        tl.decoding_buffer_size = cap;
+        tl.intermediate_buffer_size = tl.intermediate_buffer_size.min(cap);
+        tl.ifd_value_size = tl.ifd_value_size.min(cap);
+        let mut decoder = Decoder::new(source)?.with_limits(tl);
         let (w, h) = decoder.dimensions()?;
         let ct = decoder.colortype()?;
         let description = match decoder.find_tag(Tag::ImageDescription)? {
@@ -54,17 +66,16 @@ impl TiffReader {
             .unwrap_or(1);
         if compression == 1 {
             let bytes = (w as u128) * (h as u128) * channels as u128 * pixel_type.bytes() as u128;
-            let len = std::fs::metadata(path)?.len();
             if bytes > len as u128 {
                 return Err(Error::Format(format!(
                     "page 0 claims {w}×{h} uncompressed pixels ({bytes} bytes), but the file holds {len} bytes"
                 )));
             }
         }
-        // The pixel limit every reader applies before a caller sizes a frame buffer from the
-        // header (a compressed page's claim is not bounded by the file's length; found by
-        // fuzzing: 1.7·10⁹×8 pixels in a few hundred bytes).
-        crate::frame_pixels(w as usize, h as usize)?;
+        // The limits every reader applies before a caller sizes a frame buffer from the header
+        // (a compressed page's claim is not bounded by the file's length; found by fuzzing:
+        // 1.7·10⁹×8 pixels in a few hundred bytes).
+        limits.frame(w as usize, h as usize, channels * pixel_type.bytes())?;
         // Walk the IFD chain to count pages; every page must match the first.
         let mut frames = 1;
         while decoder.more_images() {
@@ -76,6 +87,7 @@ impl TiffReader {
                 )));
             }
             frames += 1;
+            limits.stack(frames as u64)?;
         }
         decoder.seek_to_image(0)?;
         let metadata = description
@@ -100,8 +112,8 @@ impl TiffReader {
     }
 }
 
-fn page_pixel_type(
-    decoder: &mut Decoder<BufReader<File>>,
+fn page_pixel_type<R: Read + Seek>(
+    decoder: &mut Decoder<R>,
     ct: ColorType,
 ) -> Result<(PixelType, usize)> {
     // Colour images (clean training scenes such as McMaster) are read as luminance.
@@ -156,7 +168,7 @@ fn parse_description(desc: &str) -> Metadata {
     m
 }
 
-impl FrameReader for TiffReader {
+impl<R: Read + Seek + Send> FrameReader for TiffReader<R> {
     fn info(&self) -> &StackInfo {
         &self.info
     }

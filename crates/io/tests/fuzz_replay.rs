@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use emccd_io::{FrameReader, MAX_FRAME_PIXELS};
+use emccd_io::{FrameReader, Limits};
 
 fn inputs(kind: &str) -> Vec<PathBuf> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -22,7 +22,7 @@ fn inputs(kind: &str) -> Vec<PathBuf> {
 fn replay(r: &mut dyn FrameReader, file: &Path) {
     let n = r.info().frame_len();
     assert!(
-        n <= MAX_FRAME_PIXELS,
+        n <= Limits::GENEROUS.frame_pixels,
         "{}: {n}-pixel frame accepted",
         file.display()
     );

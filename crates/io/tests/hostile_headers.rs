@@ -71,6 +71,23 @@ fn claimed_sizes_beyond_the_file_or_the_limit_are_refused_at_open() {
     }
 }
 
+/// A compressed page may claim any size in a small file: the default pixel limit refuses a
+/// 17000² claim (2.89·10⁸ pixels, past 2²⁸); without limits (`--no-limits`) the header is
+/// believed, as it should be for a good file of that size.
+#[test]
+fn a_large_compressed_claim_opens_without_limits() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("wide.tif");
+    tiff(&p, 17000, 17000, 8, 1024);
+    let e = emccd_io::open(&p)
+        .err()
+        .expect("refused by default")
+        .to_string();
+    assert!(e.contains("beyond the limit of 268435456 pixels"), "{e}");
+    let r = emccd_io::open_with(&p, emccd_io::Limits::NONE).unwrap();
+    assert_eq!((r.info().width, r.info().height), (17000, 17000));
+}
+
 /// A FITS header whose axes multiply past 64 bits, and one whose frame is beyond the limit.
 #[test]
 fn fits_axes_beyond_the_limit_are_refused() {

@@ -22,6 +22,11 @@ pub struct UNetConfig {
     /// starts at zero so that an untrained network returns the estimate unchanged.
     #[serde(default)]
     pub residual: usize,
+    /// No global residual: the output is the clean frame itself rather than a correction to
+    /// the residual channel. At a few photoelectrons the noisy frame is mostly single-electron
+    /// EM spikes, which a correction has to cancel exactly; a direct output need not.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub direct: bool,
 }
 
 impl UNetConfig {
@@ -31,6 +36,7 @@ impl UNetConfig {
         levels: 4,
         in_channels: 2,
         residual: 0,
+        direct: false,
     };
 
     /// Builds the network with freshly initialized weights.
@@ -60,7 +66,7 @@ impl UNetConfig {
             dec.push(Block::new(ch, ch / 2, device));
             ch /= 2;
         }
-        let out = if self.residual == 0 {
+        let out = if self.residual == 0 || self.direct {
             Conv2dConfig::new([ch, 1], [1, 1]).init(device)
         } else {
             Conv2dConfig::new([ch, 1], [1, 1])
@@ -74,7 +80,7 @@ impl UNetConfig {
             up,
             dec,
             out,
-            residual: self.residual,
+            residual: (!self.direct).then_some(self.residual),
         }
     }
 }
@@ -116,14 +122,16 @@ pub struct UNet {
     up: Vec<ConvTranspose2d>,
     dec: Vec<Block>,
     out: Conv2d,
-    residual: usize,
+    /// The input channel the output is added to; none for a direct output.
+    residual: Option<usize>,
 }
 
 impl UNet {
     /// `x`: [N, C, H, W]; H and W multiples of 2^levels. Returns [N, 1, H, W]: the residual
-    /// channel (the noisy frame, or the estimate refined) plus the predicted correction.
+    /// channel (the noisy frame, or the estimate refined) plus the predicted correction, or for
+    /// a direct network the prediction itself.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let base = x.clone().narrow(1, self.residual, 1);
+        let base = self.residual.map(|r| x.clone().narrow(1, r, 1));
         let mut skips = Vec::with_capacity(self.enc.len());
         let mut h = x;
         for (e, d) in self.enc.iter().zip(&self.down) {
@@ -136,7 +144,11 @@ impl UNet {
             let s = skips.pop().expect("one skip per level");
             h = d.forward(Tensor::cat(vec![u.forward(h), s], 1));
         }
-        base + self.out.forward(h)
+        let y = self.out.forward(h);
+        match base {
+            Some(b) => b + y,
+            None => y,
+        }
     }
 
     /// The same network with its output layer zeroed: it then returns its residual channel

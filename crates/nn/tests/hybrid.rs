@@ -16,6 +16,7 @@ fn hybrid_meta() -> ModelMeta {
             levels: 2,
             in_channels: 3,
             residual: Inputs::Hybrid.residual(),
+            direct: false,
         }),
         inputs: Inputs::Hybrid,
         ..meta(4, 2)
@@ -80,6 +81,7 @@ fn a_hybrid_needs_three_channels_and_a_unet() {
             levels: 2,
             in_channels: 2,
             residual: 0,
+            direct: false,
         }),
         ..hybrid_meta()
     };

@@ -225,3 +225,47 @@ fn model_metadata_that_disagrees_or_is_absurd_is_a_short_error() {
         assert!(e.len() < 600, "{} characters: {e}", e.len());
     }
 }
+
+/// A direct U-Net (`--direct`) outputs its prediction alone, where a denoiser adds its
+/// correction to the noisy channel: with the output layer zeroed, one returns zeros and the
+/// other the noisy frame. The flag survives a model file, and files without it are residual.
+#[test]
+fn a_direct_unet_has_no_global_residual() {
+    let dev = emccd_nn::cpu();
+    let x = Tensor::<4>::from_data(
+        TensorData::new(
+            scene(16, 16)
+                .into_iter()
+                .chain(vec![0.1; 256])
+                .collect::<Vec<f32>>(),
+            [1, 2, 16, 16],
+        ),
+        &dev,
+    );
+    for direct in [false, true] {
+        let mut cfg = meta(4, 2).unet.unwrap();
+        cfg.direct = direct;
+        let y: Vec<f32> = cfg
+            .init(&dev)
+            .with_zero_output()
+            .forward(x.clone())
+            .into_data()
+            .try_into_vec::<f32>()
+            .unwrap();
+        let want = if direct {
+            vec![0.0; 256]
+        } else {
+            scene(16, 16)
+        };
+        assert_eq!(y, want, "direct = {direct}");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("d.safetensors");
+    let mut m = meta(4, 2);
+    m.unet.as_mut().unwrap().direct = true;
+    Denoiser::new(m.clone(), &dev).unwrap().save(&p).unwrap();
+    assert_eq!(Denoiser::load(&p, &dev).unwrap().meta, m);
+    let old: emccd_nn::UNetConfig =
+        serde_json::from_str(r#"{"base":4,"levels":2,"in_channels":2}"#).unwrap();
+    assert!(!old.direct);
+}

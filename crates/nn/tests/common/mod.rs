@@ -19,6 +19,7 @@ pub fn meta(base: usize, levels: usize) -> ModelMeta {
             levels,
             in_channels: 2,
             residual: 0,
+            direct: false,
         }),
         uformer: None,
         inputs: Default::default(),
