@@ -184,7 +184,7 @@ impl<R: Read + Seek + Send> FrameReader for TiffReader<R> {
         let page = self.next;
         self.decoder
             .read_image_to_buffer(&mut self.buf)
-            .map_err(|e| Error::from(e))
+            .map_err(Error::from)
             .map_err(|e| Error::Format(format!("page {page}: {e}")))?;
         let n = out.len();
         let ch = self.channels;
