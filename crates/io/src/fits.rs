@@ -112,7 +112,7 @@ impl<R: Seek> Seek for Src<'_, R> {
 fn find_image<R: Read + Seek>(f: &mut BufReader<R>) -> Result<Option<Found>> {
     let mut hdus = Fits::from_reader(Src(f));
     let mut found = None;
-    for hdu in hdus.by_ref() {
+    for hdu in &mut hdus {
         let hdu = hdu.map_err(|e| {
             // The parser reports a header cut off before its END card as a bare I/O error.
             let what = format!("{e}");
