@@ -122,17 +122,6 @@ pub fn exposure_tag(t: f64) -> String {
     format!("{t}s")
 }
 
-/// PSNR in dB of `x` against `reference` with the given data range.
-pub fn psnr(x: &[f32], reference: &[f32], data_range: f64) -> f64 {
-    let mse = x
-        .iter()
-        .zip(reference)
-        .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
-        .sum::<f64>()
-        / x.len() as f64;
-    10.0 * (data_range * data_range / mse.max(1e-30)).log10()
-}
-
 /// The file a path names, for comparing files rather than spellings (`./x.tif`, `a/../x.tif`
 /// and `x.tif` are one file); the file itself need not exist yet.
 pub fn canonical(p: &Path) -> PathBuf {

@@ -239,7 +239,7 @@ fn unbloom(
     for (b, r) in bias.iter_mut().zip(raw) {
         b.mean.clone_from(r);
         emccd_camera::remove_blooming(&mut b.mean, width, law.factor(b.exposure_s));
-        b.median_dn = emccd_profile::median(b.mean.iter().copied());
+        b.median_dn = emccd_profile::median(b.mean.iter().copied()).unwrap_or(0.0);
     }
 }
 
@@ -299,8 +299,8 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
             file: c.file.clone(),
             exposure_s: c.exposure_s,
             frames: st.frames,
-            median_dn: emccd_profile::median(mean.iter().copied()),
-            read_noise_median_dn: emccd_profile::median(std.iter().copied()),
+            median_dn: emccd_profile::median(mean.iter().copied()).unwrap_or(0.0),
+            read_noise_median_dn: emccd_profile::median(std.iter().copied()).unwrap_or(0.0),
             read_noise_rms_dn: (std.iter().map(|&v| (v as f64).powi(2)).sum::<f64>()
                 / std.len().max(1) as f64)
                 .sqrt(),
@@ -423,7 +423,7 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
             let raw_crop: Vec<f32> = (y0..y0 + ch)
                 .flat_map(|y| raw[y * width + x0..y * width + x0 + cw].iter().copied())
                 .collect();
-            let raw_median = emccd_profile::median(raw_crop);
+            let raw_median = emccd_profile::median(raw_crop).unwrap_or(0.0);
             if raw_median >= adc_max - 0.5 {
                 return Err(Error::input(
                     &c.file,

@@ -345,26 +345,12 @@ pub fn normal_quantile(p: f64) -> f64 {
     x - u / (1.0 + x * u / 2.0)
 }
 
-/// Median of f64 values (NaNs ignored); NaN for none.
-pub fn median(v: &[f64]) -> f64 {
-    let mut s: Vec<f64> = v.iter().copied().filter(|x| !x.is_nan()).collect();
-    if s.is_empty() {
-        return f64::NAN;
-    }
-    s.sort_by(f64::total_cmp);
-    let m = s.len() / 2;
-    if s.len() % 2 == 1 {
-        s[m]
-    } else {
-        0.5 * (s[m - 1] + s[m])
-    }
-}
-
-/// Median and the normal-consistent MAD (1.4826·median|x − median|).
+/// Median and the normal-consistent MAD (1.4826·median|x − median|), NaNs ignored; NaN for
+/// none.
 pub fn median_mad(v: &[f64]) -> (f64, f64) {
-    let m = median(v);
-    let dev: Vec<f64> = v.iter().map(|x| (x - m).abs()).collect();
-    (m, 1.4826 * median(&dev))
+    let m = emccd_profile::median(v.iter().copied()).unwrap_or(f64::NAN);
+    let mad = emccd_profile::median(v.iter().map(|x| (x - m).abs())).unwrap_or(f64::NAN);
+    (m, 1.4826 * mad)
 }
 
 #[cfg(test)]

@@ -93,7 +93,7 @@ pub fn level_stats(
         .collect();
     let k = keep.len().max(1) as f64;
     let kept_s: Vec<f64> = keep.iter().map(|&i| s[i]).collect();
-    let med = crate::fit::median(&kept_s);
+    let med = emccd_profile::median(kept_s.iter().copied()).unwrap_or(f64::NAN);
     let mean_v = keep.iter().map(|&i| v[i]).sum::<f64>() / k;
     let sd_v =
         (keep.iter().map(|&i| (v[i] - mean_v).powi(2)).sum::<f64>() / (k - 1.0).max(1.0)).sqrt();

@@ -424,7 +424,7 @@ pub fn write(c: &Calibration, dir: &Path) -> std::io::Result<()> {
         row(
             &mut t,
             "read noise (median std)",
-            format!("{:.3} DN", emccd_profile::median(rn)),
+            format!("{:.3} DN", emccd_profile::median(rn).unwrap_or(0.0)),
             &format!("over pixels and {} exposures", c.bias.len()),
         );
     }

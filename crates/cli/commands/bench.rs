@@ -181,8 +181,8 @@ fn denoise_bench(
             )?;
             bm_secs += t.elapsed().as_secs_f64();
             let (a, c) = (
-                crate::common::psnr(&pre, &truth, peak),
-                crate::common::psnr(&bm, &truth, peak),
+                emccd_eval::psnr(&pre, &truth, peak),
+                emccd_eval::psnr(&bm, &truth, peak),
             );
             print!(
                 "{:<28} {:>8} {:>10.2} {:>10.2}",
@@ -206,7 +206,7 @@ fn denoise_bench(
                     secs[mi] += t.elapsed().as_secs_f64();
                     timed[mi] += 1;
                 }
-                let b = crate::common::psnr(&den, &truth, peak);
+                let b = emccd_eval::psnr(&den, &truth, peak);
                 print!(" {b:>10.2}");
                 pout[mi] += b;
             }

@@ -113,7 +113,7 @@ fn print_summary(c: &emccd_calib::Calibration) {
             .sum::<f64>()
             / c.bias.len() as f64)
             .sqrt();
-        println!("  read noise           {:.3} DN median std, {rms:.3} DN rms (over pixels and {} exposures)", emccd_profile::median(rn), c.bias.len());
+        println!("  read noise           {:.3} DN median std, {rms:.3} DN rms (over pixels and {} exposures)", emccd_profile::median(rn).unwrap_or(0.0), c.bias.len());
     }
     if let Some(f) = &c.fpn {
         let mid: Vec<&emccd_calib::fpn::FpnError> = f

@@ -9,7 +9,7 @@ use emccd_io::{Metadata, SampleFormat, StackWriter};
 use serde::Serialize;
 
 use crate::common::{
-    center_crop, expand_inputs, exposure_tag, load_profile, parse_size, progress, psnr, read_scene,
+    center_crop, expand_inputs, exposure_tag, load_profile, parse_size, progress, read_scene,
 };
 
 /// Options shared by both simulations: the camera's truth.
@@ -655,7 +655,7 @@ fn write_pairs(
             // Preview and input PSNR use the preprocessed frame (true FPN and blooming removed).
             preprocess(&mut first, w, e.blooming_x, &e.fpn);
             let peak = truth.iter().copied().fold(0f32, f32::max).max(1.0);
-            let p_in = psnr(&first, &truth, peak as f64);
+            let p_in = emccd_eval::psnr(&first, &truth, peak as f64);
             let mut panels: Vec<&[f32]> = vec![&first];
             let mut denoised_out = None;
             let den;
@@ -676,7 +676,7 @@ fn write_pairs(
                 dw.finish()?;
                 denoised_out = Some((
                     rel,
-                    (psnr(&den, &truth, peak as f64) * 100.0).round() / 100.0,
+                    (emccd_eval::psnr(&den, &truth, peak as f64) * 100.0).round() / 100.0,
                 ));
                 panels.push(&den);
             }

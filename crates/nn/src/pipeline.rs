@@ -105,7 +105,7 @@ pub fn vst_from(
     read_noise: &[f32],
     quantization_dn: f64,
 ) -> emccd_eval::vst::PoissonGaussian {
-    let rn = emccd_profile::median(read_noise.iter().copied());
+    let rn = emccd_profile::median(read_noise.iter().copied()).unwrap_or(0.0);
     emccd_eval::vst::PoissonGaussian {
         alpha: slope,
         sigma: (rn * rn + quantization_dn.powi(2) / 12.0).sqrt(),

@@ -531,17 +531,8 @@ fn validate(model: &Denoiser, val: &Batch, n: usize, c: usize, device: &Device) 
         let o = &out[b * c * c..(b + 1) * c * c];
         let i = &val.input[(b * ch + base) * c * c..(b * ch + base + 1) * c * c];
         let peak = t.iter().copied().fold(0f32, f32::max).max(1e-6) as f64;
-        let psnr = |a: &[f32]| {
-            let mse = a
-                .iter()
-                .zip(t)
-                .map(|(x, y)| ((x - y) as f64).powi(2))
-                .sum::<f64>()
-                / t.len() as f64;
-            10.0 * (peak * peak / mse.max(1e-20)).log10()
-        };
-        po += psnr(o);
-        pi += psnr(i);
+        po += emccd_eval::psnr(o, t, peak);
+        pi += emccd_eval::psnr(i, t, peak);
     }
     (po / n as f64, pi / n as f64)
 }

@@ -190,21 +190,25 @@ pub struct ProfileSummary {
     pub fingerprint: String,
 }
 
-/// Median of a slice (NaNs ignored); 0 for an empty slice.
-pub fn median(values: impl IntoIterator<Item = f32>) -> f64 {
-    let mut v: Vec<f32> = values.into_iter().filter(|x| !x.is_nan()).collect();
+/// Median of `f32` or `f64` values, NaNs ignored (the mean of the middle two for an even
+/// count); `None` when no value is left, so each caller says what an empty set means.
+pub fn median<T: Into<f64>>(values: impl IntoIterator<Item = T>) -> Option<f64> {
+    let mut v: Vec<f64> = values
+        .into_iter()
+        .map(Into::into)
+        .filter(|x: &f64| !x.is_nan())
+        .collect();
     if v.is_empty() {
-        return 0.0;
+        return None;
     }
-    let mid = v.len() / 2;
-    let (_, m, _) = v.select_nth_unstable_by(mid, f32::total_cmp);
-    let m = *m as f64;
-    if v.len() % 2 == 1 {
+    let (mid, odd) = (v.len() / 2, v.len() % 2 == 1);
+    let (lower, m, _) = v.select_nth_unstable_by(mid, f64::total_cmp);
+    let m = *m;
+    Some(if odd {
         m
     } else {
-        let lo = v[..mid].iter().copied().fold(f32::MIN, f32::max) as f64;
-        0.5 * (lo + m)
-    }
+        0.5 * (lower.iter().copied().fold(f64::MIN, f64::max) + m)
+    })
 }
 
 impl CameraProfile {
@@ -262,7 +266,7 @@ impl CameraProfile {
         if self.maps.fpn_base.is_empty() {
             return f64::NAN;
         }
-        median(self.maps.fpn_base.iter().copied())
+        median(self.maps.fpn_base.iter().copied()).unwrap_or(0.0)
     }
 
     /// Median read-noise std over all pixels and exposures, DN; NaN without bias frames.
@@ -270,7 +274,7 @@ impl CameraProfile {
         if self.maps.read_noise.is_empty() {
             return f64::NAN;
         }
-        median(self.maps.read_noise.iter().flat_map(|m| m.iter().copied()))
+        median(self.maps.read_noise.iter().flat_map(|m| m.iter().copied())).unwrap_or(0.0)
     }
 
     /// The read-noise map measured closest (in log exposure) to `exposure_s`.
@@ -505,5 +509,19 @@ impl CameraProfile {
             return bad("fpn_base holds a non-finite value".into());
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::median;
+
+    #[test]
+    fn median_of_odd_even_nan_and_empty_sets() {
+        assert_eq!(median([3.0f32, 1.0, 2.0]), Some(2.0));
+        assert_eq!(median([4.0f64, 1.0, 3.0, 2.0]), Some(2.5));
+        assert_eq!(median([f32::NAN, 5.0, 1.0]), Some(3.0));
+        assert_eq!(median([f64::NAN]), None);
+        assert_eq!(median(Vec::<f32>::new()), None);
     }
 }
