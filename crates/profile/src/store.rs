@@ -2,7 +2,6 @@
 //! (`fpn_base` [H,W], optional `fpn_theta` [4,H,W], `read_noise_std` [E,H,W], all f32).
 
 use std::collections::HashMap;
-use std::io::Write;
 use std::path::Path;
 
 use safetensors::tensor::{Dtype, TensorView};
@@ -260,28 +259,9 @@ fn st_err(e: safetensors::SafeTensorError) -> Error {
     Error::Format(format!("safetensors: {e}"))
 }
 
+/// [`emccd_io::write_atomic`] (a temporary file renamed into place, removed on Ctrl-C).
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = path.parent().unwrap_or(Path::new("."));
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".profile.")
-        .suffix(".tmp")
-        .tempfile_in(dir)
-        .map_err(|e| Error::from(e).at(path))?;
-    tmp.write_all(bytes).map_err(|e| Error::from(e).at(path))?;
-    #[cfg(unix)]
-    {
-        // Temporary files are owner-only; a saved profile is readable like any other output.
-        use std::os::unix::fs::PermissionsExt;
-        tmp.as_file()
-            .set_permissions(std::fs::Permissions::from_mode(0o644))
-            .map_err(|e| Error::from(e).at(path))?;
-    }
-    tmp.as_file()
-        .sync_all()
-        .map_err(|e| Error::from(e).at(path))?;
-    tmp.persist(path)
-        .map_err(|e| Error::from(e.error).at(path))?;
-    Ok(())
+    emccd_io::write_atomic(path, bytes).map_err(|e| Error::Io(std::io::Error::other(e)))
 }
 
 #[cfg(test)]
