@@ -76,6 +76,8 @@ fn inputs_are_never_overwritten_and_outputs_never_shared() {
         d.join("m.safetensors"),
     )
     .unwrap();
+    #[cfg(unix)]
+    std::os::unix::fs::symlink("x.tif", d.join("link.tif")).unwrap();
     let before: Vec<(String, Vec<u8>)> = files(d)
         .into_iter()
         .map(|f| (f.clone(), std::fs::read(d.join(&f)).unwrap()))
@@ -89,6 +91,21 @@ fn inputs_are_never_overwritten_and_outputs_never_shared() {
         &emccd(&["denoise", "x.tif", "-o", "./a/../x.tif"], d),
         "is the input",
     );
+    // An input reached through a symbolic link is the same file.
+    #[cfg(unix)]
+    {
+        fails_with(
+            &emccd(
+                &["denoise", "link.tif", "-o", "x.tif", "--exposure-s", "0.01"],
+                d,
+            ),
+            "is the input",
+        );
+        fails_with(
+            &emccd(&["synthesize", "link.tif", "-o", "x.tif"], d),
+            "is the input",
+        );
+    }
     // Two inputs with one file name from different folders.
     fails_with(
         &emccd(&["denoise", "a/x.tif", "b/x.tif", "-o", "out"], d),
@@ -171,6 +188,28 @@ fn exposures_must_be_positive_seconds_and_near_the_calibration() {
             &emccd(&["denoise", "x.tif", "-o", "o.tif", "--exposure-s", t], d),
             "must be a positive number of seconds",
         );
+    }
+    // `synthesize` checks its exposure and its signal the same way.
+    for (flag, v, want) in [
+        ("--exposure-s", "-1", "must be a positive number of seconds"),
+        (
+            "--exposure-s",
+            "NaN",
+            "must be a positive number of seconds",
+        ),
+        ("--signal-dn", "inf", "must be a positive number of DN"),
+        ("--signal-dn", "1e30", "must be a positive number of DN"),
+    ] {
+        for model in ["ours", "pgn"] {
+            let arg = format!("{flag}={v}");
+            fails_with(
+                &emccd(
+                    &["synthesize", "x.tif", "-o", "o.tif", &arg, "--model", model],
+                    d,
+                ),
+                want,
+            );
+        }
     }
     // From a header it is the same error, saying where the number came from.
     fails_with(

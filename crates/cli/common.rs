@@ -122,9 +122,12 @@ pub fn exposure_tag(t: f64) -> String {
     format!("{t}s")
 }
 
-/// The file a path names, for comparing files rather than spellings (`./x.tif`, `a/../x.tif`
-/// and `x.tif` are one file); the file itself need not exist yet.
+/// The file a path names, for comparing files rather than spellings (`./x.tif`, `a/../x.tif`,
+/// `x.tif` and a symbolic link to it are one file); the file itself need not exist yet.
 pub fn canonical(p: &Path) -> PathBuf {
+    if let Ok(c) = p.canonicalize() {
+        return c;
+    }
     match (
         p.parent().filter(|d| !d.as_os_str().is_empty()),
         p.file_name(),

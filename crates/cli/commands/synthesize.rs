@@ -52,8 +52,22 @@ pub enum ModelArg {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    if !(a.signal_dn > 0.0) || a.frames == 0 {
-        bail!("--signal-dn must be positive and --frames at least 1");
+    // A signal past 10⁶ DN is beyond any 16- to 20-bit ADC, and at 10³⁰ the f32 arithmetic
+    // wraps into garbage that looks like data.
+    if !(a.signal_dn > 0.0 && a.signal_dn <= 1e6) {
+        bail!(
+            "--signal-dn {}: the signal must be a positive number of DN, at most 10⁶",
+            a.signal_dn
+        );
+    }
+    if !(a.exposure_s.is_finite() && a.exposure_s > 0.0) {
+        bail!(
+            "--exposure-s {}: the exposure must be a positive number of seconds",
+            a.exposure_s
+        );
+    }
+    if a.frames == 0 {
+        bail!("--frames must be at least 1");
     }
     let p = load_profile(&a.profile)?;
     let mut ab = Ablation::default();

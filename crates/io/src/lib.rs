@@ -510,7 +510,7 @@ impl StackWriter {
         if frame.len() != self.width * self.height {
             return Err(Error::Usage(format!(
                 "frame {} has {} pixels; this stack is {}×{} = {}",
-                self.frames,
+                self.frames + 1,
                 frame.len(),
                 self.width,
                 self.height,
@@ -519,11 +519,12 @@ impl StackWriter {
             .with_path(&self.target));
         }
         // A non-finite value would be written as garbage (NaN, ±inf, or 0 after rounding to an
-        // integer type) and look like data: refuse it, saying where it is.
+        // integer type) and look like data: refuse it, saying where it is (frames counted from
+        // 1, pixels as (x, y) from 0, as every emccd message counts them).
         if let Some(i) = frame.iter().position(|v| !v.is_finite()) {
             return Err(Error::Usage(format!(
-                "frame {} has a non-finite value ({}) at pixel x={}, y={}; nothing was written",
-                self.frames,
+                "frame {} has a non-finite value ({}) at pixel ({}, {}); nothing was written",
+                self.frames + 1,
                 frame[i],
                 i % self.width,
                 i / self.width

@@ -156,7 +156,7 @@ fn non_finite_frames_are_refused_and_nothing_is_written() {
         f[2 * W + 5] = f32::NAN;
         let e = w.write_frame(&f).unwrap_err().to_string();
         assert!(
-            e.contains("frame 1") && e.contains("x=5, y=2") && e.contains(name),
+            e.contains("frame 2 ") && e.contains("pixel (5, 2)") && e.contains(name),
             "{e}"
         );
         drop(w);
