@@ -21,8 +21,9 @@ pub fn scratch(ext: &str) -> PathBuf {
 /// Decodes every frame; errors are the expected outcome for most inputs.
 pub fn drain(r: &mut dyn FrameReader) {
     let n = r.info().frame_len();
-    // The readers refuse sizes the file cannot hold; a frame here is at most the file's size
-    // in pixels, so this allocation is bounded by the input.
+    // The readers refuse sizes the input cannot hold (uncompressed data past its length,
+    // compressed data past its method's best ratio) and sizes past the default limits, so
+    // this allocation is bounded by the input and the limits.
     let mut buf = vec![0f32; n];
     while let Ok(true) = r.read_frame(&mut buf) {}
 }

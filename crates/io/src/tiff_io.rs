@@ -72,6 +72,24 @@ impl<R: Read + Seek> TiffReader<R> {
                 )));
             }
         }
+        // A compressed page cannot unpack to more than its method's best ratio times the file:
+        // PackBits codes at most 128 bytes in 2, Deflate about 1032:1, and an LZW code (9 bits
+        // or more) stands for at most 4096 bytes. A claim past that is damage whatever the
+        // limits (found by review: 289 bytes claiming a 1 GiB frame).
+        let ratio: Option<u128> = match compression {
+            32773 => Some(64),
+            8 | 32946 => Some(1100),
+            5 => Some(4096),
+            _ => None,
+        };
+        if let Some(r) = ratio {
+            let bytes = (w as u128) * (h as u128) * channels as u128 * pixel_type.bytes() as u128;
+            if bytes > r * len as u128 {
+                return Err(Error::Format(format!(
+                    "page 0 claims {w}×{h} pixels ({bytes} bytes), more than compression {compression} can unpack from a file of {len} bytes"
+                )));
+            }
+        }
         // The limits every reader applies before a caller sizes a frame buffer from the header
         // (a compressed page's claim is not bounded by the file's length; found by fuzzing:
         // 1.7·10⁹×8 pixels in a few hundred bytes).

@@ -58,8 +58,8 @@ fn claimed_sizes_beyond_the_file_or_the_limit_are_refused_at_open() {
             1,
             "(73786976260478468100 bytes), but the file holds",
         ),
-        // Deflate-compressed, so the file size proves nothing: the pixel limit decides.
-        ("deflate.tif", 65535, 65535, 8, "limit"),
+        // Deflate-compressed: no more than Deflate's best ratio times the file.
+        ("deflate.tif", 65535, 65535, 8, "more than compression 8 can unpack"),
     ] {
         let p = dir.path().join(name);
         tiff(&p, w, h, compression, 1024);
@@ -71,18 +71,23 @@ fn claimed_sizes_beyond_the_file_or_the_limit_are_refused_at_open() {
     }
 }
 
-/// A compressed page may claim any size in a small file: the default pixel limit refuses a
-/// 17000² claim (2.89·10⁸ pixels, past 2²⁸); without limits (`--no-limits`) the header is
-/// believed, as it should be for a good file of that size.
+/// A compressed page cannot unpack to more than its method's best ratio (Deflate about 1032:1)
+/// times the file, whatever the limits: 17000² float32 (1.16 GB) in 1 kB is refused even without
+/// them. In 1.2 MB it could be real: the default pixel limit refuses it (2.89·10⁸ pixels, past
+/// 2²⁸), and without limits (`--no-limits`) the header is believed.
 #[test]
-fn a_large_compressed_claim_opens_without_limits() {
+fn a_large_compressed_claim_opens_only_without_limits_and_only_if_it_can_unpack() {
     let dir = tempfile::tempdir().unwrap();
-    let p = dir.path().join("wide.tif");
-    tiff(&p, 17000, 17000, 8, 1024);
-    let e = emccd_io::open(&p)
+    let small = dir.path().join("small.tif");
+    tiff(&small, 17000, 17000, 8, 1024);
+    let e = emccd_io::open_with(&small, emccd_io::Limits::NONE)
         .err()
-        .expect("refused by default")
+        .expect("refused without limits")
         .to_string();
+    assert!(e.contains("more than compression 8 can unpack"), "{e}");
+    let p = dir.path().join("wide.tif");
+    tiff(&p, 17000, 17000, 8, 1_200_000);
+    let e = emccd_io::open(&p).err().expect("refused by default").to_string();
     assert!(e.contains("beyond the limit of 268435456 pixels"), "{e}");
     let r = emccd_io::open_with(&p, emccd_io::Limits::NONE).unwrap();
     assert_eq!((r.info().width, r.info().height), (17000, 17000));
