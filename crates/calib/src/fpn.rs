@@ -101,6 +101,17 @@ pub fn error_text(v: f64) -> String {
     }
 }
 
+/// A shared coefficient with its standard error, or a note that the exposures do not identify
+/// it (a standard error past 10³ times the value, or none: a curve fitted to a bias that hardly
+/// changes with exposure, whose θ can be anything).
+pub fn theta_text(theta: f64, se: f64) -> String {
+    if se.is_finite() && se <= 1e3 * theta.abs().max(1.0) {
+        format!("{theta:.4} ± {se:.4}")
+    } else {
+        format!("{theta:.4} (not identified by these exposures)")
+    }
+}
+
 /// At most this many pixels (a regular subset) are refitted per held-out exposure: the mean
 /// error over them is a precise estimate of the mean over all, at a fraction of the time.
 pub const HELDOUT_PIXELS: usize = 16384;
@@ -530,6 +541,17 @@ mod tests {
     fn mean(v: impl Iterator<Item = f64>) -> f64 {
         let (s, k) = v.fold((0.0, 0usize), |(s, k), x| (s + x, k + 1));
         s / k as f64
+    }
+
+    #[test]
+    fn an_unidentified_coefficient_is_reported_as_such() {
+        assert_eq!(theta_text(0.1234, 0.0101), "0.1234 ± 0.0101");
+        // The review's case: a curve through a bias that hardly changes with exposure.
+        assert_eq!(
+            theta_text(19.9985, 813407843.6),
+            "19.9985 (not identified by these exposures)"
+        );
+        assert!(theta_text(1.0, f64::NAN).contains("not identified"));
     }
 
     #[test]

@@ -429,29 +429,24 @@ pub fn write(c: &Calibration, dir: &Path) -> std::io::Result<()> {
         );
     }
     if let Some(f) = &c.fpn {
-        row(
-            &mut t,
-            "FPN shared θ1",
-            format!("{:.4} ± {:.4}", f.shared_theta[1], f.shared_se[1]),
-            "",
-        );
-        row(
-            &mut t,
-            "FPN shared θ2",
-            format!("{:.4} ± {:.4}", f.shared_theta[2], f.shared_se[2]),
-            "",
-        );
-        row(
-            &mut t,
-            "FPN shared θ3",
-            format!(
-                "{:.4} ± {:.4} (t = {:.3} s)",
-                f.shared_theta[3],
-                f.shared_se[3],
-                f.shared_theta[3].exp()
-            ),
-            "",
-        );
+        if f.chosen == emccd_profile::FpnForm::Constant {
+            row(
+                &mut t,
+                "FPN shared θ",
+                "not used".into(),
+                "the bias does not change with exposure: the constant form was chosen",
+            );
+        } else {
+            let th = |i: usize| crate::fpn::theta_text(f.shared_theta[i], f.shared_se[i]);
+            row(&mut t, "FPN shared θ1", th(1), "");
+            row(&mut t, "FPN shared θ2", th(2), "");
+            row(
+                &mut t,
+                "FPN shared θ3",
+                format!("{} (t = {:.3} s)", th(3), f.shared_theta[3].exp()),
+                "",
+            );
+        }
         row(
             &mut t,
             "FPN outlier pixels",

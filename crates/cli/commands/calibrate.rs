@@ -124,14 +124,21 @@ fn print_summary(c: &emccd_calib::Calibration) {
         let avg = |g: fn(&emccd_calib::fpn::FpnError) -> f64| {
             mid.iter().map(|e| g(e)).sum::<f64>() / mid.len().max(1) as f64
         };
-        println!(
-            "  FPN fit              shared θ = [{:.4}, {:.4}, {:.4}];  mean |error| 6–100 ms: shared {:.3} DN, per-pixel {:.3} DN",
-            f.shared_theta[1],
-            f.shared_theta[2],
-            f.shared_theta[3],
-            avg(|e| e.shared_mae_dn),
-            avg(|e| e.per_pixel_mae_dn),
-        );
+        if f.chosen == emccd_profile::FpnForm::Constant {
+            println!(
+                "  FPN fit              shared θ not used: the bias does not change with exposure"
+            );
+        } else {
+            let th = |i: usize| emccd_calib::fpn::theta_text(f.shared_theta[i], f.shared_se[i]);
+            println!(
+                "  FPN fit              shared θ1 {}, θ2 {}, θ3 {};  mean |error| 6–100 ms: shared {:.3} DN, per-pixel {:.3} DN",
+                th(1),
+                th(2),
+                th(3),
+                avg(|e| e.shared_mae_dn),
+                avg(|e| e.per_pixel_mae_dn),
+            );
+        }
         let [hc, hs, hp] = f.heldout_mean_dn;
         let dn = emccd_calib::fpn::error_text;
         println!(

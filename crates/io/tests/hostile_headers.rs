@@ -59,7 +59,13 @@ fn claimed_sizes_beyond_the_file_or_the_limit_are_refused_at_open() {
             "(73786976260478468100 bytes), but the file holds",
         ),
         // Deflate-compressed: no more than Deflate's best ratio times the file.
-        ("deflate.tif", 65535, 65535, 8, "more than compression 8 can unpack"),
+        (
+            "deflate.tif",
+            65535,
+            65535,
+            8,
+            "more than compression 8 can unpack",
+        ),
     ] {
         let p = dir.path().join(name);
         tiff(&p, w, h, compression, 1024);
@@ -87,7 +93,10 @@ fn a_large_compressed_claim_opens_only_without_limits_and_only_if_it_can_unpack(
     assert!(e.contains("more than compression 8 can unpack"), "{e}");
     let p = dir.path().join("wide.tif");
     tiff(&p, 17000, 17000, 8, 1_200_000);
-    let e = emccd_io::open(&p).err().expect("refused by default").to_string();
+    let e = emccd_io::open(&p)
+        .err()
+        .expect("refused by default")
+        .to_string();
     assert!(e.contains("beyond the limit of 268435456 pixels"), "{e}");
     let r = emccd_io::open_with(&p, emccd_io::Limits::NONE).unwrap();
     assert_eq!((r.info().width, r.info().height), (17000, 17000));
