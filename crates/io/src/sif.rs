@@ -191,28 +191,71 @@ fn parse_header(r: &mut (impl BufRead + Seek), file_len: u64) -> Result<SifHeade
     }
     let version = num(tokens[0]).ok_or_else(|| fmt_err("unreadable version"))? as u32;
     let temp_head = num(tokens[5]);
-    // After the temperature come a few single binary bytes; the numeric fields that follow are
-    // 0, exposure, cycle time, accumulated cycle time, accumulations, stack cycle time,
-    // pixel readout time, 0, 1, EM gain, … and (index 33) a second temperature field.
-    // Those single binary bytes are the only tokens that may be skipped: any other token that
-    // is not a number is damage, and skipping it would shift every later field (a wrong
-    // exposure, EM gain or temperature read without complaint).
+    // After the temperature come single binary bytes, at fixed places, between numeric fields:
+    // 0, exposure, cycle time, accumulated cycle time, accumulations, stack cycle time, pixel
+    // readout time, 0, 1, EM gain, … and (index 33) a second temperature field. Every field
+    // must be what its place says: a damaged byte that joins, splits or turns a field would
+    // otherwise shift every later one (a wrong exposure, EM gain or temperature read without
+    // complaint). The places and counts are those of Solis/SDK files of versions 65559, 65564
+    // and 65567 (`../shared/data/emccd-real/andor-sif`).
+    const BINARY: [usize; 8] = [6, 7, 8, 9, 10, 16, 27, 28];
+    let binary = |t: &[u8]| t.len() == 1 && !t[0].is_ascii_graphic();
     let mut n = Vec::with_capacity(tokens.len());
-    for (i, t) in tokens[6..].iter().enumerate() {
-        match num(t) {
-            Some(v) => n.push(v),
-            None if t.len() == 1 && !t[0].is_ascii_graphic() => {}
-            None => {
+    for (i, t) in tokens.iter().enumerate().skip(6) {
+        let want_binary = BINARY.contains(&i);
+        match (want_binary, num(t)) {
+            (false, Some(v)) => n.push(v),
+            (true, None) if binary(t) => {}
+            (true, _) => {
+                return Err(fmt_err(format!(
+                    "damaged acquisition line: field {} ({:?}) should be a single binary byte",
+                    i + 1,
+                    String::from_utf8_lossy(t)
+                )))
+            }
+            (false, None) => {
                 return Err(fmt_err(format!(
                     "damaged acquisition line: field {} ({:?}) is not a number",
-                    i + 7,
+                    i + 1,
                     String::from_utf8_lossy(t)
                 )))
             }
         }
     }
-    if n.len() < 10 {
+    let expected = match version {
+        65559 => Some(61),
+        65564 | 65567 => Some(77),
+        _ => None,
+    };
+    if let Some(e) = expected.filter(|&e| e != tokens.len()) {
+        return Err(fmt_err(format!(
+            "damaged acquisition line: {} fields where version {version} has {e}",
+            tokens.len()
+        )));
+    }
+    if n.len() < 34 {
         return Err(fmt_err("the acquisition line has too few numeric fields"));
+    }
+    // What the fields must hold in any real recording.
+    let temp_ok = |t: f64| t == -999.0 || (-150.0..=100.0).contains(&t);
+    if !temp_head.is_some_and(temp_ok) || !temp_ok(n[33]) {
+        return Err(fmt_err(format!(
+            "damaged acquisition line: temperature {:?} / {} °C is not a detector temperature",
+            temp_head, n[33]
+        )));
+    }
+    // n[1] exposure, n[2] cycle time: a frame's exposure fits in its cycle (where one is set).
+    if !(n[1].is_finite() && n[1] >= 0.0) || (n[2] > 0.0 && n[1] > n[2] * 1.001) {
+        return Err(fmt_err(format!(
+            "damaged acquisition line: exposure {} s with a cycle time of {} s",
+            n[1], n[2]
+        )));
+    }
+    if !(n[9] >= 0.0 && n[9] <= 10000.0 && n[9].fract() == 0.0) {
+        return Err(fmt_err(format!(
+            "damaged acquisition line: EM gain {} is not a gain setting",
+            n[9]
+        )));
     }
     let temperature_c = [temp_head, n.get(33).copied()]
         .into_iter()

@@ -171,6 +171,53 @@ fn a_damaged_sif_acquisition_line_is_an_error() {
     assert_eq!(r.info().metadata.exposure_s, Some(1.0));
 }
 
+/// The single-byte changes of the acquisition line that a review found to open with shifted
+/// metadata (a space or a sign turned into a digit joins fields, a byte inserted splits one, a
+/// binary byte turned printable): at every byte of that line, in four real files, the file is
+/// refused or reads the same metadata. (A digit changed or deleted can leave another valid
+/// number; a header without a checksum cannot tell, so those are not tried.)
+#[test]
+fn no_single_byte_change_of_the_sif_acquisition_line_shifts_its_fields() {
+    let dir =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/emccd-real/andor-sif");
+    let mut tried = 0;
+    for name in [
+        "ixon897_avg20.sif",
+        "ixon897_bias_truncated.sif",
+        "ixon897_binned_gain56.sif",
+        "ccd_cli0.sif",
+    ] {
+        let src = std::fs::read(dir.join(name)).unwrap();
+        let meta = |b: Vec<u8>| {
+            emccd_io::from_reader(std::io::Cursor::new(b), emccd_io::Limits::default())
+                .map(|r| r.info().clone())
+        };
+        let want = meta(src.clone()).unwrap();
+        let nl: Vec<usize> = (0..src.len())
+            .filter(|&i| src[i] == b'\n')
+            .take(3)
+            .collect();
+        for i in nl[1] + 1..nl[2] {
+            let replaced: Vec<u8> = [&src[..i], b"7", &src[i + 1..]].concat();
+            let inserted: Vec<u8> = [&src[..i], b" ", &src[i..]].concat();
+            for (kind, v) in [("7 at", replaced), ("space before", inserted)] {
+                // A digit turned into another digit is another valid number: not tried.
+                if v == src || (kind == "7 at" && src[i].is_ascii_digit()) {
+                    continue;
+                }
+                tried += 1;
+                if let Ok(got) = meta(v) {
+                    assert_eq!(
+                        got, want,
+                        "{name}: {kind} byte {i} opened with other metadata"
+                    );
+                }
+            }
+        }
+    }
+    assert!(tried > 600, "{tried}");
+}
+
 fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
     hay.windows(needle.len()).position(|w| w == needle)
 }
