@@ -239,6 +239,46 @@ fn exposures_must_be_positive_seconds_and_near_the_calibration() {
     assert_eq!(files(d).len(), 2, "{:?}", files(d));
 }
 
+/// An exposure in pairs.toml is checked like one on the command line, and the error names the
+/// manifest and the pair.
+#[test]
+fn a_pairs_manifest_with_a_bad_exposure_names_itself() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    raw_frame(d, "scene.tif", None);
+    ok(&emccd(
+        &[
+            "simulate",
+            "pairs",
+            "--clean",
+            "scene.tif",
+            "--photons",
+            "20",
+            "-o",
+            "p",
+        ],
+        d,
+    ));
+    let m = d.join("p/pairs.toml");
+    let text = std::fs::read_to_string(&m).unwrap();
+    let bad: String = text
+        .lines()
+        .map(|l| {
+            if l.starts_with("exposure_s") {
+                "exposure_s = nan"
+            } else {
+                l
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    std::fs::write(&m, bad).unwrap();
+    fails_with(
+        &emccd(&["evaluate", "p", "--method", "input"], d),
+        "pairs.toml: the pair noisy/scene_p20.tif: exposure_s = NaN must be a positive number of seconds",
+    );
+}
+
 /// A profile without bias maps (what a gain-series calibration writes) cannot preprocess a
 /// frame: a clear error, not an index out of bounds.
 #[test]

@@ -133,6 +133,16 @@ fn load_camera(dir: &Path, profile: Option<&str>) -> Result<Camera> {
         std::fs::read_to_string(&mpath).with_context(|| format!("reading {}", mpath.display()))?;
     let file: PairsFile =
         toml::from_str(&text).with_context(|| format!("parsing {}", mpath.display()))?;
+    for p in &file.pair {
+        if !(p.exposure_s.is_finite() && p.exposure_s > 0.0) {
+            bail!(
+                "{}: the pair {}: exposure_s = {} must be a positive number of seconds",
+                mpath.display(),
+                p.noisy,
+                p.exposure_s
+            );
+        }
+    }
     let profile = match (profile, &file.profile) {
         (Some(p), _) => load_profile(p)?,
         // `default`, a directory relative to pairs.toml, or (as `simulate pairs` records it) as given.
