@@ -477,6 +477,8 @@ fn an_interrupted_run_leaves_no_temporary_files() {
             .filter(|f| f.ends_with(".tmp"))
             .collect();
         assert!(left.is_empty(), "{signal}: left {left:?}");
+        // The folders the run made held nothing finished: they went too.
+        assert!(!d.join("p").exists(), "{signal}: the run's empty folders were left");
     }
 }
 

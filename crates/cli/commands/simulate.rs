@@ -517,7 +517,12 @@ fn pairs(
         }
         std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     }
+    // Stopped by Ctrl-C, the run's own folders go too if nothing was finished in them.
+    for d in &created {
+        emccd_io::track_new_dir(d);
+    }
     let r = write_pairs(&scenes, levels, frames, model.as_ref(), out, opts);
+    emccd_io::untrack_new_dirs();
     if r.is_err() {
         // `out` first if this run made it: everything under it is then this run's.
         for d in &created {

@@ -598,8 +598,9 @@ fn live_temps() -> std::sync::MutexGuard<'static, std::collections::BTreeSet<Pat
 }
 
 /// Removes every temporary output still being written, for a program that is being stopped
-/// (Ctrl-C, SIGTERM) and will not run the destructors that normally remove them. Returns how
-/// many were removed.
+/// (Ctrl-C, SIGTERM) and will not run the destructors that normally remove them, and then the
+/// folders registered with [`track_new_dir`] that are left empty. Returns how many files were
+/// removed.
 pub fn remove_live_temps() -> usize {
     let mut live = live_temps();
     let n = live
@@ -607,7 +608,27 @@ pub fn remove_live_temps() -> usize {
         .filter(|p| std::fs::remove_file(p).is_ok())
         .count();
     live.clear();
+    // Deepest first: a run's subfolders before the folder that holds them.
+    for d in new_dirs().drain(..).rev() {
+        let _ = std::fs::remove_dir(d); // only if empty
+    }
     n
+}
+
+/// Folders a run created for its outputs, removed by [`remove_live_temps`] if it is stopped
+/// while they are still empty; register them in the order they were made.
+pub fn track_new_dir(dir: &Path) {
+    new_dirs().push(dir.to_path_buf());
+}
+
+/// Forgets the folders registered with [`track_new_dir`] (the run finished or cleaned up).
+pub fn untrack_new_dirs() {
+    new_dirs().clear();
+}
+
+fn new_dirs() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
+    static DIRS: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+    DIRS.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// Writes `bytes` to `path` atomically (temporary file, then rename).
