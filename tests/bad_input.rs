@@ -211,6 +211,20 @@ fn exposures_must_be_positive_seconds_and_near_the_calibration() {
             );
         }
     }
+    // An output folder that does not exist is named, not a random temporary path in it.
+    let o = emccd(
+        &[
+            "denoise",
+            "x.tif",
+            "-o",
+            "nodir/o.tif",
+            "--exposure-s",
+            "0.01",
+        ],
+        d,
+    );
+    fails_with(&o, "the folder nodir does not exist");
+    assert!(!String::from_utf8_lossy(&o.stderr).contains(".tmp"));
     // From a header it is the same error, saying where the number came from.
     fails_with(
         &emccd(&["denoise", "neg.tif", "-o", "o.tif"], d),
@@ -478,7 +492,10 @@ fn an_interrupted_run_leaves_no_temporary_files() {
             .collect();
         assert!(left.is_empty(), "{signal}: left {left:?}");
         // The folders the run made held nothing finished: they went too.
-        assert!(!d.join("p").exists(), "{signal}: the run's empty folders were left");
+        assert!(
+            !d.join("p").exists(),
+            "{signal}: the run's empty folders were left"
+        );
     }
 }
 

@@ -567,10 +567,22 @@ pub fn temp_beside(path: &Path) -> std::io::Result<tempfile::NamedTempFile> {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
+    // tempfile's error names its random temporary path; say which folder could not take it.
     let tmp = tempfile::Builder::new()
         .prefix(&format!(".{name}."))
         .suffix(".tmp")
-        .tempfile_in(dir)?;
+        .tempfile_in(dir)
+        .map_err(|e| {
+            std::io::Error::new(
+                e.kind(),
+                match e.kind() {
+                    std::io::ErrorKind::NotFound => {
+                        format!("the folder {} does not exist", dir.display())
+                    }
+                    k => format!("cannot write in the folder {}: {k}", dir.display()),
+                },
+            )
+        })?;
     live_temps().insert(tmp.path().to_path_buf());
     Ok(tmp)
 }
