@@ -31,16 +31,29 @@ impl Moments {
     }
 }
 
-/// Which noise model (for CLI flags and model metadata).
+/// Which noise model: the one type for synthesis, training, model metadata and the CLI's
+/// flags (a `clap::ValueEnum` with the `clap` feature).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum NoiseModelKind {
-    /// The paper's model, eq. 5.
+    /// The paper's EMCCD model (eq. 5).
     Ours,
     /// ELD (CMOS): Poisson + Tukey-lambda read + row noise + quantization.
     Eld,
-    /// Theoretical EMCCD: Poisson → Gamma → Normal → ADC.
+    /// Poisson–Gamma–Normal, the theoretical EMCCD chain: Poisson → Gamma → Normal → ADC.
     Pgn,
+}
+
+impl NoiseModelKind {
+    /// Lower-case name, as in flags and model files.
+    pub fn name(self) -> &'static str {
+        match self {
+            NoiseModelKind::Ours => "ours",
+            NoiseModelKind::Eld => "eld",
+            NoiseModelKind::Pgn => "pgn",
+        }
+    }
 }
 
 /// Components of the paper's model that can be switched off (its Table 2 ablation). FPN and

@@ -21,8 +21,8 @@ pub struct Args {
     #[arg(long, default_value = "default")]
     pub profile: String,
     /// Noise model.
-    #[arg(long, value_enum, default_value_t = ModelArg::Ours)]
-    pub model: ModelArg,
+    #[arg(long, value_enum, default_value = "ours")]
+    pub model: NoiseModelKind,
     /// Clean signal at the image's full-scale value, DN above bias.
     #[arg(long, default_value_t = 200.0)]
     pub signal_dn: f64,
@@ -38,17 +38,6 @@ pub struct Args {
     /// Random seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-}
-
-/// `--model` values.
-#[derive(clap::ValueEnum, Clone, Copy, Debug)]
-pub enum ModelArg {
-    /// The paper's model (eq. 5).
-    Ours,
-    /// ELD (CMOS model).
-    Eld,
-    /// Poisson–Gamma–Normal (theoretical EMCCD).
-    Pgn,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -101,19 +90,11 @@ pub fn run(a: Args) -> Result<()> {
             p.height
         );
     };
-    let (kind, model): (NoiseModelKind, Box<dyn NoiseModel>) = match a.model {
-        ModelArg::Ours => (
-            NoiseModelKind::Ours,
-            Box::new(OursModel::from_profile(&prof, ab)?),
-        ),
-        ModelArg::Eld => (
-            NoiseModelKind::Eld,
-            Box::new(EldModel::from_profile(&prof)?),
-        ),
-        ModelArg::Pgn => (
-            NoiseModelKind::Pgn,
-            Box::new(PgnModel::from_profile(&prof, a.exposure_s)?),
-        ),
+    let kind = a.model;
+    let model: Box<dyn NoiseModel> = match kind {
+        NoiseModelKind::Ours => Box::new(OursModel::from_profile(&prof, ab)?),
+        NoiseModelKind::Eld => Box::new(EldModel::from_profile(&prof)?),
+        NoiseModelKind::Pgn => Box::new(PgnModel::from_profile(&prof, a.exposure_s)?),
     };
     let clean: Vec<f32> = img
         .iter()

@@ -3,21 +3,11 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
-use emccd_nn::train::{train, Image, Loss, NoiseKind, RunPaths, TrainConfig};
+use emccd_camera::NoiseModelKind;
+use emccd_nn::train::{train, Image, Loss, RunPaths, TrainConfig};
 use emccd_nn::{Inputs, ModelMeta, UNetConfig, UformerConfig};
 
 use crate::common::{expand_inputs, load_profile, read_scene};
-
-/// Noise model for synthesis.
-#[derive(clap::ValueEnum, Clone, Copy, Debug)]
-pub enum NoiseArg {
-    /// The paper's EMCCD model (eq. 5).
-    Ours,
-    /// ELD (CMOS).
-    Eld,
-    /// Poisson–Gamma–Normal.
-    Pgn,
-}
 
 /// Train a denoising network on noisy/clean pairs synthesized on the fly from clean images and a
 /// camera profile (random crops, 8-way flips/rotations, random photon level), with AdamW,
@@ -63,7 +53,7 @@ pub struct Args {
     pub hybrid_base: Option<String>,
     /// Noise model of the synthesized pairs.
     #[arg(long, value_enum, default_value = "ours")]
-    pub noise_model: NoiseArg,
+    pub noise_model: NoiseModelKind,
     /// Components to switch off: multiplicative, readout, quantization (synthesis); fpn, blooming
     /// (recorded in the model: its denoising pipeline then skips that correction).
     #[arg(long, value_delimiter = ',')]
@@ -193,11 +183,7 @@ pub fn run(a: Args) -> Result<()> {
             load_images(&a.val)?.into_iter().map(|x| x.1).collect(),
         )
     };
-    let noise = match a.noise_model {
-        NoiseArg::Ours => NoiseKind::Ours,
-        NoiseArg::Eld => NoiseKind::Eld,
-        NoiseArg::Pgn => NoiseKind::Pgn,
-    };
+    let noise = a.noise_model;
     let inputs = match a.inputs {
         InputsArg::Noisy => Inputs::Noisy,
         InputsArg::Hybrid => Inputs::Hybrid,

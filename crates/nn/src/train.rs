@@ -14,7 +14,7 @@ use std::sync::mpsc;
 
 use burn::optim::{AdamWConfig, GradientsParams};
 use burn::prelude::*;
-use emccd_camera::{Ablation, EldModel, NoiseModel, OursModel, PgnModel};
+use emccd_camera::{Ablation, EldModel, NoiseModel, NoiseModelKind, OursModel, PgnModel};
 use emccd_profile::CameraProfile;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
@@ -34,29 +34,6 @@ pub struct Image {
     pub height: usize,
     /// Row-major pixels.
     pub data: Vec<f32>,
-}
-
-/// Which noise model synthesizes the pairs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum NoiseKind {
-    /// The paper's model (eq. 5).
-    Ours,
-    /// ELD (CMOS).
-    Eld,
-    /// Poisson–Gamma–Normal.
-    Pgn,
-}
-
-impl NoiseKind {
-    /// Lower-case name.
-    pub fn name(self) -> &'static str {
-        match self {
-            NoiseKind::Ours => "ours",
-            NoiseKind::Eld => "eld",
-            NoiseKind::Pgn => "pgn",
-        }
-    }
 }
 
 /// The training loss on network-unit outputs.
@@ -113,7 +90,7 @@ pub struct TrainConfig {
     #[serde(default)]
     pub base: crate::Base,
     /// Noise model.
-    pub noise: NoiseKind,
+    pub noise: NoiseModelKind,
     /// Synthesis components switched off (`multiplicative`, `readout`, `quantization`).
     pub ablate: Vec<String>,
     /// Seed of everything random.
@@ -140,7 +117,7 @@ impl Default for TrainConfig {
             read_noise_scale: [1.0, 1.0],
             reuse: 1,
             base: crate::Base::Bm3d,
-            noise: NoiseKind::Ours,
+            noise: NoiseModelKind::Ours,
             ablate: Vec::new(),
             seed: 897,
             val_every: 250,
@@ -250,7 +227,7 @@ fn synth_sample(
     let mut noisy = vec![0f32; w * h];
     let noise_seed = rng.random::<u64>();
     match cfg.noise {
-        NoiseKind::Ours => {
+        NoiseModelKind::Ours => {
             let model = OursModel::new(
                 slope,
                 profile.f_range,
@@ -261,10 +238,10 @@ fn synth_sample(
             .map_err(|e| Error::Data(e.to_string()))?;
             model.synthesize(&clean, w, &mut noisy, noise_seed);
         }
-        NoiseKind::Eld => EldModel::from_profile(profile)
+        NoiseModelKind::Eld => EldModel::from_profile(profile)
             .map_err(|e| Error::Data(e.to_string()))?
             .synthesize(&clean, w, &mut noisy, noise_seed),
-        NoiseKind::Pgn => {
+        NoiseModelKind::Pgn => {
             let pgn = profile
                 .pgn
                 .as_ref()

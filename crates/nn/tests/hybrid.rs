@@ -200,7 +200,7 @@ fn a_zeroed_output_layer_makes_a_trained_hybrid_the_identity() {
 /// no longer zero. (A zeroed layer that lost its trainable mark stayed zero for good.)
 #[test]
 fn a_hybrid_moved_onto_another_base_learns_again() {
-    use emccd_nn::train::{train, Image, NoiseKind, RunPaths, TrainConfig};
+    use emccd_nn::train::{train, Image, RunPaths, TrainConfig};
     let dir = tempfile::tempdir().unwrap();
     let bundled = common::bundled("hybrid");
     let cfg = TrainConfig {
@@ -209,7 +209,7 @@ fn a_hybrid_moved_onto_another_base_learns_again() {
         crop: 32,
         lr: 1e-3,
         warmup: 1,
-        noise: NoiseKind::Pgn,
+        noise: emccd_camera::NoiseModelKind::Pgn,
         mean_electrons: Some([1.0, 4.0]),
         base: emccd_nn::Base::Ivst,
         val_every: 100,

@@ -1,7 +1,7 @@
 //! Learning: a small fixed-seed run in the low-light recipe lowers its loss. In its own test
 //! binary because burn's seeded initialization draws from a process-wide generator.
 
-use emccd_nn::train::{train, Image, NoiseKind, RunPaths, TrainConfig};
+use emccd_nn::train::{train, Image, RunPaths, TrainConfig};
 mod common;
 
 use common::{meta, scene};
@@ -32,7 +32,7 @@ fn a_low_light_training_run_lowers_its_loss() {
         crop: 32,
         lr: 2e-3,
         warmup: 5,
-        noise: NoiseKind::Pgn,
+        noise: emccd_camera::NoiseModelKind::Pgn,
         mean_electrons: Some([1.0, 16.0]),
         cic_e: Some([0.0, 0.05]),
         loss: emccd_nn::train::Loss::L2,

@@ -3,7 +3,7 @@
 //! generator that tests running in parallel would also draw from.
 
 use burn::prelude::*;
-use emccd_nn::train::{train, Image, NoiseKind, RunPaths, TrainConfig};
+use emccd_nn::train::{train, Image, RunPaths, TrainConfig};
 mod common;
 
 use common::{meta, scene};
@@ -36,7 +36,7 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
         warmup: 1,
         val_every: 2,
         checkpoint_every: 2,
-        noise: NoiseKind::Ours,
+        noise: emccd_camera::NoiseModelKind::Ours,
         ..TrainConfig::default()
     };
     let prof = small_profile();
