@@ -84,6 +84,52 @@ impl Default for Ablation {
     }
 }
 
+impl Ablation {
+    /// The component names, as flags and model files spell them.
+    pub const COMPONENTS: [&'static str; 5] = [
+        "multiplicative",
+        "readout",
+        "quantization",
+        "fpn",
+        "blooming",
+    ];
+
+    /// The full model with the named components switched off.
+    pub fn from_names<S: AsRef<str>>(names: &[S]) -> Result<Ablation, String> {
+        let mut a = Ablation::default();
+        for n in names {
+            match n.as_ref() {
+                "multiplicative" => a.multiplicative = false,
+                "readout" => a.readout = false,
+                "quantization" => a.quantization = false,
+                "fpn" => a.fpn = false,
+                "blooming" => a.blooming = false,
+                other => {
+                    return Err(format!(
+                        "unknown ablation {other:?} (the components are {})",
+                        Ablation::COMPONENTS.join(", ")
+                    ))
+                }
+            }
+        }
+        Ok(a)
+    }
+}
+
+impl std::str::FromStr for Ablation {
+    type Err = String;
+
+    /// A comma-separated list of components to switch off (empty: the full model).
+    fn from_str(s: &str) -> Result<Ablation, String> {
+        let names: Vec<&str> = s
+            .split(',')
+            .map(str::trim)
+            .filter(|n| !n.is_empty())
+            .collect();
+        Ablation::from_names(&names)
+    }
+}
+
 /// A noise model: clean photo-signal in, noisy frame out.
 pub trait NoiseModel: Send + Sync {
     /// Short name (`ours`, `eld`, `pgn`).
@@ -517,5 +563,29 @@ impl NoiseModel for PgnModel {
                 + self.q * self.q / 12.0,
             third: 6.0 * g.powi(3) * lambda / c.powi(3),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Ablation;
+
+    #[test]
+    fn ablations_parse_from_names_and_lists() {
+        let a: Ablation = "readout, fpn".parse().unwrap();
+        assert!(!a.readout && !a.fpn && a.multiplicative && a.quantization && a.blooming);
+        assert_eq!("".parse::<Ablation>().unwrap(), Ablation::default());
+        assert_eq!(
+            Ablation::from_names(&Ablation::COMPONENTS).unwrap(),
+            Ablation {
+                multiplicative: false,
+                readout: false,
+                quantization: false,
+                fpn: false,
+                blooming: false
+            }
+        );
+        let e = Ablation::from_names(&["gain"]).unwrap_err();
+        assert!(e.contains("\"gain\"") && e.contains("multiplicative, readout"), "{e}");
     }
 }

@@ -59,16 +59,9 @@ pub fn run(a: Args) -> Result<()> {
         bail!("--frames must be at least 1");
     }
     let p = load_profile(&a.profile)?;
-    let mut ab = Ablation::default();
-    for c in &a.ablate {
-        match c.as_str() {
-            "multiplicative" => ab.multiplicative = false,
-            "readout" => ab.readout = false,
-            "quantization" => ab.quantization = false,
-            other => bail!(
-                "--ablate: unknown component '{other}' (multiplicative, readout, quantization)"
-            ),
-        }
+    let ab = Ablation::from_names(&a.ablate).map_err(|e| anyhow::anyhow!("--ablate: {e}"))?;
+    if !(ab.fpn && ab.blooming) {
+        bail!("--ablate: fpn and blooming are corrections of a network's preprocessing (`train --ablate`), not parts of the synthesized noise");
     }
     if crate::common::canonical(&a.out) == crate::common::canonical(&a.input) {
         bail!(

@@ -67,15 +67,15 @@ pub fn preprocess_ablated(
     ablate: &[String],
 ) -> Result<Vec<f32>> {
     usable(p, raw.len(), exposure_s)?;
-    let off = |name: &str| ablate.iter().any(|a| a == name);
-    let fpn = if off("fpn") {
+    let ab = emccd_camera::Ablation::from_names(ablate).map_err(Error::Model)?;
+    let fpn = if !ab.fpn {
         p.maps.fpn_base.clone()
     } else {
         let mut f = vec![0f32; p.len()];
         p.fpn_at(exposure_s, &mut f);
         f
     };
-    let x = if off("blooming") {
+    let x = if !ab.blooming {
         0.0
     } else {
         p.blooming_factor(exposure_s)

@@ -563,17 +563,7 @@ pub fn train(
             )));
         }
     }
-    let mut abl = Ablation::default();
-    for a in &cfg.ablate {
-        match a.as_str() {
-            "multiplicative" => abl.multiplicative = false,
-            "readout" => abl.readout = false,
-            "quantization" => abl.quantization = false,
-            "fpn" => abl.fpn = false,
-            "blooming" => abl.blooming = false,
-            other => return Err(Error::Data(format!("unknown ablation {other:?}"))),
-        }
-    }
+    let abl = Ablation::from_names(&cfg.ablate).map_err(Error::Data)?;
     let device = crate::device().autodiff();
     let state_path = paths.checkpoint.join("state.json");
     let (mut model, mut optim, start, mut loss_ema) = if resume && state_path.is_file() {
