@@ -78,6 +78,7 @@ fn inputs_are_never_overwritten_and_outputs_never_shared() {
     .unwrap();
     #[cfg(unix)]
     std::os::unix::fs::symlink("x.tif", d.join("link.tif")).unwrap();
+    std::fs::hard_link(d.join("y.tif"), d.join("hard.tif")).unwrap();
     let before: Vec<(String, Vec<u8>)> = files(d)
         .into_iter()
         .map(|f| (f.clone(), std::fs::read(d.join(&f)).unwrap()))
@@ -106,6 +107,14 @@ fn inputs_are_never_overwritten_and_outputs_never_shared() {
             "is the input",
         );
     }
+    // A hard link to an input is the input too.
+    fails_with(
+        &emccd(
+            &["denoise", "hard.tif", "-o", "y.tif", "--exposure-s", "0.01"],
+            d,
+        ),
+        "is the input",
+    );
     // Two inputs with one file name from different folders.
     fails_with(
         &emccd(&["denoise", "a/x.tif", "b/x.tif", "-o", "out"], d),

@@ -122,9 +122,31 @@ pub fn exposure_tag(t: f64) -> String {
     format!("{t}s")
 }
 
-/// The file a path names, for comparing files rather than spellings (`./x.tif`, `a/../x.tif`,
-/// `x.tif` and a symbolic link to it are one file); the file itself need not exist yet.
-pub fn canonical(p: &Path) -> PathBuf {
+/// What identifies a file, for comparing files rather than spellings: its device and inode where
+/// it exists (so `./x.tif`, `a/../x.tif`, and symbolic and hard links to `x.tif` are one file),
+/// else the absolute path it would have.
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub enum FileId {
+    /// An existing file.
+    Inode(u64, u64),
+    /// A file not (yet) there.
+    Path(PathBuf),
+}
+
+/// The [`FileId`] of `p`.
+pub fn file_id(p: &Path) -> FileId {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        if let Ok(m) = std::fs::metadata(p) {
+            return FileId::Inode(m.dev(), m.ino());
+        }
+    }
+    FileId::Path(canonical(p))
+}
+
+/// The absolute path a file has or would have (its folder resolved).
+fn canonical(p: &Path) -> PathBuf {
     if let Ok(c) = p.canonicalize() {
         return c;
     }

@@ -586,6 +586,9 @@ mod tests {
             }
         );
         let e = Ablation::from_names(&["gain"]).unwrap_err();
-        assert!(e.contains("\"gain\"") && e.contains("multiplicative, readout"), "{e}");
+        assert!(
+            e.contains("\"gain\"") && e.contains("multiplicative, readout"),
+            "{e}"
+        );
     }
 }

@@ -350,10 +350,10 @@ fn output_paths(inputs: &[PathBuf], out: &std::path::Path, several: bool) -> Res
             }
         })
         .collect();
-    let canon = crate::common::canonical;
-    let ins: Vec<PathBuf> = inputs.iter().map(|p| canon(p)).collect();
+    let id = crate::common::file_id;
+    let ins: Vec<crate::common::FileId> = inputs.iter().map(|p| id(p)).collect();
     for (o, input) in outs.iter().zip(inputs) {
-        let co = canon(o);
+        let co = id(o);
         if let Some(k) = ins.iter().position(|i| *i == co) {
             bail!("{}: the output for {} is the input {}; choose another -o, the input is never overwritten", o.display(), input.display(), inputs[k].display());
         }

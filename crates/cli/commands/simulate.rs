@@ -562,15 +562,15 @@ fn check_outputs(scenes: &[PathBuf], levels: &[Level], dirs: &[&str], out: &Path
             );
         }
     }
-    let inputs: std::collections::HashSet<PathBuf> =
-        scenes.iter().map(|p| crate::common::canonical(p)).collect();
+    let inputs: std::collections::HashSet<crate::common::FileId> =
+        scenes.iter().map(|p| crate::common::file_id(p)).collect();
     for (si, scene) in scenes.iter().enumerate() {
         for lv in levels {
             let name = pair_name(&scene_stem(si, scene), lv);
             for d in dirs {
                 let ext = if *d == "preview" { "png" } else { "tif" };
                 let o = out.join(d).join(format!("{name}.{ext}"));
-                if inputs.contains(&crate::common::canonical(&o)) {
+                if inputs.contains(&crate::common::file_id(&o)) {
                     bail!(
                         "{}: an output of this run is an input scene; choose another -o, inputs are never overwritten",
                         o.display()

@@ -63,7 +63,7 @@ pub fn run(a: Args) -> Result<()> {
     if !(ab.fpn && ab.blooming) {
         bail!("--ablate: fpn and blooming are corrections of a network's preprocessing (`train --ablate`), not parts of the synthesized noise");
     }
-    if crate::common::canonical(&a.out) == crate::common::canonical(&a.input) {
+    if crate::common::file_id(&a.out) == crate::common::file_id(&a.input) {
         bail!(
             "{}: the output is the input image; choose another -o, the input is never overwritten",
             a.out.display()

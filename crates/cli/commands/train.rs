@@ -302,7 +302,7 @@ pub fn run(a: Args) -> Result<()> {
         .map(crate::commands::denoise::model_path)
         .transpose()?;
     if let Some(i) = &init {
-        if crate::common::canonical(i) == crate::common::canonical(&a.out) {
+        if crate::common::file_id(i) == crate::common::file_id(&a.out) {
             bail!(
                 "{}: the output is the --init model; choose another -o, inputs are never overwritten",
                 a.out.display()

@@ -130,7 +130,10 @@ mod tests {
         assert!((row_mean(0) - 160.0).abs() < 1.0 && (row_mean(511) - 195.0).abs() < 1.0);
         // Calibration exposures log-spaced over 1 ms – 0.2 s (a constant ratio between them).
         let r = p.exposures_s[1] / p.exposures_s[0];
-        assert!(p.exposures_s.windows(2).all(|w| (w[1] / w[0] / r - 1.0).abs() < 1e-9));
+        assert!(p
+            .exposures_s
+            .windows(2)
+            .all(|w| (w[1] / w[0] / r - 1.0).abs() < 1e-9));
         assert!(p.exposures_s[0] <= 1e-3 && *p.exposures_s.last().unwrap() >= 0.2);
         assert!(
             (p.read_noise_dn() - 3.0).abs() < 0.1,
