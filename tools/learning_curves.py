@@ -40,6 +40,7 @@ def main():
         sys.exit(__doc__)
     out = sys.argv[1]
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
+    every = []
     for spec in sys.argv[2:]:
         label, rest = spec.split("=", 1)
         log, _, batch = rest.partition(":")
@@ -49,6 +50,7 @@ def main():
             sys.exit(f"{log}: no checkpoint lines with seconds")
         steps = [x[0] for x in p]
         val = [x[2] for x in p]
+        every += val
         secs = [x[4] / 60 for x in p]
         a.plot(secs, val, "o-", ms=3, label=label)
         b.plot([s * batch for s in steps], val, "o-", ms=3, label=label)
@@ -58,7 +60,12 @@ def main():
             print(f"| {s} | {t / 60:.1f} | {loss:.5f} | {v:.2f} |")
     a.set_xlabel("wall-clock minutes (2 CPU cores)")
     b.set_xlabel("training crops seen (128²)")
+    # The first checkpoints of a slow starter would squash the rest: the axis starts a little
+    # below the 10th percentile of all points (earlier points run off the bottom).
+    every.sort()
+    lo = every[len(every) // 10] - 1.0
     for ax in (a, b):
+        ax.set_ylim(bottom=lo)
         ax.set_ylabel("validation PSNR (dB)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
