@@ -238,7 +238,7 @@ fn unbloom(
 ) {
     for (b, r) in bias.iter_mut().zip(raw) {
         b.mean.clone_from(r);
-        emccd_camera::remove_blooming(&mut b.mean, width, law.factor(b.exposure_s));
+        emccd_profile::remove_blooming(&mut b.mean, width, law.factor(b.exposure_s));
         b.median_dn = emccd_profile::median(b.mean.iter().copied()).unwrap_or(0.0);
     }
 }
@@ -388,7 +388,7 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
             let law1 = pass1.law();
             let pass2 = measure_all(&|t| {
                 let mut f = pattern_at(&bias, fit1.as_ref(), t, &mut scratch.clone())?;
-                emccd_camera::apply_blooming(&mut f, width, law1.factor(t));
+                emccd_profile::apply_blooming(&mut f, width, law1.factor(t));
                 Some(f)
             })?;
             Some(pass2)
@@ -431,7 +431,7 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
                 ));
             }
             let mut signal = raw;
-            emccd_camera::remove_blooming(&mut signal, width, x_at(c.exposure_s));
+            emccd_profile::remove_blooming(&mut signal, width, x_at(c.exposure_s));
             match pattern_at(&bias, fpn.as_ref(), c.exposure_s, &mut warnings) {
                 Some(f) => signal.iter_mut().zip(&f).for_each(|(v, f)| *v -= f),
                 None => fpn_sub = false,

@@ -1,6 +1,6 @@
-//! The EMCCD forward models: the noise models that synthesize training pairs, the virtual camera
-//! that simulates a whole acquisition with a known truth, and the preprocessing that undoes
-//! blooming and the fixed pattern.
+//! The EMCCD forward models: the noise models that synthesize training pairs and the virtual camera
+//! that simulates a whole acquisition with a known truth. (Blooming and the preprocessing that
+//! undoes it and the fixed pattern live beside the profile: `emccd_profile::preprocess`.)
 //!
 //! - [`noise`]: the [`NoiseModel`] trait and its three implementations — [`OursModel`] (paper
 //!   eq. 5), [`EldModel`] (Wei et al. 2021's CMOS model) and [`PgnModel`] (Poisson–Gamma–Normal,
@@ -8,7 +8,6 @@
 //! - [`virtual_camera`]: the full eq. 1 with the physical EM register (Poisson → Gamma), clock-
 //!   induced charge, dark current and hot pixels, exposure-dependent FPN, per-pixel read noise,
 //!   blooming and a 16-bit ADC.
-//! - [`preprocess`]: paper eq. 4, `D' = B⁻¹(D) − FPN_t`, and its forward twin `B[·]`.
 //!
 //! Randomness is drawn from per-row PCG streams derived from one seed, so every frame is
 //! reproducible whatever the number of threads.
@@ -16,12 +15,10 @@
 #![deny(missing_docs)]
 
 pub mod noise;
-pub mod preprocess;
 pub mod rng;
 pub mod virtual_camera;
 
 pub use noise::{Ablation, EldModel, Moments, NoiseModel, NoiseModelKind, OursModel, PgnModel};
-pub use preprocess::{apply_blooming, column_means, preprocess, remove_blooming};
 pub use virtual_camera::{Exposure, PhysicalParams, VirtualCamera};
 
 /// Errors from building a model with invalid parameters.

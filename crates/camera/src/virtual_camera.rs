@@ -13,9 +13,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::noise::em_register;
-use crate::preprocess::column_means;
 use crate::rng::stream;
 use crate::Error;
+use emccd_profile::column_means;
 
 /// Physical parameters that a profile does not hold.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -219,7 +219,7 @@ impl Exposure<'_> {
         for (o, &f) in out.iter_mut().zip(&self.fpn) {
             *o += f;
         }
-        crate::preprocess::apply_blooming(&mut out, self.cam.width(), self.blooming_x);
+        emccd_profile::apply_blooming(&mut out, self.cam.width(), self.blooming_x);
         out
     }
 
@@ -252,7 +252,7 @@ impl Exposure<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::preprocess::preprocess;
+    use emccd_profile::preprocess;
 
     fn small_camera() -> VirtualCamera {
         let p = emccd_profile::default_profile()

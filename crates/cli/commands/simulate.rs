@@ -4,8 +4,9 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use emccd_camera::{preprocess, PhysicalParams, VirtualCamera};
+use emccd_camera::{PhysicalParams, VirtualCamera};
 use emccd_io::{Metadata, SampleFormat, StackWriter};
+use emccd_profile::preprocess;
 use serde::Serialize;
 
 use crate::common::{

@@ -81,7 +81,7 @@ pub fn preprocess_ablated(
         p.blooming_factor(exposure_s)
     };
     let mut d = raw.to_vec();
-    emccd_camera::preprocess(&mut d, p.width, x, &fpn);
+    emccd_profile::preprocess(&mut d, p.width, x, &fpn);
     Ok(d)
 }
 

@@ -12,11 +12,13 @@
 
 #![deny(missing_docs)]
 
+mod blooming;
 mod default;
 mod error;
 mod fpn;
 mod store;
 
+pub use blooming::{apply_blooming, column_means, preprocess, remove_blooming};
 pub use default::{default_profile, DEFAULT_PROFILE_SEED};
 pub use error::{Error, Result};
 pub use fpn::{logistic, FpnForm};

@@ -1,4 +1,5 @@
-//! Blooming and its exact inverse, and the preprocessing of paper eq. 4.
+//! Blooming and its exact inverse, and the preprocessing of paper eq. 4: beside the profile
+//! whose fit they apply, so calibration and the networks need no camera model for them.
 //!
 //! Blooming adds to every pixel a share `x` of its column's mean: `B[Y] = Y + x·colmean(Y)`.
 //! Since `colmean(B[Y]) = (1+x)·colmean(Y)`, the inverse is `B⁻¹(D) = D − x/(1+x)·colmean(D)`.
