@@ -11,7 +11,10 @@ const ALLOWED: [(&str, &[&str]); 6] = [
     ("camera", &["emccd-profile"]),
     ("eval", &["emccd-io"]),
     ("calib", &["emccd-io", "emccd-profile"]),
-    ("nn", &["emccd-camera", "emccd-eval", "emccd-io", "emccd-profile"]),
+    (
+        "nn",
+        &["emccd-camera", "emccd-eval", "emccd-io", "emccd-profile"],
+    ),
 ];
 
 fn emccd_deps(krate: &str) -> BTreeSet<String> {

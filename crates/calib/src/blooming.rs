@@ -162,6 +162,19 @@ fn percentile(v: &[f64], q: f64) -> f64 {
     s[((s.len() - 1) as f64 * q).round() as usize]
 }
 
+/// What one blooming frame gives (the fields of [`BloomLevel`] of the same names).
+#[derive(Clone, Debug)]
+pub struct Measurement {
+    /// Window inside the bright source.
+    pub v1: Window,
+    /// Window in the bloomed area beside the source (its columns, off its rows).
+    pub v2: Window,
+    /// Window in the dark columns.
+    pub v3: Window,
+    /// Mean of the columns holding v2, DN.
+    pub c1: f64,
+}
+
 /// Measures one exposure. `img` is the averaged frame with FPN subtracted. The source is found
 /// from the column and row profiles; regions keep a margin of `margin` px from its edges.
 pub fn measure(
@@ -170,7 +183,7 @@ pub fn measure(
     height: usize,
     win: usize,
     file: &std::path::Path,
-) -> Result<(Window, Window, Window, f64)> {
+) -> Result<Measurement> {
     let bad = |m: &str| Error::input(file, m.to_string());
     let margin = 2usize;
     let cm: Vec<f64> = (0..width)
@@ -231,7 +244,7 @@ pub fn measure(
     let v3 = lowest_std_window(img, width, dark_rect, win)
         .ok_or_else(|| bad("blooming frame: no dark columns"))?;
     let c1 = (v2.x..v2.x + v2.w).map(|x| cm[x]).sum::<f64>() / v2.w as f64;
-    Ok((v1, v2, v3, c1))
+    Ok(Measurement { v1, v2, v3, c1 })
 }
 
 /// Fits `x(t) = a·t^b` on log–log axes.
@@ -274,7 +287,8 @@ mod tests {
             .map(|c| (0..h).map(|r| y[r * w + c]).sum::<f32>() / h as f32)
             .collect();
         let img: Vec<f32> = (0..w * h).map(|i| y[i] + x as f32 * cm[i % w]).collect();
-        let (_, v2, v3, c1) = measure(&img, w, h, 32, std::path::Path::new("t.tif")).unwrap();
+        let Measurement { v2, v3, c1, .. } =
+            measure(&img, w, h, 32, std::path::Path::new("t.tif")).unwrap();
         let est = (v2.mean - v3.mean) / (c1 - v2.mean);
         assert!((est - x).abs() < 1e-5, "{est}");
         assert!(v2.y + v2.h <= h / 2 && v2.x + v2.w <= w / 2 && v3.x >= w / 2);

@@ -344,7 +344,8 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
                 Some(f) => img.iter_mut().zip(&f).for_each(|(v, f)| *v -= f),
                 None => fpn_sub = false,
             }
-            let (v1, v2, v3, c1) = blooming::measure(&img, width, height, opts.window, &c.file)?;
+            let blooming::Measurement { v1, v2, v3, c1 } =
+                blooming::measure(&img, width, height, opts.window, &c.file)?;
             let den = c1 - v2.mean;
             let x = (v2.mean - v3.mean) / den;
             let se2 = v2.std / ((v2.w * v2.h) as f64).sqrt();

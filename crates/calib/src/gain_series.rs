@@ -223,8 +223,22 @@ impl Term {
     }
 }
 
-/// Per-pixel fit: returns (λ, c, gains per setting, SE of c from the curvature).
-fn fit_pixel(data: &[SettingData], p: usize, anchor: usize) -> (f64, f64, Vec<f64>, f64, f64) {
+/// One pixel's maximum-likelihood fit over every gain setting.
+struct PixelFit {
+    /// Mean photoelectrons per frame, λ.
+    lambda: f64,
+    /// Electrons per DN, c.
+    c: f64,
+    /// EM gain per setting (the anchor's fixed at its nominal value).
+    gains: Vec<f64>,
+    /// Standard error of c from the likelihood's curvature.
+    c_se: f64,
+    /// c from the moments start (variance/mean of the highest setting).
+    c_moments: f64,
+}
+
+/// Per-pixel fit (see [`PixelFit`]).
+fn fit_pixel(data: &[SettingData], p: usize, anchor: usize) -> PixelFit {
     let mut planner = RealFftPlanner::<f64>::new();
     let terms: Vec<RefCell<Term>> = data
         .iter()
@@ -315,7 +329,13 @@ fn fit_pixel(data: &[SettingData], p: usize, anchor: usize) -> (f64, f64, Vec<f6
     for (i, &k) in others.iter().enumerate() {
         gains[k] = best[2 + i].exp();
     }
-    (best[0].exp(), c, gains, c_se, c0)
+    PixelFit {
+        lambda: best[0].exp(),
+        c,
+        gains,
+        c_se,
+        c_moments: c0,
+    }
 }
 
 /// Fits every pixel (in parallel) and summarizes over pixels.
@@ -342,7 +362,7 @@ pub fn fit(
         ));
     }
     let anchor = 0;
-    let fits: Vec<(f64, f64, Vec<f64>, f64, f64)> = (0..np)
+    let fits: Vec<PixelFit> = (0..np)
         .into_par_iter()
         .map(|p| fit_pixel(&data, p, anchor))
         .collect();
@@ -355,13 +375,13 @@ pub fn fit(
         };
         (m, sd / (v.len() as f64).sqrt())
     };
-    let cs: Vec<f64> = fits.iter().map(|f| f.1).collect();
+    let cs: Vec<f64> = fits.iter().map(|f| f.c).collect();
     let (c, c_se) = mean_se(&cs);
     let settings = data
         .iter()
         .enumerate()
         .map(|(k, d)| {
-            let g: Vec<f64> = fits.iter().map(|f| f.2[k]).collect();
+            let g: Vec<f64> = fits.iter().map(|f| f.gains[k]).collect();
             let (m, se) = mean_se(&g);
             SettingFit {
                 nominal: d.nominal,
@@ -383,7 +403,7 @@ pub fn fit(
         data[top].sigma[0],
         &mut planner,
     );
-    term.pmf(fits[0].0, fits[0].2[top], fits[0].1);
+    term.pmf(fits[0].lambda, fits[0].gains[top], fits[0].c);
     let s = &data[top].samples[0];
     let lo = s
         .iter()
@@ -404,14 +424,14 @@ pub fn fit(
             model[((x - lo) / bin) as usize] += pj * s.len() as f64;
         }
     }
-    let (moments, _) = mean_se(&fits.iter().map(|f| f.4).collect::<Vec<_>>());
+    let (moments, _) = mean_se(&fits.iter().map(|f| f.c_moments).collect::<Vec<_>>());
     Ok(GainSeriesResult {
         settings,
         e_per_dn: c,
         e_per_dn_se: c_se,
         e_per_dn_per_pixel: cs,
-        e_per_dn_fit_se: fits.iter().map(|f| f.3).collect(),
-        lambda_e: fits.iter().map(|f| f.0).collect(),
+        e_per_dn_fit_se: fits.iter().map(|f| f.c_se).collect(),
+        lambda_e: fits.iter().map(|f| f.lambda).collect(),
         moments_e_per_dn: moments,
         reference_e_per_dn: reference,
         pixels,
