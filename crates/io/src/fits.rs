@@ -186,7 +186,7 @@ impl<R: Read + Seek> FitsReader<R> {
             .unwrap_or(u64::MAX);
         let frames_declared = usize::try_from(frames_declared).unwrap_or(usize::MAX);
         let bpp = (bitpix.unsigned_abs() / 8) as usize;
-        let frame_bytes = limits.frame(width, height, bpp)? as u64 * bpp as u64;
+        let frame_bytes = limits.frame_bytes(width, height, bpp)?;
         let whole = (file_len.saturating_sub(offset) / frame_bytes) as usize;
         let frames = whole.min(frames_declared);
         limits.stack(frames as u64)?;

@@ -294,6 +294,12 @@ impl Limits {
         Ok(n)
     }
 
+    /// Bytes of one stored frame of `bytes_per_sample`-byte samples, after [`Limits::frame`]'s
+    /// checks: what a reader divides the file by and allocates to read a frame.
+    pub fn frame_bytes(&self, width: usize, height: usize, bytes_per_sample: usize) -> Result<u64> {
+        Ok(self.frame(width, height, bytes_per_sample)? as u64 * bytes_per_sample as u64)
+    }
+
     /// An error if a stack of `frames` passes the frame limit.
     pub fn stack(&self, frames: u64) -> Result<()> {
         if frames > self.frames as u64 {

@@ -73,7 +73,7 @@ impl<R: Read + Seek> SifReader<R> {
         let mut file = BufReader::new(source);
         let file_len = crate::stream_len(&mut file)?;
         let header = parse_header(&mut file, file_len)?;
-        let frame_bytes = limits.frame(header.width, header.height, 4)? as u64 * 4;
+        let frame_bytes = limits.frame_bytes(header.width, header.height, 4)?;
         let available = file_len.saturating_sub(header.data_offset) / frame_bytes;
         let frames = (available as usize).min(header.frames_declared);
         limits.stack(frames as u64)?;

@@ -59,36 +59,28 @@ impl<R: Read + Seek> TiffReader<R> {
             None => None,
         };
         let (pixel_type, channels) = page_pixel_type(&mut decoder, ct)?;
-        // Uncompressed pages must fit in the file: a header claiming more is damaged, and would
-        // otherwise have callers allocate its claim before the first read fails.
         let compression = decoder
             .find_tag_unsigned::<u16>(Tag::Compression)?
             .unwrap_or(1);
-        if compression == 1 {
-            let bytes = (w as u128) * (h as u128) * channels as u128 * pixel_type.bytes() as u128;
-            if bytes > len as u128 {
-                return Err(Error::Format(format!(
-                    "page 0 claims {w}×{h} uncompressed pixels ({bytes} bytes), but the file holds {len} bytes"
-                )));
-            }
-        }
-        // A compressed page cannot unpack to more than its method's best ratio times the file:
-        // PackBits codes at most 128 bytes in 2, Deflate about 1032:1, and an LZW code (9 bits
-        // or more) stands for at most 4096 bytes. A claim past that is damage whatever the
-        // limits (found by review: 289 bytes claiming a 1 GiB frame).
+        // A page cannot unpack to more than its compression's best ratio times the file: an
+        // uncompressed page must fit in it, PackBits codes at most 128 bytes in 2, Deflate about
+        // 1032:1, and an LZW code (9 bits or more) stands for at most 4096 bytes. A claim past
+        // that is damage whatever the limits, and would otherwise have callers allocate it
+        // before the first read fails (found by review: 289 bytes claiming a 1 GiB frame).
         let ratio: Option<u128> = match compression {
+            1 => Some(1),
             32773 => Some(64),
             8 | 32946 => Some(1100),
             5 => Some(4096),
             _ => None,
         };
-        if let Some(r) = ratio {
-            let bytes = (w as u128) * (h as u128) * channels as u128 * pixel_type.bytes() as u128;
-            if bytes > r * len as u128 {
-                return Err(Error::Format(format!(
-                    "page 0 claims {w}×{h} pixels ({bytes} bytes), more than compression {compression} can unpack from a file of {len} bytes"
-                )));
-            }
+        let bytes = (w as u128) * (h as u128) * channels as u128 * pixel_type.bytes() as u128;
+        if let Some(r) = ratio.filter(|&r| bytes > r * len as u128) {
+            return Err(Error::Format(if r == 1 {
+                format!("page 0 claims {w}×{h} uncompressed pixels ({bytes} bytes), but the file holds {len} bytes")
+            } else {
+                format!("page 0 claims {w}×{h} pixels ({bytes} bytes), more than compression {compression} can unpack from a file of {len} bytes")
+            }));
         }
         // The limits every reader applies before a caller sizes a frame buffer from the header
         // (a compressed page's claim is not bounded by the file's length; found by fuzzing:

@@ -1,6 +1,5 @@
 //! Network layer: tiling without seams, model files, and resumable, deterministic training.
 
-use burn::prelude::*;
 use emccd_nn::tile::{run, run_ensemble, Tiling};
 mod common;
 
@@ -36,16 +35,7 @@ fn model_files_round_trip_and_foreign_files_are_refused() {
     m.save(&p).unwrap();
     let back = Denoiser::load(&p, &dev).unwrap();
     assert_eq!(back.meta, m.meta);
-    let x = Tensor::<4>::from_data(
-        TensorData::new(
-            scene(32, 32)
-                .into_iter()
-                .chain(vec![0.1; 1024])
-                .collect::<Vec<f32>>(),
-            [1, 2, 32, 32],
-        ),
-        &dev,
-    );
+    let x = common::scene_input(32, 32, &dev);
     let a: Vec<f32> = m
         .net
         .forward(x.clone())
@@ -232,16 +222,7 @@ fn model_metadata_that_disagrees_or_is_absurd_is_a_short_error() {
 #[test]
 fn a_direct_unet_has_no_global_residual() {
     let dev = emccd_nn::cpu();
-    let x = Tensor::<4>::from_data(
-        TensorData::new(
-            scene(16, 16)
-                .into_iter()
-                .chain(vec![0.1; 256])
-                .collect::<Vec<f32>>(),
-            [1, 2, 16, 16],
-        ),
-        &dev,
-    );
+    let x = common::scene_input(16, 16, &dev);
     for direct in [false, true] {
         let mut cfg = meta(4, 2).unet.unwrap();
         cfg.direct = direct;

@@ -2,7 +2,6 @@
 //! Alone in its own test binary because burn's seeded initialization draws from a process-wide
 //! generator that tests running in parallel would also draw from.
 
-use burn::prelude::*;
 use emccd_nn::train::{train, Image, RunPaths, TrainConfig};
 mod common;
 
@@ -91,16 +90,7 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
     .unwrap();
     assert_eq!(resumed.meta.steps, 4);
     let dev = emccd_nn::cpu();
-    let x = Tensor::<4>::from_data(
-        TensorData::new(
-            scene(32, 32)
-                .into_iter()
-                .chain(vec![0.1; 1024])
-                .collect::<Vec<f32>>(),
-            [1, 2, 32, 32],
-        ),
-        &dev,
-    );
+    let x = common::scene_input(32, 32, &dev);
     let a: Vec<f32> = Denoiser::load(&paths("full").out, &dev)
         .unwrap()
         .net

@@ -2,7 +2,6 @@
 //! and tiling, and model files that carry its configuration.
 
 use burn::module::Module;
-use burn::prelude::*;
 use emccd_nn::tile::Tiling;
 use emccd_nn::{Denoiser, ModelMeta, UformerConfig};
 mod common;
@@ -77,16 +76,7 @@ fn uformer_model_files_round_trip() {
     m.save(&p).unwrap();
     let back = Denoiser::load(&p, &dev).unwrap();
     assert_eq!(back.meta, m.meta);
-    let x = Tensor::<4>::from_data(
-        TensorData::new(
-            common::scene(128, 128)
-                .into_iter()
-                .chain(vec![0.1; 128 * 128])
-                .collect::<Vec<f32>>(),
-            [1, 2, 128, 128],
-        ),
-        &dev,
-    );
+    let x = common::scene_input(128, 128, &dev);
     let a: Vec<f32> = m
         .net
         .forward(x.clone())

@@ -32,6 +32,12 @@ pub fn meta(base: usize, levels: usize) -> ModelMeta {
     }
 }
 
+/// The test scene as a [1, 2, h, w] denoiser input: the scene and a noise level of 0.1.
+pub fn scene_input(w: usize, h: usize, dev: &burn::prelude::Device) -> burn::prelude::Tensor<4> {
+    let data: Vec<f32> = scene(w, h).into_iter().chain(vec![0.1; w * h]).collect();
+    burn::prelude::Tensor::from_data(burn::prelude::TensorData::new(data, [1, 2, h, w]), dev)
+}
+
 /// A smooth test pattern in [0.1, 0.9].
 pub fn scene(w: usize, h: usize) -> Vec<f32> {
     (0..w * h)
