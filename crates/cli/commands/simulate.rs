@@ -553,9 +553,14 @@ fn pair_name(stem: &str, lv: &Level) -> String {
 /// with one file stem, from different folders) or an input scene (one that lies where an
 /// output goes, which would be replaced before it is read).
 fn check_outputs(scenes: &[PathBuf], levels: &[Level], dirs: &[&str], out: &Path) -> Result<()> {
-    let mut by_stem: std::collections::HashMap<String, &Path> = Default::default();
-    for (si, scene) in scenes.iter().enumerate() {
-        if let Some(other) = by_stem.insert(scene_stem(si, scene), scene) {
+    let stems: Vec<String> = scenes
+        .iter()
+        .enumerate()
+        .map(|(i, s)| scene_stem(i, s))
+        .collect();
+    let mut by_stem: std::collections::HashMap<&str, &Path> = Default::default();
+    for (stem, scene) in stems.iter().zip(scenes) {
+        if let Some(other) = by_stem.insert(stem, scene) {
             bail!(
                 "scenes {} and {} have the same name, so their pairs would overwrite each other; rename one",
                 other.display(),
@@ -565,9 +570,9 @@ fn check_outputs(scenes: &[PathBuf], levels: &[Level], dirs: &[&str], out: &Path
     }
     let inputs: std::collections::HashSet<crate::common::FileId> =
         scenes.iter().map(|p| crate::common::file_id(p)).collect();
-    for (si, scene) in scenes.iter().enumerate() {
+    for stem in &stems {
         for lv in levels {
-            let name = pair_name(&scene_stem(si, scene), lv);
+            let name = pair_name(stem, lv);
             for d in dirs {
                 let ext = if *d == "preview" { "png" } else { "tif" };
                 let o = out.join(d).join(format!("{name}.{ext}"));
