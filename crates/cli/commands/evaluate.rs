@@ -134,7 +134,7 @@ fn load_camera(dir: &Path, profile: Option<&str>) -> Result<Camera> {
     let file: PairsFile =
         toml::from_str(&text).with_context(|| format!("parsing {}", mpath.display()))?;
     for p in &file.pair {
-        if !(p.exposure_s.is_finite() && p.exposure_s > 0.0) {
+        if emccd_nn::pipeline::check_exposure(p.exposure_s).is_err() {
             bail!(
                 "{}: the pair {}: exposure_s = {} must be a positive number of seconds",
                 mpath.display(),

@@ -49,12 +49,8 @@ pub fn run(a: Args) -> Result<()> {
             a.signal_dn
         );
     }
-    if !(a.exposure_s.is_finite() && a.exposure_s > 0.0) {
-        bail!(
-            "--exposure-s {}: the exposure must be a positive number of seconds",
-            a.exposure_s
-        );
-    }
+    emccd_nn::pipeline::check_exposure(a.exposure_s)
+        .map_err(|e| anyhow::anyhow!("--exposure-s: {e}"))?;
     if a.frames == 0 {
         bail!("--frames must be at least 1");
     }
