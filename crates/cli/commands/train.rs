@@ -169,6 +169,20 @@ pub fn run(a: Args) -> Result<()> {
             bail!("{name} takes two comma-separated numbers, LO,HI");
         }
     }
+    // Before any image is read: the model a run starts from is never its output.
+    let init = a
+        .init
+        .as_deref()
+        .map(crate::commands::denoise::model_path)
+        .transpose()?;
+    if let Some(i) = &init {
+        if crate::common::file_id(i) == crate::common::file_id(&a.out) {
+            bail!(
+                "{}: the output is the --init model; choose another -o, inputs are never overwritten",
+                a.out.display()
+            );
+        }
+    }
     let profile = load_profile(&a.profile)?;
     let all = load_images(&a.clean)?;
     let (train_imgs, val_imgs): (Vec<Image>, Vec<Image>) = if a.val.is_empty() {
@@ -296,19 +310,6 @@ pub fn run(a: Args) -> Result<()> {
         }
         true
     };
-    let init = a
-        .init
-        .as_deref()
-        .map(crate::commands::denoise::model_path)
-        .transpose()?;
-    if let Some(i) = &init {
-        if crate::common::file_id(i) == crate::common::file_id(&a.out) {
-            bail!(
-                "{}: the output is the --init model; choose another -o, inputs are never overwritten",
-                a.out.display()
-            );
-        }
-    }
     let model = train(
         train_imgs,
         val_imgs,
