@@ -39,6 +39,9 @@ pub enum Method {
     /// Better than `bm3d` below about 8 e⁻ per pixel (4 counts), the same above; up to about
     /// 2.3× its time.
     Ivst,
+    /// No denoising: blooming and the fixed pattern removed and the units converted, as every
+    /// method does first (the preprocessed photo-signal, for one's own analysis).
+    None,
 }
 
 impl Method {
@@ -47,8 +50,24 @@ impl Method {
         match self {
             Method::Bm3d => Some(emccd_nn::Base::Bm3d),
             Method::Ivst => Some(emccd_nn::Base::Ivst),
-            Method::Hybrid | Method::Net => None,
+            Method::Hybrid | Method::Net | Method::None => None,
         }
+    }
+
+    /// The name `--method` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Hybrid => "hybrid",
+            Method::Net => "net",
+            Method::Bm3d => "bm3d",
+            Method::Ivst => "ivst",
+            Method::None => "none",
+        }
+    }
+
+    /// Whether the method runs a network (and so takes a model).
+    pub fn uses_model(self) -> bool {
+        matches!(self, Method::Hybrid | Method::Net)
     }
 }
 
@@ -65,7 +84,10 @@ pub struct Args {
     /// Raw frames or stacks.
     #[arg(required = true, num_args = 1..)]
     pub inputs: Vec<PathBuf>,
-    /// Output file (one input) or directory (several; each written as NAME_denoised.tif).
+    /// Output file (one input) or directory (several; each written as NAME_denoised.tif), or an
+    /// OME-Zarr store `OUT.zarr` (all inputs as one stack of float32 frames, one chunk per
+    /// frame, with what made it in the attributes; an existing store made by the same command
+    /// is resumed, one made by another is refused).
     #[arg(short, long)]
     pub out: PathBuf,
     /// Camera profile (`default` = the bundled iXon 897 model).
@@ -100,6 +122,13 @@ pub struct Args {
     /// a geometric self-ensemble, slightly higher PSNR for proportionally more time.
     #[arg(long, default_value_t = 1, value_parser = parse_ensemble)]
     pub ensemble: u8,
+    /// Denoise only share I of N of the frames (I from 0; contiguous, one chunk per frame) into
+    /// a `.zarr` output that N processes write at once — a SLURM job array passes
+    /// `--shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT`. Frames already complete in the
+    /// store are skipped, so a killed shard is resumed by submitting it again. Several inputs
+    /// are one stack in the order given.
+    #[arg(long, value_parser = parse_shard)]
+    pub shard: Option<Shard>,
 }
 
 fn parse_tile(s: &str) -> std::result::Result<usize, String> {
@@ -135,14 +164,11 @@ pub const DEFAULT_METHOD: Method = Method::Ivst;
 pub fn resolve(method: Option<Method>, model: Option<&str>) -> Result<(Method, Option<Denoiser>)> {
     let hybrid = |m: &Denoiser| m.meta.inputs == emccd_nn::Inputs::Hybrid;
     match (method, model) {
-        (None, None) if DEFAULT_METHOD.classical().is_some() => Ok((DEFAULT_METHOD, None)),
-        (Some(c), Some(m)) if c.classical().is_some() => {
-            bail!(
-                "--model {m}: --method {} runs no network",
-                c.classical().unwrap().name()
-            )
+        (None, None) if !DEFAULT_METHOD.uses_model() => Ok((DEFAULT_METHOD, None)),
+        (Some(c), Some(m)) if !c.uses_model() => {
+            bail!("--model {m}: --method {} runs no network", c.name())
         }
-        (Some(c), None) if c.classical().is_some() => Ok((c, None)),
+        (Some(c), None) if !c.uses_model() => Ok((c, None)),
         (None, Some(name)) => {
             let m = load_model(name)?;
             Ok((
@@ -219,6 +245,87 @@ pub fn model_spec(arg: &str) -> Result<(&str, usize)> {
     }
 }
 
+/// Which share of a stack one process of a job array denoises (`--shard I/N`, I from 0).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Shard {
+    /// This process's index, from 0.
+    pub index: usize,
+    /// How many processes share the stack.
+    pub count: usize,
+}
+
+impl Shard {
+    /// The frames (from 0) of a `frames`-long stack that this shard denoises: contiguous, and
+    /// together the N shards cover every frame once.
+    pub fn range(self, frames: usize) -> std::ops::Range<usize> {
+        let at = |i: usize| (i as u128 * frames as u128 / self.count as u128) as usize;
+        at(self.index)..at(self.index + 1)
+    }
+}
+
+fn parse_shard(s: &str) -> std::result::Result<Shard, String> {
+    let bad = || format!("'{s}': a shard is I/N with 0 ≤ I < N (I counts from 0, as SLURM_ARRAY_TASK_ID does with --array=0-N-1)");
+    let (i, n) = s.split_once('/').ok_or_else(bad)?;
+    match (i.trim().parse::<usize>(), n.trim().parse::<usize>()) {
+        (Ok(index), Ok(count)) if index < count => Ok(Shard { index, count }),
+        _ => Err(bad()),
+    }
+}
+
+/// One input opened and checked against the profile, ready to stream.
+struct Input {
+    path: PathBuf,
+    reader: Box<dyn emccd_io::FrameReader>,
+    info: emccd_io::StackInfo,
+    exposure: f64,
+}
+
+/// What turns one raw frame into the output: the method, model and profile, fixed for a run.
+struct FrameDenoiser<'a> {
+    profile: &'a emccd_profile::CameraProfile,
+    method: Method,
+    model: Option<&'a Denoiser>,
+    tiling: Tiling,
+    ensemble: usize,
+    to_units: f32,
+}
+
+impl FrameDenoiser<'_> {
+    fn run(&self, input: &Path, k: usize, raw: &[f32], exposure: f64) -> Result<Vec<f32>> {
+        let width = self.profile.width;
+        if let Some(i) = raw.iter().position(|v| !v.is_finite()) {
+            bail!(
+                "{}: frame {} has a non-finite value at pixel ({}, {})",
+                input.display(),
+                k + 1,
+                i % width,
+                i / width
+            );
+        }
+        let mut d = match (self.model, self.method) {
+            (Some(m), _) => Pipeline {
+                model: m,
+                profile: self.profile,
+                tiling: self.tiling,
+                ensemble: self.ensemble,
+                device: emccd_nn::device(),
+            }
+            .denoise_raw(raw, exposure)?,
+            (None, Method::None) => emccd_nn::pipeline::preprocess(self.profile, raw, exposure)?,
+            (None, m) => classical_frame(
+                self.profile,
+                raw,
+                exposure,
+                m.classical().unwrap_or_default(),
+            )?,
+        };
+        if self.to_units != 1.0 {
+            d.iter_mut().for_each(|v| *v *= self.to_units);
+        }
+        Ok(d)
+    }
+}
+
 pub fn run(a: Args) -> Result<()> {
     let profile = load_profile(&a.profile)?;
     let (method, model) = resolve(a.method, a.model.as_deref())?;
@@ -229,56 +336,39 @@ pub fn run(a: Args) -> Result<()> {
             model.meta.profile_fingerprint
         );
     }
-    let tiling = Tiling {
-        tile: a.tile,
-        overlap: a.overlap,
-    };
     profile
         .require_complete()
         .with_context(|| format!("profile {}: it cannot denoise", a.profile))?;
+    let zarr = emccd_io::Format::from_extension(&a.out) == Some(emccd_io::Format::Zarr);
+    if a.shard.is_some() && !zarr {
+        bail!("--shard needs a .zarr output (-o OUT.zarr): only a Zarr store is written by several processes at once");
+    }
+    let fd = FrameDenoiser {
+        profile: &profile,
+        method,
+        model: model.as_ref(),
+        tiling: Tiling {
+            tile: a.tile,
+            overlap: a.overlap,
+        },
+        ensemble: a.ensemble.into(),
+        to_units: match a.units {
+            Units::Dn => 1.0f32,
+            Units::Electrons => (2.0 / profile.slope()?) as f32,
+        },
+    };
+    if zarr {
+        return run_zarr(&a, &fd, &fp);
+    }
     let several = a.inputs.len() > 1;
     let outs = output_paths(&a.inputs, &a.out, several)?;
     if several {
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     }
-    let to_units = match a.units {
-        Units::Dn => 1.0f32,
-        Units::Electrons => (2.0 / profile.slope()?) as f32,
-    };
     for (input, out) in a.inputs.iter().zip(outs) {
-        let mut r = emccd_io::open(input)?;
-        let info = r.info().clone();
-        for w in &info.metadata.warnings {
-            eprintln!("warning: {}: {w}", input.display());
-        }
-        let (exposure, source) = match (a.exposure_s, info.metadata.exposure_s) {
-            (Some(t), _) => (t, "--exposure-s"),
-            (None, Some(t)) => (t, "the file header"),
-            (None, None) => bail!(
-                "{}: the header records no exposure; pass --exposure-s",
-                input.display()
-            ),
-        };
-        emccd_nn::pipeline::check_exposure(exposure)
-            .with_context(|| format!("{}: the exposure from {source}", input.display()))?;
-        if (info.width, info.height) != (profile.width, profile.height) {
-            bail!(
-                "{}: frames are {}×{}, the profile's sensor is {}×{}",
-                input.display(),
-                info.width,
-                info.height,
-                profile.width,
-                profile.height
-            );
-        }
-        if !profile.exposure_in_range(exposure) {
-            let (lo, hi) = profile.exposure_range();
-            let what = format!("{}: exposure {exposure} s (from {source}) is outside the calibrated range {lo}–{hi} s", input.display());
-            if (exposure < lo / 2.0 || exposure > hi * 2.0) && !a.extrapolate {
-                bail!("{what}; its fixed pattern would be extrapolated far from the calibration. Calibrate with bias frames at this exposure, or pass --extrapolate to use the model's extrapolation");
-            }
-            eprintln!("warning: {what}; the fixed pattern is the model's extrapolation");
-        }
+        let Input {
+            mut reader, info, exposure, ..
+        } = open_input(&a, &profile, input)?;
         let mut w = emccd_io::StackWriter::create(
             &out,
             info.width,
@@ -288,36 +378,8 @@ pub fn run(a: Args) -> Result<()> {
         )?;
         let pb = progress(info.frames as u64, "frames");
         let mut buf = vec![0f32; info.frame_len()];
-        while r.read_frame(&mut buf)? {
-            if let Some(i) = buf.iter().position(|v| !v.is_finite()) {
-                bail!(
-                    "{}: frame {} has a non-finite value at pixel ({}, {})",
-                    input.display(),
-                    w.frames_written() + 1,
-                    i % info.width,
-                    i / info.width
-                );
-            }
-            let mut d = match &model {
-                Some(m) => Pipeline {
-                    model: m,
-                    profile: &profile,
-                    tiling,
-                    ensemble: a.ensemble.into(),
-                    device: emccd_nn::device(),
-                }
-                .denoise_raw(&buf, exposure)?,
-                None => classical_frame(
-                    &profile,
-                    &buf,
-                    exposure,
-                    method.classical().unwrap_or_default(),
-                )?,
-            };
-            if to_units != 1.0 {
-                d.iter_mut().for_each(|v| *v *= to_units);
-            }
-            w.write_frame(&d)?;
+        while reader.read_frame(&mut buf)? {
+            w.write_frame(&fd.run(input, w.frames_written(), &buf, exposure)?)?;
             pb.inc(1);
         }
         w.finish()?;
@@ -329,6 +391,139 @@ pub fn run(a: Args) -> Result<()> {
             info.frames
         );
     }
+    Ok(())
+}
+
+/// Opens an input and checks it against the profile and the exposure rules.
+fn open_input(a: &Args, profile: &emccd_profile::CameraProfile, input: &Path) -> Result<Input> {
+    let reader = emccd_io::open(input)?;
+    let info = reader.info().clone();
+    for w in &info.metadata.warnings {
+        eprintln!("warning: {}: {w}", input.display());
+    }
+    let (exposure, source) = match (a.exposure_s, info.metadata.exposure_s) {
+        (Some(t), _) => (t, "--exposure-s"),
+        (None, Some(t)) => (t, "the file header"),
+        (None, None) => bail!(
+            "{}: the header records no exposure; pass --exposure-s",
+            input.display()
+        ),
+    };
+    emccd_nn::pipeline::check_exposure(exposure)
+        .with_context(|| format!("{}: the exposure from {source}", input.display()))?;
+    if (info.width, info.height) != (profile.width, profile.height) {
+        bail!(
+            "{}: frames are {}×{}, the profile's sensor is {}×{}",
+            input.display(),
+            info.width,
+            info.height,
+            profile.width,
+            profile.height
+        );
+    }
+    if !profile.exposure_in_range(exposure) {
+        let (lo, hi) = profile.exposure_range();
+        let what = format!("{}: exposure {exposure} s (from {source}) is outside the calibrated range {lo}–{hi} s", input.display());
+        if (exposure < lo / 2.0 || exposure > hi * 2.0) && !a.extrapolate {
+            bail!("{what}; its fixed pattern would be extrapolated far from the calibration. Calibrate with bias frames at this exposure, or pass --extrapolate to use the model's extrapolation");
+        }
+        eprintln!("warning: {what}; the fixed pattern is the model's extrapolation");
+    }
+    Ok(Input {
+        path: input.to_path_buf(),
+        reader,
+        info,
+        exposure,
+    })
+}
+
+/// Denoises the inputs, one logical stack in the order given, into one OME-Zarr store: this
+/// process's shard of the frames, skipping frames already complete (an earlier run, or another
+/// shard), so a killed run is resumed by running it again.
+fn run_zarr(a: &Args, fd: &FrameDenoiser, profile_fp: &str) -> Result<()> {
+    let id = crate::common::file_id;
+    let out_id = id(&a.out);
+    if let Some(i) = a.inputs.iter().find(|i| id(i) == out_id) {
+        bail!("{}: the output is the input {}; choose another -o, the input is never overwritten", a.out.display(), i.display());
+    }
+    let mut inputs = Vec::with_capacity(a.inputs.len());
+    for path in &a.inputs {
+        let i = open_input(a, fd.profile, path)?;
+        inputs.push(i);
+    }
+    let frames: usize = inputs.iter().map(|i| i.info.frames).sum();
+    if frames == 0 {
+        bail!("the inputs hold no frame");
+    }
+    let provenance = serde_json::json!({
+        "software": format!("emccd {}", env!("CARGO_PKG_VERSION")),
+        "inputs": inputs.iter().map(|i| serde_json::json!({
+            "file": i.path.display().to_string(),
+            "frames": i.info.frames,
+            "exposure_s": i.exposure,
+        })).collect::<Vec<_>>(),
+        "profile": {"name": a.profile, "fingerprint": profile_fp},
+        "method": fd.method.name(),
+        "model": a.model.as_ref().map(|m| m.to_string()).or_else(|| fd.model.map(|_| "default".into())),
+        "model_fingerprint": fd.model.map(|m| m.meta.profile_fingerprint.clone()),
+        "units": match a.units { Units::Dn => "DN above bias", Units::Electrons => "photoelectrons" },
+        "tile": a.tile,
+        "overlap": a.overlap,
+        "ensemble": a.ensemble,
+    });
+    let name = a
+        .out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let spec = emccd_io::zarr::ZarrStackSpec {
+        width: fd.profile.width,
+        height: fd.profile.height,
+        frames,
+        name,
+        provenance,
+    };
+    let (store, _created) = emccd_io::zarr::ZarrStackWriter::create_or_open(&a.out, &spec)?;
+    let shard = a.shard.unwrap_or(Shard { index: 0, count: 1 });
+    let range = shard.range(frames);
+    let todo = range.clone().filter(|&k| !store.is_done(k)).count();
+    let pb = progress(todo as u64, "frames");
+    let mut buf = vec![0f32; fd.profile.width * fd.profile.height];
+    let mut k = 0usize;
+    for mut i in inputs {
+        if k >= range.end {
+            break;
+        }
+        for _ in 0..i.info.frames {
+            if range.contains(&k) && !store.is_done(k) {
+                if !i.reader.read_frame(&mut buf)? {
+                    bail!("{}: ended before its frame {}", i.path.display(), k + 1);
+                }
+                store.write_frame(k, &fd.run(&i.path, k, &buf, i.exposure)?)?;
+                pb.inc(1);
+            } else if k < range.end {
+                i.reader.skip_frame()?;
+            }
+            k += 1;
+        }
+    }
+    pb.finish_and_clear();
+    let done = store.done_count();
+    let share = if shard.count > 1 {
+        format!("shard {}/{}: ", shard.index, shard.count)
+    } else {
+        String::new()
+    };
+    eprintln!(
+        "{share}{} → {}: frames {}–{} ({} denoised now, {} were already done); {done} of {frames} frames of the store complete{}",
+        if a.inputs.len() == 1 { a.inputs[0].display().to_string() } else { format!("{} inputs", a.inputs.len()) },
+        a.out.display(),
+        range.start + 1,
+        range.end,
+        todo,
+        range.len() - todo,
+        if done < frames { " (the other shards write the rest)" } else { "" }
+    );
     Ok(())
 }
 

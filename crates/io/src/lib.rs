@@ -18,6 +18,7 @@ pub mod fits;
 pub mod png_io;
 pub mod sif;
 pub mod tiff_io;
+pub mod zarr;
 
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
@@ -71,6 +72,8 @@ pub enum Format {
     Fits,
     /// Portable Network Graphics.
     Png,
+    /// A Zarr store (a folder): OME-Zarr, Zarr v3 or v2.
+    Zarr,
 }
 
 impl Format {
@@ -83,6 +86,7 @@ impl Format {
             "fits" | "fit" | "fts" => Some(Format::Fits),
             "png" => Some(Format::Png),
             "sif" => Some(Format::Sif),
+            "zarr" => Some(Format::Zarr),
             _ => None,
         }
     }
@@ -137,6 +141,12 @@ pub trait FrameReader: Send {
     fn info(&self) -> &StackInfo;
     /// Decodes the next frame into `buf` (length `width·height`); `Ok(false)` after the last.
     fn read_frame(&mut self, buf: &mut [f32]) -> Result<bool>;
+    /// Moves past the next frame without converting it, where the format allows (a shard of a
+    /// stack starts mid-way); `Ok(false)` after the last.
+    fn skip_frame(&mut self) -> Result<bool> {
+        let mut scratch = vec![0f32; self.info().frame_len()];
+        self.read_frame(&mut scratch)
+    }
 }
 
 /// The error every reader gives for a caller's buffer of the wrong size.
@@ -163,6 +173,17 @@ pub fn open(path: impl AsRef<Path>) -> Result<Box<dyn FrameReader>> {
 /// [`open`] with the given limits.
 pub fn open_with(path: impl AsRef<Path>, limits: Limits) -> Result<Box<dyn FrameReader>> {
     let path = path.as_ref();
+    if path.is_dir() {
+        if !zarr::is_zarr(path) {
+            return Err(Error::Usage(
+                "a folder, and not a Zarr store (no zarr.json, .zgroup or .zarray)".into(),
+            )
+            .with_path(path));
+        }
+        return zarr::ZarrReader::open(path, limits)
+            .map(|r| Box::new(r) as Box<dyn FrameReader>)
+            .map_err(|e| e.with_path(path));
+    }
     File::open(path)
         .map_err(Error::from)
         .and_then(|f| from_reader(f, limits))
@@ -669,6 +690,19 @@ pub fn write_png_preview(
     hi: f32,
 ) -> Result<()> {
     png_io::write_gray8(path.as_ref(), width, height, data, lo, hi)
+}
+
+/// Temporary folders are created owner-only; a finished store gets the usual 0755, so other
+/// users (and other nodes' jobs) can read it.
+pub(crate) fn readable_dir(path: &Path) -> std::io::Result<()> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o755))?;
+    }
+    #[cfg(not(unix))]
+    let _ = path;
+    Ok(())
 }
 
 /// Temporary files are created owner-only; finished outputs get the usual 0644.

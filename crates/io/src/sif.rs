@@ -134,6 +134,15 @@ impl<R: Read + Seek + Send> FrameReader for SifReader<R> {
         &self.info
     }
 
+    fn skip_frame(&mut self) -> Result<bool> {
+        if self.next >= self.info.frames {
+            return Ok(false);
+        }
+        self.file.seek_relative(self.bytes.len() as i64)?;
+        self.next += 1;
+        Ok(true)
+    }
+
     fn read_frame(&mut self, out: &mut [f32]) -> Result<bool> {
         if self.next >= self.info.frames {
             return Ok(false);

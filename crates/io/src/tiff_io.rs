@@ -183,6 +183,18 @@ impl<R: Read + Seek + Send> FrameReader for TiffReader<R> {
         &self.info
     }
 
+    fn skip_frame(&mut self) -> Result<bool> {
+        if self.next >= self.info.frames {
+            return Ok(false);
+        }
+        // Pages are reached through the IFD chain: follow it without decoding this page.
+        if self.next > 0 {
+            self.decoder.next_image()?;
+        }
+        self.next += 1;
+        Ok(true)
+    }
+
     fn read_frame(&mut self, out: &mut [f32]) -> Result<bool> {
         if self.next >= self.info.frames {
             return Ok(false);

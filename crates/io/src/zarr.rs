@@ -1,0 +1,454 @@
+//! OME-Zarr stacks (OME-NGFF 0.5 on Zarr v3) through the `zarrs` crate: a reader for any Zarr
+//! array of frames (OME groups of either NGFF version, bare arrays), and a writer that many
+//! processes can fill at once.
+//!
+//! The writer stores one chunk per frame, so processes that write different frames never touch
+//! the same file. After a frame's chunk is stored, a completion marker
+//! (`OUT.zarr/.emccd-done/FRAME`) is created: a chunk without its marker may be half-written by a
+//! process that was killed, and is written again by whoever resumes. The store itself is built
+//! in a temporary folder and renamed into place, so among processes that start together exactly
+//! one creates it and the others open it and check that it was made for the same work
+//! ([`ZarrStackWriter::create_or_open`]). Frames never written read as NaN (the fill value),
+//! and the reader refuses them by name.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use serde_json::{json, Map, Value};
+use zarrs::array::{data_type, Array};
+use zarrs::filesystem::FilesystemStore;
+use zarrs::group::{Group, GroupBuilder};
+
+use crate::{Error, Format, FrameReader, Limits, Metadata, PixelType, Result, StackInfo};
+
+/// The folder of completion markers inside a store written by [`ZarrStackWriter`].
+pub const DONE_DIR: &str = ".emccd-done";
+/// The array (multiscale level 0) inside a store written by [`ZarrStackWriter`].
+const LEVEL0: &str = "0";
+/// The group attribute that holds what made the store.
+pub const PROVENANCE_KEY: &str = "emccd";
+
+/// Whether `path` is a Zarr store or array folder (v3 `zarr.json`, v2 `.zgroup`/`.zarray`).
+pub fn is_zarr(path: &Path) -> bool {
+    path.is_dir()
+        && ["zarr.json", ".zgroup", ".zarray"]
+            .iter()
+            .any(|m| path.join(m).is_file())
+}
+
+fn zerr(e: impl std::fmt::Display) -> Error {
+    Error::Format(format!("Zarr: {e}"))
+}
+
+fn store(path: &Path) -> Result<Arc<FilesystemStore>> {
+    Ok(Arc::new(FilesystemStore::new(path).map_err(zerr)?))
+}
+
+/// The path of the array holding the frames: the store itself if it is an array, else the first
+/// dataset of the group's first OME multiscale (NGFF 0.5 keeps it under `ome`, 0.4 at the top).
+fn frames_array_path(store: &Arc<FilesystemStore>, dir: &Path) -> Result<String> {
+    if let Ok(g) = Group::open(store.clone(), "/") {
+        let attrs = g.attributes();
+        let ms = attrs
+            .get("ome")
+            .and_then(|o| o.get("multiscales"))
+            .or_else(|| attrs.get("multiscales"));
+        let path = ms
+            .and_then(|m| m.get(0))
+            .and_then(|m| m.get("datasets"))
+            .and_then(|d| d.get(0))
+            .and_then(|d| d.get("path"))
+            .and_then(Value::as_str);
+        return match path {
+            Some(p) => Ok(format!("/{}", p.trim_matches('/'))),
+            None => Err(Error::Format(format!(
+                "a Zarr group without OME-NGFF multiscales; give the folder of the array inside it ({})",
+                dir.display()
+            ))),
+        };
+    }
+    Ok("/".into())
+}
+
+/// A Zarr array of frames read one frame at a time: the last two dimensions are (y, x), the
+/// leading ones (t, c, z in OME's order) are counted through as frames.
+pub struct ZarrReader {
+    array: Array<FilesystemStore>,
+    info: StackInfo,
+    lead: Vec<u64>,
+    next: usize,
+    done: Option<PathBuf>,
+}
+
+/// The sample type of a Zarr data type this reader converts to `f32`.
+fn pixel_type(dt: &zarrs::array::DataType) -> Option<PixelType> {
+    [
+        (data_type::uint8(), PixelType::U8),
+        (data_type::uint16(), PixelType::U16),
+        (data_type::int16(), PixelType::I16),
+        (data_type::uint32(), PixelType::U32),
+        (data_type::int32(), PixelType::I32),
+        (data_type::float32(), PixelType::F32),
+        (data_type::float64(), PixelType::F64),
+    ]
+    .into_iter()
+    .find(|(d, _)| d == dt)
+    .map(|(_, p)| p)
+}
+
+impl ZarrReader {
+    /// Opens the store or array at `dir` with the given limits.
+    pub fn open(dir: &Path, limits: Limits) -> Result<ZarrReader> {
+        let store = store(dir)?;
+        let path = frames_array_path(&store, dir)?;
+        let array = Array::open(store, &path).map_err(zerr)?;
+        let shape = array.shape().to_vec();
+        if shape.len() < 2 {
+            return Err(Error::Unsupported(format!(
+                "a {}-dimensional Zarr array; frames need (y, x) as the last two",
+                shape.len()
+            )));
+        }
+        let pt = pixel_type(array.data_type()).ok_or_else(|| {
+            Error::Unsupported(format!(
+                "Zarr data type {}; frames are u8, u16, i16, u32, i32, f32 or f64",
+                array.data_type()
+            ))
+        })?;
+        let (h, w) = (shape[shape.len() - 2], shape[shape.len() - 1]);
+        let lead = shape[..shape.len() - 2].to_vec();
+        let frames = lead.iter().try_fold(1u64, |a, &d| a.checked_mul(d));
+        let frames = frames.ok_or_else(|| Error::Format("Zarr shape overflows".into()))?;
+        limits.stack(frames)?;
+        let too_big = |v: u64| usize::try_from(v).map_err(|_| zerr("shape beyond this machine"));
+        let (width, height) = (too_big(w)?, too_big(h)?);
+        limits.frame(width, height, pt.bytes())?;
+        let done = dir.join(DONE_DIR);
+        let mut metadata = Metadata::default();
+        let done = done.is_dir().then_some(done);
+        if let Some(d) = &done {
+            let n = count_markers(d);
+            if n < frames as usize {
+                metadata.warnings.push(format!(
+                    "{n} of {frames} frames written; the run that makes this store has not finished (resume it, or run its missing shards)"
+                ));
+            }
+        }
+        Ok(ZarrReader {
+            info: StackInfo {
+                width,
+                height,
+                frames: frames as usize,
+                pixel_type: pt,
+                format: Format::Zarr,
+                metadata,
+            },
+            array,
+            lead,
+            next: 0,
+            done,
+        })
+    }
+
+    /// The frame's index along each leading dimension (row-major, last fastest).
+    fn lead_index(&self, mut k: u64) -> Vec<u64> {
+        let mut idx = vec![0; self.lead.len()];
+        for (i, &d) in self.lead.iter().enumerate().rev() {
+            idx[i] = k % d;
+            k /= d;
+        }
+        idx
+    }
+}
+
+impl FrameReader for ZarrReader {
+    fn info(&self) -> &StackInfo {
+        &self.info
+    }
+
+    fn read_frame(&mut self, out: &mut [f32]) -> Result<bool> {
+        if self.next >= self.info.frames {
+            return Ok(false);
+        }
+        crate::check_buffer(out, &self.info)?;
+        let k = self.next;
+        if let Some(d) = &self.done {
+            if !d.join(k.to_string()).is_file() {
+                return Err(Error::Format(format!(
+                    "frame {} is not written yet: the run that makes this store has not finished it",
+                    k + 1
+                )));
+            }
+        }
+        let mut subset: Vec<std::ops::Range<u64>> =
+            self.lead_index(k as u64).iter().map(|&i| i..i + 1).collect();
+        subset.push(0..self.info.height as u64);
+        subset.push(0..self.info.width as u64);
+        let e = |e: zarrs::array::ArrayError| zerr(format!("frame {}: {e}", k + 1));
+        macro_rules! conv {
+            ($t:ty) => {{
+                let v: Vec<$t> = self.array.retrieve_array_subset(&subset).map_err(e)?;
+                out.iter_mut().zip(v).for_each(|(o, x)| *o = x as f32);
+            }};
+        }
+        match self.info.pixel_type {
+            PixelType::U8 => conv!(u8),
+            PixelType::U16 => conv!(u16),
+            PixelType::I16 => conv!(i16),
+            PixelType::U32 => conv!(u32),
+            PixelType::I32 => conv!(i32),
+            PixelType::F32 => conv!(f32),
+            PixelType::F64 => conv!(f64),
+        }
+        self.next += 1;
+        Ok(true)
+    }
+
+    fn skip_frame(&mut self) -> Result<bool> {
+        if self.next >= self.info.frames {
+            return Ok(false);
+        }
+        self.next += 1;
+        Ok(true)
+    }
+}
+
+fn count_markers(dir: &Path) -> usize {
+    std::fs::read_dir(dir)
+        .map(|r| r.filter(|e| e.is_ok()).count())
+        .unwrap_or(0)
+}
+
+/// What a store written by several processes holds, and what every one of them must agree on.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ZarrStackSpec {
+    /// Frame width in pixels.
+    pub width: usize,
+    /// Frame height in pixels.
+    pub height: usize,
+    /// Frames in the whole stack.
+    pub frames: usize,
+    /// The multiscale's name (shown by OME viewers).
+    pub name: String,
+    /// What made the store (inputs, method, model, profile): stored as the group attribute
+    /// [`PROVENANCE_KEY`] and compared by every process that opens the store to write.
+    pub provenance: Value,
+}
+
+/// A float32 `[t, y, x]` OME-Zarr stack, one chunk per frame, that several processes fill at
+/// once (see the module documentation).
+pub struct ZarrStackWriter {
+    array: Array<FilesystemStore>,
+    path: PathBuf,
+    done: PathBuf,
+    spec: ZarrStackSpec,
+}
+
+impl ZarrStackWriter {
+    /// Creates the store at `path`, or opens it if another process (or an earlier run) created
+    /// it; then it must have been made for the same `spec`, else an error says what differs.
+    /// Returns the writer and whether this call created the store.
+    pub fn create_or_open(path: &Path, spec: &ZarrStackSpec) -> Result<(ZarrStackWriter, bool)> {
+        let at = |e: Error| e.with_path(path);
+        if spec.width == 0 || spec.height == 0 || spec.frames == 0 {
+            return Err(at(Error::Usage(format!(
+                "cannot write {} frames of {}×{}",
+                spec.frames, spec.width, spec.height
+            ))));
+        }
+        let mut created = false;
+        if !path.exists() {
+            let tmp = temp_dir_beside(path).map_err(|e| at(e.into()))?;
+            Self::build(tmp.path(), spec).map_err(at)?;
+            // rename(2) of a folder onto a name that meanwhile holds another process's store
+            // fails: that process won, and this one opens what it made.
+            match std::fs::rename(tmp.path(), path) {
+                Ok(()) => {
+                    let _ = tmp.keep();
+                    created = true;
+                }
+                Err(e) if path.exists() => drop(e),
+                Err(e) => return Err(at(e.into())),
+            }
+        }
+        let w = Self::open_matching(path, spec).map_err(at)?;
+        Ok((w, created))
+    }
+
+    fn build(dir: &Path, spec: &ZarrStackSpec) -> Result<()> {
+        let store = store(dir)?;
+        let mut attrs = Map::new();
+        attrs.insert(
+            "ome".into(),
+            json!({
+                "version": "0.5",
+                "multiscales": [{
+                    "name": spec.name,
+                    "axes": [
+                        {"name": "t", "type": "time"},
+                        {"name": "y", "type": "space"},
+                        {"name": "x", "type": "space"}
+                    ],
+                    "datasets": [{
+                        "path": LEVEL0,
+                        "coordinateTransformations": [{"type": "scale", "scale": [1.0, 1.0, 1.0]}]
+                    }]
+                }]
+            }),
+        );
+        attrs.insert(PROVENANCE_KEY.into(), spec.provenance.clone());
+        GroupBuilder::new()
+            .attributes(attrs)
+            .build(store.clone(), "/")
+            .map_err(zerr)?
+            .store_metadata()
+            .map_err(zerr)?;
+        let (f, h, w) = (spec.frames as u64, spec.height as u64, spec.width as u64);
+        zarrs::array::ArrayBuilder::new(vec![f, h, w], vec![1, h, w], data_type::float32(), f32::NAN)
+            .dimension_names(["t", "y", "x"].into())
+            .build(store, &format!("/{LEVEL0}"))
+            .map_err(zerr)?
+            .store_metadata()
+            .map_err(zerr)?;
+        std::fs::create_dir(dir.join(DONE_DIR))?;
+        crate::readable_dir(dir)?;
+        Ok(())
+    }
+
+    fn open_matching(path: &Path, spec: &ZarrStackSpec) -> Result<ZarrStackWriter> {
+        let other = |what: String| {
+            Error::Usage(format!(
+                "a store made for other work is already here ({what}); choose another -o, or remove it to start over"
+            ))
+        };
+        if !is_zarr(path) {
+            return Err(Error::Usage(
+                "exists and is not a Zarr store; choose another -o".into(),
+            ));
+        }
+        let store = store(path)?;
+        let group = Group::open(store.clone(), "/").map_err(|e| other(format!("{e}")))?;
+        let theirs = group.attributes().get(PROVENANCE_KEY).cloned();
+        if theirs.as_ref() != Some(&spec.provenance) {
+            return Err(other(match theirs {
+                None => "not written by emccd".into(),
+                Some(t) => first_difference(&t, &spec.provenance, ""),
+            }));
+        }
+        let array = Array::open(store, &format!("/{LEVEL0}")).map_err(zerr)?;
+        let want = [spec.frames as u64, spec.height as u64, spec.width as u64];
+        if array.shape() != want || *array.data_type() != data_type::float32() {
+            return Err(other(format!(
+                "array {:?} of {}, this run writes {:?} of float32",
+                array.shape(),
+                array.data_type(),
+                want
+            )));
+        }
+        let done = path.join(DONE_DIR);
+        if !done.is_dir() {
+            return Err(other(format!("no {DONE_DIR} folder")));
+        }
+        Ok(ZarrStackWriter {
+            array,
+            path: path.to_path_buf(),
+            done,
+            spec: spec.clone(),
+        })
+    }
+
+    /// Whether frame `k` (from 0) is complete: its chunk stored and its marker written.
+    pub fn is_done(&self, k: usize) -> bool {
+        self.done.join(k.to_string()).is_file()
+    }
+
+    /// How many frames of the whole store are complete.
+    pub fn done_count(&self) -> usize {
+        (0..self.spec.frames).filter(|&k| self.is_done(k)).count()
+    }
+
+    /// Stores frame `k` (from 0), then its completion marker.
+    pub fn write_frame(&self, k: usize, frame: &[f32]) -> Result<()> {
+        let at = |e: Error| e.with_path(&self.path);
+        if k >= self.spec.frames || frame.len() != self.spec.width * self.spec.height {
+            return Err(at(Error::Usage(format!(
+                "frame {} of {} pixels does not fit a store of {} frames of {}×{}",
+                k + 1,
+                frame.len(),
+                self.spec.frames,
+                self.spec.width,
+                self.spec.height
+            ))));
+        }
+        if let Some(i) = frame.iter().position(|v| !v.is_finite()) {
+            return Err(at(Error::Usage(format!(
+                "frame {} has a non-finite value ({}) at pixel ({}, {}); nothing was written",
+                k + 1,
+                frame[i],
+                i % self.spec.width,
+                i / self.spec.width
+            ))));
+        }
+        self.array
+            .store_chunk(&[k as u64, 0, 0], frame)
+            .map_err(|e| at(zerr(format!("frame {}: {e}", k + 1))))?;
+        std::fs::File::create(self.done.join(k.to_string()))
+            .map_err(|e| at(Error::from(e)))?;
+        Ok(())
+    }
+}
+
+/// Where two provenance records first differ, as `key: A here, B asked`.
+fn first_difference(theirs: &Value, ours: &Value, at: &str) -> String {
+    match (theirs, ours) {
+        (Value::Object(a), Value::Object(b)) => {
+            for (k, vb) in b {
+                let key = if at.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{at}.{k}")
+                };
+                match a.get(k) {
+                    Some(va) if va == vb => {}
+                    Some(va) => return first_difference(va, vb, &key),
+                    None => return format!("{key}: missing in the store, {vb} asked"),
+                }
+            }
+            match a.keys().find(|k| !b.contains_key(*k)) {
+                Some(k) => format!("{at}{}{k}: in the store, not asked", if at.is_empty() { "" } else { "." }),
+                None => format!("{at}: differs"),
+            }
+        }
+        (Value::Array(a), Value::Array(b)) if a.len() == b.len() => {
+            for (i, (va, vb)) in a.iter().zip(b).enumerate() {
+                if va != vb {
+                    return first_difference(va, vb, &format!("{at}[{i}]"));
+                }
+            }
+            format!("{at}: differs")
+        }
+        _ => format!("{at}: {theirs} in the store, {ours} asked"),
+    }
+}
+
+/// A temporary folder beside `path` (same filesystem, so the rename into place is atomic).
+fn temp_dir_beside(path: &Path) -> std::io::Result<tempfile::TempDir> {
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    tempfile::Builder::new()
+        .prefix(&format!(".{name}."))
+        .suffix(".tmp")
+        .tempdir_in(dir)
+        .map_err(|e| {
+            std::io::Error::new(
+                e.kind(),
+                format!("cannot make a folder in {}: {}", dir.display(), e.kind()),
+            )
+        })
+}
