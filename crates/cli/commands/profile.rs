@@ -1,4 +1,4 @@
-//! `emccd profile show|init-default`.
+//! `emccd profile show|init-default|crop`.
 
 use std::path::PathBuf;
 
@@ -30,6 +30,32 @@ pub enum Cmd {
         #[arg(long, default_value_t = 1.0)]
         read_noise_scale: f64,
     },
+    /// Write the profile of a region of interest of a profile's sensor: for recordings made
+    /// with sub-array readout (a cropped sensor), whose frames are that region of the full
+    /// calibration.
+    Crop {
+        /// The full-sensor profile (a directory, or `default`).
+        profile: String,
+        /// Output directory.
+        out: PathBuf,
+        /// The region: X,Y,WxH — its top-left pixel (from 0) and its size, e.g. `128,128,256x256`.
+        #[arg(long, value_parser = parse_roi)]
+        roi: (usize, usize, usize, usize),
+    },
+}
+
+fn parse_roi(s: &str) -> std::result::Result<(usize, usize, usize, usize), String> {
+    let bad = || format!("'{s}': a region is X,Y,WxH (top-left pixel from 0, then the size), e.g. 128,128,256x256");
+    let mut it = s.splitn(3, ',');
+    let (x, y, size) = (it.next(), it.next(), it.next());
+    let (Some(x), Some(y), Some(size)) = (x, y, size) else {
+        return Err(bad());
+    };
+    let (w, h) = crate::common::parse_size(size.trim()).map_err(|_| bad())?;
+    match (x.trim().parse(), y.trim().parse()) {
+        (Ok(x), Ok(y)) => Ok((x, y, w, h)),
+        _ => Err(bad()),
+    }
 }
 
 pub fn run(c: Cmd) -> Result<()> {
@@ -104,6 +130,26 @@ pub fn run(c: Cmd) -> Result<()> {
             if !s.provenance.notes.is_empty() {
                 println!("  notes             {}", s.provenance.notes);
             }
+            Ok(())
+        }
+        Cmd::Crop {
+            profile,
+            out,
+            roi: (x, y, w, h),
+        } => {
+            let p = load_profile(&profile)?;
+            if out.exists() && crate::common::file_id(&out) == crate::common::file_id(std::path::Path::new(&profile)) {
+                anyhow::bail!("{}: the output is the input profile; choose another folder", out.display());
+            }
+            let c = p.crop(x, y, w, h).with_context(|| format!("profile {profile}"))?;
+            c.save(&out)
+                .with_context(|| format!("writing {}", out.display()))?;
+            eprintln!(
+                "wrote the {w}×{h} region at ({x}, {y}) of {} to {} (fingerprint {:016x})",
+                p.camera,
+                out.display(),
+                c.fingerprint()
+            );
             Ok(())
         }
         Cmd::InitDefault {
