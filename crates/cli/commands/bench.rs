@@ -45,6 +45,185 @@ pub struct Args {
     /// With --bm3d: use only the first N images.
     #[arg(long)]
     pub images: Option<usize>,
+    /// Instead, measure archive-scale streaming: write a BigTIFF raw stack of this many GB
+    /// (512×512 u16 frames of the virtual camera) and one of --net-frames frames, run `emccd info`,
+    /// `emccd denoise --method none` (to OME-Zarr) and a network denoise of the first
+    /// --net-frames frames on each as child processes, and print wall time, throughput and peak
+    /// memory (VmHWM) of each; the files are removed afterwards.
+    #[arg(long, value_name = "GB")]
+    pub archive: Option<f64>,
+    /// With --archive: where the stacks and outputs are written (needs about 3× the size free).
+    #[arg(long, default_value = ".")]
+    pub archive_dir: std::path::PathBuf,
+    /// With --archive: frames of the network denoise (the first ones of each stack).
+    #[arg(long, default_value_t = 1000)]
+    pub net_frames: usize,
+}
+
+/// Wall time and peak resident memory of a child process.
+struct ChildRun {
+    seconds: f64,
+    peak_rss_mib: f64,
+}
+
+/// Runs this binary with `args` (stdout and stderr discarded unless it fails) and measures it.
+fn measure_child(args: &[&std::ffi::OsStr]) -> Result<ChildRun> {
+    use std::process::Stdio;
+    let t = Instant::now();
+    let child = Command::new(std::env::current_exe()?)
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()?;
+    let pid = child.id() as libc::pid_t;
+    let mut status = 0;
+    // SAFETY: an all-zero rusage is valid, and wait4 fills it for our own child.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    let r = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
+    let seconds = t.elapsed().as_secs_f64();
+    if r != pid {
+        anyhow::bail!("waiting for {:?}: {}", args, std::io::Error::last_os_error());
+    }
+    if !(libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0) {
+        let mut err = String::new();
+        if let Some(mut e) = child.stderr {
+            use std::io::Read;
+            let _ = e.read_to_string(&mut err);
+        }
+        anyhow::bail!("emccd {:?} failed: {err}", args);
+    }
+    Ok(ChildRun {
+        seconds,
+        // ru_maxrss is in KiB on Linux.
+        peak_rss_mib: usage.ru_maxrss as f64 / 1024.0,
+    })
+}
+
+fn archive_bench(gb: f64, dir: &std::path::Path, net_frames: usize) -> Result<()> {
+    use std::ffi::OsStr;
+    let (w, h) = (512usize, 512usize);
+    let frame_bytes = (w * h * 2) as f64;
+    let long = ((gb * 1e9) / frame_bytes).ceil().max(1.0) as usize;
+    let tmp = tempfile::Builder::new()
+        .prefix(".emccd-archive-bench.")
+        .tempdir_in(dir)?;
+    let d = tmp.path();
+    // Sixteen distinct raw frames of the virtual camera at about 4 e⁻ per pixel, repeated: the
+    // readers and writers see a real camera's values without 8 GB of simulation.
+    let cam = VirtualCamera::default_camera();
+    let n = cam.profile.len();
+    let e = cam.exposure(0.01);
+    let photons: Vec<f32> = (0..n)
+        .map(|i| (4.0 + 3.0 * ((i % w) as f32 / 23.0).sin()) / cam.physics.qe as f32)
+        .collect();
+    let raws: Vec<Vec<f32>> = (0..16)
+        .map(|s| {
+            let mut out = vec![0f32; n];
+            e.frame(&photons, s, &mut out);
+            out
+        })
+        .collect();
+    let write = |name: &str, frames: usize| -> Result<(std::path::PathBuf, f64)> {
+        let path = d.join(name);
+        let t = Instant::now();
+        let mut wr = emccd_io::StackWriter::create_as(
+            &path,
+            emccd_io::Format::BigTiff,
+            w,
+            h,
+            emccd_io::SampleFormat::U16,
+            Some(frames),
+        )?;
+        wr.set_metadata(&emccd_io::Metadata {
+            exposure_s: Some(0.01),
+            ..Default::default()
+        });
+        let pb = crate::common::progress(frames as u64, "writing");
+        for k in 0..frames {
+            wr.write_frame(&raws[k % raws.len()])?;
+            pb.inc(1);
+        }
+        wr.finish()?;
+        pb.finish_and_clear();
+        Ok((path, t.elapsed().as_secs_f64()))
+    };
+    // The short stack is as long as the network's share, so both stacks run the same work and
+    // differ only in length.
+    let short = net_frames.max(1);
+    let (short_path, _) = write("short.btf", short)?;
+    let (long_path, t_write) = write("long.btf", long)?;
+    let size = std::fs::metadata(&long_path)?.len() as f64;
+    println!(
+        "archive streaming: BigTIFF stacks of 512×512 u16 frames: {short} frames ({:.0} MB) and {long} frames ({:.2} GB, written in {t_write:.0} s, {:.0} MB/s)",
+        short as f64 * frame_bytes / 1e6,
+        size / 1e9,
+        size / 1e6 / t_write
+    );
+    println!(
+        "{:<34} {:>7} {:>9} {:>9} {:>9} {:>9}",
+        "command", "stack", "frames", "s", "frames/s", "peak MiB"
+    );
+    for (label, path, frames) in [("short", &short_path, short), ("long", &long_path, long)] {
+        let stack = path.as_os_str();
+        let out = d.join("out.zarr");
+        let net = d.join("net.zarr");
+        // Shard 0 of ⌊F / net_frames⌋ holds at least net_frames frames (all of a shorter stack).
+        let shards = (frames / net_frames.max(1)).max(1);
+        let first = frames / shards;
+        let shard = format!("0/{shards}");
+        let runs: [(&str, Vec<&OsStr>, usize); 3] = [
+            ("info", vec![OsStr::new("info"), stack], frames),
+            (
+                "denoise --method none → .zarr",
+                vec![
+                    OsStr::new("denoise"),
+                    stack,
+                    OsStr::new("--method"),
+                    OsStr::new("none"),
+                    OsStr::new("-o"),
+                    out.as_os_str(),
+                ],
+                frames,
+            ),
+            (
+                "denoise --method net (first frames)",
+                vec![
+                    OsStr::new("denoise"),
+                    stack,
+                    OsStr::new("--method"),
+                    OsStr::new("net"),
+                    OsStr::new("-o"),
+                    net.as_os_str(),
+                    OsStr::new("--shard"),
+                    OsStr::new(&shard),
+                ],
+                first,
+            ),
+        ];
+        for (what, args, n) in runs {
+            let r = measure_child(&args)?;
+            println!(
+                "{:<34} {:>7} {:>9} {:>9.1} {:>9.1} {:>9.1}",
+                what,
+                label,
+                n,
+                r.seconds,
+                n as f64 / r.seconds,
+                r.peak_rss_mib
+            );
+            for o in [&out, &net] {
+                if o.exists() {
+                    std::fs::remove_dir_all(o)?;
+                }
+            }
+        }
+    }
+    println!(
+        "({} CPU threads; the stacks and outputs were in {} and are removed)",
+        rayon::current_num_threads(),
+        dir.display()
+    );
+    Ok(())
 }
 
 fn bm3d_bench(sigmas: &[f64], limit: Option<usize>) -> Result<()> {
@@ -358,6 +537,12 @@ pub fn run(a: Args) -> Result<()> {
     }
     if !a.bm3d.is_empty() {
         return bm3d_bench(&a.bm3d, a.images);
+    }
+    if let Some(gb) = a.archive {
+        if !(gb > 0.0 && gb.is_finite()) {
+            anyhow::bail!("--archive {gb}: the stack's size is a positive number of GB");
+        }
+        return archive_bench(gb, &a.archive_dir, a.net_frames);
     }
     let frames = a.frames.max(1);
     let cam = VirtualCamera::default_camera();

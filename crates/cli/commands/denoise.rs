@@ -76,9 +76,10 @@ impl Method {
 /// the most accurate method this build ships at low light (measured on the low-light suite, see
 /// the README: +0.33 dB over plain BM3D + GAT, +0.76 dB at 0.5 e⁻ per pixel); `--method bm3d`
 /// is one plain BM3D + GAT pass, `--method hybrid` refines BM3D's estimate with the bundled
-/// hybrid network (still in training), `--method net` runs a network alone (fastest). TIFF/BigTIFF, SIF and FITS in (stacks are
-/// streamed frame by frame); float32 TIFF or FITS out (by the output's extension), in DN above
-/// bias by default. The exposure comes from the file header (SIF, emccd TIFF) or --exposure-s.
+/// hybrid network (still in training), `--method net` runs a network alone (fastest), `--method
+/// none` only preprocesses. TIFF/BigTIFF, SIF, FITS and Zarr in (stacks are streamed frame by
+/// frame); float32 TIFF, FITS or OME-Zarr out (by the output's extension), in DN above bias by
+/// default. The exposure comes from the file header (SIF, emccd TIFF) or --exposure-s.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Raw frames or stacks.

@@ -7,7 +7,7 @@ use anyhow::Result;
 /// Print what an image file holds.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// A TIFF/BigTIFF stack, Andor SIF, FITS or PNG file.
+    /// A TIFF/BigTIFF stack, Andor SIF, FITS or PNG file, or a Zarr store (folder).
     pub file: PathBuf,
     /// Print JSON (keys: width, height, frames, pixel_type, format, exposure_s, em_gain,
     /// temperature_c, camera_model, binning, warnings; null where unknown).
