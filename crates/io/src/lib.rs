@@ -8,8 +8,9 @@
 //!
 //! Formats: TIFF and BigTIFF (the `tiff` crate), Andor SIF (hand-written: no maintained crate
 //! reads it), FITS (headers parsed with `fitsrs`; frames streamed by offset; writing is
-//! hand-written, since `fitsrs` only reads), and PNG for clean scenes (the `png` crate; colour is
-//! converted to luminance).
+//! hand-written, since `fitsrs` only reads), PNG for clean scenes (the `png` crate; colour is
+//! converted to luminance), and Zarr stores — a folder, opened by [`open`] too — through the
+//! `zarrs` crate, with an OME-Zarr writer that many processes fill at once ([`zarr`]).
 
 #![deny(missing_docs)]
 
