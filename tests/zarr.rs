@@ -32,7 +32,11 @@ fn setup(d: &Path) {
                 .collect();
             let mut noisy = vec![0f32; clean.len()];
             emccd_camera::NoiseModel::synthesize(&model, &clean, N, &mut noisy, 100 + k);
-            let raw: Vec<f32> = noisy.iter().zip(&fpn).map(|(n, f)| (n + f).round()).collect();
+            let raw: Vec<f32> = noisy
+                .iter()
+                .zip(&fpn)
+                .map(|(n, f)| (n + f).round())
+                .collect();
             w.write_frame(&raw).unwrap();
             k += 1;
         }
@@ -42,7 +46,11 @@ fn setup(d: &Path) {
 
 /// `emccd denoise a.tif b.tif` with `--method bm3d` unless `extra` names another.
 fn denoise(d: &Path, out: &str, extra: &[&str]) -> std::process::Output {
-    let method = if extra.contains(&"--method") { &[][..] } else { &["--method", "bm3d"][..] };
+    let method = if extra.contains(&"--method") {
+        &[][..]
+    } else {
+        &["--method", "bm3d"][..]
+    };
     let mut args = vec![
         "denoise",
         "a.tif",
@@ -78,8 +86,16 @@ fn shards_equal_one_process_and_a_killed_shard_resumes() {
     assert_eq!(one.len(), 12);
     ok(&emccd(
         &[
-            "denoise", "a.tif", "--profile", "prof", "--exposure-s", "0.01", "--method", "bm3d",
-            "-o", "a.tif.out.tif",
+            "denoise",
+            "a.tif",
+            "--profile",
+            "prof",
+            "--exposure-s",
+            "0.01",
+            "--method",
+            "bm3d",
+            "-o",
+            "a.tif.out.tif",
         ],
         d,
     ));
@@ -98,7 +114,9 @@ fn shards_equal_one_process_and_a_killed_shard_resumes() {
     }
     let info = ok(&emccd(&["info", "sh.zarr"], d));
     assert!(info.contains("8 of 12 frames written"), "{info}");
-    let e = emccd_io::read_all(d.join("sh.zarr")).unwrap_err().to_string();
+    let e = emccd_io::read_all(d.join("sh.zarr"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("frame 5 is not written yet"), "{e}");
     ok(&denoise(d, "sh.zarr", &["--shard", "1/3"]));
     assert_eq!(bits(&frames(&d.join("sh.zarr"))), bits(&one));
@@ -111,22 +129,35 @@ fn shards_equal_one_process_and_a_killed_shard_resumes() {
     let o = denoise(d, "sh.zarr", &["--shard", "1/3"]);
     ok(&o);
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("frames 5–8 (1 denoised now, 3 were already done)"), "{err}");
+    assert!(
+        err.contains("frames 5–8 (1 denoised now, 3 were already done)"),
+        "{err}"
+    );
     assert_eq!(bits(&frames(&d.join("sh.zarr"))), bits(&one));
 
     // A store made for other work is refused, saying what differs, and left as it was.
     let before = std::fs::read(d.join("sh.zarr/zarr.json")).unwrap();
     let o = emccd(
         &[
-            "denoise", "a.tif", "b.tif", "--profile", "prof", "--exposure-s", "0.01", "--method",
-            "none", "-o", "sh.zarr",
+            "denoise",
+            "a.tif",
+            "b.tif",
+            "--profile",
+            "prof",
+            "--exposure-s",
+            "0.01",
+            "--method",
+            "none",
+            "-o",
+            "sh.zarr",
         ],
         d,
     );
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
-        err.contains("a store made for other work") && err.contains("method: \"bm3d\" in the store, \"none\" asked"),
+        err.contains("a store made for other work")
+            && err.contains("method: \"bm3d\" in the store, \"none\" asked"),
         "{err}"
     );
     assert_eq!(std::fs::read(d.join("sh.zarr/zarr.json")).unwrap(), before);
@@ -168,7 +199,14 @@ fn shard_and_zarr_mistakes_are_refused() {
     fails(
         emccd(
             &[
-                "denoise", "in.zarr", "--profile", "prof", "--exposure-s", "0.01", "-o", "in.zarr",
+                "denoise",
+                "in.zarr",
+                "--profile",
+                "prof",
+                "--exposure-s",
+                "0.01",
+                "-o",
+                "in.zarr",
             ],
             d,
         ),
@@ -206,7 +244,10 @@ fn concurrent_writers_share_one_store() {
     });
     assert_eq!(created.iter().filter(|&&c| c).count(), 1, "{created:?}");
     let f = frames(&path);
-    assert!(f.iter().enumerate().all(|(k, v)| v.iter().all(|&x| x == k as f32)));
+    assert!(f
+        .iter()
+        .enumerate()
+        .all(|(k, v)| v.iter().all(|&x| x == k as f32)));
     // No temporary folder is left beside the store.
     let names: Vec<String> = std::fs::read_dir(dir.path())
         .unwrap()
@@ -247,8 +288,17 @@ fn python_readers_and_writers_agree() {
     ok(&denoise(d, "out.zarr", &["--method", "none"]));
     ok(&emccd(
         &[
-            "denoise", "a.tif", "b.tif", "--profile", "prof", "--exposure-s", "0.01", "--method",
-            "none", "-o", "tifs",
+            "denoise",
+            "a.tif",
+            "b.tif",
+            "--profile",
+            "prof",
+            "--exposure-s",
+            "0.01",
+            "--method",
+            "none",
+            "-o",
+            "tifs",
         ],
         d,
     ));
@@ -291,10 +341,18 @@ print("ok")
     let (info, f) = emccd_io::read_all(d.join("v2.zarr")).unwrap();
     assert_eq!((info.width, info.height, info.frames), (30, 20, 3));
     assert_eq!(info.pixel_type, emccd_io::PixelType::U16);
-    assert!(f.concat().iter().enumerate().all(|(i, &v)| v == (i % 1000) as f32));
+    assert!(f
+        .concat()
+        .iter()
+        .enumerate()
+        .all(|(i, &v)| v == (i % 1000) as f32));
     let (info, f) = emccd_io::read_all(d.join("v3.zarr")).unwrap();
     assert_eq!((info.width, info.height, info.frames), (30, 20, 6));
-    assert!(f.concat().iter().enumerate().all(|(i, &v)| v == i as f32 * 0.5));
+    assert!(f
+        .concat()
+        .iter()
+        .enumerate()
+        .all(|(i, &v)| v == i as f32 * 0.5));
     let json = ok(&emccd(&["info", "--json", "v2.zarr"], d));
     assert!(json.contains("\"format\": \"zarr\""), "{json}");
 }

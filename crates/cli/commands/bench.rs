@@ -82,7 +82,11 @@ fn measure_child(args: &[&std::ffi::OsStr]) -> Result<ChildRun> {
     let r = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
     let seconds = t.elapsed().as_secs_f64();
     if r != pid {
-        anyhow::bail!("waiting for {:?}: {}", args, std::io::Error::last_os_error());
+        anyhow::bail!(
+            "waiting for {:?}: {}",
+            args,
+            std::io::Error::last_os_error()
+        );
     }
     if !(libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0) {
         let mut err = String::new();
@@ -160,7 +164,7 @@ fn archive_bench(gb: f64, dir: &std::path::Path, net_frames: usize) -> Result<()
         size / 1e6 / t_write
     );
     println!(
-        "{:<34} {:>7} {:>9} {:>9} {:>9} {:>9}",
+        "{:<36} {:>7} {:>9} {:>9} {:>9} {:>9}",
         "command", "stack", "frames", "s", "frames/s", "peak MiB"
     );
     for (label, path, frames) in [("short", &short_path, short), ("long", &long_path, long)] {
@@ -203,7 +207,7 @@ fn archive_bench(gb: f64, dir: &std::path::Path, net_frames: usize) -> Result<()
         for (what, args, n) in runs {
             let r = measure_child(&args)?;
             println!(
-                "{:<34} {:>7} {:>9} {:>9.1} {:>9.1} {:>9.1}",
+                "{:<36} {:>7} {:>9} {:>9.1} {:>9.1} {:>9.1}",
                 what,
                 label,
                 n,

@@ -265,7 +265,9 @@ impl Shard {
 }
 
 fn parse_shard(s: &str) -> std::result::Result<Shard, String> {
-    let bad = || format!("'{s}': a shard is I/N with 0 ≤ I < N (I counts from 0, as SLURM_ARRAY_TASK_ID does with --array=0-N-1)");
+    let bad = || {
+        format!("'{s}': a shard is I/N with 0 ≤ I < N (I counts from 0, as SLURM_ARRAY_TASK_ID does with --array=0-N-1)")
+    };
     let (i, n) = s.split_once('/').ok_or_else(bad)?;
     match (i.trim().parse::<usize>(), n.trim().parse::<usize>()) {
         (Ok(index), Ok(count)) if index < count => Ok(Shard { index, count }),
@@ -368,7 +370,10 @@ pub fn run(a: Args) -> Result<()> {
     }
     for (input, out) in a.inputs.iter().zip(outs) {
         let Input {
-            mut reader, info, exposure, ..
+            mut reader,
+            info,
+            exposure,
+            ..
         } = open_input(&a, &profile, input)?;
         let mut w = emccd_io::StackWriter::create(
             &out,
@@ -424,7 +429,10 @@ fn open_input(a: &Args, profile: &emccd_profile::CameraProfile, input: &Path) ->
     }
     if !profile.exposure_in_range(exposure) {
         let (lo, hi) = profile.exposure_range();
-        let what = format!("{}: exposure {exposure} s (from {source}) is outside the calibrated range {lo}–{hi} s", input.display());
+        let what = format!(
+            "{}: exposure {exposure} s (from {source}) is outside the calibrated range {lo}–{hi} s",
+            input.display()
+        );
         if (exposure < lo / 2.0 || exposure > hi * 2.0) && !a.extrapolate {
             bail!("{what}; its fixed pattern would be extrapolated far from the calibration. Calibrate with bias frames at this exposure, or pass --extrapolate to use the model's extrapolation");
         }
@@ -445,7 +453,11 @@ fn run_zarr(a: &Args, fd: &FrameDenoiser, profile_fp: &str) -> Result<()> {
     let id = crate::common::file_id;
     let out_id = id(&a.out);
     if let Some(i) = a.inputs.iter().find(|i| id(i) == out_id) {
-        bail!("{}: the output is the input {}; choose another -o, the input is never overwritten", a.out.display(), i.display());
+        bail!(
+            "{}: the output is the input {}; choose another -o, the input is never overwritten",
+            a.out.display(),
+            i.display()
+        );
     }
     let mut inputs = Vec::with_capacity(a.inputs.len());
     for path in &a.inputs {

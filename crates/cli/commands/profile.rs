@@ -45,7 +45,9 @@ pub enum Cmd {
 }
 
 fn parse_roi(s: &str) -> std::result::Result<(usize, usize, usize, usize), String> {
-    let bad = || format!("'{s}': a region is X,Y,WxH (top-left pixel from 0, then the size), e.g. 128,128,256x256");
+    let bad = || {
+        format!("'{s}': a region is X,Y,WxH (top-left pixel from 0, then the size), e.g. 128,128,256x256")
+    };
     let mut it = s.splitn(3, ',');
     let (x, y, size) = (it.next(), it.next(), it.next());
     let (Some(x), Some(y), Some(size)) = (x, y, size) else {
@@ -138,10 +140,18 @@ pub fn run(c: Cmd) -> Result<()> {
             roi: (x, y, w, h),
         } => {
             let p = load_profile(&profile)?;
-            if out.exists() && crate::common::file_id(&out) == crate::common::file_id(std::path::Path::new(&profile)) {
-                anyhow::bail!("{}: the output is the input profile; choose another folder", out.display());
+            if out.exists()
+                && crate::common::file_id(&out)
+                    == crate::common::file_id(std::path::Path::new(&profile))
+            {
+                anyhow::bail!(
+                    "{}: the output is the input profile; choose another folder",
+                    out.display()
+                );
             }
-            let c = p.crop(x, y, w, h).with_context(|| format!("profile {profile}"))?;
+            let c = p
+                .crop(x, y, w, h)
+                .with_context(|| format!("profile {profile}"))?;
             c.save(&out)
                 .with_context(|| format!("writing {}", out.display()))?;
             eprintln!(

@@ -234,12 +234,12 @@ impl<R: Read + Seek + Send> FrameReader for FitsReader<R> {
     }
 
     fn skip_frame(&mut self) -> Result<bool> {
-        if self.next >= self.info.frames {
-            return Ok(false);
-        }
-        self.file.seek_relative(self.bytes.len() as i64)?;
-        self.next += 1;
-        Ok(true)
+        crate::skip_stored(
+            &mut self.file,
+            &mut self.next,
+            self.info.frames,
+            self.bytes.len(),
+        )
     }
 
     fn read_frame(&mut self, out: &mut [f32]) -> Result<bool> {

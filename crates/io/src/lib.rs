@@ -150,6 +150,22 @@ pub trait FrameReader: Send {
     }
 }
 
+/// [`FrameReader::skip_frame`] for frames stored one after another, `len` bytes each: seeks past
+/// frame `*next` of `frames`.
+pub(crate) fn skip_stored<R: Read + Seek>(
+    file: &mut std::io::BufReader<R>,
+    next: &mut usize,
+    frames: usize,
+    len: usize,
+) -> Result<bool> {
+    if *next >= frames {
+        return Ok(false);
+    }
+    file.seek_relative(len as i64)?;
+    *next += 1;
+    Ok(true)
+}
+
 /// The error every reader gives for a caller's buffer of the wrong size.
 pub(crate) fn check_buffer(out: &[f32], info: &StackInfo) -> Result<()> {
     if out.len() != info.frame_len() {
@@ -587,6 +603,17 @@ impl StackWriter {
 
 /// A temporary file in the target's directory, so the final rename stays on one filesystem.
 pub fn temp_beside(path: &Path) -> std::io::Result<tempfile::NamedTempFile> {
+    let tmp = make_beside(path, |b, dir| b.tempfile_in(dir))?;
+    live_temps().insert(tmp.path().to_path_buf());
+    Ok(tmp)
+}
+
+/// Makes a temporary file or folder (`make`) named `.NAME.…tmp` in `path`'s folder; its error
+/// names that folder, not tempfile's random path.
+pub(crate) fn make_beside<T>(
+    path: &Path,
+    make: impl FnOnce(&tempfile::Builder, &Path) -> std::io::Result<T>,
+) -> std::io::Result<T> {
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
@@ -595,24 +622,20 @@ pub fn temp_beside(path: &Path) -> std::io::Result<tempfile::NamedTempFile> {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    // tempfile's error names its random temporary path; say which folder could not take it.
-    let tmp = tempfile::Builder::new()
-        .prefix(&format!(".{name}."))
-        .suffix(".tmp")
-        .tempfile_in(dir)
-        .map_err(|e| {
-            std::io::Error::new(
-                e.kind(),
-                match e.kind() {
-                    std::io::ErrorKind::NotFound => {
-                        format!("the folder {} does not exist", dir.display())
-                    }
-                    k => format!("cannot write in the folder {}: {k}", dir.display()),
-                },
-            )
-        })?;
-    live_temps().insert(tmp.path().to_path_buf());
-    Ok(tmp)
+    let prefix = format!(".{name}.");
+    let mut b = tempfile::Builder::new();
+    b.prefix(&prefix).suffix(".tmp");
+    make(&b, dir).map_err(|e| {
+        std::io::Error::new(
+            e.kind(),
+            match e.kind() {
+                std::io::ErrorKind::NotFound => {
+                    format!("the folder {} does not exist", dir.display())
+                }
+                k => format!("cannot write in the folder {}: {k}", dir.display()),
+            },
+        )
+    })
 }
 
 /// Flushes a finished temporary file to disk and renames it to `target`. Works by the temporary

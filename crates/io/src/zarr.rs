@@ -180,8 +180,11 @@ impl FrameReader for ZarrReader {
                 )));
             }
         }
-        let mut subset: Vec<std::ops::Range<u64>> =
-            self.lead_index(k as u64).iter().map(|&i| i..i + 1).collect();
+        let mut subset: Vec<std::ops::Range<u64>> = self
+            .lead_index(k as u64)
+            .iter()
+            .map(|&i| i..i + 1)
+            .collect();
         subset.push(0..self.info.height as u64);
         subset.push(0..self.info.width as u64);
         let e = |e: zarrs::array::ArrayError| zerr(format!("frame {}: {e}", k + 1));
@@ -304,12 +307,17 @@ impl ZarrStackWriter {
             .store_metadata()
             .map_err(zerr)?;
         let (f, h, w) = (spec.frames as u64, spec.height as u64, spec.width as u64);
-        zarrs::array::ArrayBuilder::new(vec![f, h, w], vec![1, h, w], data_type::float32(), f32::NAN)
-            .dimension_names(["t", "y", "x"].into())
-            .build(store, &format!("/{LEVEL0}"))
-            .map_err(zerr)?
-            .store_metadata()
-            .map_err(zerr)?;
+        zarrs::array::ArrayBuilder::new(
+            vec![f, h, w],
+            vec![1, h, w],
+            data_type::float32(),
+            f32::NAN,
+        )
+        .dimension_names(["t", "y", "x"].into())
+        .build(store, &format!("/{LEVEL0}"))
+        .map_err(zerr)?
+        .store_metadata()
+        .map_err(zerr)?;
         std::fs::create_dir(dir.join(DONE_DIR))?;
         crate::readable_dir(dir)?;
         Ok(())
@@ -392,8 +400,7 @@ impl ZarrStackWriter {
         self.array
             .store_chunk(&[k as u64, 0, 0], frame)
             .map_err(|e| at(zerr(format!("frame {}: {e}", k + 1))))?;
-        std::fs::File::create(self.done.join(k.to_string()))
-            .map_err(|e| at(Error::from(e)))?;
+        std::fs::File::create(self.done.join(k.to_string())).map_err(|e| at(Error::from(e)))?;
         Ok(())
     }
 }
@@ -415,7 +422,10 @@ fn first_difference(theirs: &Value, ours: &Value, at: &str) -> String {
                 }
             }
             match a.keys().find(|k| !b.contains_key(*k)) {
-                Some(k) => format!("{at}{}{k}: in the store, not asked", if at.is_empty() { "" } else { "." }),
+                Some(k) => format!(
+                    "{at}{}{k}: in the store, not asked",
+                    if at.is_empty() { "" } else { "." }
+                ),
                 None => format!("{at}: differs"),
             }
         }
@@ -433,22 +443,5 @@ fn first_difference(theirs: &Value, ours: &Value, at: &str) -> String {
 
 /// A temporary folder beside `path` (same filesystem, so the rename into place is atomic).
 fn temp_dir_beside(path: &Path) -> std::io::Result<tempfile::TempDir> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    tempfile::Builder::new()
-        .prefix(&format!(".{name}."))
-        .suffix(".tmp")
-        .tempdir_in(dir)
-        .map_err(|e| {
-            std::io::Error::new(
-                e.kind(),
-                format!("cannot make a folder in {}: {}", dir.display(), e.kind()),
-            )
-        })
+    crate::make_beside(path, |b, dir| b.tempdir_in(dir))
 }
