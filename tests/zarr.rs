@@ -163,6 +163,34 @@ fn shards_equal_one_process_and_a_killed_shard_resumes() {
     assert_eq!(std::fs::read(d.join("sh.zarr/zarr.json")).unwrap(), before);
     assert_eq!(bits(&frames(&d.join("sh.zarr"))), bits(&one));
 
+    // The same input spelled another way is the same input; an input rewritten between two
+    // shards is another one, and its store is refused rather than mixed.
+    ok(&emccd(
+        &[
+            "denoise",
+            "./a.tif",
+            "b.tif",
+            "--profile",
+            "./prof",
+            "--exposure-s",
+            "0.01",
+            "--method",
+            "bm3d",
+            "-o",
+            "sh.zarr",
+            "--shard",
+            "0/3",
+        ],
+        d,
+    ));
+    let bytes = std::fs::read(d.join("a.tif")).unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(20));
+    std::fs::write(d.join("a.tif"), &bytes).unwrap();
+    let o = denoise(d, "sh.zarr", &["--shard", "1/3"]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("inputs[0].modified_ns"), "{err}");
+
     // --method none: the preprocessed photo-signal, the same as what BM3D starts from.
     ok(&denoise(d, "pre.zarr", &["--method", "none"]));
     let pre = frames(&d.join("pre.zarr"));
@@ -228,6 +256,7 @@ fn concurrent_writers_share_one_store() {
         frames: 8,
         name: "race".into(),
         provenance: serde_json::json!({"run": 1}),
+        notes: serde_json::json!(null),
     };
     let created: Vec<bool> = std::thread::scope(|s| {
         let hs: Vec<_> = (0..8)

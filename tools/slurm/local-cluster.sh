@@ -6,8 +6,8 @@
 #      `emccd profile crop`, so that the test takes about a minute), in two files (one stack);
 #   2. one process denoises it into ref.zarr (the reference);
 #   3. a 4-task job array (tools/slurm/denoise-array.sbatch) denoises it into array.zarr;
-#   4. task 1 is cancelled mid-way (some frames of its share complete, not all) and submitted
-#      again on its own; it resumes;
+#   4. task 1 is cancelled once 2 or more of its 16 frames are complete (not all) and submitted
+#      again on its own; it must denoise exactly the frames it had left;
 #   5. the merged store must equal the reference bit for bit (every chunk), and read back the
 #      same through zarr-python where it is installed.
 #
@@ -137,8 +137,11 @@ total=$(done_in 0 64)
 log "array finished: $total of 64 frames complete; resubmitting task 1"
 job2=$(submit --array=1 "$SBATCH_SCRIPT" 4 array.zarr "${inputs[@]}" "${opts[@]}")
 wait_job "$job2"
-grep -h "shard 1/4" "emccd-denoise-${job2}_1.log" | sed 's/^/    /'
-grep -q "16 of 16\|already done" "emccd-denoise-${job2}_1.log" || true
+line=$(grep -h "shard 1/4" "emccd-denoise-${job2}_1.log" || true)
+echo "    $line"
+# The resubmitted task must have denoised exactly the frames the cancelled one left.
+echo "$line" | grep -q "frames 17–32 ($((16 - left)) denoised now, $left were already done); 64 of 64 frames" \
+    || { echo "error: the resubmitted task did not resume where the cancelled one stopped ($left of 16 done)" >&2; exit 1; }
 
 # --- the merged store equals the single-process one ---
 [ "$(done_in 0 64)" = 64 ] || { echo "error: $(done_in 0 64) of 64 frames complete after the resubmission" >&2; exit 1; }

@@ -49,7 +49,7 @@ pub struct Args {
     /// (512×512 u16 frames of the virtual camera) and one of --net-frames frames, run `emccd info`,
     /// `emccd denoise --method none` (to OME-Zarr) and a network denoise of the first
     /// --net-frames frames on each as child processes, and print wall time, throughput and peak
-    /// memory (VmHWM) of each; the files are removed afterwards.
+    /// memory (`wait4`'s `ru_maxrss`) of each; the files are removed afterwards.
     #[arg(long, value_name = "GB")]
     pub archive: Option<f64>,
     /// With --archive: where the stacks and outputs are written (needs about 3× the size free).
@@ -70,10 +70,12 @@ struct ChildRun {
 fn measure_child(args: &[&std::ffi::OsStr]) -> Result<ChildRun> {
     use std::process::Stdio;
     let t = Instant::now();
+    // Its messages go to a file, not a pipe: a pipe nobody reads while we wait could fill.
+    let mut log = tempfile::tempfile()?;
     let child = Command::new(std::env::current_exe()?)
         .args(args)
         .stdout(Stdio::null())
-        .stderr(Stdio::piped())
+        .stderr(Stdio::from(log.try_clone()?))
         .spawn()?;
     let pid = child.id() as libc::pid_t;
     let mut status = 0;
@@ -89,11 +91,10 @@ fn measure_child(args: &[&std::ffi::OsStr]) -> Result<ChildRun> {
         );
     }
     if !(libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0) {
+        use std::io::{Read, Seek};
         let mut err = String::new();
-        if let Some(mut e) = child.stderr {
-            use std::io::Read;
-            let _ = e.read_to_string(&mut err);
-        }
+        log.rewind()?;
+        let _ = log.read_to_string(&mut err);
         anyhow::bail!("emccd {:?} failed: {err}", args);
     }
     Ok(ChildRun {

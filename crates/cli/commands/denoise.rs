@@ -124,11 +124,12 @@ pub struct Args {
     #[arg(long, default_value_t = 1, value_parser = parse_ensemble)]
     pub ensemble: u8,
     /// Denoise only share I of N of the frames (I from 0; contiguous, one chunk per frame) into
-    /// a `.zarr` output that N processes write at once — a SLURM job array passes
-    /// `--shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT`. Frames already complete in the
-    /// store are skipped, so a killed shard is resumed by submitting it again. Several inputs
+    /// a `.zarr` output that N processes write at once — a SLURM array task passes
+    /// `--shard $SLURM_ARRAY_TASK_ID/N` with N written out (a task resubmitted alone has an
+    /// array of one; tools/slurm/denoise-array.sbatch does this). Frames already complete in
+    /// the store are skipped, so a killed shard is resumed by running it again. Several inputs
     /// are one stack in the order given.
-    #[arg(long, value_parser = parse_shard)]
+    #[arg(long, value_parser = parse_shard, allow_hyphen_values = true)]
     pub shard: Option<Shard>,
 }
 
@@ -384,7 +385,10 @@ pub fn run(a: Args) -> Result<()> {
         )?;
         let pb = progress(info.frames as u64, "frames");
         let mut buf = vec![0f32; info.frame_len()];
-        while reader.read_frame(&mut buf)? {
+        while reader
+            .read_frame(&mut buf)
+            .with_context(|| input.display().to_string())?
+        {
             w.write_frame(&fd.run(input, w.frames_written(), &buf, exposure)?)?;
             pb.inc(1);
         }
@@ -468,21 +472,56 @@ fn run_zarr(a: &Args, fd: &FrameDenoiser, profile_fp: &str) -> Result<()> {
     if frames == 0 {
         bail!("the inputs hold no frame");
     }
-    let provenance = serde_json::json!({
-        "software": format!("emccd {}", env!("CARGO_PKG_VERSION")),
-        "inputs": inputs.iter().map(|i| serde_json::json!({
-            "file": i.path.display().to_string(),
+    // What the frames are a function of, compared by every process that writes the store: each
+    // input by its real path, size and modification time (a file rewritten between two shards
+    // is another input), the model by its bytes, not by how it was named.
+    let mut ids = Vec::with_capacity(inputs.len());
+    for i in &inputs {
+        let m = std::fs::metadata(&i.path).with_context(|| i.path.display().to_string())?;
+        let modified = m
+            .modified()
+            .ok()
+            .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+            .map(|d| d.as_nanos().to_string());
+        let real = std::fs::canonicalize(&i.path).unwrap_or_else(|_| i.path.clone());
+        ids.push(serde_json::json!({
+            "file": real.display().to_string(),
+            "bytes": m.len(),
+            "modified_ns": modified,
             "frames": i.info.frames,
             "exposure_s": i.exposure,
-        })).collect::<Vec<_>>(),
-        "profile": {"name": a.profile, "fingerprint": profile_fp},
+        }));
+    }
+    let model_name = fd.model.map(|_| {
+        a.model.clone().unwrap_or_else(|| {
+            if fd.method == Method::Hybrid {
+                "hybrid"
+            } else {
+                "default"
+            }
+            .to_string()
+        })
+    });
+    let model_hash = match &model_name {
+        Some(n) => Some(format!("{:016x}", file_hash(&model_path(n)?)?)),
+        None => None,
+    };
+    let net = fd.model.is_some();
+    let provenance = serde_json::json!({
+        "software": format!("emccd {}", env!("CARGO_PKG_VERSION")),
+        "inputs": ids,
+        "profile_fingerprint": profile_fp,
         "method": fd.method.name(),
-        "model": a.model.as_ref().map(|m| m.to_string()).or_else(|| fd.model.map(|_| "default".into())),
-        "model_fingerprint": fd.model.map(|m| m.meta.profile_fingerprint.clone()),
+        "model_hash": model_hash,
         "units": match a.units { Units::Dn => "DN above bias", Units::Electrons => "photoelectrons" },
-        "tile": a.tile,
-        "overlap": a.overlap,
-        "ensemble": a.ensemble,
+        "tile": net.then_some(a.tile),
+        "overlap": net.then_some(a.overlap),
+        "ensemble": net.then_some(a.ensemble),
+    });
+    let notes = serde_json::json!({
+        "inputs": a.inputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        "profile": a.profile,
+        "model": model_name,
     });
     let name = a
         .out
@@ -495,49 +534,82 @@ fn run_zarr(a: &Args, fd: &FrameDenoiser, profile_fp: &str) -> Result<()> {
         frames,
         name,
         provenance,
+        notes,
     };
     let (store, _created) = emccd_io::zarr::ZarrStackWriter::create_or_open(&a.out, &spec)?;
     let shard = a.shard.unwrap_or(Shard { index: 0, count: 1 });
     let range = shard.range(frames);
-    let todo = range.clone().filter(|&k| !store.is_done(k)).count();
-    let pb = progress(todo as u64, "frames");
+    let share = if shard.count > 1 {
+        format!("shard {}/{}: ", shard.index, shard.count)
+    } else {
+        String::new()
+    };
+    if range.is_empty() {
+        eprintln!(
+            "{share}no frames: {} shards for {frames} frames leave this one empty",
+            shard.count
+        );
+        return Ok(());
+    }
+    let pb = progress(
+        range.clone().filter(|&k| !store.is_done(k)).count() as u64,
+        "frames",
+    );
     let mut buf = vec![0f32; fd.profile.width * fd.profile.height];
-    let mut k = 0usize;
+    let (mut k, mut written, mut skipped) = (0usize, 0usize, 0usize);
     for mut i in inputs {
         if k >= range.end {
             break;
         }
-        for _ in 0..i.info.frames {
+        let at = |j: usize| format!("{}: frame {}", i.path.display(), j + 1);
+        // j counts this input's frames (what messages name), k the stack's.
+        for j in 0..i.info.frames {
+            if k >= range.end {
+                break;
+            }
             if range.contains(&k) && !store.is_done(k) {
-                if !i.reader.read_frame(&mut buf)? {
-                    bail!("{}: ended before its frame {}", i.path.display(), k + 1);
+                if !i.reader.read_frame(&mut buf).with_context(|| at(j))? {
+                    bail!("{}: the file ended before it", at(j));
                 }
-                store.write_frame(k, &fd.run(&i.path, k, &buf, i.exposure)?)?;
+                store.write_frame(k, &fd.run(&i.path, j, &buf, i.exposure)?)?;
+                written += 1;
                 pb.inc(1);
-            } else if k < range.end {
-                i.reader.skip_frame()?;
+            } else {
+                skipped += range.contains(&k) as usize;
+                i.reader.skip_frame().with_context(|| at(j))?;
             }
             k += 1;
         }
     }
     pb.finish_and_clear();
     let done = store.done_count();
-    let share = if shard.count > 1 {
-        format!("shard {}/{}: ", shard.index, shard.count)
-    } else {
-        String::new()
-    };
     eprintln!(
-        "{share}{} → {}: frames {}–{} ({} denoised now, {} were already done); {done} of {frames} frames of the store complete{}",
+        "{share}{} → {}: frames {}–{} ({written} denoised now, {skipped} were already done); {done} of {frames} frames of the store complete{}",
         if a.inputs.len() == 1 { a.inputs[0].display().to_string() } else { format!("{} inputs", a.inputs.len()) },
         a.out.display(),
         range.start + 1,
         range.end,
-        todo,
-        range.len() - todo,
         if done < frames { " (the other shards write the rest)" } else { "" }
     );
     Ok(())
+}
+
+/// FNV-1a over a file's bytes: which model file a store was made with, whatever its name.
+fn file_hash(path: &Path) -> Result<u64> {
+    use std::io::Read;
+    let mut f = std::fs::File::open(path).with_context(|| path.display().to_string())?;
+    let mut h: u64 = 0xcbf29ce484222325;
+    let mut buf = vec![0u8; 1 << 16];
+    loop {
+        let n = f.read(&mut buf)?;
+        if n == 0 {
+            return Ok(h);
+        }
+        for &b in &buf[..n] {
+            h ^= b as u64;
+            h = h.wrapping_mul(0x100000001b3);
+        }
+    }
 }
 
 /// Where each input's result goes: `out` itself for one input, `OUT/STEM_denoised.tif` for

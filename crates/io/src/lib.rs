@@ -491,8 +491,11 @@ impl StackWriter {
     ) -> Result<StackWriter> {
         let path = path.as_ref();
         let fmt = Format::from_extension(path).ok_or_else(|| {
-            Error::Usage("output must end in .tif, .tiff, .btf (BigTIFF) or .fits".into())
-                .with_path(path)
+            Error::Usage(
+                "output must end in .tif, .tiff, .btf (BigTIFF) or .fits (or .zarr, for `denoise`)"
+                    .into(),
+            )
+            .with_path(path)
         })?;
         Self::create_as(path, fmt, width, height, sample, frames_hint)
     }

@@ -23,10 +23,14 @@ use crate::{Error, Format, FrameReader, Limits, Metadata, PixelType, Result, Sta
 
 /// The folder of completion markers inside a store written by [`ZarrStackWriter`].
 pub const DONE_DIR: &str = ".emccd-done";
+/// Where each [`ZarrStackWriter`] stages its chunks before renaming them into place.
+const STAGING_DIR: &str = ".emccd-staging";
 /// The array (multiscale level 0) inside a store written by [`ZarrStackWriter`].
 const LEVEL0: &str = "0";
-/// The group attribute that holds what made the store.
+/// The group attribute that holds what the store's frames were made from.
 pub const PROVENANCE_KEY: &str = "emccd";
+/// The group attribute with the creating run's notes (see [`ZarrStackSpec::notes`]).
+pub const NOTES_KEY: &str = "emccd_notes";
 
 /// Whether `path` is a Zarr store or array folder (v3 `zarr.json`, v2 `.zgroup`/`.zarray`).
 pub fn is_zarr(path: &Path) -> bool {
@@ -123,9 +127,14 @@ impl ZarrReader {
         let too_big = |v: u64| usize::try_from(v).map_err(|_| zerr("shape beyond this machine"));
         let (width, height) = (too_big(w)?, too_big(h)?);
         limits.frame(width, height, pt.bytes())?;
-        let done = dir.join(DONE_DIR);
+        // The markers live beside the array in a store we wrote; the array's own folder may
+        // have been given.
+        let done = [Some(dir), dir.parent()]
+            .into_iter()
+            .flatten()
+            .map(|d| d.join(DONE_DIR))
+            .find(|d| d.is_dir());
         let mut metadata = Metadata::default();
-        let done = done.is_dir().then_some(done);
         if let Some(d) = &done {
             let n = count_markers(d);
             if n < frames as usize {
@@ -233,15 +242,22 @@ pub struct ZarrStackSpec {
     pub frames: usize,
     /// The multiscale's name (shown by OME viewers).
     pub name: String,
-    /// What made the store (inputs, method, model, profile): stored as the group attribute
-    /// [`PROVENANCE_KEY`] and compared by every process that opens the store to write.
+    /// What the frames are a function of (inputs' identities, method, model, profile): stored
+    /// as the group attribute [`PROVENANCE_KEY`] and compared by every process that opens the
+    /// store to write.
     pub provenance: Value,
+    /// What a person wants to read but that does not change the frames (names as typed):
+    /// stored as [`NOTES_KEY`] by the process that creates the store, never compared.
+    pub notes: Value,
 }
 
 /// A float32 `[t, y, x]` OME-Zarr stack, one chunk per frame, that several processes fill at
 /// once (see the module documentation).
 pub struct ZarrStackWriter {
-    array: Array<FilesystemStore>,
+    /// The same array in a private staging folder inside the store: zarrs encodes each chunk
+    /// there, and it is renamed into place (see [`ZarrStackWriter::write_frame`]).
+    staging: Array<FilesystemStore>,
+    staging_dir: tempfile::TempDir,
     path: PathBuf,
     done: PathBuf,
     spec: ZarrStackSpec,
@@ -300,6 +316,7 @@ impl ZarrStackWriter {
             }),
         );
         attrs.insert(PROVENANCE_KEY.into(), spec.provenance.clone());
+        attrs.insert(NOTES_KEY.into(), spec.notes.clone());
         GroupBuilder::new()
             .attributes(attrs)
             .build(store.clone(), "/")
@@ -334,8 +351,8 @@ impl ZarrStackWriter {
                 "exists and is not a Zarr store; choose another -o".into(),
             ));
         }
-        let store = store(path)?;
-        let group = Group::open(store.clone(), "/").map_err(|e| other(format!("{e}")))?;
+        let root = store(path)?;
+        let group = Group::open(root.clone(), "/").map_err(|e| other(format!("{e}")))?;
         let theirs = group.attributes().get(PROVENANCE_KEY).cloned();
         if theirs.as_ref() != Some(&spec.provenance) {
             return Err(other(match theirs {
@@ -343,7 +360,7 @@ impl ZarrStackWriter {
                 Some(t) => first_difference(&t, &spec.provenance, ""),
             }));
         }
-        let array = Array::open(store, &format!("/{LEVEL0}")).map_err(zerr)?;
+        let array = Array::open(root, &format!("/{LEVEL0}")).map_err(zerr)?;
         let want = [spec.frames as u64, spec.height as u64, spec.width as u64];
         if array.shape() != want || *array.data_type() != data_type::float32() {
             return Err(other(format!(
@@ -357,8 +374,21 @@ impl ZarrStackWriter {
         if !done.is_dir() {
             return Err(other(format!("no {DONE_DIR} folder")));
         }
+        // Each writer stages its chunks in a folder of its own inside the store (same
+        // filesystem), holding the same array metadata, so the staged chunk's key is the
+        // store's key for that frame.
+        let area = path.join(STAGING_DIR);
+        std::fs::create_dir_all(&area)?;
+        let staging_dir = tempfile::Builder::new().prefix("w").tempdir_in(&area)?;
+        let staging = Array::new_with_metadata(
+            store(staging_dir.path())?,
+            &format!("/{LEVEL0}"),
+            array.metadata().clone(),
+        )
+        .map_err(zerr)?;
         Ok(ZarrStackWriter {
-            array,
+            staging,
+            staging_dir,
             path: path.to_path_buf(),
             done,
             spec: spec.clone(),
@@ -397,11 +427,39 @@ impl ZarrStackWriter {
                 i / self.spec.width
             ))));
         }
-        self.array
-            .store_chunk(&[k as u64, 0, 0], frame)
+        // A chunk is never written in place: zarrs stores it in this writer's staging folder, it
+        // is flushed to disk and renamed over the store's chunk (atomic), and only then is its
+        // marker made. A reader, or another writer of the same frame, sees the old chunk or the
+        // new one whole, never a truncated one, and a marker always names a whole chunk.
+        let idx = [k as u64, 0, 0];
+        self.staging
+            .store_chunk(&idx, frame)
             .map_err(|e| at(zerr(format!("frame {}: {e}", k + 1))))?;
-        std::fs::File::create(self.done.join(k.to_string())).map_err(|e| at(Error::from(e)))?;
+        let key = self.staging.chunk_key(&idx);
+        let staged = self.staging_dir.path().join(key.as_str());
+        let target = self.path.join(key.as_str());
+        let io = |e: std::io::Error| at(Error::from(e));
+        std::fs::File::open(&staged)
+            .and_then(|f| f.sync_all())
+            .map_err(io)?;
+        let parent = target.parent().unwrap_or(&self.path);
+        std::fs::create_dir_all(parent).map_err(io)?;
+        std::fs::rename(&staged, &target).map_err(io)?;
+        sync_dir(parent);
+        let marker = self.done.join(k.to_string());
+        std::fs::File::create(&marker)
+            .and_then(|f| f.sync_all())
+            .map_err(io)?;
+        sync_dir(&self.done);
         Ok(())
+    }
+}
+
+/// Flushes a folder's entries (a rename or a new file in it) to disk; best effort, since not
+/// every filesystem allows it.
+fn sync_dir(dir: &Path) {
+    if let Ok(d) = std::fs::File::open(dir) {
+        let _ = d.sync_all();
     }
 }
 

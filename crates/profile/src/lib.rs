@@ -397,7 +397,8 @@ impl CameraProfile {
 
     /// The sub-array `x0..x0+w`, `y0..y0+h` (for simulating or calibrating a region of interest).
     pub fn crop(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<CameraProfile> {
-        if w == 0 || h == 0 || x0 + w > self.width || y0 + h > self.height {
+        let fits = |o: usize, n: usize, of: usize| o.checked_add(n).is_some_and(|e| e <= of);
+        if w == 0 || h == 0 || !fits(x0, w, self.width) || !fits(y0, h, self.height) {
             return Err(Error::Parameter(format!(
                 "crop {w}×{h} at ({x0},{y0}) does not fit the {}×{} sensor",
                 self.width, self.height
