@@ -3,9 +3,9 @@
 //! processes can fill at once.
 //!
 //! The writer stores one chunk per frame, so processes that write different frames never touch
-//! the same file. After a frame's chunk is stored, a completion marker
-//! (`OUT.zarr/.emccd-done/FRAME`) is created: a chunk without its marker may be half-written by a
-//! process that was killed, and is written again by whoever resumes. The store itself is built
+//! the same file. A chunk is encoded in the writer's own staging folder and renamed into place,
+//! then a completion marker (`OUT.zarr/.emccd-done/FRAME`) is created: a frame without its
+//! marker (its process was killed first) is written again by whoever resumes. The store itself is built
 //! in a temporary folder and renamed into place, so among processes that start together exactly
 //! one creates it and the others open it and check that it was made for the same work
 //! ([`ZarrStackWriter::create_or_open`]). Frames never written read as NaN (the fill value),
@@ -402,7 +402,7 @@ impl ZarrStackWriter {
 
     /// How many frames of the whole store are complete.
     pub fn done_count(&self) -> usize {
-        (0..self.spec.frames).filter(|&k| self.is_done(k)).count()
+        count_markers(&self.done)
     }
 
     /// Stores frame `k` (from 0), then its completion marker.
