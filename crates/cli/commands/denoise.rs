@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use emccd_nn::pipeline::Pipeline;
+use emccd_nn::registry::{FrameDenoiser, Method};
 use emccd_nn::tile::Tiling;
 use emccd_nn::Denoiser;
 
@@ -16,59 +16,6 @@ pub enum Units {
     Dn,
     /// Photo-electrons: DN / K with K = s/2 (the EM register's f² = 2).
     Electrons,
-}
-
-/// Denoising method.
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Method {
-    /// A classical estimate refined by a network (bundled model `hybrid`): the network sees the
-    /// frame, its noise level and the estimate its model file names (one BM3D + GAT pass, or
-    /// iterative BM3D), and corrects it; it starts from that estimate's quality and learns to
-    /// improve on it (still in training: the README gives its figures). The estimate's time
-    /// plus the network's.
-    Hybrid,
-    /// The network alone (bundled models `default`, `microscopy`): the fastest.
-    #[value(alias = "network")]
-    Net,
-    /// BM3D after the generalized Anscombe transform (gain = the profile's slope, Gaussian σ =
-    /// its read noise), with the exact unbiased inverse.
-    Bm3d,
-    /// BM3D with iterative variance stabilization (Azzari & Foi 2016): up to four BM3D passes,
-    /// each on the data mixed with the previous estimate and, below a few photoelectrons per
-    /// pixel, summed over 2×2–4×4 bins; the passes are chosen from the frame's light level.
-    /// Better than `bm3d` below about 8 e⁻ per pixel (4 counts), the same above; up to about
-    /// 2.3× its time.
-    Ivst,
-    /// No denoising: blooming and the fixed pattern removed and the units converted, as every
-    /// method does first (the preprocessed photo-signal, for one's own analysis).
-    None,
-}
-
-impl Method {
-    /// The classical estimate this method runs without a network, if it is one.
-    pub fn classical(self) -> Option<emccd_nn::Base> {
-        match self {
-            Method::Bm3d => Some(emccd_nn::Base::Bm3d),
-            Method::Ivst => Some(emccd_nn::Base::Ivst),
-            Method::Hybrid | Method::Net | Method::None => None,
-        }
-    }
-
-    /// The name `--method` takes.
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Hybrid => "hybrid",
-            Method::Net => "net",
-            Method::Bm3d => "bm3d",
-            Method::Ivst => "ivst",
-            Method::None => "none",
-        }
-    }
-
-    /// Whether the method runs a network (and so takes a model).
-    pub fn uses_model(self) -> bool {
-        matches!(self, Method::Hybrid | Method::Net)
-    }
 }
 
 /// Denoise raw EMCCD frames: remove blooming and the fixed pattern with the camera profile (paper
@@ -147,92 +94,19 @@ fn parse_ensemble(s: &str) -> std::result::Result<u8, String> {
     }
 }
 
-/// Models that ship in `models/`, by the name `--model` accepts: `default` (natural images, the
-/// default profile) and `microscopy` (the default fine-tuned on fluorescence microscopy).
-pub const BUNDLED: [(&str, &str); 3] = [
-    ("hybrid", "hybrid-unet.safetensors"),
-    ("default", "default-unet.safetensors"),
-    ("microscopy", "microscopy-unet.safetensors"),
-];
-
-/// The method `denoise` runs with neither --method nor --model: the most accurate one shipped on
-/// the low-light suite (README, "Low light"): `ivst` is above plain BM3D at 0.5–4 e⁻ and equal
-/// at 16, and above the bundled hybrid network. It becomes `Hybrid` once a hybrid network beats
-/// it at every light level there.
-pub const DEFAULT_METHOD: Method = Method::Ivst;
-
 /// The method and model `denoise` runs for its `--method` and `--model` arguments (see
 /// [`Args`]); an error where a model does not fit the method.
 pub fn resolve(method: Option<Method>, model: Option<&str>) -> Result<(Method, Option<Denoiser>)> {
-    let hybrid = |m: &Denoiser| m.meta.inputs == emccd_nn::Inputs::Hybrid;
-    match (method, model) {
-        (None, None) if !DEFAULT_METHOD.uses_model() => Ok((DEFAULT_METHOD, None)),
-        (Some(c), Some(m)) if !c.uses_model() => {
-            bail!("--model {m}: --method {} runs no network", c.name())
-        }
-        (Some(c), None) if !c.uses_model() => Ok((c, None)),
-        (None, Some(name)) => {
-            let m = load_model(name)?;
-            Ok((
-                if hybrid(&m) {
-                    Method::Hybrid
-                } else {
-                    Method::Net
-                },
-                Some(m),
-            ))
-        }
-        (method, name) => {
-            let method = method.unwrap_or(DEFAULT_METHOD);
-            let name = name.unwrap_or(if method == Method::Hybrid {
-                "hybrid"
-            } else {
-                "default"
-            });
-            let m = load_model(name)?;
-            if hybrid(&m) != (method == Method::Hybrid) {
-                bail!(
-                    "--model {name}: a {} model, not one for --method {}",
-                    m.meta.inputs.name(),
-                    if method == Method::Hybrid {
-                        "hybrid (train one with `emccd train --inputs hybrid`)"
-                    } else {
-                        "net"
-                    }
-                );
-            }
-            Ok((method, Some(m)))
-        }
-    }
-}
-
-/// The file of a model argument: a bundled model's by name, else the argument as a path;
-/// an error if it does not exist.
-pub fn model_path(arg: &str) -> Result<PathBuf> {
-    let bundled = BUNDLED.iter().find(|b| b.0 == arg);
-    let path = match bundled {
-        Some(b) => Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("models")
-            .join(b.1),
-        None => PathBuf::from(arg),
-    };
-    if !path.is_file() {
-        bail!(
-            "{}: model not found{}",
-            path.display(),
-            if bundled.is_some() {
-                " (bundled models ship in models/; train one with `emccd train`)"
-            } else {
-                ""
-            }
-        );
-    }
-    Ok(path)
+    Ok(emccd_nn::registry::resolve(
+        method,
+        model,
+        emccd_nn::registry::load,
+    )?)
 }
 
 /// Loads a model file, or a bundled model by name.
 pub fn load_model(arg: &str) -> Result<Denoiser> {
-    Ok(Denoiser::load(&model_path(arg)?, &emccd_nn::device())?)
+    Ok(emccd_nn::registry::load(arg)?)
 }
 
 /// Splits a model argument of `evaluate`/`bench` into the model and its self-ensemble size:
@@ -284,61 +158,15 @@ struct Input {
     exposure: f64,
 }
 
-/// What turns one raw frame into the output: the method, model and profile, fixed for a run.
-struct FrameDenoiser<'a> {
-    profile: &'a emccd_profile::CameraProfile,
-    method: Method,
-    model: Option<&'a Denoiser>,
-    tiling: Tiling,
-    ensemble: usize,
-    to_units: f32,
-}
-
-impl FrameDenoiser<'_> {
-    fn run(&self, input: &Path, k: usize, raw: &[f32], exposure: f64) -> Result<Vec<f32>> {
-        let width = self.profile.width;
-        if let Some(i) = raw.iter().position(|v| !v.is_finite()) {
-            bail!(
-                "{}: frame {} has a non-finite value at pixel ({}, {})",
-                input.display(),
-                k + 1,
-                i % width,
-                i / width
-            );
-        }
-        let mut d = match (self.model, self.method) {
-            (Some(m), _) => Pipeline {
-                model: m,
-                profile: self.profile,
-                tiling: self.tiling,
-                ensemble: self.ensemble,
-                device: emccd_nn::device(),
-            }
-            .denoise_raw(raw, exposure)?,
-            (None, Method::None) => emccd_nn::pipeline::preprocess(self.profile, raw, exposure)?,
-            (None, m) => classical_frame(
-                self.profile,
-                raw,
-                exposure,
-                m.classical().unwrap_or_default(),
-            )?,
-        };
-        if self.to_units != 1.0 {
-            d.iter_mut().for_each(|v| *v *= self.to_units);
-        }
-        Ok(d)
-    }
-}
-
 pub fn run(a: Args) -> Result<()> {
     let profile = load_profile(&a.profile)?;
     let (method, model) = resolve(a.method, a.model.as_deref())?;
     let fp = format!("{:016x}", profile.fingerprint());
-    if let Some(model) = model.as_ref().filter(|m| m.meta.profile_fingerprint != fp) {
-        eprintln!(
-            "warning: the model was trained for profile {} and is applied through profile {fp}; the network input is camera-independent, but fine-tuning on this camera (`emccd train --init`) may gain a little",
-            model.meta.profile_fingerprint
-        );
+    if let Some(w) = model
+        .as_ref()
+        .and_then(|m| emccd_nn::registry::profile_mismatch(m, &fp))
+    {
+        eprintln!("warning: {w}");
     }
     profile
         .require_complete()
@@ -389,7 +217,8 @@ pub fn run(a: Args) -> Result<()> {
             .read_frame(&mut buf)
             .with_context(|| input.display().to_string())?
         {
-            w.write_frame(&fd.run(input, w.frames_written(), &buf, exposure)?)?;
+            let k = w.frames_written();
+            w.write_frame(&denoise_frame(&fd, input, k, &buf, exposure)?)?;
             pb.inc(1);
         }
         w.finish()?;
@@ -503,7 +332,10 @@ fn run_zarr(a: &Args, fd: &FrameDenoiser, profile_fp: &str) -> Result<()> {
         })
     });
     let model_hash = match &model_name {
-        Some(n) => Some(format!("{:016x}", file_hash(&model_path(n)?)?)),
+        Some(n) => Some(format!(
+            "{:016x}",
+            file_hash(&emccd_nn::registry::model_path(n)?)?
+        )),
         None => None,
     };
     let net = fd.model.is_some();
@@ -571,7 +403,7 @@ fn run_zarr(a: &Args, fd: &FrameDenoiser, profile_fp: &str) -> Result<()> {
                 if !i.reader.read_frame(&mut buf).with_context(|| at(j))? {
                     bail!("{}: the file ended before it", at(j));
                 }
-                store.write_frame(k, &fd.run(&i.path, j, &buf, i.exposure)?)?;
+                store.write_frame(k, &denoise_frame(fd, &i.path, j, &buf, i.exposure)?)?;
                 written += 1;
                 pb.inc(1);
             } else {
@@ -658,4 +490,16 @@ pub fn classical_frame(
     Ok(emccd_nn::pipeline::classical_estimate(
         p, &pre, exposure, base,
     )?)
+}
+
+/// One frame through the denoiser; errors name the input and the frame (from 1).
+fn denoise_frame(
+    fd: &FrameDenoiser,
+    input: &Path,
+    k: usize,
+    raw: &[f32],
+    exposure: f64,
+) -> Result<Vec<f32>> {
+    fd.run(raw, exposure)
+        .with_context(|| format!("{}: frame {}", input.display(), k + 1))
 }

@@ -173,7 +173,7 @@ pub fn run(a: Args) -> Result<()> {
     let init = a
         .init
         .as_deref()
-        .map(crate::commands::denoise::model_path)
+        .map(emccd_nn::registry::model_path)
         .transpose()?;
     if let Some(i) = &init {
         if crate::common::file_id(i) == crate::common::file_id(&a.out) {
@@ -214,7 +214,7 @@ pub fn run(a: Args) -> Result<()> {
         }
         (Some(b), _) => b.parse().map_err(|e: String| anyhow::anyhow!(e))?,
         (None, Some(init)) => {
-            emccd_nn::Denoiser::read_meta(&crate::commands::denoise::model_path(init)?)?.base
+            emccd_nn::Denoiser::read_meta(&emccd_nn::registry::model_path(init)?)?.base
         }
         (None, None) => emccd_nn::Base::Bm3d,
     };

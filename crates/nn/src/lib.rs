@@ -12,6 +12,7 @@ mod error;
 pub mod model;
 pub mod norm;
 pub mod pipeline;
+pub mod registry;
 pub mod tile;
 pub mod train;
 pub mod uformer;
@@ -19,6 +20,7 @@ pub mod unet;
 
 pub use error::{Error, Result};
 pub use model::{Base, Denoiser, Inputs, ModelMeta, Net};
+pub use registry::{FrameDenoiser, Method};
 pub use uformer::{Uformer, UformerConfig};
 pub use unet::{UNet, UNetConfig};
 

@@ -248,6 +248,12 @@ impl Denoiser {
     /// Loads a model onto `device`.
     pub fn load(path: &Path, device: &Device) -> Result<Denoiser> {
         let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        Denoiser::from_bytes(bytes, path, device)
+    }
+
+    /// Loads a model from the bytes of a model file (`path` names it in messages): for models
+    /// a program carries inside it, like the Python package's bundled ones.
+    pub fn from_bytes(bytes: Vec<u8>, path: &Path, device: &Device) -> Result<Denoiser> {
         let meta = meta_of(&bytes, path)?;
         let mut d = Denoiser::new(meta, device)?;
         let mut store = SafetensorsStore::from_bytes(Some(bytes)).skip_enum_variants(true);

@@ -1,0 +1,287 @@
+//! Models by name and what a denoising request runs: the bundled models, the denoising methods,
+//! the method and model a request resolves to, and [`FrameDenoiser`], which turns one raw frame
+//! into the output. The CLI, the Python package and library users share this, so `emccd
+//! denoise` and `emccd.denoise` give the same frames for the same request.
+
+use std::path::{Path, PathBuf};
+
+use emccd_profile::CameraProfile;
+
+use crate::pipeline::{classical_estimate, preprocess, Pipeline};
+use crate::tile::Tiling;
+use crate::{Base, Denoiser, Error, Inputs, Result};
+
+/// A model that ships with emccd, by the name `--model` (and `model=`) accepts.
+#[derive(Clone, Copy, Debug)]
+pub struct Bundled {
+    /// The name.
+    pub name: &'static str,
+    /// Its file in `models/`.
+    pub file: &'static str,
+}
+
+/// The bundled models: `hybrid` (BM3D-refining), `default` (natural images, the default
+/// profile) and `microscopy` (the default fine-tuned on fluorescence microscopy).
+pub const BUNDLED: [Bundled; 3] = [
+    Bundled {
+        name: "hybrid",
+        file: "hybrid-unet.safetensors",
+    },
+    Bundled {
+        name: "default",
+        file: "default-unet.safetensors",
+    },
+    Bundled {
+        name: "microscopy",
+        file: "microscopy-unet.safetensors",
+    },
+];
+
+/// The bundled model of this name, if it is one.
+pub fn bundled(name: &str) -> Option<&'static Bundled> {
+    BUNDLED.iter().find(|b| b.name == name)
+}
+
+/// Where the bundled model files are: `$EMCCD_MODELS` when set, else `models/` of the source
+/// tree this library was built from.
+pub fn models_dir() -> PathBuf {
+    match std::env::var_os("EMCCD_MODELS") {
+        Some(d) if !d.is_empty() => PathBuf::from(d),
+        _ => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models"),
+    }
+}
+
+/// The file of a model argument: a bundled model's by name, else the argument as a path; an
+/// error if it does not exist.
+pub fn model_path(arg: &str) -> Result<PathBuf> {
+    let b = bundled(arg);
+    let path = match b {
+        Some(b) => models_dir().join(b.file),
+        None => PathBuf::from(arg),
+    };
+    if !path.is_file() {
+        return Err(Error::Model(format!(
+            "{}: model not found{}",
+            path.display(),
+            if b.is_some() {
+                " (bundled models ship in models/; train one with `emccd train`)"
+            } else {
+                ""
+            }
+        )));
+    }
+    Ok(path)
+}
+
+/// Loads a model file, or a bundled model by name, onto [`crate::device`].
+pub fn load(arg: &str) -> Result<Denoiser> {
+    Denoiser::load(&model_path(arg)?, &crate::device())
+}
+
+/// A denoising method.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum Method {
+    /// A classical estimate refined by a network (bundled model `hybrid`): the network sees the
+    /// frame, its noise level and the estimate its model file names (one BM3D + GAT pass, or
+    /// iterative BM3D), and corrects it; it starts from that estimate's quality and learns to
+    /// improve on it (still in training: the README gives its figures). The estimate's time
+    /// plus the network's.
+    Hybrid,
+    /// The network alone (bundled models `default`, `microscopy`): the fastest.
+    #[cfg_attr(feature = "clap", value(alias = "network"))]
+    Net,
+    /// BM3D after the generalized Anscombe transform (gain = the profile's slope, Gaussian σ =
+    /// its read noise), with the exact unbiased inverse.
+    Bm3d,
+    /// BM3D with iterative variance stabilization (Azzari & Foi 2016): up to four BM3D passes,
+    /// each on the data mixed with the previous estimate and, below a few photoelectrons per
+    /// pixel, summed over 2×2–4×4 bins; the passes are chosen from the frame's light level.
+    /// Better than `bm3d` below about 8 e⁻ per pixel (4 counts), the same above; up to about
+    /// 2.3× its time.
+    Ivst,
+    /// No denoising: blooming and the fixed pattern removed and the units converted, as every
+    /// method does first (the preprocessed photo-signal, for one's own analysis).
+    None,
+}
+
+/// The method run with neither a method nor a model: the most accurate one shipped on the
+/// low-light suite (README, "Low light"): `ivst` is above plain BM3D at 0.5–4 e⁻ and equal at
+/// 16, and above the bundled hybrid network. It becomes `Hybrid` once a hybrid network beats it
+/// at every light level there.
+pub const DEFAULT_METHOD: Method = Method::Ivst;
+
+impl Method {
+    /// Every method.
+    pub const ALL: [Method; 5] = [
+        Method::Hybrid,
+        Method::Net,
+        Method::Bm3d,
+        Method::Ivst,
+        Method::None,
+    ];
+
+    /// The classical estimate this method runs without a network, if it is one.
+    pub fn classical(self) -> Option<Base> {
+        match self {
+            Method::Bm3d => Some(Base::Bm3d),
+            Method::Ivst => Some(Base::Ivst),
+            Method::Hybrid | Method::Net | Method::None => None,
+        }
+    }
+
+    /// The name `--method` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Hybrid => "hybrid",
+            Method::Net => "net",
+            Method::Bm3d => "bm3d",
+            Method::Ivst => "ivst",
+            Method::None => "none",
+        }
+    }
+
+    /// Whether the method runs a network (and so takes a model).
+    pub fn uses_model(self) -> bool {
+        matches!(self, Method::Hybrid | Method::Net)
+    }
+}
+
+impl std::str::FromStr for Method {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Method> {
+        let s = if s == "network" { "net" } else { s };
+        Method::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| {
+                Error::Model(format!(
+                    "method {s:?}: the methods are {}",
+                    Method::ALL.map(Method::name).join(", ")
+                ))
+            })
+    }
+}
+
+/// The method and model a request runs: `method` and `model` as given (either may be absent),
+/// with `load` turning a model argument into a model ([`load`], or a loader that also knows
+/// models embedded in a program). The model a method takes by default is `hybrid` for
+/// [`Method::Hybrid`], `default` for [`Method::Net`]; a model alone picks the method it was
+/// trained for. An error where a model does not fit the method.
+pub fn resolve(
+    method: Option<Method>,
+    model: Option<&str>,
+    load: impl Fn(&str) -> Result<Denoiser>,
+) -> Result<(Method, Option<Denoiser>)> {
+    let hybrid = |m: &Denoiser| m.meta.inputs == Inputs::Hybrid;
+    match (method, model) {
+        (None, None) if !DEFAULT_METHOD.uses_model() => Ok((DEFAULT_METHOD, None)),
+        (Some(c), Some(m)) if !c.uses_model() => Err(Error::Model(format!(
+            "--model {m}: --method {} runs no network",
+            c.name()
+        ))),
+        (Some(c), None) if !c.uses_model() => Ok((c, None)),
+        (None, Some(name)) => {
+            let m = load(name)?;
+            let method = if hybrid(&m) {
+                Method::Hybrid
+            } else {
+                Method::Net
+            };
+            Ok((method, Some(m)))
+        }
+        (method, name) => {
+            let method = method.unwrap_or(DEFAULT_METHOD);
+            let name = name.unwrap_or(if method == Method::Hybrid {
+                "hybrid"
+            } else {
+                "default"
+            });
+            let m = load(name)?;
+            if hybrid(&m) != (method == Method::Hybrid) {
+                return Err(Error::Model(format!(
+                    "--model {name}: a {} model, not one for --method {}",
+                    m.meta.inputs.name(),
+                    if method == Method::Hybrid {
+                        "hybrid (train one with `emccd train --inputs hybrid`)"
+                    } else {
+                        "net"
+                    }
+                )));
+            }
+            Ok((method, Some(m)))
+        }
+    }
+}
+
+/// The warning a request deserves when its model was trained for another camera profile
+/// (fingerprint `profile_fp`), if it was.
+pub fn profile_mismatch(model: &Denoiser, profile_fp: &str) -> Option<String> {
+    (model.meta.profile_fingerprint != profile_fp).then(|| {
+        format!(
+            "the model was trained for profile {} and is applied through profile {profile_fp}; the network input is camera-independent, but fine-tuning on this camera (`emccd train --init`) may gain a little",
+            model.meta.profile_fingerprint
+        )
+    })
+}
+
+/// What turns one raw frame into the output: the method, model and profile, fixed for a run.
+pub struct FrameDenoiser<'a> {
+    /// The camera profile the frames are corrected and described with.
+    pub profile: &'a CameraProfile,
+    /// The method.
+    pub method: Method,
+    /// The network, for the methods that run one.
+    pub model: Option<&'a Denoiser>,
+    /// Tiling of large frames.
+    pub tiling: Tiling,
+    /// Orientations the network is averaged over (1, 2, 4 or 8).
+    pub ensemble: usize,
+    /// Factor from DN above bias to the output's units (1, or 2/slope for photoelectrons).
+    pub to_units: f32,
+}
+
+impl FrameDenoiser<'_> {
+    /// Denoises one raw frame (DN, the profile's size) taken with `exposure_s`; a frame with a
+    /// non-finite value is an error naming the pixel.
+    pub fn run(&self, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+        let width = self.profile.width.max(1);
+        if let Some(i) = raw.iter().position(|v| !v.is_finite()) {
+            return Err(Error::Data(format!(
+                "a non-finite value at pixel ({}, {})",
+                i % width,
+                i / width
+            )));
+        }
+        if self.method.uses_model() != self.model.is_some() {
+            return Err(Error::Model(format!(
+                "--method {} {} a model",
+                self.method.name(),
+                if self.method.uses_model() {
+                    "needs"
+                } else {
+                    "takes no"
+                }
+            )));
+        }
+        let mut d = match (self.model, self.method.classical()) {
+            (Some(m), _) => Pipeline {
+                model: m,
+                profile: self.profile,
+                tiling: self.tiling,
+                ensemble: self.ensemble,
+                device: crate::device(),
+            }
+            .denoise_raw(raw, exposure_s)?,
+            (None, Some(base)) => {
+                let pre = preprocess(self.profile, raw, exposure_s)?;
+                classical_estimate(self.profile, &pre, exposure_s, base)?
+            }
+            (None, None) => preprocess(self.profile, raw, exposure_s)?,
+        };
+        if self.to_units != 1.0 {
+            d.iter_mut().for_each(|v| *v *= self.to_units);
+        }
+        Ok(d)
+    }
+}
