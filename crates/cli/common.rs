@@ -6,24 +6,15 @@ use anyhow::{bail, Context, Result};
 use emccd_profile::CameraProfile;
 use indicatif::{ProgressBar, ProgressStyle};
 
-/// Where the bundled default profile lives in the source tree.
-pub fn bundled_profile_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("profiles")
-        .join("default")
-}
-
-/// Loads `--profile`: a directory, or `default` for the bundled profile (read from the source
-/// tree when present, otherwise regenerated from its seed: the two are identical).
+/// Loads `--profile`: a directory, or `default` for the bundled profile.
 pub fn load_profile(arg: &str) -> Result<CameraProfile> {
-    if arg == "default" {
-        let dir = bundled_profile_dir();
-        if dir.join("profile.toml").exists() {
-            return CameraProfile::load(&dir).context("loading the bundled default profile");
+    CameraProfile::load_arg(arg).with_context(|| {
+        if arg == "default" {
+            "loading the bundled default profile".to_string()
+        } else {
+            format!("loading profile {arg}")
         }
-        return Ok(emccd_profile::default_profile());
-    }
-    CameraProfile::load(arg).with_context(|| format!("loading profile {arg}"))
+    })
 }
 
 /// A progress bar for `len` items of `what`; hidden when stderr is not a terminal.

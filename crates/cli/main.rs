@@ -115,16 +115,10 @@ fn main() {
         }) {
             std::process::exit(0);
         }
-        let mut last = e.to_string();
-        eprintln!("error: {last}");
-        // A cause that its wrapper already spells out (an error with its file attached prints
-        // the error itself too) is said once.
-        for cause in e.chain().skip(1) {
-            let c = cause.to_string();
-            if !last.contains(&c) {
-                eprintln!("  caused by: {c}");
-            }
-            last = c;
+        let lines = emccd_io::error_lines(e.as_ref());
+        eprintln!("error: {}", lines[0]);
+        for cause in &lines[1..] {
+            eprintln!("  caused by: {cause}");
         }
         std::process::exit(2);
     }

@@ -260,16 +260,11 @@ fn open_input(a: &Args, profile: &emccd_profile::CameraProfile, input: &Path) ->
             profile.height
         );
     }
-    if !profile.exposure_in_range(exposure) {
-        let (lo, hi) = profile.exposure_range();
-        let what = format!(
-            "{}: exposure {exposure} s (from {source}) is outside the calibrated range {lo}–{hi} s",
-            input.display()
-        );
-        if (exposure < lo / 2.0 || exposure > hi * 2.0) && !a.extrapolate {
-            bail!("{what}; its fixed pattern would be extrapolated far from the calibration. Calibrate with bias frames at this exposure, or pass --extrapolate to use the model's extrapolation");
-        }
-        eprintln!("warning: {what}; the fixed pattern is the model's extrapolation");
+    if let Some(w) = profile
+        .check_exposure_range(exposure, source, a.extrapolate)
+        .with_context(|| input.display().to_string())?
+    {
+        eprintln!("warning: {}: {w}", input.display());
     }
     Ok(Input {
         path: input.to_path_buf(),

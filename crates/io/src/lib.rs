@@ -136,6 +136,24 @@ impl StackInfo {
     }
 }
 
+/// An error and its causes as lines to show a person: the error, then each cause its wrapper
+/// does not already spell out (an error with its file attached prints the error itself too, so
+/// it is said once). What the CLI prints after `error:` and the Python package raises.
+pub fn error_lines(e: &(dyn std::error::Error + 'static)) -> Vec<String> {
+    let mut last = e.to_string();
+    let mut lines = vec![last.clone()];
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        let text = c.to_string();
+        if !last.contains(&text) {
+            lines.push(text.clone());
+        }
+        last = text;
+        cause = c.source();
+    }
+    lines
+}
+
 /// A stack opened for reading, decoded one frame at a time in row-major order.
 pub trait FrameReader: Send {
     /// Size, count, type and metadata of the stack.

@@ -310,6 +310,31 @@ impl CameraProfile {
         exposure_s >= lo * (1.0 - 1e-9) && exposure_s <= hi * (1.0 + 1e-9)
     }
 
+    /// Whether frames taken with `exposure_s` can be corrected: inside the calibrated range,
+    /// `Ok(None)`; outside it but within a factor 2, or further with `extrapolate`, `Ok(Some)`
+    /// with a warning (the fixed pattern there is the model's extrapolation); further without
+    /// it, an error. `source` says where the exposure came from, for the messages.
+    pub fn check_exposure_range(
+        &self,
+        exposure_s: f64,
+        source: &str,
+        extrapolate: bool,
+    ) -> Result<Option<String>> {
+        if self.exposure_in_range(exposure_s) {
+            return Ok(None);
+        }
+        let (lo, hi) = self.exposure_range();
+        let what = format!(
+            "exposure {exposure_s} s (from {source}) is outside the calibrated range {lo}–{hi} s"
+        );
+        if (exposure_s < lo / 2.0 || exposure_s > hi * 2.0) && !extrapolate {
+            return Err(Error::Parameter(format!("{what}; its fixed pattern would be extrapolated far from the calibration. Calibrate with bias frames at this exposure, or pass --extrapolate to use the model's extrapolation")));
+        }
+        Ok(Some(format!(
+            "{what}; the fixed pattern is the model's extrapolation"
+        )))
+    }
+
     /// The same sensor at EM gain `em_gain` read out through an amplifier `read_noise_scale`
     /// times noisier: the photon-transfer slope and the model parameters that follow from it
     /// scale with the gain, the read-noise maps (and the ELD/PGN read noise) with the factor.

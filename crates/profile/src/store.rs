@@ -163,6 +163,21 @@ impl CameraProfile {
         Ok(())
     }
 
+    /// Loads a profile by the argument `--profile` (and `profile=`) takes: a directory, or
+    /// `default` for the bundled profile (read from `profiles/default` of the source tree this
+    /// library was built from where present, otherwise regenerated from its seed: the two are
+    /// identical).
+    pub fn load_arg(arg: &str) -> Result<CameraProfile> {
+        if arg == "default" {
+            let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../profiles/default");
+            if dir.join(PROFILE_TOML).exists() {
+                return CameraProfile::load(&dir);
+            }
+            return Ok(crate::default_profile());
+        }
+        CameraProfile::load(arg)
+    }
+
     /// Loads and validates a profile directory.
     pub fn load(dir: impl AsRef<Path>) -> Result<CameraProfile> {
         let dir = dir.as_ref();

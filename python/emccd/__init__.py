@@ -1,0 +1,270 @@
+"""emccd: calibrate an EMCCD camera's noise and denoise its recordings, from Python.
+
+The same libraries as the ``emccd`` command, on numpy arrays::
+
+    import emccd
+    frames, meta = emccd.read("cells.sif")           # [frames, h, w] float32, header dict
+    clean = emccd.denoise(frames, exposure_s=meta["exposure_s"])   # bundled default profile
+    emccd.write("cells_denoised.tif", clean)
+
+Errors are :class:`EmccdError` with the message the command line prints. Long calls release the
+interpreter (other threads, a napari viewer, go on) and take ``progress=callable(done, total)``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Callable, Iterator, Optional, Tuple, Union
+
+import numpy as np
+
+from . import _emccd
+from ._emccd import EmccdError, Profile
+
+__all__ = [
+    "EmccdError",
+    "Frames",
+    "Profile",
+    "BUNDLED_MODELS",
+    "METHODS",
+    "DEFAULT_METHOD",
+    "info",
+    "read",
+    "frames",
+    "write",
+    "load_profile",
+    "calibrate",
+    "denoise",
+    "simulate_pairs",
+    "psnr",
+    "ssim",
+]
+
+__version__ = _emccd.__version__
+
+BUNDLED_MODELS, METHODS, DEFAULT_METHOD = _emccd.catalog()
+BUNDLED_MODELS = tuple(BUNDLED_MODELS)
+METHODS = tuple(METHODS)
+
+PathLike = Union[str, "os.PathLike[str]"]
+ProfileLike = Union[str, "os.PathLike[str]", Profile]
+Progress = Optional[Callable[[int, int], object]]
+
+
+def info(path: PathLike) -> dict:
+    """What a stack holds, without decoding frames: the keys of ``emccd info --json`` (file,
+    format, width, height, frames, pixel_type, exposure_s, em_gain, temperature_c,
+    camera_model, binning, accumulations, warnings; None where the header does not say)."""
+    return json.loads(_emccd.info(os.fspath(path)))
+
+
+def read(path: PathLike) -> Tuple[np.ndarray, dict]:
+    """Every frame of a TIFF/BigTIFF, Andor SIF, FITS, PNG or Zarr stack as float32
+    ``[frames, height, width]``, and its metadata (the keys of :func:`info`). For stacks too
+    large for memory, iterate :func:`frames` instead."""
+    data, meta = _emccd.read(os.fspath(path))
+    return data, json.loads(meta)
+
+
+class Frames:
+    """A stack read lazily, one float32 ``[height, width]`` frame per iteration step, in
+    bounded memory; ``len()`` is the frame count and ``.info`` the metadata of :func:`info`."""
+
+    def __init__(self, path: PathLike):
+        self._inner = _emccd.Frames(os.fspath(path))
+        self.info = json.loads(self._inner.info_json)
+
+    def __len__(self) -> int:
+        return len(self._inner)
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        return iter(self._inner)
+
+
+def frames(path: PathLike) -> Frames:
+    """A lazy frame iterator over a stack (see :class:`Frames`)."""
+    return Frames(path)
+
+
+_SAMPLES = {np.dtype(np.float32): "float32", np.dtype(np.uint16): "uint16", np.dtype(np.uint8): "uint8"}
+
+
+def write(
+    path: PathLike,
+    frames: np.ndarray,
+    *,
+    dtype: Union[str, np.dtype, type] = np.float32,
+    exposure_s: Optional[float] = None,
+    em_gain: Optional[float] = None,
+) -> None:
+    """Writes a frame ``[h, w]`` or stack ``[frames, h, w]`` by the extension: ``.tif``/``.tiff``
+    (BigTIFF by itself past 4 GiB), ``.btf`` (BigTIFF) or ``.fits``; samples stored as
+    ``dtype`` (float32, uint16 or uint8: rounded and clipped). Written to a temporary file and
+    renamed into place, so an existing file is replaced whole or not at all. Exposure and EM
+    gain go into the header where given (emccd reads them back)."""
+    a = _stack(frames, "frames")
+    sample = _SAMPLES.get(np.dtype(dtype))
+    if sample is None:
+        raise EmccdError(f"dtype {np.dtype(dtype)}: emccd writes float32, uint16 or uint8 samples")
+    _emccd.write(os.fspath(path), a, sample, exposure_s, em_gain)
+
+
+def load_profile(profile: ProfileLike = "default") -> Profile:
+    """A profile folder (written by ``emccd calibrate``), ``"default"`` for the bundled iXon
+    897 profile, or a :class:`Profile` as it is."""
+    if isinstance(profile, Profile):
+        return profile
+    return Profile.load(os.fspath(profile))
+
+
+def calibrate(
+    manifest: PathLike,
+    out: PathLike,
+    report: Optional[PathLike] = None,
+    *,
+    progress: Progress = None,
+) -> Profile:
+    """Calibrates a camera from a calibration manifest (the TOML ``emccd calibrate`` takes),
+    writes the profile folder ``out`` (and a self-contained HTML report into ``report``) and
+    returns the profile. ``progress(frames_read, frames_total)`` is called as stacks are read."""
+    return _emccd.calibrate(
+        os.fspath(manifest), os.fspath(out), None if report is None else os.fspath(report), progress
+    )
+
+
+def denoise(
+    frames: np.ndarray,
+    profile: ProfileLike = "default",
+    model: Optional[str] = None,
+    method: Optional[str] = None,
+    exposure_s: Optional[float] = None,
+    *,
+    units: str = "dn",
+    ensemble: int = 1,
+    tile: int = 512,
+    overlap: int = 32,
+    extrapolate: bool = False,
+    progress: Progress = None,
+) -> np.ndarray:
+    """Denoises raw EMCCD frames (DN as the camera wrote them; 2-D or 3-D, any integer or float
+    dtype) as ``emccd denoise`` does: blooming and the fixed pattern are removed with the
+    profile, then the method runs. Returns float32 of the input's shape, in DN above bias
+    (``units="dn"``) or photoelectrons (``"electrons"``).
+
+    ``method``: ``ivst`` (the default with no model: iterative BM3D, the most accurate at low
+    light), ``bm3d``, ``hybrid`` (BM3D refined by a network), ``net`` (a network alone, the
+    fastest) or ``none`` (preprocessing only). ``model``: a bundled model (``default``,
+    ``microscopy``, ``hybrid``) or a model file; a model alone picks the method it was trained
+    for. ``exposure_s`` is required (arrays carry no header; :func:`read` returns it in the
+    metadata). ``progress(done, total)`` is called after each frame; an exception it raises
+    stops the work and is raised here. The CLI's warnings are issued as ``UserWarning``.
+    """
+    import warnings
+
+    if exposure_s is None:
+        raise EmccdError(
+            "the exposure is unknown: pass exposure_s (seconds; emccd.read returns the header's as meta['exposure_s'])"
+        )
+    a = np.asarray(frames)
+    two_d = a.ndim == 2
+    stack = _stack(a, "frames")
+    out, notes = _emccd.denoise(
+        stack,
+        load_profile(profile),
+        float(exposure_s),
+        model,
+        method,
+        units,
+        int(tile),
+        int(overlap),
+        int(ensemble),
+        bool(extrapolate),
+        progress,
+    )
+    for n in notes:
+        warnings.warn(n, stacklevel=2)
+    return out[0] if two_d else out
+
+
+def simulate_pairs(
+    clean: np.ndarray,
+    *,
+    profile: ProfileLike = "default",
+    photons: Optional[float] = None,
+    mean_electrons: Optional[float] = None,
+    exposure_s: float = 0.01,
+    frames: int = 1,
+    seed: int = 0,
+) -> Tuple[np.ndarray, np.ndarray]:
+    """Noisy/clean training or test pairs from the virtual camera (the full EMCCD chain:
+    Poisson photons, dark current and clock-induced charge, the EM register's Gamma gain, the
+    profile's fixed pattern, blooming, read noise and the ADC).
+
+    ``clean``: a 2-D scene (any dtype; normalized by its maximum), at most the profile's size
+    (a smaller scene uses the sensor's top-left sub-array). Its brightest pixel collects
+    ``photons`` photons per exposure, or give ``mean_electrons`` (the mean photoelectrons per
+    pixel, 0.5–16 is where EMCCDs are used). Returns ``(raw, truth)``: raw frames
+    ``[frames, h, w]`` in DN as the camera records them (denoise them with the same profile,
+    cropped to the scene: ``profile.crop(0, 0, w, h)``) and the ground truth ``[h, w]``, the
+    photo-signal in DN above bias.
+    """
+    img = np.asarray(clean, dtype=np.float64)
+    if img.ndim != 2:
+        raise EmccdError(f"clean: a 2-D scene, not an array of shape {img.shape}")
+    peak = float(np.nanmax(img)) if img.size else 0.0
+    if not np.isfinite(peak) or peak <= 0:
+        raise EmccdError("clean: the scene has no positive, finite brightest value")
+    img = img / peak
+    return _emccd.simulate_pairs(
+        np.ascontiguousarray(img, dtype=np.float32),
+        load_profile(profile),
+        None if photons is None else float(photons),
+        None if mean_electrons is None else float(mean_electrons),
+        float(exposure_s),
+        int(frames),
+        int(seed),
+    )
+
+
+def psnr(test: np.ndarray, reference: np.ndarray, data_range: Optional[float] = None) -> float:
+    """PSNR in dB of ``test`` against ``reference`` (2-D); ``data_range`` defaults to the
+    reference's maximum (the convention of the emccd tables for signals above bias)."""
+    t, r = _pair(test, reference)
+    return _emccd.psnr(t, r, _range(r, data_range))
+
+
+def ssim(test: np.ndarray, reference: np.ndarray, data_range: Optional[float] = None) -> float:
+    """SSIM of ``test`` against ``reference`` (2-D), Gaussian window σ = 1.5 (as scikit-image
+    with ``gaussian_weights=True``); ``data_range`` defaults to the reference's maximum."""
+    t, r = _pair(test, reference)
+    return _emccd.ssim(t, r, _range(r, data_range))
+
+
+def _stack(a: np.ndarray, name: str) -> np.ndarray:
+    a = np.asarray(a)
+    if a.ndim == 2:
+        a = a[np.newaxis]
+    if a.ndim != 3:
+        raise EmccdError(f"{name}: a frame [h, w] or a stack [frames, h, w], not an array of shape {a.shape}")
+    if a.dtype.kind not in "uifb":
+        raise EmccdError(f"{name}: numbers, not {a.dtype}")
+    if 0 in a.shape:
+        raise EmccdError(f"{name}: an empty array of shape {a.shape}")
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def _pair(test: np.ndarray, reference: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    t = np.ascontiguousarray(test, dtype=np.float32)
+    r = np.ascontiguousarray(reference, dtype=np.float32)
+    if t.ndim != 2 or r.ndim != 2:
+        raise EmccdError(f"2-D images, not arrays of shapes {t.shape} and {r.shape}")
+    return t, r
+
+
+def _range(reference: np.ndarray, data_range: Optional[float]) -> float:
+    if data_range is None:
+        data_range = float(np.max(reference))
+    if not (np.isfinite(data_range) and data_range > 0):
+        raise EmccdError(f"data_range {data_range}: a positive number (the reference's maximum is not)")
+    return float(data_range)

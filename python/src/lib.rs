@@ -1,0 +1,682 @@
+//! `emccd._emccd`: the emccd libraries on numpy arrays, for the `emccd` Python package.
+//!
+//! Only glue: every computation is a call into the workspace's libraries, so a frame denoised
+//! here equals the CLI's for the same request. Long work runs with the interpreter released
+//! (other Python threads — a napari viewer — go on) and reports to an optional callback;
+//! errors are `emccd.EmccdError` with the CLI's message. The friendly signatures (dtype
+//! conversion, 2-D or 3-D input, defaults) are in `emccd/__init__.py`.
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use numpy::ndarray::{Array2, Array3};
+use numpy::{IntoPyArray, PyArray2, PyArray3, PyReadonlyArray2, PyReadonlyArray3};
+use pyo3::create_exception;
+use pyo3::exceptions::PyException;
+use pyo3::prelude::*;
+
+use emccd_camera::{PhysicalParams, VirtualCamera};
+use emccd_nn::registry::{self, FrameDenoiser, Method};
+use emccd_nn::Denoiser;
+use emccd_profile::CameraProfile;
+
+create_exception!(
+    _emccd,
+    EmccdError,
+    PyException,
+    "An emccd error: bad input, a file that cannot be read or written, a model or profile that does not fit. The message is the one the `emccd` command prints."
+);
+
+/// The error as the CLI prints it (without its `error: ` prefix), causes on lines of their own.
+fn err(e: impl Into<anyhow::Error>) -> PyErr {
+    let e = e.into();
+    EmccdError::new_err(emccd_io::error_lines(e.as_ref()).join("\n  caused by: "))
+}
+
+/// The bundled models, carried inside the module so an installed wheel needs no source tree.
+const EMBEDDED: [(&str, &[u8]); 3] = [
+    (
+        "hybrid",
+        include_bytes!("../../models/hybrid-unet.safetensors"),
+    ),
+    (
+        "default",
+        include_bytes!("../../models/default-unet.safetensors"),
+    ),
+    (
+        "microscopy",
+        include_bytes!("../../models/microscopy-unet.safetensors"),
+    ),
+];
+
+/// A model argument: a bundled model by name (from the bytes carried here), else a file.
+fn load_model(arg: &str) -> emccd_nn::Result<Denoiser> {
+    match (registry::bundled(arg), EMBEDDED.iter().find(|e| e.0 == arg)) {
+        (Some(b), Some((_, bytes))) => {
+            Denoiser::from_bytes(bytes.to_vec(), Path::new(b.file), &emccd_nn::device())
+        }
+        _ => registry::load(arg),
+    }
+}
+
+/// What `emccd info --json` prints for a stack, as JSON text.
+fn info_json(path: &Path, i: &emccd_io::StackInfo) -> String {
+    let m = &i.metadata;
+    serde_json::json!({
+        "file": path,
+        "format": i.format,
+        "width": i.width,
+        "height": i.height,
+        "frames": i.frames,
+        "pixel_type": i.pixel_type,
+        "exposure_s": m.exposure_s,
+        "em_gain": m.em_gain,
+        "temperature_c": m.temperature_c,
+        "camera_model": m.camera_model,
+        "binning": m.binning,
+        "accumulations": m.accumulations,
+        "warnings": m.warnings,
+    })
+    .to_string()
+}
+
+/// What a stack holds, as `emccd info --json` prints it (JSON text).
+#[pyfunction]
+fn info(py: Python<'_>, path: PathBuf) -> PyResult<String> {
+    py.detach(|| {
+        let r = emccd_io::open(&path).map_err(err)?;
+        Ok(info_json(&path, r.info()))
+    })
+}
+
+/// Every frame of a stack as float32 [frames, height, width], and its info (JSON text).
+#[pyfunction]
+fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<(Bound<'py, PyArray3<f32>>, String)> {
+    let (data, info) = py.detach(|| -> PyResult<_> {
+        let mut r = emccd_io::open(&path).map_err(err)?;
+        let i = r.info().clone();
+        let n = i.frame_len();
+        let mut data = vec![0f32; n * i.frames];
+        for (k, frame) in data.chunks_mut(n.max(1)).enumerate() {
+            if !r
+                .read_frame(frame)
+                .map_err(|e| err(anyhow::Error::from(e).context(path.display().to_string())))?
+            {
+                return Err(err(anyhow::anyhow!(
+                    "{}: the file ended at frame {} of {}",
+                    path.display(),
+                    k + 1,
+                    i.frames
+                )));
+            }
+        }
+        Ok((data, i))
+    })?;
+    let arr = Array3::from_shape_vec((info.frames, info.height, info.width), data)
+        .map_err(|e| err(anyhow::anyhow!("{e}")))?;
+    Ok((arr.into_pyarray(py), info_json(&path, &info)))
+}
+
+/// A stack read one frame at a time (bounded memory for stacks of any length).
+#[pyclass(module = "emccd._emccd")]
+struct Frames {
+    reader: Mutex<Box<dyn emccd_io::FrameReader>>,
+    path: PathBuf,
+    info: emccd_io::StackInfo,
+    next: usize,
+}
+
+#[pymethods]
+impl Frames {
+    #[new]
+    fn new(py: Python<'_>, path: PathBuf) -> PyResult<Frames> {
+        let reader = py.detach(|| emccd_io::open(&path)).map_err(err)?;
+        let info = reader.info().clone();
+        Ok(Frames {
+            reader: Mutex::new(reader),
+            path,
+            info,
+            next: 0,
+        })
+    }
+
+    /// The stack's info as `emccd info --json` prints it (JSON text).
+    #[getter]
+    fn info_json(&self) -> String {
+        info_json(&self.path, &self.info)
+    }
+
+    fn __len__(&self) -> usize {
+        self.info.frames
+    }
+
+    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    fn __next__<'py>(
+        mut slf: PyRefMut<'py, Self>,
+        py: Python<'py>,
+    ) -> PyResult<Option<Bound<'py, PyArray2<f32>>>> {
+        if slf.next >= slf.info.frames {
+            return Ok(None);
+        }
+        let (w, h) = (slf.info.width, slf.info.height);
+        let k = slf.next;
+        let path = slf.path.clone();
+        let frame = {
+            let this = &*slf;
+            py.detach(|| -> PyResult<Option<Vec<f32>>> {
+                let mut buf = vec![0f32; w * h];
+                let mut r = this.reader.lock().map_err(|_| {
+                    err(anyhow::anyhow!(
+                        "the reader was poisoned by an earlier error"
+                    ))
+                })?;
+                let got = r.read_frame(&mut buf).map_err(|e| {
+                    err(anyhow::Error::from(e).context(format!(
+                        "{}: frame {}",
+                        path.display(),
+                        k + 1
+                    )))
+                })?;
+                Ok(got.then_some(buf))
+            })?
+        };
+        match frame {
+            Some(f) => {
+                slf.next += 1;
+                let arr =
+                    Array2::from_shape_vec((h, w), f).map_err(|e| err(anyhow::anyhow!("{e}")))?;
+                Ok(Some(arr.into_pyarray(py)))
+            }
+            None => Ok(None),
+        }
+    }
+}
+
+/// Writes float32 frames [frames, height, width] as a stack (`.tif`/`.tiff`, `.btf` BigTIFF,
+/// `.fits`), atomically: `sample` is `float32`, `uint16` or `uint8` (rounded and clipped).
+#[pyfunction]
+#[pyo3(signature = (path, frames, sample, exposure_s=None, em_gain=None))]
+fn write(
+    py: Python<'_>,
+    path: PathBuf,
+    frames: PyReadonlyArray3<'_, f32>,
+    sample: &str,
+    exposure_s: Option<f64>,
+    em_gain: Option<f64>,
+) -> PyResult<()> {
+    let sample = match sample {
+        "float32" => emccd_io::SampleFormat::F32,
+        "uint16" => emccd_io::SampleFormat::U16,
+        "uint8" => emccd_io::SampleFormat::U8,
+        s => {
+            return Err(err(anyhow::anyhow!(
+                "dtype {s}: emccd writes float32, uint16 or uint8 samples"
+            )))
+        }
+    };
+    if emccd_io::Format::from_extension(&path) == Some(emccd_io::Format::Sif) {
+        return Err(err(anyhow::anyhow!(
+            "{}: SIF is Andor's acquisition format and emccd reads it only; write .tif, .btf or .fits",
+            path.display()
+        )));
+    }
+    let a = frames.as_array();
+    let (f, h, w) = a.dim();
+    let data: Vec<f32> = a.iter().copied().collect();
+    py.detach(|| -> anyhow::Result<()> {
+        let mut wr = emccd_io::StackWriter::create(&path, w, h, sample, Some(f))?;
+        wr.set_metadata(&emccd_io::Metadata {
+            exposure_s,
+            em_gain,
+            ..Default::default()
+        });
+        for frame in data.chunks(w * h) {
+            wr.write_frame(frame)?;
+        }
+        wr.finish()?;
+        Ok(())
+    })
+    .map_err(err)
+}
+
+/// A camera profile: the calibrated parameters and per-pixel maps.
+#[pyclass(module = "emccd._emccd", frozen)]
+#[derive(Clone)]
+struct Profile {
+    inner: CameraProfile,
+}
+
+#[pymethods]
+impl Profile {
+    /// Loads a profile folder, or `default` for the bundled iXon 897 profile.
+    #[staticmethod]
+    fn load(py: Python<'_>, path: String) -> PyResult<Profile> {
+        py.detach(|| {
+            let inner = CameraProfile::load_arg(&path).map_err(|e| {
+                err(anyhow::Error::from(e).context(if path == "default" {
+                    "loading the bundled default profile".to_string()
+                } else {
+                    format!("loading profile {path}")
+                }))
+            })?;
+            Ok(Profile { inner })
+        })
+    }
+
+    /// Writes the profile folder (profile.toml + maps.safetensors), atomically.
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        py.detach(|| {
+            self.inner.save(&path).map_err(|e| {
+                err(anyhow::Error::from(e)
+                    .context(format!("writing the profile to {}", path.display())))
+            })
+        })
+    }
+
+    /// The same profile for a sub-array readout: x, y, width, height in pixels.
+    fn crop(&self, x: usize, y: usize, width: usize, height: usize) -> PyResult<Profile> {
+        Ok(Profile {
+            inner: self.inner.crop(x, y, width, height).map_err(err)?,
+        })
+    }
+
+    /// Sensor width, px.
+    #[getter]
+    fn width(&self) -> usize {
+        self.inner.width
+    }
+    /// Sensor height, px.
+    #[getter]
+    fn height(&self) -> usize {
+        self.inner.height
+    }
+    /// Camera name.
+    #[getter]
+    fn camera(&self) -> String {
+        self.inner.camera.clone()
+    }
+    /// EM gain setting.
+    #[getter]
+    fn em_gain(&self) -> f64 {
+        self.inner.em_gain
+    }
+    /// Photon-transfer slope s = K·f², DN (None if not calibrated).
+    #[getter]
+    fn slope(&self) -> Option<f64> {
+        self.inner.slope().ok()
+    }
+    /// Median bias at the shortest exposure, DN (None without bias frames).
+    #[getter]
+    fn bias_dn(&self) -> Option<f64> {
+        self.inner.summary().bias_dn
+    }
+    /// Median read-noise std, DN (None without bias frames).
+    #[getter]
+    fn read_noise_dn(&self) -> Option<f64> {
+        self.inner.summary().read_noise_dn
+    }
+    /// Quantization step, DN.
+    #[getter]
+    fn quantization_dn(&self) -> f64 {
+        self.inner.quantization_dn
+    }
+    /// Calibrated exposures, s.
+    #[getter]
+    fn exposures_s(&self) -> Vec<f64> {
+        self.inner.exposures_s.clone()
+    }
+    /// Content fingerprint (hex): what model files record as the profile they were trained for.
+    #[getter]
+    fn fingerprint(&self) -> String {
+        format!("{:016x}", self.inner.fingerprint())
+    }
+    /// Everything `emccd profile show --json` prints (JSON text).
+    fn summary_json(&self) -> PyResult<String> {
+        serde_json::to_string(&self.inner.summary()).map_err(err)
+    }
+
+    fn __repr__(&self) -> String {
+        let s = self.inner.summary();
+        format!(
+            "Profile(camera={:?}, {}×{} px, EM gain {}, slope {}, fingerprint {})",
+            s.camera,
+            s.width,
+            s.height,
+            s.em_gain,
+            s.ptc_slope_dn
+                .map_or("not calibrated".into(), |v| format!("{v:.4} DN")),
+            s.fingerprint
+        )
+    }
+}
+
+/// Calls a Python progress callback `(done, total)`; the first exception it raises is kept and
+/// raised when the work returns (calibration cannot be stopped half-way; denoising stops).
+struct Callback {
+    f: Option<Py<PyAny>>,
+    total: u64,
+    done: std::sync::atomic::AtomicU64,
+    error: Mutex<Option<PyErr>>,
+}
+
+impl Callback {
+    fn new(f: Option<Py<PyAny>>, total: u64) -> Callback {
+        Callback {
+            f,
+            total,
+            done: 0.into(),
+            error: Mutex::new(None),
+        }
+    }
+
+    /// Advances by `n`; false once the callback has raised (or Ctrl-C was pressed).
+    fn advance(&self, n: u64) -> bool {
+        let done = self.done.fetch_add(n, std::sync::atomic::Ordering::Relaxed) + n;
+        Python::attach(|py| {
+            let r = py.check_signals().and_then(|_| match &self.f {
+                Some(f) => f.call1(py, (done, self.total)).map(|_| ()),
+                None => Ok(()),
+            });
+            match r {
+                Ok(()) => true,
+                Err(e) => {
+                    let mut slot = self.error.lock().unwrap_or_else(|p| p.into_inner());
+                    slot.get_or_insert(e);
+                    false
+                }
+            }
+        })
+    }
+
+    fn take_error(&self) -> Option<PyErr> {
+        self.error.lock().unwrap_or_else(|p| p.into_inner()).take()
+    }
+}
+
+impl emccd_calib::Progress for Callback {
+    fn advance(&self, frames: u64) {
+        Callback::advance(self, frames);
+    }
+}
+
+/// Calibrates a camera from a calibration manifest (TOML, as `emccd calibrate` takes), writes
+/// the profile folder `out` (and the HTML report to `report`), and returns the profile.
+#[pyfunction]
+#[pyo3(signature = (manifest, out, report=None, progress=None))]
+fn calibrate(
+    py: Python<'_>,
+    manifest: PathBuf,
+    out: PathBuf,
+    report: Option<PathBuf>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Profile> {
+    let m = emccd_calib::Manifest::load(&manifest).map_err(err)?;
+    let cb = Callback::new(progress, emccd_calib::total_frames(&m));
+    let r = py.detach(|| -> anyhow::Result<CameraProfile> {
+        let cal = emccd_calib::calibrate(&m, &emccd_calib::Options::default(), &cb)?;
+        let profile = cal.profile()?;
+        if let Some(dir) = &report {
+            emccd_calib::report::write(&cal, dir)
+                .map_err(anyhow::Error::from)
+                .map_err(|e| e.context(format!("writing the report to {}", dir.display())))?;
+        }
+        profile.save(&out).map_err(|e| {
+            anyhow::Error::from(e).context(format!("writing the profile to {}", out.display()))
+        })?;
+        Ok(profile)
+    });
+    if let Some(e) = cb.take_error() {
+        return Err(e);
+    }
+    Ok(Profile {
+        inner: r.map_err(err)?,
+    })
+}
+
+/// Denoises raw frames [frames, height, width] (DN, the profile's size) taken with
+/// `exposure_s`, as `emccd denoise` does: returns float32 frames in DN above bias or
+/// photoelectrons, and the warnings the CLI would print.
+#[pyfunction]
+#[pyo3(signature = (frames, profile, exposure_s, model=None, method=None, units="dn", tile=512, overlap=32, ensemble=1, extrapolate=false, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn denoise<'py>(
+    py: Python<'py>,
+    frames: PyReadonlyArray3<'py, f32>,
+    profile: &Profile,
+    exposure_s: f64,
+    model: Option<String>,
+    method: Option<String>,
+    units: &str,
+    tile: usize,
+    overlap: usize,
+    ensemble: usize,
+    extrapolate: bool,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<(Bound<'py, PyArray3<f32>>, Vec<String>)> {
+    let p = &profile.inner;
+    let method = method
+        .map(|m| m.parse::<Method>())
+        .transpose()
+        .map_err(err)?;
+    let to_units = match units {
+        "dn" => 1.0f32,
+        "electrons" => (2.0 / p.slope().map_err(err)?) as f32,
+        u => {
+            return Err(err(anyhow::anyhow!(
+                "units {u:?}: the units are \"dn\" (DN above bias) or \"electrons\""
+            )))
+        }
+    };
+    if tile < 64 {
+        return Err(err(anyhow::anyhow!(
+            "tile {tile}: a tile is at least 64 px"
+        )));
+    }
+    if ![1, 2, 4, 8].contains(&ensemble) {
+        return Err(err(anyhow::anyhow!(
+            "ensemble {ensemble}: the self-ensemble is 1, 2, 4 or 8 orientations"
+        )));
+    }
+    let a = frames.as_array();
+    let (f, h, w) = a.dim();
+    let raw: Vec<f32> = a.iter().copied().collect();
+    let cb = Callback::new(progress, f as u64);
+    let r = py.detach(|| -> anyhow::Result<(Vec<f32>, Vec<String>)> {
+        let mut warnings = Vec::new();
+        emccd_nn::pipeline::check_exposure(exposure_s)
+            .map_err(|e| anyhow::anyhow!("the exposure: {e}"))?;
+        p.require_complete()
+            .map_err(|e| anyhow::anyhow!("the profile cannot denoise: {e}"))?;
+        if (w, h) != (p.width, p.height) {
+            anyhow::bail!(
+                "frames are {w}×{h}, the profile's sensor is {}×{} (a sub-array readout needs the profile cropped to it: Profile.crop)",
+                p.width,
+                p.height
+            );
+        }
+        if let Some(wn) = p.check_exposure_range(exposure_s, "exposure_s", extrapolate)? {
+            warnings.push(wn);
+        }
+        let (method, net) = registry::resolve(method, model.as_deref(), load_model)?;
+        let fp = format!("{:016x}", p.fingerprint());
+        if let Some(wn) = net.as_ref().and_then(|m| registry::profile_mismatch(m, &fp)) {
+            warnings.push(wn);
+        }
+        let fd = FrameDenoiser {
+            profile: p,
+            method,
+            model: net.as_ref(),
+            tiling: emccd_nn::tile::Tiling { tile, overlap },
+            ensemble,
+            to_units,
+        };
+        let mut out = Vec::with_capacity(raw.len());
+        for (k, frame) in raw.chunks(w * h).enumerate() {
+            out.extend(
+                fd.run(frame, exposure_s)
+                    .map_err(|e| anyhow::Error::from(e).context(format!("frame {}", k + 1)))?,
+            );
+            if !cb.advance(1) {
+                anyhow::bail!("stopped after frame {}", k + 1);
+            }
+        }
+        Ok((out, warnings))
+    });
+    if let Some(e) = cb.take_error() {
+        return Err(e);
+    }
+    let (out, warnings) = r.map_err(err)?;
+    let arr = Array3::from_shape_vec((f, h, w), out).map_err(|e| err(anyhow::anyhow!("{e}")))?;
+    Ok((arr.into_pyarray(py), warnings))
+}
+
+/// Noisy/clean pairs from the virtual camera built on `profile`: `clean` (float32 [h, w], 0–1)
+/// scaled so its brightest value collects `photons` photons per exposure, or so that the mean
+/// pixel holds `mean_electrons` photoelectrons (through the camera's quantum efficiency); returns the raw
+/// frames [frames, h, w] (DN, what the camera records) and the ground truth [h, w] (the
+/// photo-signal, DN above bias). A scene smaller than the sensor uses its top-left sub-array.
+#[pyfunction]
+#[pyo3(signature = (clean, profile, photons, mean_electrons, exposure_s, frames=1, seed=0))]
+#[allow(clippy::too_many_arguments)]
+fn simulate_pairs<'py>(
+    py: Python<'py>,
+    clean: PyReadonlyArray2<'py, f32>,
+    profile: &Profile,
+    photons: Option<f64>,
+    mean_electrons: Option<f64>,
+    exposure_s: f64,
+    frames: usize,
+    seed: u64,
+) -> PyResult<(Bound<'py, PyArray3<f32>>, Bound<'py, PyArray2<f32>>)> {
+    let a = clean.as_array();
+    let (h, w) = a.dim();
+    let img: Vec<f32> = a.iter().copied().collect();
+    let p = profile.inner.clone();
+    let (noisy, truth) = py
+        .detach(|| -> anyhow::Result<(Vec<f32>, Vec<f32>)> {
+            if frames == 0 {
+                anyhow::bail!("frames must be at least 1");
+            }
+            emccd_nn::pipeline::check_exposure(exposure_s)
+                .map_err(|e| anyhow::anyhow!("exposure_s: {e}"))?;
+            if let Some(i) = img.iter().position(|v| !v.is_finite() || *v < 0.0) {
+                anyhow::bail!(
+                    "the clean scene holds {} at pixel ({}, {}); it must be finite and non-negative (0–1)",
+                    img[i],
+                    i % w,
+                    i / w
+                );
+            }
+            if w > p.width || h > p.height || w == 0 || h == 0 {
+                anyhow::bail!(
+                    "the scene is {w}×{h}; the profile's sensor is {}×{}",
+                    p.width,
+                    p.height
+                );
+            }
+            let p = if (w, h) == (p.width, p.height) {
+                p
+            } else {
+                p.crop(0, 0, w, h)?
+            };
+            let cam = VirtualCamera::new(p, PhysicalParams::default())?;
+            let mean = img.iter().map(|&v| v as f64).sum::<f64>() / img.len() as f64;
+            let photons = match (photons, mean_electrons) {
+                (Some(p), None) => p,
+                (None, Some(e)) => e / (cam.physics.qe * mean),
+                _ => anyhow::bail!("give one of photons (at the brightest pixel) or mean_electrons (per pixel)"),
+            };
+            if !(photons.is_finite() && photons > 0.0) {
+                anyhow::bail!("{photons} photons at the brightest pixel: it must be a positive number (is the scene all zero?)");
+            }
+            let e = cam.exposure(exposure_s);
+            let phot: Vec<f32> = img.iter().map(|&v| (v as f64 * photons) as f32).collect();
+            let truth = e.ground_truth(&phot);
+            let mut noisy = vec![0f32; frames * w * h];
+            for (k, out) in noisy.chunks_mut(w * h).enumerate() {
+                e.frame(&phot, seed.wrapping_mul(1_000_003).wrapping_add(k as u64), out);
+            }
+            Ok((noisy, truth))
+        })
+        .map_err(err)?;
+    let noisy =
+        Array3::from_shape_vec((frames, h, w), noisy).map_err(|e| err(anyhow::anyhow!("{e}")))?;
+    let truth = Array2::from_shape_vec((h, w), truth).map_err(|e| err(anyhow::anyhow!("{e}")))?;
+    Ok((noisy.into_pyarray(py), truth.into_pyarray(py)))
+}
+
+fn same_shape(a: &PyReadonlyArray2<'_, f32>, b: &PyReadonlyArray2<'_, f32>) -> PyResult<()> {
+    let (da, db) = (a.as_array().dim(), b.as_array().dim());
+    if da != db {
+        return Err(err(anyhow::anyhow!(
+            "the images differ in shape: {da:?} and {db:?}"
+        )));
+    }
+    Ok(())
+}
+
+/// PSNR in dB of `test` against `reference` (2-D float32), with data range `data_range`.
+#[pyfunction]
+fn psnr(
+    test: PyReadonlyArray2<'_, f32>,
+    reference: PyReadonlyArray2<'_, f32>,
+    data_range: f64,
+) -> PyResult<f64> {
+    same_shape(&test, &reference)?;
+    let t: Vec<f32> = test.as_array().iter().copied().collect();
+    let r: Vec<f32> = reference.as_array().iter().copied().collect();
+    Ok(emccd_eval::psnr(&t, &r, data_range))
+}
+
+/// SSIM (Gaussian window σ = 1.5, as scikit-image with `gaussian_weights=True`) of `test`
+/// against `reference` (2-D float32), with data range `data_range`.
+#[pyfunction]
+fn ssim(
+    test: PyReadonlyArray2<'_, f32>,
+    reference: PyReadonlyArray2<'_, f32>,
+    data_range: f64,
+) -> PyResult<f64> {
+    same_shape(&test, &reference)?;
+    let (h, w) = test.as_array().dim();
+    let t: Vec<f32> = test.as_array().iter().copied().collect();
+    let r: Vec<f32> = reference.as_array().iter().copied().collect();
+    Ok(emccd_eval::ssim(
+        &t,
+        &r,
+        w,
+        h,
+        data_range,
+        Default::default(),
+    ))
+}
+
+/// The names of the bundled models and the denoising methods, and the default method.
+#[pyfunction]
+fn catalog() -> (Vec<&'static str>, Vec<&'static str>, &'static str) {
+    (
+        registry::BUNDLED.iter().map(|b| b.name).collect(),
+        Method::ALL.iter().map(|m| m.name()).collect(),
+        registry::DEFAULT_METHOD.name(),
+    )
+}
+
+#[pymodule]
+fn _emccd(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("EmccdError", m.py().get_type::<EmccdError>())?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_class::<Frames>()?;
+    m.add_class::<Profile>()?;
+    m.add_function(wrap_pyfunction!(info, m)?)?;
+    m.add_function(wrap_pyfunction!(read, m)?)?;
+    m.add_function(wrap_pyfunction!(write, m)?)?;
+    m.add_function(wrap_pyfunction!(calibrate, m)?)?;
+    m.add_function(wrap_pyfunction!(denoise, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate_pairs, m)?)?;
+    m.add_function(wrap_pyfunction!(psnr, m)?)?;
+    m.add_function(wrap_pyfunction!(ssim, m)?)?;
+    m.add_function(wrap_pyfunction!(catalog, m)?)?;
+    Ok(())
+}
