@@ -517,7 +517,7 @@ fn denoise<'py>(
         for (k, frame) in raw.chunks(w * h).enumerate() {
             out.extend(
                 fd.run(frame, exposure_s)
-                    .map_err(|e| anyhow::Error::from(e).context(format!("frame {}", k + 1)))?,
+                    .map_err(|e| anyhow::anyhow!("frame {}: {e}", k + 1))?,
             );
             if !cb.advance(1) {
                 anyhow::bail!("stopped after frame {}", k + 1);

@@ -496,5 +496,5 @@ fn denoise_frame(
     exposure: f64,
 ) -> Result<Vec<f32>> {
     fd.run(raw, exposure)
-        .with_context(|| format!("{}: frame {}", input.display(), k + 1))
+        .map_err(|e| anyhow::anyhow!("{}: frame {}: {e}", input.display(), k + 1))
 }

@@ -1,0 +1,28 @@
+"""Shared fixtures: the project's data folder (../shared/data beside the checkout) and scenes."""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+DATA = Path(os.environ.get("EMCCD_DATA", ROOT.parent / "shared" / "data"))
+
+
+@pytest.fixture(scope="session")
+def data() -> Path:
+    if not DATA.is_dir():
+        pytest.fail(f"{DATA}: the project's data folder is missing (set EMCCD_DATA)")
+    return DATA
+
+
+@pytest.fixture(scope="session")
+def scene(data) -> np.ndarray:
+    """A 96×128 crop of a McMaster image (never trained on), as 0–1 luminance."""
+    import emccd
+
+    files = sorted((data / "clean" / "natural" / "McMaster").glob("*"))
+    img, _ = emccd.read(files[0])
+    img = img[0]
+    return img[:96, :128] / img.max()

@@ -1,0 +1,57 @@
+"""The napari plugin, headless: the SIF reader and the Denoise EMCCD widget on a real frame."""
+
+import os
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+napari = pytest.importorskip("napari") if not os.environ.get("EMCCD_REQUIRE_NAPARI") else __import__("napari")
+
+import emccd  # noqa: E402
+
+SIF = ("emccd-real", "andor-sif", "ixon897_avg20.sif")
+
+
+def test_manifest_is_valid():
+    from npe2 import PluginManager
+
+    pm = PluginManager.instance()
+    pm.discover()
+    m = pm.get_manifest("emccd")
+    assert {c.id for c in m.contributions.commands} == {"emccd.get_reader", "emccd.denoise_widget"}
+
+
+def test_reader_puts_the_header_in_the_layer(data, make_napari_viewer):
+    from emccd._napari import get_reader
+
+    path = data.joinpath(*SIF)
+    assert get_reader(str(data / "emccd-real" / "andor-sif" / "LICENSE")) is None
+    viewer = make_napari_viewer()
+    layers = viewer.open(str(path), plugin="emccd")
+    (layer,) = layers
+    assert layer.data.shape == (512, 512)
+    meta = layer.metadata["emccd"]
+    assert meta["camera_model"] == "DU897_BV" and meta["exposure_s"] == 1.0 and meta["em_gain"] == 1000.0
+
+
+def test_denoise_widget_adds_a_denoised_layer(data, make_napari_viewer, qtbot):
+    viewer = make_napari_viewer()
+    (layer,) = viewer.open(str(data.joinpath(*SIF)), plugin="emccd")
+    _, widget = viewer.window.add_plugin_dock_widget("emccd", "Denoise EMCCD")
+    assert widget.exposure.value == pytest.approx(1.0)  # from the SIF header
+    widget.method.value = "bm3d"
+    widget.extrapolate.value = True  # 1 s is past the bundled profile's calibrated exposures
+    widget.run_button.clicked()
+    qtbot.waitUntil(lambda: len(viewer.layers) == 2, timeout=300_000)
+    out = viewer.layers[-1]
+    assert out.name == f"{layer.name} denoised"
+    assert out.data.shape == (512, 512) and np.isfinite(out.data).all()
+    assert widget.bar.value == widget.bar.max == 1
+    expected = emccd.denoise(layer.data, method="bm3d", exposure_s=1.0, extrapolate=True)
+    np.testing.assert_array_equal(out.data, expected)
+    # a bad request reports in the widget and adds nothing
+    widget.profile.value = str(data)
+    widget.run_button.clicked()
+    qtbot.waitUntil(lambda: widget.status.value.startswith("error"), timeout=60_000)
+    assert "loading profile" in widget.status.value and len(viewer.layers) == 2

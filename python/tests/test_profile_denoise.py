@@ -1,0 +1,176 @@
+"""Profiles, calibration, simulation and denoising through the Python package."""
+
+import threading
+
+import numpy as np
+import pytest
+
+import emccd
+
+
+@pytest.fixture(scope="module")
+def profile():
+    return emccd.load_profile("default")
+
+
+def test_default_profile_numbers(profile, tmp_path):
+    assert (profile.width, profile.height) == (512, 512)
+    assert profile.em_gain == 300 and profile.slope == pytest.approx(20.14)
+    assert 100 < profile.bias_dn < 300 and 0 < profile.read_noise_dn < 10
+    assert len(profile.fingerprint) == 16 and "512×512" in repr(profile)
+    profile.save(tmp_path / "p")
+    again = emccd.load_profile(tmp_path / "p")
+    assert again.fingerprint == profile.fingerprint
+    small = profile.crop(10, 20, 64, 48)
+    assert (small.width, small.height) == (64, 48)
+    with pytest.raises(emccd.EmccdError, match="loading profile"):
+        emccd.load_profile(tmp_path)
+
+
+@pytest.fixture(scope="module")
+def pair(scene, profile):
+    """Frames of the scene at a mean of 4 photoelectrons per pixel, and the truth."""
+    raw, truth = emccd.simulate_pairs(scene, profile=profile, mean_electrons=4.0, exposure_s=0.01, frames=3, seed=5)
+    return raw, truth, profile.crop(0, 0, scene.shape[1], scene.shape[0])
+
+
+def test_simulated_light_level_and_truth(pair, profile):
+    raw, truth, _ = pair
+    assert raw.shape == (3, 96, 128) and truth.shape == (96, 128)
+    # the truth is K·QE·photons: its mean is 4 photoelectrons at K = slope/2 DN each
+    assert truth.mean() == pytest.approx(4.0 * profile.slope / 2, rel=1e-4)
+    assert np.all(raw == np.round(raw))  # the ADC's integers
+
+
+@pytest.mark.parametrize("method", ["ivst", "net"])
+def test_denoising_raises_psnr(pair, method):
+    raw, truth, prof = pair
+    before = emccd.psnr(emccd.denoise(raw[0], prof, method="none", exposure_s=0.01), truth)
+    out = emccd.denoise(raw[0], prof, method=method, exposure_s=0.01)
+    assert out.shape == truth.shape and out.dtype == np.float32
+    after = emccd.psnr(out, truth)
+    # 4 e⁻ per pixel: the measured gain of either method on such scenes is 10 dB and more
+    assert after > before + 6, (before, after)
+    assert emccd.ssim(out, truth) > emccd.ssim(emccd.denoise(raw[0], prof, method="none", exposure_s=0.01), truth)
+
+
+def test_default_request_is_the_cli_default(pair):
+    raw, _, prof = pair
+    a = emccd.denoise(raw[:1], prof, exposure_s=0.01)
+    b = emccd.denoise(raw[:1], prof, method=emccd.DEFAULT_METHOD, exposure_s=0.01)
+    np.testing.assert_array_equal(a, b)
+
+
+def test_units_dtypes_and_progress(pair):
+    raw, _, prof = pair
+    calls = []
+    dn = emccd.denoise(raw.astype(np.uint16), prof, method="none", exposure_s=0.01, progress=lambda d, t: calls.append((d, t)))
+    assert dn.shape == raw.shape and calls == [(1, 3), (2, 3), (3, 3)]
+    e = emccd.denoise(raw, prof, method="none", exposure_s=0.01, units="electrons")
+    np.testing.assert_allclose(e, dn * 2 / prof.slope, rtol=1e-6)
+
+
+def test_a_raising_progress_callback_stops_the_work(pair):
+    raw, _, prof = pair
+
+    def stop(done, total):
+        raise KeyboardInterrupt("stop here")
+
+    with pytest.raises(KeyboardInterrupt, match="stop here"):
+        emccd.denoise(raw, prof, method="none", exposure_s=0.01, progress=stop)
+
+
+def test_denoise_releases_the_interpreter(pair):
+    raw, _, prof = pair
+    ticks = []
+    done = threading.Event()
+
+    def count():
+        while not done.is_set():
+            ticks.append(1)
+            done.wait(0.001)
+
+    t = threading.Thread(target=count)
+    t.start()
+    emccd.denoise(raw, prof, method="bm3d", exposure_s=0.01)
+    done.set()
+    t.join()
+    assert len(ticks) > 20
+
+
+def test_bad_requests_raise_clear_errors(pair, profile):
+    raw, _, prof = pair
+    with pytest.raises(emccd.EmccdError, match="exposure is unknown"):
+        emccd.denoise(raw, prof)
+    with pytest.raises(emccd.EmccdError, match="profile's sensor is 512×512"):
+        emccd.denoise(raw, profile, exposure_s=0.01)
+    with pytest.raises(emccd.EmccdError, match="runs no network"):
+        emccd.denoise(raw, prof, model="default", method="bm3d", exposure_s=0.01)
+    with pytest.raises(emccd.EmccdError, match="the methods are"):
+        emccd.denoise(raw, prof, method="wiener", exposure_s=0.01)
+    with pytest.raises(emccd.EmccdError, match="model not found"):
+        emccd.denoise(raw, prof, model="/nonexistent/model.safetensors", exposure_s=0.01)
+    with pytest.raises(emccd.EmccdError, match="positive number of seconds"):
+        emccd.denoise(raw, prof, exposure_s=-1)
+    with pytest.raises(emccd.EmccdError, match="outside the calibrated range"):
+        emccd.denoise(raw, prof, exposure_s=100.0)
+    bad = raw[0].copy()
+    bad[5, 7] = np.inf
+    with pytest.raises(emccd.EmccdError, match=r"frame 1.*pixel \(7, 5\)"):
+        emccd.denoise(bad, prof, exposure_s=0.01)
+    with pytest.raises(emccd.EmccdError, match="shape"):
+        emccd.denoise(raw[None], prof, exposure_s=0.01)
+    with pytest.raises(emccd.EmccdError, match="units"):
+        emccd.denoise(raw, prof, method="none", exposure_s=0.01, units="photons")
+
+
+def test_psnr_and_ssim_against_their_formulas():
+    rng = np.random.default_rng(9)
+    ref = rng.random((40, 50)).astype(np.float32) * 100
+    test = ref + rng.normal(0, 3, ref.shape).astype(np.float32)
+    mse = np.mean((test.astype(np.float64) - ref) ** 2)
+    assert emccd.psnr(test, ref, 100.0) == pytest.approx(10 * np.log10(100.0**2 / mse), abs=1e-4)
+    assert emccd.ssim(ref, ref, 100.0) == pytest.approx(1.0, abs=1e-9)
+    assert emccd.ssim(test, ref, 100.0) < emccd.ssim(ref + 0.1 * (test - ref), ref, 100.0) < 1
+    with pytest.raises(emccd.EmccdError, match="differ in shape"):
+        emccd.psnr(ref, ref[:-1])
+
+
+def test_simulate_pairs_rejects_bad_scenes(profile):
+    with pytest.raises(emccd.EmccdError, match="one of photons"):
+        emccd.simulate_pairs(np.ones((8, 8)), profile=profile)
+    with pytest.raises(emccd.EmccdError, match="sensor"):
+        emccd.simulate_pairs(np.ones((600, 8)), profile=profile, photons=10)
+    with pytest.raises(emccd.EmccdError, match="2-D"):
+        emccd.simulate_pairs(np.ones((2, 8, 8)), profile=profile, photons=10)
+    with pytest.raises(emccd.EmccdError, match="brightest"):
+        emccd.simulate_pairs(np.zeros((8, 8)), profile=profile, photons=10)
+
+
+def test_calibrate_recovers_the_virtual_cameras_slope(tmp_path, profile):
+    """Flats at six light levels and bias frames at two exposures from the virtual camera on a
+    64×64 sub-array, calibrated through the package: the photon-transfer slope comes back."""
+    prof = profile.crop(200, 200, 64, 64)
+    flat = np.ones((64, 64))
+    lines = ['camera = "virtual (python test)"', "em_gain = 300"]
+    for i, t in enumerate([0.01, 0.03]):
+        raw, _ = emccd.simulate_pairs(flat, profile=prof, photons=1e-9, exposure_s=t, frames=16, seed=10 + i)
+        emccd.write(tmp_path / f"bias_{i}.tif", raw, dtype=np.uint16, exposure_s=t)
+        lines += ["[[bias]]", f'file = "bias_{i}.tif"', f"exposure_s = {t}"]
+    for i, level in enumerate([20, 50, 100, 200, 400, 800]):
+        raw, _ = emccd.simulate_pairs(flat, profile=prof, photons=level, exposure_s=0.01, frames=16, seed=20 + i)
+        emccd.write(tmp_path / f"flat_{i}.tif", raw, dtype=np.uint16, exposure_s=0.01)
+        lines += ["[[flat]]", f'file = "flat_{i}.tif"', "exposure_s = 0.01"]
+    (tmp_path / "calibration.toml").write_text("\n".join(lines) + "\n")
+    seen = []
+    got = emccd.calibrate(tmp_path / "calibration.toml", tmp_path / "profile", tmp_path / "report",
+                          progress=lambda d, t: seen.append((d, t)))
+    # 6 levels × 64² px × 16 frames: the slope's standard error is well under 1 %
+    assert got.slope == pytest.approx(profile.slope, rel=0.03)
+    assert got.read_noise_dn == pytest.approx(prof.read_noise_dn, rel=0.05)
+    assert emccd.load_profile(tmp_path / "profile").fingerprint == got.fingerprint
+    assert (tmp_path / "report" / "index.html").is_file()
+    assert seen and seen[-1] == (8 * 16, 8 * 16)
+    with pytest.raises(emccd.EmccdError):
+        emccd.calibrate(tmp_path / "missing.toml", tmp_path / "p2")
+    assert not (tmp_path / "p2").exists()
