@@ -204,7 +204,8 @@ def simulate_pairs(
     ``clean``: a 2-D scene (any dtype; normalized by its maximum), at most the profile's size
     (a smaller scene uses the sensor's top-left sub-array). Its brightest pixel collects
     ``photons`` photons per exposure, or give ``mean_electrons`` (the mean photoelectrons per
-    pixel, 0.5–16 is where EMCCDs are used). Returns ``(raw, truth)``: raw frames
+    pixel, 0.5–16 is where EMCCDs are used); ``photons=0`` gives dark frames (bias, dark
+    current and clock-induced charge), as a calibration acquisition records. Returns ``(raw, truth)``: raw frames
     ``[frames, h, w]`` in DN as the camera records them (denoise them with the same profile,
     cropped to the scene: ``profile.crop(0, 0, w, h)``) and the ground truth ``[h, w]``, the
     photo-signal in DN above bias.
@@ -212,10 +213,13 @@ def simulate_pairs(
     img = np.asarray(clean, dtype=np.float64)
     if img.ndim != 2:
         raise EmccdError(f"clean: a 2-D scene, not an array of shape {img.shape}")
-    peak = float(np.nanmax(img)) if img.size else 0.0
-    if not np.isfinite(peak) or peak <= 0:
-        raise EmccdError("clean: the scene has no positive, finite brightest value")
-    img = img / peak
+    if photons == 0 or mean_electrons == 0:
+        img = np.zeros_like(img)  # dark frames: only the shape of the scene matters
+    else:
+        peak = float(np.nanmax(img)) if img.size else 0.0
+        if not np.isfinite(peak) or peak <= 0:
+            raise EmccdError("clean: the scene has no positive, finite brightest value")
+        img = img / peak
     return _emccd.simulate_pairs(
         np.ascontiguousarray(img, dtype=np.float32),
         load_profile(profile),

@@ -85,6 +85,7 @@ def _make_widget_class():
                 self.image, self.profile, self.method, self.model, self.exposure, self.units,
                 self.extrapolate, self.run_button, self.cancel_button, self.bar, self.status,
             ])
+            self.status.native.setWordWrap(True)  # long messages wrap instead of widening the dock
             self._relay = _Relay()
             self._relay.advanced.connect(self._advanced)
             self._cancel = False
@@ -136,7 +137,8 @@ def _make_widget_class():
                     raise InterruptedError("cancelled")
                 relay.advanced.emit(done, total)
 
-            @thread_worker
+            # errors are shown in the widget (failed), not raised into Qt's event loop
+            @thread_worker(ignore_errors=True)
             def work():
                 import warnings
 
@@ -150,10 +152,13 @@ def _make_widget_class():
                 meta = {"emccd_denoise": dict(req, source=layer.name), "warnings": notes}
                 self.viewer.add_image(out, name=f"{layer.name} denoised", metadata=meta,
                                       colormap=getattr(layer.colormap, "name", "gray"))
-                self.status.value = "done" + (f" ({len(notes)} warning(s): {notes[0][:80]}…)" if notes else "")
+                self.status.value = "done" + "".join(f"\nwarning: {n}" for n in notes)
 
             def failed(e):
-                self.status.value = f"error: {e}"
+                if self._cancel:
+                    self.status.value = "cancelled"
+                else:
+                    self.status.value = "error: " + " — ".join(l.strip() for l in str(e).splitlines())
 
             def finished():
                 self.run_button.enabled = True

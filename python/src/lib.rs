@@ -589,8 +589,9 @@ fn simulate_pairs<'py>(
                 (None, Some(e)) => e / (cam.physics.qe * mean),
                 _ => anyhow::bail!("give one of photons (at the brightest pixel) or mean_electrons (per pixel)"),
             };
-            if !(photons.is_finite() && photons > 0.0) {
-                anyhow::bail!("{photons} photons at the brightest pixel: it must be a positive number (is the scene all zero?)");
+            // Zero photons is a dark (bias) frame: shutter closed, the camera's own signal only.
+            if !(photons.is_finite() && photons >= 0.0) {
+                anyhow::bail!("{photons} photons at the brightest pixel: it must be a non-negative number (is the scene all zero?)");
             }
             let e = cam.exposure(exposure_s);
             let phot: Vec<f32> = img.iter().map(|&v| (v as f64 * photons) as f32).collect();

@@ -26,3 +26,11 @@ def scene(data) -> np.ndarray:
     img, _ = emccd.read(files[0])
     img = img[0]
     return img[:96, :128] / img.max()
+
+
+@pytest.fixture(scope="session")
+def profile():
+    """The bundled default profile (the virtual camera's truth)."""
+    import emccd
+
+    return emccd.load_profile("default")

@@ -48,10 +48,28 @@ def test_denoise_widget_adds_a_denoised_layer(data, make_napari_viewer, qtbot):
     assert out.name == f"{layer.name} denoised"
     assert out.data.shape == (512, 512) and np.isfinite(out.data).all()
     assert widget.bar.value == widget.bar.max == 1
-    expected = emccd.denoise(layer.data, method="bm3d", exposure_s=1.0, extrapolate=True)
+    with pytest.warns(UserWarning, match="outside the calibrated range"):
+        expected = emccd.denoise(layer.data, method="bm3d", exposure_s=1.0, extrapolate=True)
+    assert "outside the calibrated range" in widget.status.value  # the widget shows the warning
     np.testing.assert_array_equal(out.data, expected)
     # a bad request reports in the widget and adds nothing
     widget.profile.value = str(data)
     widget.run_button.clicked()
     qtbot.waitUntil(lambda: widget.status.value.startswith("error"), timeout=60_000)
     assert "loading profile" in widget.status.value and len(viewer.layers) == 2
+
+
+def test_cancel_stops_the_worker_and_adds_nothing(profile, scene, tmp_path, make_napari_viewer, qtbot):
+    raw, _ = emccd.simulate_pairs(scene, profile=profile, mean_electrons=4.0, exposure_s=0.01, frames=3, seed=3)
+    h, w = scene.shape
+    profile.crop(0, 0, w, h).save(tmp_path / "profile")  # the sub-array the scene was recorded on
+    viewer = make_napari_viewer()
+    viewer.add_image(raw, name="stack", metadata={"emccd": {"exposure_s": 0.01}})
+    _, widget = viewer.window.add_plugin_dock_widget("emccd", "Denoise EMCCD")
+    widget.profile.value = str(tmp_path / "profile")
+    widget.method.value = "bm3d"
+    widget.run_button.clicked()
+    widget.cancel_button.clicked()  # before the first frame is done: the worker stops there
+    qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
+    assert widget.status.value == "cancelled" and len(viewer.layers) == 1
+    assert widget.run_button.enabled and not widget.cancel_button.enabled

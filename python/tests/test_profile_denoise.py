@@ -8,11 +8,6 @@ import pytest
 import emccd
 
 
-@pytest.fixture(scope="module")
-def profile():
-    return emccd.load_profile("default")
-
-
 def test_default_profile_numbers(profile, tmp_path):
     assert (profile.width, profile.height) == (512, 512)
     assert profile.em_gain == 300 and profile.slope == pytest.approx(20.14)
@@ -46,7 +41,12 @@ def test_simulated_light_level_and_truth(pair, profile):
 def test_denoising_raises_psnr(pair, method):
     raw, truth, prof = pair
     before = emccd.psnr(emccd.denoise(raw[0], prof, method="none", exposure_s=0.01), truth)
-    out = emccd.denoise(raw[0], prof, method=method, exposure_s=0.01)
+    if method == "net":
+        # the bundled network was trained through the full-sensor profile, not this sub-array's
+        with pytest.warns(UserWarning, match="trained for profile"):
+            out = emccd.denoise(raw[0], prof, method=method, exposure_s=0.01)
+    else:
+        out = emccd.denoise(raw[0], prof, method=method, exposure_s=0.01)
     assert out.shape == truth.shape and out.dtype == np.float32
     after = emccd.psnr(out, truth)
     # 4 e⁻ per pixel: the measured gain of either method on such scenes is 10 dB and more
@@ -154,7 +154,8 @@ def test_calibrate_recovers_the_virtual_cameras_slope(tmp_path, profile):
     flat = np.ones((64, 64))
     lines = ['camera = "virtual (python test)"', "em_gain = 300"]
     for i, t in enumerate([0.01, 0.03]):
-        raw, _ = emccd.simulate_pairs(flat, profile=prof, photons=1e-9, exposure_s=t, frames=16, seed=10 + i)
+        raw, truth = emccd.simulate_pairs(flat, profile=prof, photons=0, exposure_s=t, frames=16, seed=10 + i)
+        assert not truth.any()  # dark frames: no photo-signal
         emccd.write(tmp_path / f"bias_{i}.tif", raw, dtype=np.uint16, exposure_s=t)
         lines += ["[[bias]]", f'file = "bias_{i}.tif"', f"exposure_s = {t}"]
     for i, level in enumerate([20, 50, 100, 200, 400, 800]):
