@@ -23,25 +23,27 @@
 //! ```
 //!
 //! Paths are relative to the manifest. Every file is checked before any number is computed.
+//! `emccd simulate calibration` writes this same type ([`Manifest::to_toml`]).
 
 use std::path::{Path, PathBuf};
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use crate::{Error, Result};
 
 /// One acquisition: a stack and its exposure.
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Entry {
     /// Stack file (TIFF, SIF or FITS), relative to the manifest.
     pub file: PathBuf,
     /// Exposure in seconds; taken from the file header when omitted.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub exposure_s: Option<f64>,
 }
 
 /// One EM gain setting of a gain series.
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct GainSetting {
     /// Nominal EM gain of the setting.
@@ -49,25 +51,29 @@ pub struct GainSetting {
     /// The illuminated stack.
     pub file: PathBuf,
     /// A no-signal stack at this setting (offset and readout σ are measured from it).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub no_signal: Option<PathBuf>,
     /// Per-pixel offset S0 map (DN), if measured elsewhere.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub offset_map: Option<PathBuf>,
     /// Per-pixel readout σ map (DN), if measured elsewhere.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub sigma_map: Option<PathBuf>,
 }
 
 /// The optional gain series.
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct GainSeries {
     /// A lab's own e⁻/DN map (or single value image) to compare the fit with.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub reference_e_per_dn: Option<PathBuf>,
     /// The settings, any order.
     pub settings: Vec<GainSetting>,
 }
 
 /// A parsed manifest with paths resolved against its directory.
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Manifest {
     /// Camera name written into the profile.
@@ -76,6 +82,7 @@ pub struct Manifest {
     /// EM gain setting of the bias, flat and blooming stacks.
     pub em_gain: f64,
     /// Largest value the ADC reports; default from the file's sample type (65535 for 16-bit).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub adc_max_dn: Option<f64>,
     /// Bias (dark) stacks.
     #[serde(default)]
@@ -87,6 +94,7 @@ pub struct Manifest {
     #[serde(default)]
     pub blooming: Vec<Entry>,
     /// Gain series.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub gain_series: Option<GainSeries>,
     /// The manifest's own path (set by [`Manifest::load`]).
     #[serde(skip)]
@@ -194,6 +202,13 @@ impl Manifest {
             }
         }
         Ok(m)
+    }
+
+    /// The manifest as TOML (paths as they stand: relative ones stay relative), after a comment
+    /// line saying who wrote it.
+    pub fn to_toml(&self, written_by: &str) -> String {
+        let body = toml::to_string_pretty(self).expect("a calibration manifest is plain data");
+        format!("# Calibration acquisition written by {written_by}; paths are relative to this file.\n{body}")
     }
 
     /// Every file the manifest names.

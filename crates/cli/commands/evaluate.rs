@@ -5,8 +5,9 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
+use emccd_eval::PairsManifest;
 use emccd_nn::pipeline::Pipeline;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
 use crate::common::{load_profile, progress};
 
@@ -43,31 +44,6 @@ pub struct Args {
     /// Write results.csv, results.json and PNG panels here.
     #[arg(long)]
     pub out: Option<PathBuf>,
-}
-
-#[derive(Deserialize)]
-struct PairsFile {
-    pair: Vec<PairEntry>,
-    /// The camera's name.
-    #[serde(default)]
-    camera: Option<String>,
-    /// The camera's calibrated profile, relative to pairs.toml.
-    #[serde(default)]
-    profile: Option<String>,
-}
-
-#[derive(Deserialize)]
-struct PairEntry {
-    scene: String,
-    noisy: String,
-    clean: String,
-    exposure_s: f64,
-    photons: f64,
-    #[serde(default)]
-    exposure_ratio: Option<f64>,
-    /// Mean photoelectrons per pixel, where the pairs were made at fixed mean levels.
-    #[serde(default)]
-    mean_electrons: Option<f64>,
 }
 
 /// One method on one pair.
@@ -123,26 +99,13 @@ fn read_first(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
 struct Camera {
     dir: PathBuf,
     name: String,
-    file: PairsFile,
+    file: PairsManifest,
     profile: emccd_profile::CameraProfile,
 }
 
 fn load_camera(dir: &Path, profile: Option<&str>) -> Result<Camera> {
-    let mpath = dir.join("pairs.toml");
-    let text =
-        std::fs::read_to_string(&mpath).with_context(|| format!("reading {}", mpath.display()))?;
-    let file: PairsFile =
-        toml::from_str(&text).with_context(|| format!("parsing {}", mpath.display()))?;
-    for p in &file.pair {
-        if emccd_nn::pipeline::check_exposure(p.exposure_s).is_err() {
-            bail!(
-                "{}: the pair {}: exposure_s = {} must be a positive number of seconds",
-                mpath.display(),
-                p.noisy,
-                p.exposure_s
-            );
-        }
-    }
+    let mpath = dir.join(PairsManifest::FILE);
+    let file = PairsManifest::load(dir).map_err(anyhow::Error::msg)?;
     let profile = match (profile, &file.profile) {
         (Some(p), _) => load_profile(p)?,
         // `default`, a directory relative to pairs.toml, or (as `simulate pairs` records it) as given.
@@ -297,7 +260,7 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     pb.finish_and_clear();
-    let all_pairs: Vec<&PairEntry> = cameras.iter().flat_map(|c| &c.file.pair).collect();
+    let all_pairs: Vec<&emccd_eval::Pair> = cameras.iter().flat_map(|c| &c.file.pair).collect();
     let by_mean = all_pairs.iter().all(|p| p.mean_electrons.is_some());
     // The level pairs are grouped by: mean photoelectrons where every pair records them.
     let level = |mean_electrons: Option<f64>, photons: f64| {
@@ -417,7 +380,7 @@ pub fn run(a: Args) -> Result<()> {
 fn write_panel(
     dir: &Path,
     prefix: &str,
-    p: &PairEntry,
+    p: &emccd_eval::Pair,
     w: usize,
     h: usize,
     outs: &[(String, Vec<f32>)],

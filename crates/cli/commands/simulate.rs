@@ -4,10 +4,11 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
+use emccd_calib::manifest::{Entry, Manifest as CalibrationManifest};
 use emccd_camera::{PhysicalParams, VirtualCamera};
+use emccd_eval::{Pair, PairsManifest};
 use emccd_io::{Metadata, SampleFormat, StackWriter};
 use emccd_profile::preprocess;
-use serde::Serialize;
 
 use crate::common::{
     center_crop, expand_inputs, exposure_tag, load_profile, parse_size, progress, read_scene,
@@ -252,21 +253,6 @@ fn write_stack(
     Ok(())
 }
 
-#[derive(Serialize)]
-struct ManifestEntry {
-    file: String,
-    exposure_s: f64,
-}
-
-#[derive(Serialize)]
-struct Manifest {
-    camera: String,
-    em_gain: f64,
-    bias: Vec<ManifestEntry>,
-    flat: Vec<ManifestEntry>,
-    blooming: Vec<ManifestEntry>,
-}
-
 fn calibration(
     out: &Path,
     frames: usize,
@@ -288,12 +274,10 @@ fn calibration(
     let total = (frames * (bias.len() + flats.len() + bloom.len())) as u64;
     let pb = progress(total, "frames");
     let k_qe = cam.k_dn() * cam.physics.qe;
-    let mut manifest = Manifest {
+    let mut manifest = CalibrationManifest {
         camera: "virtual-897".into(),
         em_gain: cam.em_gain,
-        bias: vec![],
-        flat: vec![],
-        blooming: vec![],
+        ..Default::default()
     };
     let zeros = vec![0f32; n];
     for (i, &t) in bias.iter().enumerate() {
@@ -307,9 +291,9 @@ fn calibration(
             opts.seed ^ (100 + i as u64),
             &pb,
         )?;
-        manifest.bias.push(ManifestEntry {
-            file,
-            exposure_s: t,
+        manifest.bias.push(Entry {
+            file: file.into(),
+            exposure_s: Some(t),
         });
     }
     let flat_t = 0.01;
@@ -325,9 +309,9 @@ fn calibration(
             opts.seed ^ (200 + i as u64),
             &pb,
         )?;
-        manifest.flat.push(ManifestEntry {
-            file,
-            exposure_s: flat_t,
+        manifest.flat.push(Entry {
+            file: file.into(),
+            exposure_s: Some(flat_t),
         });
     }
     // Bright source in the bottom-left quadrant, faint stray light elsewhere; constant flux, so
@@ -351,17 +335,16 @@ fn calibration(
             opts.seed ^ (300 + i as u64),
             &pb,
         )?;
-        manifest.blooming.push(ManifestEntry {
-            file,
-            exposure_s: t,
+        manifest.blooming.push(Entry {
+            file: file.into(),
+            exposure_s: Some(t),
         });
     }
     pb.finish_and_clear();
-    let text = format!(
-        "# Calibration acquisition written by `emccd simulate calibration`; paths are relative to this file.\n{}",
-        toml::to_string_pretty(&manifest)?
-    );
-    emccd_io::write_atomic(out.join("calibration.toml"), text.as_bytes())?;
+    emccd_io::write_atomic(
+        out.join("calibration.toml"),
+        manifest.to_toml("`emccd simulate calibration`").as_bytes(),
+    )?;
     write_truth(out, &cam, bias, flats, flat_t, bloom)?;
     eprintln!(
         "wrote {} bias, {} flat and {} blooming stacks of {frames} frames ({w}×{h}) to {}",
@@ -448,37 +431,6 @@ fn write_truth(
     }
     emccd_io::write_atomic(out.join("truth.toml"), s.as_bytes())?;
     Ok(())
-}
-
-#[derive(Serialize)]
-struct Pair {
-    scene: String,
-    noisy: String,
-    clean: String,
-    preview: String,
-    exposure_s: f64,
-    photons: f64,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    exposure_ratio: Option<f64>,
-    frames: usize,
-    width: usize,
-    height: usize,
-    psnr_input_db: f64,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    denoised: Option<String>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    psnr_denoised_db: Option<f64>,
-}
-
-#[derive(Serialize)]
-struct PairsManifest {
-    camera: String,
-    profile: String,
-    em_gain: f64,
-    k_dn_per_e: f64,
-    qe: f64,
-    note: String,
-    pair: Vec<Pair>,
 }
 
 /// One photon level of the test pairs: an exposure and the photons it collects at the peak.
@@ -600,15 +552,15 @@ fn write_pairs(
     let full = opts.camera(&truth, None)?;
     let pb = progress((scenes.len() * levels.len()) as u64, "pairs");
     let mut manifest = PairsManifest {
-        camera: "virtual-897".into(),
-        profile: opts.profile.clone(),
-        em_gain: full.em_gain,
-        k_dn_per_e: full.k_dn(),
-        qe: full.physics.qe,
-        note: "noisy: raw 16-bit frames; clean: photo-signal in DN above bias (K·QE·photons), float32. \
+        camera: Some("virtual-897".into()),
+        profile: Some(opts.profile.clone()),
+        em_gain: Some(full.em_gain),
+        k_dn_per_e: Some(full.k_dn()),
+        qe: Some(full.physics.qe),
+        note: Some("noisy: raw 16-bit frames; clean: photo-signal in DN above bias (K·QE·photons), float32. \
                psnr_input_db: preprocessed noisy frame (eq. 4 with the true FPN and blooming) against clean, \
                data range = the clean frame's peak."
-            .into(),
+            .into()),
         pair: vec![],
     };
     for (si, scene) in scenes.iter().enumerate() {
@@ -705,14 +657,15 @@ fn write_pairs(
                 scene: scene.display().to_string(),
                 noisy: noisy_rel,
                 clean: clean_rel,
-                preview: preview_rel,
+                preview: Some(preview_rel),
                 exposure_s,
                 photons: level,
                 exposure_ratio: lv.ratio,
-                frames,
-                width: w,
-                height: h,
-                psnr_input_db: (p_in * 100.0).round() / 100.0,
+                mean_electrons: None,
+                frames: Some(frames),
+                width: Some(w),
+                height: Some(h),
+                psnr_input_db: Some((p_in * 100.0).round() / 100.0),
                 denoised: denoised_out.as_ref().map(|d| d.0.clone()),
                 psnr_denoised_db: denoised_out.map(|d| d.1),
             });
@@ -720,8 +673,10 @@ fn write_pairs(
         }
     }
     pb.finish_and_clear();
-    let text = format!("# Noisy/clean pairs written by `emccd simulate pairs`; paths are relative to this file.\n{}", toml::to_string_pretty(&manifest)?);
-    emccd_io::write_atomic(out.join("pairs.toml"), text.as_bytes())?;
+    emccd_io::write_atomic(
+        out.join(PairsManifest::FILE),
+        manifest.to_toml("`emccd simulate pairs`").as_bytes(),
+    )?;
     println!(
         "{:<40} {:>9} {:>12} {:>14}",
         "pair", "photons", "PSNR in (dB)", "denoised (dB)"
@@ -732,7 +687,10 @@ fn write_pairs(
             .map_or("–".to_string(), |v| format!("{v:.2}"));
         println!(
             "{:<40} {:>9} {:>12.2} {:>14}",
-            p.noisy, p.photons, p.psnr_input_db, d
+            p.noisy,
+            p.photons,
+            p.psnr_input_db.unwrap_or(f64::NAN),
+            d
         );
     }
     let what = if model.is_some() {

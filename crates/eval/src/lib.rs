@@ -1,12 +1,16 @@
-//! Image-quality metrics, written to agree with the reference implementations users compare
-//! against: PSNR with an explicit data range, and SSIM as in Wang et al. (2004) with a Gaussian
-//! window, matching scikit-image's `structural_similarity(gaussian_weights=True, sigma=1.5,
-//! use_sample_covariance=False, data_range=R)` (tested against values it computed).
+//! Image-quality metrics and the test-pair manifest. The metrics agree with the reference
+//! implementations users compare against: PSNR with an explicit data range, and SSIM as in Wang
+//! et al. (2004) with a Gaussian window, matching scikit-image's `structural_similarity(
+//! gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=R)` (tested against
+//! values it computed).
 
 #![deny(missing_docs)]
 
 pub mod bm3d;
+pub mod pairs;
 pub mod vst;
+
+pub use pairs::{Pair, PairsManifest};
 
 use rayon::prelude::*;
 

@@ -1,0 +1,154 @@
+//! `pairs.toml`: a folder of noisy/clean test pairs and how they were made. One schema for both
+//! sides: `emccd simulate pairs` (and `tools/unseen_camera.py`, for foreign simulators) write
+//! it, `emccd evaluate` reads it. Paths are relative to the manifest.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+/// The manifest of a pairs folder.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct PairsManifest {
+    /// The camera's name.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<String>,
+    /// The profile to denoise with: `default`, a folder relative to the manifest, or as given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub profile: Option<String>,
+    /// EM gain of the noisy frames.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub em_gain: Option<f64>,
+    /// DN per photoelectron (G/c) of the camera that made them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub k_dn_per_e: Option<f64>,
+    /// Quantum efficiency.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub qe: Option<f64>,
+    /// What the files hold, for a reader of the folder.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+    /// The pairs.
+    pub pair: Vec<Pair>,
+}
+
+/// One noisy stack and its truth.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct Pair {
+    /// The clean scene it was made from.
+    pub scene: String,
+    /// Raw noisy frames (DN as the camera records them).
+    pub noisy: String,
+    /// Ground truth: the photo-signal in DN above bias, float32.
+    pub clean: String,
+    /// A side-by-side preview PNG.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub preview: Option<String>,
+    /// Exposure of the noisy frames, s.
+    pub exposure_s: f64,
+    /// Expected photons at the scene's brightest value.
+    pub photons: f64,
+    /// Ratio to a long reference exposure (the paper's protocol), where the pairs were made so.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exposure_ratio: Option<f64>,
+    /// Mean photoelectrons per pixel, where the pairs were made at fixed mean levels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mean_electrons: Option<f64>,
+    /// Frames in the noisy stack.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frames: Option<usize>,
+    /// Width, px.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub width: Option<usize>,
+    /// Height, px.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub height: Option<usize>,
+    /// PSNR of the preprocessed first noisy frame against the truth, dB.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub psnr_input_db: Option<f64>,
+    /// The denoised first frame, where the writer denoised it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub denoised: Option<String>,
+    /// Its PSNR against the truth, dB.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub psnr_denoised_db: Option<f64>,
+}
+
+impl PairsManifest {
+    /// The manifest's file name in a pairs folder.
+    pub const FILE: &'static str = "pairs.toml";
+
+    /// Reads `dir/pairs.toml` and checks every exposure; the message names the file.
+    pub fn load(dir: &Path) -> Result<PairsManifest, String> {
+        let path = dir.join(Self::FILE);
+        let text = std::fs::read_to_string(&path)
+            .map_err(|e| format!("reading {}: {e}", path.display()))?;
+        let m: PairsManifest =
+            toml::from_str(&text).map_err(|e| format!("parsing {}: {e}", path.display()))?;
+        if let Some(p) = m
+            .pair
+            .iter()
+            .find(|p| !(p.exposure_s.is_finite() && p.exposure_s > 0.0))
+        {
+            return Err(format!(
+                "{}: the pair {}: exposure_s = {} must be a positive number of seconds",
+                path.display(),
+                p.noisy,
+                p.exposure_s
+            ));
+        }
+        Ok(m)
+    }
+
+    /// The manifest as TOML, after a comment line saying who wrote it.
+    pub fn to_toml(&self, written_by: &str) -> String {
+        let body = toml::to_string_pretty(self).expect("a pairs manifest is plain data");
+        format!(
+            "# Noisy/clean pairs written by {written_by}; paths are relative to this file.\n{body}"
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trips_and_reads_the_foreign_writers_subset() {
+        let m = PairsManifest {
+            camera: Some("virtual-897".into()),
+            profile: Some("default".into()),
+            pair: vec![Pair {
+                scene: "a.png".into(),
+                noisy: "noisy/a.tif".into(),
+                clean: "clean/a.tif".into(),
+                exposure_s: 0.01,
+                photons: 20.0,
+                frames: Some(1),
+                ..Default::default()
+            }],
+            ..Default::default()
+        };
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("pairs.toml"), m.to_toml("a test")).unwrap();
+        let back = PairsManifest::load(dir.path()).unwrap();
+        assert_eq!(back.pair[0].noisy, "noisy/a.tif");
+        assert_eq!(back.pair[0].frames, Some(1));
+        assert_eq!(back.camera.as_deref(), Some("virtual-897"));
+        // what tools/unseen_camera.py writes: no camera constants, mean levels per pair
+        std::fs::write(
+            dir.path().join("pairs.toml"),
+            "[[pair]]\nscene = \"s\"\nnoisy = \"n.tif\"\nclean = \"c.tif\"\nexposure_s = 0.1\nphotons = 3.0\nmean_electrons = 1.0\n",
+        )
+        .unwrap();
+        let m = PairsManifest::load(dir.path()).unwrap();
+        assert_eq!(m.pair[0].mean_electrons, Some(1.0));
+        assert!(m.camera.is_none());
+        std::fs::write(
+            dir.path().join("pairs.toml"),
+            "[[pair]]\nscene = \"s\"\nnoisy = \"n.tif\"\nclean = \"c.tif\"\nexposure_s = 0\nphotons = 3.0\n",
+        )
+        .unwrap();
+        let e = PairsManifest::load(dir.path()).unwrap_err();
+        assert!(e.contains("n.tif") && e.contains("positive"), "{e}");
+    }
+}
