@@ -58,7 +58,10 @@ impl NoiseModelKind {
 
 /// Components of the paper's model that can be switched off (its Table 2 ablation). FPN and
 /// blooming are handled by preprocessing; their switches say whether a pipeline removes them.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+///
+/// On disk (model files, training checkpoints) it is the list of switched-off component names,
+/// `[]` for the full model; `FromStr` takes them comma-separated, as the `--ablate` flags do.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Ablation {
     /// Multiplicative (excess) noise: off means f = 1 with K unchanged.
     pub multiplicative: bool,
@@ -113,6 +116,51 @@ impl Ablation {
             }
         }
         Ok(a)
+    }
+}
+
+impl Ablation {
+    /// The switched-off components' names, in [`Ablation::COMPONENTS`] order (empty: the full
+    /// model).
+    pub fn off(&self) -> Vec<&'static str> {
+        let on = [
+            self.multiplicative,
+            self.readout,
+            self.quantization,
+            self.fpn,
+            self.blooming,
+        ];
+        Ablation::COMPONENTS
+            .iter()
+            .zip(on)
+            .filter(|(_, on)| !on)
+            .map(|(n, _)| *n)
+            .collect()
+    }
+
+    /// Whether every component is on (no ablation).
+    pub fn is_full(&self) -> bool {
+        *self == Ablation::default()
+    }
+}
+
+impl serde::Serialize for Ablation {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        serde::Serialize::serialize(&self.off(), s)
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for Ablation {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Ablation, D::Error> {
+        let names: Vec<String> = serde::Deserialize::deserialize(d)?;
+        Ablation::from_names(&names).map_err(serde::de::Error::custom)
+    }
+}
+
+impl std::fmt::Display for Ablation {
+    /// The switched-off components, comma-separated (what `FromStr` reads back).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.off().join(","))
     }
 }
 
@@ -575,6 +623,14 @@ mod tests {
         let a: Ablation = "readout, fpn".parse().unwrap();
         assert!(!a.readout && !a.fpn && a.multiplicative && a.quantization && a.blooming);
         assert_eq!("".parse::<Ablation>().unwrap(), Ablation::default());
+        let a: Ablation = "blooming, readout".parse().unwrap();
+        assert_eq!(a.off(), ["readout", "blooming"]);
+        assert_eq!(a.to_string().parse::<Ablation>().unwrap(), a);
+        let json = serde_json::to_string(&a).unwrap();
+        assert_eq!(json, r#"["readout","blooming"]"#);
+        assert_eq!(serde_json::from_str::<Ablation>(&json).unwrap(), a);
+        assert!(serde_json::from_str::<Ablation>(r#"["gain"]"#).is_err());
+        assert!(Ablation::default().is_full() && !a.is_full());
         assert_eq!(
             Ablation::from_names(&Ablation::COMPONENTS).unwrap(),
             Ablation {

@@ -378,7 +378,7 @@ fn denoise_bench(
             for (mi, pipe) in pipes.iter().enumerate() {
                 // A model made for an ablation has its own preprocessing.
                 let own;
-                let input = if pipe.model.meta.ablate.is_empty() {
+                let input = if pipe.model.meta.ablate.is_full() {
                     &pre
                 } else {
                     own = pipe.preprocess(&raw, 0.01)?;
@@ -416,7 +416,7 @@ fn denoise_bench(
             model_args[i],
             nparams,
             m.meta.steps,
-            m.meta.noise_model,
+            m.meta.noise_model.name(),
             pout[i] / nn,
             pout[i] / nn - pbm / nn,
             secs[i] / timed[i].max(1) as f64

@@ -30,8 +30,8 @@ pub struct Args {
     #[arg(long, default_value_t = 0.01)]
     pub exposure_s: f64,
     /// Components of `ours` to switch off (comma-separated): multiplicative, readout, quantization.
-    #[arg(long, value_delimiter = ',')]
-    pub ablate: Vec<String>,
+    #[arg(long, default_value = "")]
+    pub ablate: Ablation,
     /// Number of noisy frames (each with its own seed).
     #[arg(long, default_value_t = 1)]
     pub frames: usize,
@@ -55,7 +55,7 @@ pub fn run(a: Args) -> Result<()> {
         bail!("--frames must be at least 1");
     }
     let p = load_profile(&a.profile)?;
-    let ab = Ablation::from_names(&a.ablate).map_err(|e| anyhow::anyhow!("--ablate: {e}"))?;
+    let ab = a.ablate;
     if !(ab.fpn && ab.blooming) {
         bail!("--ablate: fpn and blooming are corrections of a network's preprocessing (`train --ablate`), not parts of the synthesized noise");
     }

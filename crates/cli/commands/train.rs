@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
-use emccd_camera::NoiseModelKind;
+use emccd_camera::{Ablation, NoiseModelKind};
 use emccd_nn::train::{train, Image, Loss, RunPaths, TrainConfig};
 use emccd_nn::{Inputs, ModelMeta, UNetConfig, UformerConfig};
 
@@ -56,8 +56,8 @@ pub struct Args {
     pub noise_model: NoiseModelKind,
     /// Components to switch off: multiplicative, readout, quantization (synthesis); fpn, blooming
     /// (recorded in the model: its denoising pipeline then skips that correction).
-    #[arg(long, value_delimiter = ',')]
-    pub ablate: Vec<String>,
+    #[arg(long, default_value = "")]
+    pub ablate: Ablation,
     /// Optimizer steps.
     #[arg(long, default_value_t = 20000)]
     pub steps: u64,
@@ -227,7 +227,7 @@ pub fn run(a: Args) -> Result<()> {
         lr: a.lr,
         warmup: a.warmup.min(a.steps / 5),
         noise,
-        ablate: a.ablate.clone(),
+        ablate: a.ablate,
         read_noise_scale: [a.read_noise_scale[0], a.read_noise_scale[1]],
         electrons: [a.electrons[0], a.electrons[1]],
         mean_electrons: a.mean_electrons.as_ref().map(|v| [v[0], v[1]]),
@@ -253,8 +253,8 @@ pub fn run(a: Args) -> Result<()> {
         uformer: UformerConfig::by_name(&a.arch),
         inputs,
         base,
-        noise_model: noise.name().into(),
-        ablate: a.ablate.clone(),
+        noise_model: noise,
+        ablate: a.ablate,
         profile_fingerprint: format!("{:016x}", profile.fingerprint()),
         steps: 0,
         recipe: format!(

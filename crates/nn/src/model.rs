@@ -9,6 +9,8 @@ use burn::prelude::*;
 use burn_store::{ModuleSnapshot, SafetensorsStore};
 use serde::{Deserialize, Serialize};
 
+use emccd_camera::{Ablation, NoiseModelKind};
+
 use crate::uformer::{Uformer, UformerConfig};
 use crate::unet::{UNet, UNetConfig};
 use crate::{Error, Result};
@@ -147,9 +149,9 @@ pub struct ModelMeta {
     #[serde(default)]
     pub base: Base,
     /// Noise model the training pairs were synthesized with.
-    pub noise_model: String,
-    /// Ablated components (empty for the full model).
-    pub ablate: Vec<String>,
+    pub noise_model: NoiseModelKind,
+    /// Ablated components (on disk: their names, `[]` for the full model).
+    pub ablate: Ablation,
     /// Fingerprint (hex) of the profile used in training.
     pub profile_fingerprint: String,
     /// Optimizer steps taken.

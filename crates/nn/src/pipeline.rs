@@ -4,6 +4,7 @@
 //! [`bm3d_estimate`], or iterative BM3D, [`crate::Base`]) and refines it.
 
 use burn::prelude::*;
+use emccd_camera::Ablation;
 use emccd_profile::CameraProfile;
 
 use crate::model::{Denoiser, Inputs};
@@ -54,20 +55,19 @@ pub fn check_exposure(exposure_s: f64) -> Result<()> {
 
 /// The preprocessed frame (DN above bias) at `exposure_s`: blooming and FPN removed.
 pub fn preprocess(p: &CameraProfile, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
-    preprocess_ablated(p, raw, exposure_s, &[])
+    preprocess_ablated(p, raw, exposure_s, Ablation::default())
 }
 
-/// [`preprocess`] without the corrections named in `ablate` (the paper's ablations): `fpn`
+/// [`preprocess`] without the corrections `ablate` switches off (the paper's ablations): `fpn`
 /// subtracts the bias frame of the shortest exposure instead of the exposure's modeled fixed
 /// pattern; `blooming` leaves the blooming in.
 pub fn preprocess_ablated(
     p: &CameraProfile,
     raw: &[f32],
     exposure_s: f64,
-    ablate: &[String],
+    ab: Ablation,
 ) -> Result<Vec<f32>> {
     usable(p, raw.len(), exposure_s)?;
-    let ab = emccd_camera::Ablation::from_names(ablate).map_err(Error::Model)?;
     let fpn = if !ab.fpn {
         p.maps.fpn_base.clone()
     } else {
@@ -154,7 +154,7 @@ impl Pipeline<'_> {
     /// The preprocessed frame (DN above bias) at `exposure_s`: blooming and FPN removed, unless
     /// the model was made for an ablation that skips them.
     pub fn preprocess(&self, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
-        preprocess_ablated(self.profile, raw, exposure_s, &self.model.meta.ablate)
+        preprocess_ablated(self.profile, raw, exposure_s, self.model.meta.ablate)
     }
 
     /// Denoises a preprocessed frame (DN above bias) of the profile's size.
@@ -207,7 +207,7 @@ mod tests {
             .map(|i| 300.0 + (i % 7) as f32 * 20.0)
             .collect();
         let full = preprocess(&p, &raw, t).unwrap();
-        let none = preprocess_ablated(&p, &raw, t, &["fpn".into(), "blooming".into()]).unwrap();
+        let none = preprocess_ablated(&p, &raw, t, "fpn,blooming".parse().unwrap()).unwrap();
         // Both off: the raw frame minus the shortest exposure's bias frame, nothing else.
         for ((n, r), b) in none.iter().zip(&raw).zip(&p.maps.fpn_base) {
             assert!((n - (r - b)).abs() < 1e-4);
@@ -215,7 +215,7 @@ mod tests {
         // Blooming off alone: the raw frame minus this exposure's FPN.
         let mut fpn = vec![0f32; p.len()];
         p.fpn_at(t, &mut fpn);
-        let nb = preprocess_ablated(&p, &raw, t, &["blooming".into()]).unwrap();
+        let nb = preprocess_ablated(&p, &raw, t, "blooming".parse().unwrap()).unwrap();
         for ((n, r), f) in nb.iter().zip(&raw).zip(&fpn) {
             assert!((n - (r - f)).abs() < 1e-4);
         }

@@ -92,7 +92,7 @@ pub struct TrainConfig {
     /// Noise model.
     pub noise: NoiseModelKind,
     /// Synthesis components switched off (`multiplicative`, `readout`, `quantization`).
-    pub ablate: Vec<String>,
+    pub ablate: Ablation,
     /// Seed of everything random.
     pub seed: u64,
     /// Validate every this many steps.
@@ -118,7 +118,7 @@ impl Default for TrainConfig {
             reuse: 1,
             base: crate::Base::Bm3d,
             noise: NoiseModelKind::Ours,
-            ablate: Vec::new(),
+            ablate: Ablation::default(),
             seed: 897,
             val_every: 250,
             checkpoint_every: 250,
@@ -563,7 +563,7 @@ pub fn train(
             )));
         }
     }
-    let abl = Ablation::from_names(&cfg.ablate).map_err(Error::Data)?;
+    let abl = cfg.ablate;
     let device = crate::device().autodiff();
     let state_path = paths.checkpoint.join("state.json");
     let (mut model, mut optim, start, mut loss_ema) = if resume && state_path.is_file() {
