@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use emccd_camera::{Ablation, NoiseModelKind};
 use emccd_nn::train::{train, Image, Loss, RunPaths, TrainConfig};
-use emccd_nn::{Inputs, ModelMeta, UNetConfig, UformerConfig};
+use emccd_nn::{Arch, Inputs, ModelMeta, UNetConfig, UformerConfig};
 
 use crate::common::{expand_inputs, load_profile, read_scene};
 
@@ -242,15 +242,16 @@ pub fn run(a: Args) -> Result<()> {
         ..TrainConfig::default()
     };
     let meta = ModelMeta {
-        arch: a.arch.clone(),
-        unet: (a.arch == "unet").then_some(UNetConfig {
-            base: a.base,
-            levels: a.levels,
-            in_channels: inputs.channels(),
-            residual: inputs.residual(),
-            direct: a.direct,
-        }),
-        uformer: UformerConfig::by_name(&a.arch),
+        arch: match UformerConfig::by_name(&a.arch) {
+            Some(c) => Arch::Uformer(c),
+            None => Arch::UNet(UNetConfig {
+                base: a.base,
+                levels: a.levels,
+                in_channels: inputs.channels(),
+                residual: inputs.residual(),
+                direct: a.direct,
+            }),
+        },
         inputs,
         base,
         noise_model: noise,

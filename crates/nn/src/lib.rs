@@ -19,7 +19,7 @@ pub mod uformer;
 pub mod unet;
 
 pub use error::{Error, Result};
-pub use model::{Base, Denoiser, Inputs, ModelMeta, Net};
+pub use model::{Arch, Base, Denoiser, Inputs, ModelMeta, Net};
 pub use registry::{FrameDenoiser, Method};
 pub use uformer::{Uformer, UformerConfig};
 pub use unet::{UNet, UNetConfig};

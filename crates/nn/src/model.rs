@@ -15,8 +15,98 @@ use crate::uformer::{Uformer, UformerConfig};
 use crate::unet::{UNet, UNetConfig};
 use crate::{Error, Result};
 
-/// Architectures this build knows.
+/// Architectures this build knows, by the names flags and model files use.
 pub const ARCHS: [&str; 4] = ["unet", "uformer-t", "uformer-s", "uformer-b"];
+
+/// A network's architecture and size. On disk (as model files have always said it): the `arch`
+/// name beside a `unet` or `uformer` table.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Arch {
+    /// The U-Net.
+    UNet(UNetConfig),
+    /// A Uformer (`uformer-t`, `-s` and `-b` are its presets).
+    Uformer(UformerConfig),
+}
+
+impl Arch {
+    /// The name flags and files use: `unet`, a Uformer preset's name, or `uformer` for a
+    /// Uformer of another size.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Arch::UNet(_) => "unet",
+            Arch::Uformer(c) => ["uformer-t", "uformer-s", "uformer-b"]
+                .into_iter()
+                .find(|n| {
+                    UformerConfig::by_name(n).is_some_and(|p| {
+                        UformerConfig {
+                            in_channels: c.in_channels,
+                            ..p
+                        } == *c
+                    })
+                })
+                .unwrap_or("uformer"),
+        }
+    }
+
+    /// Input channels of the network.
+    pub fn in_channels(&self) -> usize {
+        match self {
+            Arch::UNet(c) => c.in_channels,
+            Arch::Uformer(c) => c.in_channels,
+        }
+    }
+
+    /// Frame sides the network accepts are multiples of this (frames are padded to it).
+    pub fn multiple(&self) -> usize {
+        match self {
+            Arch::UNet(c) => 1 << c.levels,
+            Arch::Uformer(c) => c.multiple(),
+        }
+    }
+}
+
+/// The on-disk keys of [`Arch`].
+#[derive(Serialize, Deserialize)]
+struct ArchKeys {
+    arch: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    unet: Option<UNetConfig>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    uformer: Option<UformerConfig>,
+}
+
+impl Serialize for Arch {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
+        let (unet, uformer) = match *self {
+            Arch::UNet(c) => (Some(c), None),
+            Arch::Uformer(c) => (None, Some(c)),
+        };
+        ArchKeys {
+            arch: self.name().into(),
+            unet,
+            uformer,
+        }
+        .serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for Arch {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Arch, D::Error> {
+        use serde::de::Error as _;
+        let k = ArchKeys::deserialize(d)?;
+        match (k.arch.as_str(), k.unet, k.uformer) {
+            ("unet", Some(c), _) => Ok(Arch::UNet(c)),
+            (a, _, Some(c)) if a.starts_with("uformer") => Ok(Arch::Uformer(c)),
+            (a, _, _) if ARCHS.contains(&a) || a == "uformer" => Err(D::Error::custom(format!(
+                "model metadata names architecture {a:?} but not its configuration"
+            ))),
+            (a, _, _) => Err(D::Error::custom(format!(
+                "unknown architecture {a:?} (this build has: {})",
+                ARCHS.join(", ")
+            ))),
+        }
+    }
+}
 
 /// A network of any architecture this build has. Model files name tensors without the
 /// variant (`enc.0.c1.weight`, not `UNet.enc.0.c1.weight`): the metadata says which it is.
@@ -134,14 +224,9 @@ impl std::str::FromStr for Base {
 /// Everything a model file says about itself.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ModelMeta {
-    /// Architecture name: `unet`, `uformer-t`, `uformer-s` or `uformer-b`.
-    pub arch: String,
-    /// U-Net size (U-Net models).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub unet: Option<UNetConfig>,
-    /// Uformer size (Uformer models).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub uformer: Option<UformerConfig>,
+    /// Architecture and size.
+    #[serde(flatten)]
+    pub arch: Arch,
     /// What the network is given (files without the key are denoisers).
     #[serde(default)]
     pub inputs: Inputs,
@@ -163,11 +248,7 @@ pub struct ModelMeta {
 impl ModelMeta {
     /// Frame sides the network accepts are multiples of this (frames are padded to it).
     pub fn multiple(&self) -> usize {
-        match (self.unet, self.uformer) {
-            (Some(u), _) if self.arch == "unet" => 1 << u.levels,
-            (_, Some(u)) => u.multiple(),
-            _ => 1,
-        }
+        self.arch.multiple()
     }
 }
 
@@ -186,38 +267,23 @@ impl Denoiser {
     /// A freshly initialized model.
     pub fn new(meta: ModelMeta, device: &Device) -> Result<Denoiser> {
         check_size(&meta).map_err(|e| Error::Model(format!("model configuration: {e}")))?;
-        let channels = meta
-            .unet
-            .map(|c| c.in_channels)
-            .or(meta.uformer.map(|c| c.in_channels));
-        if channels.is_some_and(|c| c != meta.inputs.channels()) {
+        let channels = meta.arch.in_channels();
+        if channels != meta.inputs.channels() {
             return Err(Error::Model(format!(
-                "model metadata: a {} network takes {} input channels, its configuration says {}",
+                "model metadata: a {} network takes {} input channels, its configuration says {channels}",
                 meta.inputs.name(),
                 meta.inputs.channels(),
-                channels.unwrap_or(0)
             )));
         }
-        if meta.inputs == Inputs::Hybrid && meta.arch != "unet" {
-            return Err(Error::Model(format!(
-                "a hybrid (BM3D-refining) network is a U-Net in this build, not {}",
-                meta.arch
-            )));
-        }
-        let net = match (meta.arch.as_str(), meta.unet, meta.uformer) {
-            ("unet", Some(c), _) => Net::UNet(c.init(device)),
-            (a, _, Some(c)) if a.starts_with("uformer") => Net::Uformer(c.init(device)),
-            (a, _, _) if ARCHS.contains(&a) => {
+        let net = match meta.arch {
+            Arch::UNet(c) => Net::UNet(c.init(device)),
+            Arch::Uformer(_) if meta.inputs == Inputs::Hybrid => {
                 return Err(Error::Model(format!(
-                    "model metadata names architecture {a:?} but not its configuration"
+                    "a hybrid (BM3D-refining) network is a U-Net in this build, not {}",
+                    meta.arch.name()
                 )));
             }
-            (a, _, _) => {
-                return Err(Error::Model(format!(
-                    "unknown architecture {a:?} (this build has: {})",
-                    ARCHS.join(", ")
-                )))
-            }
+            Arch::Uformer(c) => Net::Uformer(c.init(device)),
         };
         Ok(Denoiser { net, meta })
     }
@@ -299,7 +365,7 @@ fn meta_of(bytes: &[u8], path: &Path) -> Result<ModelMeta> {
 /// hostile file could otherwise ask for a million channels, or 70 levels whose channel count
 /// doubles past the integer range.
 fn check_size(meta: &ModelMeta) -> std::result::Result<(), String> {
-    if let Some(c) = meta.unet {
+    if let Arch::UNet(c) = meta.arch {
         // Channels double at every level: bound the deepest level's width, not only the first.
         if !(1..=512).contains(&c.base) || !(1..=8).contains(&c.levels) || c.base << c.levels > 4096
         {
@@ -309,7 +375,7 @@ fn check_size(meta: &ModelMeta) -> std::result::Result<(), String> {
             ));
         }
     }
-    if let Some(c) = meta.uformer {
+    if let Arch::Uformer(c) = meta.arch {
         if !(1..=128).contains(&c.embed)
             || c.depths.iter().sum::<usize>() > 64
             || !(1..=64).contains(&c.win)

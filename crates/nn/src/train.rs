@@ -594,9 +594,7 @@ pub fn train(
                 // The architecture is the initial model's; the rest describes this run.
                 m.meta = ModelMeta {
                     steps: m.meta.steps,
-                    arch: m.meta.arch.clone(),
-                    unet: m.meta.unet,
-                    uformer: m.meta.uformer,
+                    arch: m.meta.arch,
                     inputs: m.meta.inputs,
                     ..meta.clone()
                 };
@@ -621,7 +619,7 @@ pub fn train(
         return Err(Error::Data(format!(
             "the crop ({c} px) must be a multiple of {} px for {}",
             model.meta.multiple(),
-            model.meta.arch
+            model.meta.arch.name()
         )));
     }
     // The base estimate is the model's (a resumed run's checkpoint records it), whatever the

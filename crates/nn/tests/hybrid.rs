@@ -4,14 +4,14 @@ use burn::prelude::*;
 use emccd_camera::{NoiseModel, PgnModel};
 use emccd_nn::norm::{prepare, prepare_hybrid, signal_scale, HYBRID_SCALE_FLOOR};
 use emccd_nn::pipeline::{bm3d_estimate, Pipeline};
-use emccd_nn::{Denoiser, Inputs, ModelMeta, UNetConfig};
+use emccd_nn::{Arch, Denoiser, Inputs, ModelMeta, UNetConfig};
 mod common;
 
 use common::{meta, scene};
 
 fn hybrid_meta() -> ModelMeta {
     ModelMeta {
-        unet: Some(UNetConfig {
+        arch: Arch::UNet(UNetConfig {
             base: 4,
             levels: 2,
             in_channels: 3,
@@ -76,7 +76,7 @@ fn an_untrained_hybrid_network_returns_the_bm3d_estimate() {
 #[test]
 fn a_hybrid_needs_three_channels_and_a_unet() {
     let bad = ModelMeta {
-        unet: Some(UNetConfig {
+        arch: Arch::UNet(UNetConfig {
             base: 4,
             levels: 2,
             in_channels: 2,

@@ -4,7 +4,7 @@ use emccd_nn::tile::{run, run_ensemble, Tiling};
 mod common;
 
 use common::{meta, scene, tiling_mismatch};
-use emccd_nn::{Denoiser, Net};
+use emccd_nn::{Arch, Denoiser, Net};
 
 #[test]
 fn tiled_and_untiled_outputs_agree_in_the_interior() {
@@ -73,7 +73,10 @@ fn self_ensemble_averages_the_network_over_flips_and_transposes() {
     let (w, h) = (48, 32);
     let m = meta(4, 2);
     let dev = emccd_nn::cpu();
-    let net = Net::UNet(m.unet.unwrap().init(&dev));
+    let Arch::UNet(c) = m.arch else {
+        unreachable!("common::meta is a U-Net")
+    };
+    let net = Net::UNet(c.init(&dev));
     let img = scene(w, h);
     let mut input = img.clone();
     input.extend(img.iter().map(|v| v.sqrt() * 0.1));
@@ -224,7 +227,9 @@ fn a_direct_unet_has_no_global_residual() {
     let dev = emccd_nn::cpu();
     let x = common::scene_input(16, 16, &dev);
     for direct in [false, true] {
-        let mut cfg = meta(4, 2).unet.unwrap();
+        let Arch::UNet(mut cfg) = meta(4, 2).arch else {
+            unreachable!("common::meta is a U-Net")
+        };
         cfg.direct = direct;
         let y: Vec<f32> = cfg
             .init(&dev)
@@ -243,7 +248,9 @@ fn a_direct_unet_has_no_global_residual() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("d.safetensors");
     let mut m = meta(4, 2);
-    m.unet.as_mut().unwrap().direct = true;
+    if let Arch::UNet(c) = &mut m.arch {
+        c.direct = true;
+    }
     Denoiser::new(m.clone(), &dev).unwrap().save(&p).unwrap();
     assert_eq!(Denoiser::load(&p, &dev).unwrap().meta, m);
     let old: emccd_nn::UNetConfig =

@@ -3,14 +3,12 @@
 
 use burn::module::Module;
 use emccd_nn::tile::Tiling;
-use emccd_nn::{Denoiser, ModelMeta, UformerConfig};
+use emccd_nn::{Arch, Denoiser, ModelMeta, UformerConfig};
 mod common;
 
-fn meta(cfg: UformerConfig, arch: &str) -> ModelMeta {
+fn meta(cfg: UformerConfig) -> ModelMeta {
     ModelMeta {
-        arch: arch.into(),
-        unet: None,
-        uformer: Some(cfg),
+        arch: Arch::Uformer(cfg),
         ..common::meta(8, 2)
     }
 }
@@ -40,7 +38,7 @@ fn any_frame_size_runs_and_tiles_without_seams() {
         depths: [1, 1, 1, 1, 2, 1, 1, 1, 1],
         ..UformerConfig::T
     };
-    let m = Denoiser::new(meta(cfg, "uformer-t"), &dev).unwrap();
+    let m = Denoiser::new(meta(cfg), &dev).unwrap();
     assert_eq!(m.meta.multiple(), 128);
     let (w, h) = (300, 200);
     let (whole, rel) = common::tiling_mismatch(
@@ -70,7 +68,7 @@ fn uformer_model_files_round_trip() {
         depths: [1; 9],
         ..UformerConfig::T
     };
-    let m = Denoiser::new(meta(cfg, "uformer-t"), &dev).unwrap();
+    let m = Denoiser::new(meta(cfg), &dev).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("u.safetensors");
     m.save(&p).unwrap();
@@ -91,10 +89,11 @@ fn uformer_model_files_round_trip() {
         .unwrap();
     assert_eq!(a, b);
     // Metadata that names an architecture without its configuration is refused, not guessed.
-    let bad = ModelMeta {
-        uformer: None,
-        ..m.meta.clone()
-    };
-    let e = Denoiser::new(bad, &dev).unwrap_err().to_string();
+    let mut json = serde_json::to_value(&m.meta).unwrap();
+    assert_eq!(json["arch"], "uformer"); // a Uformer of no preset size
+    json.as_object_mut().unwrap().remove("uformer");
+    let e = serde_json::from_value::<ModelMeta>(json)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("not its configuration"), "{e}");
 }

@@ -2,7 +2,7 @@
 #![allow(dead_code)] // each test binary uses its own subset
 
 use emccd_nn::tile::{run, Tiling};
-use emccd_nn::{ModelMeta, Net, UNetConfig};
+use emccd_nn::{Arch, ModelMeta, Net, UNetConfig};
 
 /// A bundled model file, `models/NAME-unet.safetensors` at the repository root.
 pub fn bundled(name: &str) -> std::path::PathBuf {
@@ -13,15 +13,13 @@ pub fn bundled(name: &str) -> std::path::PathBuf {
 /// Metadata of a small U-Net.
 pub fn meta(base: usize, levels: usize) -> ModelMeta {
     ModelMeta {
-        arch: "unet".into(),
-        unet: Some(UNetConfig {
+        arch: Arch::UNet(UNetConfig {
             base,
             levels,
             in_channels: 2,
             residual: 0,
             direct: false,
         }),
-        uformer: None,
         inputs: Default::default(),
         base: Default::default(),
         noise_model: emccd_camera::NoiseModelKind::Ours,
