@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use emccd_camera::{Ablation, NoiseModelKind};
 use emccd_nn::train::{train, Image, Loss, RunPaths, TrainConfig};
-use emccd_nn::{Arch, Inputs, ModelMeta, UNetConfig, UformerConfig};
+use emccd_nn::{Arch, Base, Inputs, ModelMeta, UNetConfig, UformerConfig};
 
 use crate::common::{expand_inputs, load_profile, read_scene};
 
@@ -44,13 +44,13 @@ pub struct Args {
     /// `hybrid` (also the BM3D + GAT estimate, which the network corrects; its output layer
     /// starts at zero, so training starts at BM3D's quality; U-Net only).
     #[arg(long, value_enum, default_value = "noisy")]
-    pub inputs: InputsArg,
+    pub inputs: Inputs,
     /// --inputs hybrid: the estimate the network corrects: `bm3d` (BM3D + GAT, one pass) or
     /// `ivst` (BM3D with iterative variance stabilization and binning, better below a few
     /// photoelectrons per pixel; `emccd denoise --method ivst`). Default: the --init model's
     /// base, else bm3d. Another base than the --init model's restarts its output layer at zero.
-    #[arg(long, value_parser = ["bm3d", "ivst"])]
-    pub hybrid_base: Option<String>,
+    #[arg(long, value_enum)]
+    pub hybrid_base: Option<Base>,
     /// Noise model of the synthesized pairs.
     #[arg(long, value_enum, default_value = "ours")]
     pub noise_model: NoiseModelKind,
@@ -90,7 +90,7 @@ pub struct Args {
     pub cic: Option<Vec<f64>>,
     /// Training loss.
     #[arg(long, value_enum, default_value = "charbonnier")]
-    pub loss: LossArg,
+    pub loss: Loss,
     /// Peak learning rate.
     #[arg(long, default_value_t = 2e-4)]
     pub lr: f64,
@@ -112,24 +112,6 @@ pub struct Args {
     /// Output model file (.safetensors).
     #[arg(short, long)]
     pub out: PathBuf,
-}
-
-/// Network inputs.
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum InputsArg {
-    /// The noisy frame and its noise level.
-    Noisy,
-    /// Also the BM3D + GAT estimate, which the network refines.
-    Hybrid,
-}
-
-/// Training loss.
-#[derive(clap::ValueEnum, Clone, Copy, Debug)]
-pub enum LossArg {
-    /// Charbonnier (smooth L1).
-    Charbonnier,
-    /// Mean squared error.
-    L2,
 }
 
 fn load_images(paths: &[PathBuf]) -> Result<Vec<(PathBuf, Image)>> {
@@ -198,25 +180,22 @@ pub fn run(a: Args) -> Result<()> {
         )
     };
     let noise = a.noise_model;
-    let inputs = match a.inputs {
-        InputsArg::Noisy => Inputs::Noisy,
-        InputsArg::Hybrid => Inputs::Hybrid,
-    };
+    let inputs = a.inputs;
     if a.direct && (inputs == Inputs::Hybrid || a.arch != "unet") {
         bail!("--direct: only a U-Net denoiser (--arch unet --inputs noisy) has a direct output");
     }
     if inputs == Inputs::Hybrid && a.arch != "unet" {
         bail!("--inputs hybrid: the refinement network is a U-Net in this build (--arch unet)");
     }
-    let base: emccd_nn::Base = match (&a.hybrid_base, &a.init) {
+    let base: Base = match (a.hybrid_base, &a.init) {
         (Some(_), _) if inputs != Inputs::Hybrid => {
             bail!("--hybrid-base: only a refinement network (--inputs hybrid) has a base estimate")
         }
-        (Some(b), _) => b.parse().map_err(|e: String| anyhow::anyhow!(e))?,
+        (Some(b), _) => b,
         (None, Some(init)) => {
             emccd_nn::Denoiser::read_meta(&emccd_nn::registry::model_path(init)?)?.base
         }
-        (None, None) => emccd_nn::Base::Bm3d,
+        (None, None) => Base::Bm3d,
     };
     let cfg = TrainConfig {
         base,
@@ -232,10 +211,7 @@ pub fn run(a: Args) -> Result<()> {
         electrons: [a.electrons[0], a.electrons[1]],
         mean_electrons: a.mean_electrons.as_ref().map(|v| [v[0], v[1]]),
         cic_e: a.cic.as_ref().map(|v| [v[0], v[1]]),
-        loss: match a.loss {
-            LossArg::Charbonnier => Loss::Charbonnier,
-            LossArg::L2 => Loss::L2,
-        },
+        loss: a.loss,
         seed: a.seed,
         val_every: a.checkpoint_every,
         checkpoint_every: a.checkpoint_every,

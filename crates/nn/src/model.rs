@@ -132,15 +132,24 @@ impl Net {
 
 /// What a network is given, which also fixes how the frame is normalized.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Inputs {
     /// A denoiser: the frame and its noise level, scaled by the noisy frame's 99.5th percentile
     /// ([`crate::norm::prepare`]).
     #[default]
+    #[cfg_attr(
+        feature = "clap",
+        value(help = "a denoiser: the frame and its noise level")
+    )]
     Noisy,
     /// A refinement network: the frame, its noise level and the BM3D + GAT estimate, scaled by
     /// the estimate's 99.5th percentile ([`crate::norm::prepare_hybrid`]); the output is the
     /// estimate plus a learned correction.
+    #[cfg_attr(
+        feature = "clap",
+        value(help = "a refinement network: also the BM3D estimate, which it corrects")
+    )]
     Hybrid,
 }
 
@@ -173,13 +182,24 @@ impl Inputs {
 
 /// The classical estimate a refinement network ([`Inputs::Hybrid`]) is given and corrects.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Base {
     /// BM3D after the generalized Anscombe transform, one pass (files without the key).
     #[default]
+    #[cfg_attr(
+        feature = "clap",
+        value(help = "BM3D after the generalized Anscombe transform, one pass")
+    )]
     Bm3d,
     /// BM3D with iterative variance stabilization and binning, the passes chosen from the
     /// frame's light level ([`emccd_eval::vst::bm3d_adaptive`]): better below a few counts.
+    #[cfg_attr(
+        feature = "clap",
+        value(
+            help = "BM3D with iterative variance stabilization: better below a few photoelectrons"
+        )
+    )]
     Ivst,
 }
 

@@ -38,6 +38,7 @@ pub struct Image {
 
 /// The training loss on network-unit outputs.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Loss {
     /// `√(d² + 10⁻⁶)`: L1-like, robust.
