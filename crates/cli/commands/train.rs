@@ -234,6 +234,7 @@ pub fn run(a: Args) -> Result<()> {
         ablate: a.ablate,
         profile_fingerprint: format!("{:016x}", profile.fingerprint()),
         steps: 0,
+        train: None, // recorded by the run
         recipe: format!(
             "{} train / {} val images; batch {} × {}², each pair used ≈{}×; AdamW lr {} wd {} warm-up {} + cosine; {:?} loss; {}; read noise ×{:?}; CIC {:?}; seed {}",
             train_imgs.len(),

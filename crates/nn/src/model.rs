@@ -263,6 +263,10 @@ pub struct ModelMeta {
     pub steps: u64,
     /// Free text: data, batch, crop, learning-rate schedule, seed.
     pub recipe: String,
+    /// The configuration of the training run that wrote the file (the last one, for a
+    /// fine-tuned model; files written before it was recorded have none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub train: Option<crate::train::TrainConfig>,
 }
 
 impl ModelMeta {

@@ -48,8 +48,8 @@ pub enum Loss {
     L2,
 }
 
-/// The recipe.
-#[derive(Clone, Debug, Serialize, Deserialize)]
+/// The recipe (recorded in the model file it produces, [`crate::ModelMeta::train`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TrainConfig {
     /// Optimizer steps.
     pub steps: u64,
@@ -629,6 +629,7 @@ pub fn train(
         base: model.meta.base,
         ..cfg
     };
+    model.meta.train = Some(cfg.clone());
     let base_steps = model.meta.steps.saturating_sub(start);
     let inputs = model.meta.inputs;
     let ch = inputs.channels();

@@ -60,6 +60,9 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
     )
     .unwrap();
     assert_eq!(full.meta.steps, 4);
+    // The file records the run's configuration, typed.
+    let saved = Denoiser::load(&paths("full").out, &emccd_nn::cpu()).unwrap();
+    assert_eq!(saved.meta.train.as_ref(), Some(&cfg));
     assert!(seen.iter().all(|s| s.1.is_finite()) && seen.last().unwrap().2.is_some());
     // Interrupted after 2 steps (the checkpoint at step 2), then resumed to 4.
     let p = paths("split");

@@ -25,6 +25,7 @@ pub fn meta(base: usize, levels: usize) -> ModelMeta {
         noise_model: emccd_camera::NoiseModelKind::Ours,
         ablate: Default::default(),
         profile_fingerprint: "0".into(),
+        train: None,
         steps: 0,
         recipe: "test".into(),
     }
