@@ -645,13 +645,7 @@ fn write_pairs(
             }
             panels.push(&truth);
             let np = panels.len();
-            let mut side = vec![0f32; np * w * h];
-            for y in 0..h {
-                for (k, p) in panels.iter().enumerate() {
-                    side[y * np * w + k * w..y * np * w + (k + 1) * w]
-                        .copy_from_slice(&p[y * w..(y + 1) * w]);
-                }
-            }
+            let side = emccd_eval::scores::side_by_side(&panels, w, (0, 0), (w, h));
             emccd_io::write_png_preview(out.join(&preview_rel), np * w, h, &side, 0.0, peak)?;
             manifest.pair.push(Pair {
                 scene: scene.display().to_string(),

@@ -8,9 +8,11 @@
 
 pub mod bm3d;
 pub mod pairs;
+pub mod scores;
 pub mod vst;
 
 pub use pairs::{Pair, PairsManifest};
+pub use scores::{LevelUnit, Score, Summary};
 
 use rayon::prelude::*;
 
