@@ -108,11 +108,6 @@ pub fn center_crop(img: &[f32], w: usize, h: usize, cw: usize, ch: usize) -> Vec
     out
 }
 
-/// Formats an exposure for file names: `0.01s`, `1e-05s`.
-pub fn exposure_tag(t: f64) -> String {
-    format!("{t}s")
-}
-
 /// What identifies a file, for comparing files rather than spellings: its device and inode where
 /// it exists (so `./x.tif`, `a/../x.tif`, and symbolic and hard links to `x.tif` are one file),
 /// else the absolute path it would have.

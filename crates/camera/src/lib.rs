@@ -5,6 +5,8 @@
 //! - [`noise`]: the [`NoiseModel`] trait and its three implementations — [`OursModel`] (paper
 //!   eq. 5), [`EldModel`] (Wei et al. 2021's CMOS model) and [`PgnModel`] (Poisson–Gamma–Normal,
 //!   Ryan et al. 2021) — each with closed-form moments that the tests check samples against.
+//! - [`acquisition`]: a calibration acquisition (dark, flat and blooming stacks) designed for the
+//!   virtual camera, and its truth.
 //! - [`virtual_camera`]: the full eq. 1 with the physical EM register (Poisson → Gamma), clock-
 //!   induced charge, dark current and hot pixels, exposure-dependent FPN, per-pixel read noise,
 //!   blooming and a 16-bit ADC.
@@ -14,6 +16,7 @@
 
 #![deny(missing_docs)]
 
+pub mod acquisition;
 pub mod noise;
 pub mod rng;
 pub mod virtual_camera;

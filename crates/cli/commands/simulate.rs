@@ -1,18 +1,16 @@
 //! `emccd simulate calibration|pairs`: the virtual camera.
 
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use emccd_calib::manifest::{Entry, Manifest as CalibrationManifest};
+use emccd_camera::acquisition::{frame_seed, CalibrationPlan, PlannedStack, Role};
 use emccd_camera::{PhysicalParams, VirtualCamera};
 use emccd_eval::{Pair, PairsManifest};
 use emccd_io::{Metadata, SampleFormat, StackWriter};
 use emccd_profile::preprocess;
 
-use crate::common::{
-    center_crop, expand_inputs, exposure_tag, load_profile, parse_size, progress, read_scene,
-};
+use crate::common::{center_crop, expand_inputs, load_profile, parse_size, progress, read_scene};
 
 /// Options shared by both simulations: the camera's truth.
 #[derive(clap::Args, Debug, Clone)]
@@ -85,28 +83,16 @@ pub enum Cmd {
         #[arg(short, long)]
         out: PathBuf,
         /// Frames per stack.
-        #[arg(long, default_value_t = 20)]
+        #[arg(long, default_value_t = CalibrationPlan::default().frames)]
         frames: usize,
         /// Bias exposures in seconds (comma-separated).
-        #[arg(
-            long,
-            value_delimiter = ',',
-            default_value = "1e-5,1e-4,1e-3,0.003,0.006,0.01,0.02,0.05,0.1,0.2,0.5,1"
-        )]
+        #[arg(long, value_delimiter = ',', default_values_t = CalibrationPlan::default().bias_exposures_s)]
         bias_exposures: Vec<f64>,
         /// Flat-field signal levels in DN above bias (comma-separated), at 10 ms.
-        #[arg(
-            long,
-            value_delimiter = ',',
-            default_value = "20,50,120,300,700,1500,3500,8000"
-        )]
+        #[arg(long, value_delimiter = ',', default_values_t = CalibrationPlan::default().flat_levels_dn)]
         flat_levels: Vec<f64>,
         /// Blooming-frame exposures in seconds (comma-separated).
-        #[arg(
-            long,
-            value_delimiter = ',',
-            default_value = "0.001,0.002,0.005,0.01,0.02,0.05,0.1"
-        )]
+        #[arg(long, value_delimiter = ',', default_values_t = CalibrationPlan::default().blooming_exposures_s)]
         blooming_exposures: Vec<f64>,
         #[command(flatten)]
         camera: CameraOpts,
@@ -159,10 +145,13 @@ pub fn run(c: Cmd) -> Result<()> {
             camera,
         } => calibration(
             &out,
-            frames,
-            &bias_exposures,
-            &flat_levels,
-            &blooming_exposures,
+            &CalibrationPlan {
+                frames,
+                bias_exposures_s: bias_exposures,
+                flat_levels_dn: flat_levels,
+                blooming_exposures_s: blooming_exposures,
+                ..CalibrationPlan::default()
+            },
             &camera,
         ),
         Cmd::Pairs {
@@ -213,39 +202,35 @@ fn check_positive(name: &str, v: &[f64]) -> Result<()> {
     Ok(())
 }
 
+/// Writes one planned stack as 16-bit TIFF, frame by frame.
 fn write_stack(
-    path: &Path,
+    out: &Path,
     cam: &VirtualCamera,
-    exposure_s: f64,
-    photons: &[f32],
+    stack: &PlannedStack,
     frames: usize,
-    seed: u64,
     pb: &indicatif::ProgressBar,
 ) -> Result<()> {
+    let path = out.join(&stack.file);
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    let e = cam.exposure(exposure_s);
+    let e = cam.exposure(stack.exposure_s);
     let mut w = StackWriter::create(
-        path,
+        &path,
         cam.width(),
         cam.height(),
         SampleFormat::U16,
         Some(frames),
     )?;
     w.set_metadata(&Metadata {
-        exposure_s: Some(exposure_s),
+        exposure_s: Some(stack.exposure_s),
         em_gain: Some(cam.em_gain),
         camera_model: Some("virtual-897".into()),
         ..Default::default()
     });
     let mut buf = vec![0f32; cam.profile.len()];
     for k in 0..frames {
-        e.frame(
-            photons,
-            seed.wrapping_mul(1_000_003).wrapping_add(k as u64),
-            &mut buf,
-        );
+        e.frame(&stack.photons, frame_seed(stack.seed, k), &mut buf);
         w.write_frame(&buf)?;
         pb.inc(1);
     }
@@ -253,183 +238,53 @@ fn write_stack(
     Ok(())
 }
 
-fn calibration(
-    out: &Path,
-    frames: usize,
-    bias: &[f64],
-    flats: &[f64],
-    bloom: &[f64],
-    opts: &CameraOpts,
-) -> Result<()> {
-    if frames < 2 {
+fn calibration(out: &Path, plan: &CalibrationPlan, opts: &CameraOpts) -> Result<()> {
+    if plan.frames < 2 {
         bail!("--frames must be at least 2 (temporal statistics need two frames)");
     }
-    check_positive("bias-exposures", bias)?;
-    check_positive("flat-levels", flats)?;
-    check_positive("blooming-exposures", bloom)?;
+    check_positive("bias-exposures", &plan.bias_exposures_s)?;
+    check_positive("flat-levels", &plan.flat_levels_dn)?;
+    check_positive("blooming-exposures", &plan.blooming_exposures_s)?;
     let cam = opts.camera(&opts.profile()?, None)?;
-    let (w, h) = (cam.width(), cam.height());
-    let n = w * h;
+    let stacks = plan.stacks(&cam, opts.seed)?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let total = (frames * (bias.len() + flats.len() + bloom.len())) as u64;
-    let pb = progress(total, "frames");
-    let k_qe = cam.k_dn() * cam.physics.qe;
+    let pb = progress(plan.total_frames(), "frames");
     let mut manifest = CalibrationManifest {
         camera: "virtual-897".into(),
         em_gain: cam.em_gain,
         ..Default::default()
     };
-    let zeros = vec![0f32; n];
-    for (i, &t) in bias.iter().enumerate() {
-        let file = format!("bias/bias_{}.tif", exposure_tag(t));
-        write_stack(
-            &out.join(&file),
-            &cam,
-            t,
-            &zeros,
-            frames,
-            opts.seed ^ (100 + i as u64),
-            &pb,
-        )?;
-        manifest.bias.push(Entry {
-            file: file.into(),
-            exposure_s: Some(t),
-        });
-    }
-    let flat_t = 0.01;
-    for (i, &level) in flats.iter().enumerate() {
-        let photons = vec![(level / k_qe) as f32; n];
-        let file = format!("flat/flat_{:02}.tif", i + 1);
-        write_stack(
-            &out.join(&file),
-            &cam,
-            flat_t,
-            &photons,
-            frames,
-            opts.seed ^ (200 + i as u64),
-            &pb,
-        )?;
-        manifest.flat.push(Entry {
-            file: file.into(),
-            exposure_s: Some(flat_t),
-        });
-    }
-    // Bright source in the bottom-left quadrant, faint stray light elsewhere; constant flux, so
-    // the signal grows with exposure (20 000 DN at the longest exposure).
-    let t_max = bloom.iter().copied().fold(0.0, f64::max);
-    let rate = 20000.0 / k_qe / t_max;
-    for (i, &t) in bloom.iter().enumerate() {
-        let mut photons = vec![(0.002 * rate * t) as f32; n];
-        for y in h / 2..h {
-            for x in 0..w / 2 {
-                photons[y * w + x] = (rate * t) as f32;
-            }
+    for stack in &stacks {
+        write_stack(out, &cam, stack, plan.frames, &pb)?;
+        let entry = Entry {
+            file: stack.file.clone().into(),
+            exposure_s: Some(stack.exposure_s),
+        };
+        match stack.role {
+            Role::Bias => manifest.bias.push(entry),
+            Role::Flat => manifest.flat.push(entry),
+            Role::Blooming => manifest.blooming.push(entry),
         }
-        let file = format!("blooming/bloom_{}.tif", exposure_tag(t));
-        write_stack(
-            &out.join(&file),
-            &cam,
-            t,
-            &photons,
-            frames,
-            opts.seed ^ (300 + i as u64),
-            &pb,
-        )?;
-        manifest.blooming.push(Entry {
-            file: file.into(),
-            exposure_s: Some(t),
-        });
     }
     pb.finish_and_clear();
     emccd_io::write_atomic(
         out.join("calibration.toml"),
         manifest.to_toml("`emccd simulate calibration`").as_bytes(),
     )?;
-    write_truth(out, &cam, bias, flats, flat_t, bloom)?;
-    eprintln!(
-        "wrote {} bias, {} flat and {} blooming stacks of {frames} frames ({w}×{h}) to {}",
-        bias.len(),
-        flats.len(),
-        bloom.len(),
-        out.display()
-    );
-    Ok(())
-}
-
-fn write_truth(
-    out: &Path,
-    cam: &VirtualCamera,
-    bias: &[f64],
-    flats: &[f64],
-    flat_t: f64,
-    bloom: &[f64],
-) -> Result<()> {
     cam.profile
         .save(out.join("truth"))
         .context("writing the truth profile")?;
-    let p = &cam.profile;
-    let mut s = String::new();
-    writeln!(
-        s,
-        "# The virtual camera's true parameters. The full truth profile (maps) is in truth/."
-    )?;
-    writeln!(s, "# Raw model: D = round(B[m/c + FPN_t] + N(0, σ²)), m ~ Gamma(Poisson(QE·φ + dark·t + CIC), G).")?;
-    writeln!(s, "profile = \"truth\"")?;
-    writeln!(s, "width = {}\nheight = {}", p.width, p.height)?;
-    writeln!(s, "em_gain = {}", cam.em_gain)?;
-    writeln!(s, "e_per_dn = {}", cam.e_per_dn)?;
-    writeln!(s, "k_dn_per_e = {}  # G / c", cam.k_dn())?;
-    writeln!(
-        s,
-        "ptc_slope_dn = {}  # 2G/c: the EM register's f² = 2",
-        p.slope()?
-    )?;
-    writeln!(
-        s,
-        "qe = {}\ncic_e = {}\ndark_e_per_s = {}",
-        cam.physics.qe, cam.physics.cic_e, cam.physics.dark_e_per_s
-    )?;
-    writeln!(
-        s,
-        "hot_pixels = {}  # dark current {} e-/s",
-        cam.hot_pixels.len(),
-        cam.physics.hot_dark_e_per_s
-    )?;
-    writeln!(
-        s,
-        "hot_pixel_indices = {:?}",
-        &cam.hot_pixels[..cam.hot_pixels.len().min(1000)]
-    )?;
-    writeln!(
-        s,
-        "bias_dn = {}  # median FPN at {} s",
-        p.bias_dn(),
-        p.fpn.base_exposure_s
-    )?;
-    writeln!(
-        s,
-        "read_noise_dn = {}  # median read-noise std",
-        p.read_noise_dn()
-    )?;
-    writeln!(
-        s,
-        "fpn_form = \"{:?}\"\nfpn_shared_theta = {:?}",
-        p.fpn.form, p.fpn.shared_theta
-    )?;
-    if let Some(b) = p.blooming {
-        writeln!(s, "blooming_a = {}\nblooming_b = {}", b.a, b.b)?;
-    }
-    writeln!(s, "bias_exposures_s = {bias:?}")?;
-    let levels: Vec<f64> = flats.to_vec();
-    writeln!(
-        s,
-        "flat_signal_dn = {levels:?}  # photo-signal above bias at {flat_t} s"
-    )?;
-    writeln!(s, "\n[blooming_factor]  # x_t per blooming exposure")?;
-    for &t in bloom {
-        writeln!(s, "\"{t}\" = {}", p.blooming_factor(t))?;
-    }
-    emccd_io::write_atomic(out.join("truth.toml"), s.as_bytes())?;
+    emccd_io::write_atomic(out.join("truth.toml"), plan.truth_toml(&cam)?.as_bytes())?;
+    eprintln!(
+        "wrote {} bias, {} flat and {} blooming stacks of {} frames ({}×{}) to {}",
+        plan.bias_exposures_s.len(),
+        plan.flat_levels_dn.len(),
+        plan.blooming_exposures_s.len(),
+        plan.frames,
+        cam.width(),
+        cam.height(),
+        out.display()
+    );
     Ok(())
 }
 

@@ -1,0 +1,272 @@
+//! A calibration acquisition as a user records one — dark (bias) stacks at several exposures,
+//! flat fields at several light levels, and blooming frames — designed for the virtual camera,
+//! and the truth it is made from. The caller writes the stacks (`emccd simulate calibration`
+//! streams them to TIFF with a progress bar); what each stack holds is decided here.
+
+use std::fmt::Write as _;
+
+use crate::{Error, VirtualCamera};
+
+/// What to record.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CalibrationPlan {
+    /// Frames per stack (at least 2: temporal statistics need two).
+    pub frames: usize,
+    /// Exposures of the dark stacks, s.
+    pub bias_exposures_s: Vec<f64>,
+    /// Flat-field photo-signal levels, DN above bias, at [`CalibrationPlan::flat_exposure_s`].
+    pub flat_levels_dn: Vec<f64>,
+    /// Exposure of the flat fields, s.
+    pub flat_exposure_s: f64,
+    /// Exposures of the blooming stacks, s.
+    pub blooming_exposures_s: Vec<f64>,
+}
+
+impl Default for CalibrationPlan {
+    /// The acquisition `emccd simulate calibration` makes by default: 20 frames per stack, 12
+    /// dark exposures from 10 µs to 1 s, 8 flat levels from 20 to 8000 DN at 10 ms, 7 blooming
+    /// exposures from 1 to 100 ms.
+    fn default() -> Self {
+        CalibrationPlan {
+            frames: 20,
+            bias_exposures_s: vec![
+                1e-5, 1e-4, 1e-3, 0.003, 0.006, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0,
+            ],
+            flat_levels_dn: vec![20.0, 50.0, 120.0, 300.0, 700.0, 1500.0, 3500.0, 8000.0],
+            flat_exposure_s: 0.01,
+            blooming_exposures_s: vec![0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1],
+        }
+    }
+}
+
+/// What a stack is for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Role {
+    /// Dark frames, shutter closed.
+    Bias,
+    /// Uniform illumination.
+    Flat,
+    /// A bright source on one quadrant, faint stray light elsewhere.
+    Blooming,
+}
+
+/// One stack of the acquisition.
+#[derive(Clone, Debug)]
+pub struct PlannedStack {
+    /// What it is for.
+    pub role: Role,
+    /// Its file, relative to the acquisition folder (`bias/bias_0.01s.tif`, `flat/flat_01.tif`,
+    /// `blooming/bloom_0.001s.tif`).
+    pub file: String,
+    /// Exposure, s.
+    pub exposure_s: f64,
+    /// Expected photons per pixel in every frame.
+    pub photons: Vec<f32>,
+    /// Seed of its first frame (frame k: [`frame_seed`]`(seed, k)`).
+    pub seed: u64,
+}
+
+/// The seed of frame `k` of a stack whose seed is `seed`.
+pub fn frame_seed(seed: u64, k: usize) -> u64 {
+    seed.wrapping_mul(1_000_003).wrapping_add(k as u64)
+}
+
+impl CalibrationPlan {
+    /// Refuses a plan that cannot be calibrated from, naming the setting.
+    pub fn check(&self) -> Result<(), Error> {
+        if self.frames < 2 {
+            return Err(Error::Parameter(
+                "frames must be at least 2 (temporal statistics need two frames)".into(),
+            ));
+        }
+        for (name, v) in [
+            ("bias-exposures", &self.bias_exposures_s),
+            ("flat-levels", &self.flat_levels_dn),
+            ("blooming-exposures", &self.blooming_exposures_s),
+            ("flat exposure", &vec![self.flat_exposure_s]),
+        ] {
+            if let Some(x) = v.iter().find(|x| !(x.is_finite() && **x > 0.0)) {
+                return Err(Error::Parameter(format!(
+                    "{name}: every value must be a positive number, got {x}"
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// Frames in the whole acquisition.
+    pub fn total_frames(&self) -> u64 {
+        (self.frames
+            * (self.bias_exposures_s.len()
+                + self.flat_levels_dn.len()
+                + self.blooming_exposures_s.len())) as u64
+    }
+
+    /// The stacks `cam` records, in acquisition order; `seed` makes them reproducible.
+    pub fn stacks(&self, cam: &VirtualCamera, seed: u64) -> Result<Vec<PlannedStack>, Error> {
+        self.check()?;
+        let (w, h) = (cam.width(), cam.height());
+        let n = w * h;
+        let k_qe = cam.k_dn() * cam.physics.qe;
+        let mut out = Vec::new();
+        for (i, &t) in self.bias_exposures_s.iter().enumerate() {
+            out.push(PlannedStack {
+                role: Role::Bias,
+                file: format!("bias/bias_{t}s.tif"),
+                exposure_s: t,
+                photons: vec![0.0; n],
+                seed: seed ^ (100 + i as u64),
+            });
+        }
+        for (i, &level) in self.flat_levels_dn.iter().enumerate() {
+            out.push(PlannedStack {
+                role: Role::Flat,
+                file: format!("flat/flat_{:02}.tif", i + 1),
+                exposure_s: self.flat_exposure_s,
+                photons: vec![(level / k_qe) as f32; n],
+                seed: seed ^ (200 + i as u64),
+            });
+        }
+        // Bright source in the bottom-left quadrant, faint stray light elsewhere; constant
+        // flux, so the signal grows with exposure (20 000 DN at the longest exposure).
+        let t_max = self
+            .blooming_exposures_s
+            .iter()
+            .copied()
+            .fold(0.0, f64::max);
+        let rate = 20000.0 / k_qe / t_max;
+        for (i, &t) in self.blooming_exposures_s.iter().enumerate() {
+            let mut photons = vec![(0.002 * rate * t) as f32; n];
+            for y in h / 2..h {
+                for x in 0..w / 2 {
+                    photons[y * w + x] = (rate * t) as f32;
+                }
+            }
+            out.push(PlannedStack {
+                role: Role::Blooming,
+                file: format!("blooming/bloom_{t}s.tif"),
+                exposure_s: t,
+                photons,
+                seed: seed ^ (300 + i as u64),
+            });
+        }
+        Ok(out)
+    }
+
+    /// The truth of this acquisition made by `cam`, as `truth.toml` holds it (the maps are in
+    /// the truth profile beside it, `truth/`).
+    pub fn truth_toml(&self, cam: &VirtualCamera) -> Result<String, Error> {
+        let p = &cam.profile;
+        let slope = p.slope().map_err(|e| Error::Parameter(e.to_string()))?;
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "# The virtual camera's true parameters. The full truth profile (maps) is in truth/."
+        );
+        let _ = writeln!(s, "# Raw model: D = round(B[m/c + FPN_t] + N(0, σ²)), m ~ Gamma(Poisson(QE·φ + dark·t + CIC), G).");
+        let _ = writeln!(s, "profile = \"truth\"");
+        let _ = writeln!(s, "width = {}\nheight = {}", p.width, p.height);
+        let _ = writeln!(s, "em_gain = {}", cam.em_gain);
+        let _ = writeln!(s, "e_per_dn = {}", cam.e_per_dn);
+        let _ = writeln!(s, "k_dn_per_e = {}  # G / c", cam.k_dn());
+        let _ = writeln!(
+            s,
+            "ptc_slope_dn = {slope}  # 2G/c: the EM register's f² = 2"
+        );
+        let _ = writeln!(
+            s,
+            "qe = {}\ncic_e = {}\ndark_e_per_s = {}",
+            cam.physics.qe, cam.physics.cic_e, cam.physics.dark_e_per_s
+        );
+        let _ = writeln!(
+            s,
+            "hot_pixels = {}  # dark current {} e-/s",
+            cam.hot_pixels.len(),
+            cam.physics.hot_dark_e_per_s
+        );
+        let _ = writeln!(
+            s,
+            "hot_pixel_indices = {:?}",
+            &cam.hot_pixels[..cam.hot_pixels.len().min(1000)]
+        );
+        let _ = writeln!(
+            s,
+            "bias_dn = {}  # median FPN at {} s",
+            p.bias_dn(),
+            p.fpn.base_exposure_s
+        );
+        let _ = writeln!(
+            s,
+            "read_noise_dn = {}  # median read-noise std",
+            p.read_noise_dn()
+        );
+        let _ = writeln!(
+            s,
+            "fpn_form = \"{:?}\"\nfpn_shared_theta = {:?}",
+            p.fpn.form, p.fpn.shared_theta
+        );
+        if let Some(b) = p.blooming {
+            let _ = writeln!(s, "blooming_a = {}\nblooming_b = {}", b.a, b.b);
+        }
+        let _ = writeln!(s, "bias_exposures_s = {:?}", self.bias_exposures_s);
+        let _ = writeln!(
+            s,
+            "flat_signal_dn = {:?}  # photo-signal above bias at {} s",
+            self.flat_levels_dn, self.flat_exposure_s
+        );
+        let _ = writeln!(s, "\n[blooming_factor]  # x_t per blooming exposure");
+        for &t in &self.blooming_exposures_s {
+            let _ = writeln!(s, "\"{t}\" = {}", p.blooming_factor(t));
+        }
+        Ok(s)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::PhysicalParams;
+
+    #[test]
+    fn stacks_of_the_plan() {
+        let p = emccd_profile::default_profile().crop(0, 0, 8, 6).unwrap();
+        let cam = VirtualCamera::new(p, PhysicalParams::default()).unwrap();
+        let plan = CalibrationPlan {
+            frames: 2,
+            bias_exposures_s: vec![0.01, 0.1],
+            flat_levels_dn: vec![100.0],
+            flat_exposure_s: 0.01,
+            blooming_exposures_s: vec![0.001, 0.01],
+        };
+        let s = plan.stacks(&cam, 1).unwrap();
+        assert_eq!(s.len(), 5);
+        assert_eq!(plan.total_frames(), 10);
+        assert_eq!(
+            (s[0].role, s[0].file.as_str()),
+            (Role::Bias, "bias/bias_0.01s.tif")
+        );
+        assert!(s[0].photons.iter().all(|&v| v == 0.0));
+        // a flat of 100 DN above bias: photons × QE × K = 100
+        let k_qe = cam.k_dn() * cam.physics.qe;
+        assert!((s[2].photons[0] as f64 * k_qe - 100.0).abs() < 1e-3);
+        assert_eq!(s[2].file, "flat/flat_01.tif");
+        // the longest blooming exposure puts 20 000 DN in the bright (bottom-left) quadrant
+        let last = &s[4];
+        assert!((last.photons[5 * 8] as f64 * k_qe - 20000.0).abs() < 1.0);
+        assert!(last.photons[0] < last.photons[5 * 8] / 100.0);
+        let truth = plan.truth_toml(&cam).unwrap();
+        assert!(
+            truth.contains("bias_exposures_s = [0.01, 0.1]") && truth.contains("[blooming_factor]")
+        );
+        let bad = CalibrationPlan {
+            frames: 1,
+            ..plan.clone()
+        };
+        assert!(bad.check().unwrap_err().to_string().contains("at least 2"));
+        let bad = CalibrationPlan {
+            flat_levels_dn: vec![-1.0],
+            ..plan
+        };
+        assert!(bad.check().unwrap_err().to_string().contains("flat-levels"));
+    }
+}
