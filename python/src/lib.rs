@@ -59,33 +59,12 @@ fn load_model(arg: &str) -> emccd_nn::Result<Denoiser> {
     }
 }
 
-/// What `emccd info --json` prints for a stack, as JSON text.
-fn info_json(path: &Path, i: &emccd_io::StackInfo) -> String {
-    let m = &i.metadata;
-    serde_json::json!({
-        "file": path,
-        "format": i.format,
-        "width": i.width,
-        "height": i.height,
-        "frames": i.frames,
-        "pixel_type": i.pixel_type,
-        "exposure_s": m.exposure_s,
-        "em_gain": m.em_gain,
-        "temperature_c": m.temperature_c,
-        "camera_model": m.camera_model,
-        "binning": m.binning,
-        "accumulations": m.accumulations,
-        "warnings": m.warnings,
-    })
-    .to_string()
-}
-
 /// What a stack holds, as `emccd info --json` prints it (JSON text).
 #[pyfunction]
 fn info(py: Python<'_>, path: PathBuf) -> PyResult<String> {
     py.detach(|| {
         let r = emccd_io::open(&path).map_err(err)?;
-        Ok(info_json(&path, r.info()))
+        Ok(r.info().summary_json(&path).to_string())
     })
 }
 
@@ -114,7 +93,7 @@ fn read<'py>(py: Python<'py>, path: PathBuf) -> PyResult<(Bound<'py, PyArray3<f3
     })?;
     let arr = Array3::from_shape_vec((info.frames, info.height, info.width), data)
         .map_err(|e| err(anyhow::anyhow!("{e}")))?;
-    Ok((arr.into_pyarray(py), info_json(&path, &info)))
+    Ok((arr.into_pyarray(py), info.summary_json(&path).to_string()))
 }
 
 /// A stack read one frame at a time (bounded memory for stacks of any length).
@@ -143,7 +122,7 @@ impl Frames {
     /// The stack's info as `emccd info --json` prints it (JSON text).
     #[getter]
     fn info_json(&self) -> String {
-        info_json(&self.path, &self.info)
+        self.info.summary_json(&self.path).to_string()
     }
 
     fn __len__(&self) -> usize {
@@ -217,12 +196,6 @@ fn write(
             )))
         }
     };
-    if emccd_io::Format::from_extension(&path) == Some(emccd_io::Format::Sif) {
-        return Err(err(anyhow::anyhow!(
-            "{}: SIF is Andor's acquisition format and emccd reads it only; write .tif, .btf or .fits",
-            path.display()
-        )));
-    }
     let a = frames.as_array();
     let (f, h, w) = a.dim();
     let data: Vec<f32> = a.iter().copied().collect();
@@ -609,14 +582,19 @@ fn simulate_pairs<'py>(
     Ok((noisy.into_pyarray(py), truth.into_pyarray(py)))
 }
 
-fn same_shape(a: &PyReadonlyArray2<'_, f32>, b: &PyReadonlyArray2<'_, f32>) -> PyResult<()> {
+/// Two 2-D images of one shape, as (height, width) and row-major pixels.
+fn image_pair(
+    a: &PyReadonlyArray2<'_, f32>,
+    b: &PyReadonlyArray2<'_, f32>,
+) -> PyResult<((usize, usize), Vec<f32>, Vec<f32>)> {
     let (da, db) = (a.as_array().dim(), b.as_array().dim());
     if da != db {
         return Err(err(anyhow::anyhow!(
             "the images differ in shape: {da:?} and {db:?}"
         )));
     }
-    Ok(())
+    let flat = |x: &PyReadonlyArray2<'_, f32>| x.as_array().iter().copied().collect();
+    Ok((da, flat(a), flat(b)))
 }
 
 /// PSNR in dB of `test` against `reference` (2-D float32), with data range `data_range`.
@@ -626,9 +604,7 @@ fn psnr(
     reference: PyReadonlyArray2<'_, f32>,
     data_range: f64,
 ) -> PyResult<f64> {
-    same_shape(&test, &reference)?;
-    let t: Vec<f32> = test.as_array().iter().copied().collect();
-    let r: Vec<f32> = reference.as_array().iter().copied().collect();
+    let (_, t, r) = image_pair(&test, &reference)?;
     Ok(emccd_eval::psnr(&t, &r, data_range))
 }
 
@@ -640,10 +616,7 @@ fn ssim(
     reference: PyReadonlyArray2<'_, f32>,
     data_range: f64,
 ) -> PyResult<f64> {
-    same_shape(&test, &reference)?;
-    let (h, w) = test.as_array().dim();
-    let t: Vec<f32> = test.as_array().iter().copied().collect();
-    let r: Vec<f32> = reference.as_array().iter().copied().collect();
+    let ((h, w), t, r) = image_pair(&test, &reference)?;
     Ok(emccd_eval::ssim(
         &t,
         &r,

@@ -20,22 +20,10 @@ pub fn run(a: Args) -> Result<()> {
     let i = r.info();
     let m = &i.metadata;
     if a.json {
-        let v = serde_json::json!({
-            "file": a.file,
-            "format": i.format,
-            "width": i.width,
-            "height": i.height,
-            "frames": i.frames,
-            "pixel_type": i.pixel_type,
-            "exposure_s": m.exposure_s,
-            "em_gain": m.em_gain,
-            "temperature_c": m.temperature_c,
-            "camera_model": m.camera_model,
-            "binning": m.binning,
-            "accumulations": m.accumulations,
-            "warnings": m.warnings,
-        });
-        println!("{}", serde_json::to_string_pretty(&v)?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&i.summary_json(&a.file))?
+        );
         return Ok(());
     }
     let opt = |v: Option<f64>, unit: &str| {

@@ -134,6 +134,28 @@ impl StackInfo {
     pub fn frame_len(&self) -> usize {
         self.width * self.height
     }
+
+    /// What `emccd info --json` prints and Python's `emccd.info` returns for the stack at
+    /// `path`: size, frames, sample type and format beside the header's fields (`null` where
+    /// the file does not say).
+    pub fn summary_json(&self, path: &Path) -> serde_json::Value {
+        let m = &self.metadata;
+        serde_json::json!({
+            "file": path,
+            "format": self.format,
+            "width": self.width,
+            "height": self.height,
+            "frames": self.frames,
+            "pixel_type": self.pixel_type,
+            "exposure_s": m.exposure_s,
+            "em_gain": m.em_gain,
+            "temperature_c": m.temperature_c,
+            "camera_model": m.camera_model,
+            "binning": m.binning,
+            "accumulations": m.accumulations,
+            "warnings": m.warnings,
+        })
+    }
 }
 
 /// An error and its causes as lines to show a person: the error, then each cause its wrapper
@@ -531,6 +553,13 @@ impl StackWriter {
             return Err(
                 Error::Usage(format!("cannot write a {width}×{height} frame")).with_path(path),
             );
+        }
+        if fmt == Format::Sif {
+            return Err(Error::Usage(
+                "SIF is Andor's acquisition format and emccd reads it only; write .tif, .btf or .fits"
+                    .into(),
+            )
+            .with_path(path));
         }
         // Classic TIFF addresses its file with 32-bit offsets: a stack known to outgrow them is
         // written as BigTIFF, which Fiji and tifffile read under a .tif name just the same.

@@ -100,3 +100,15 @@ fn each_limit_refuses_and_none_lifts_it() {
         assert_eq!(all_frames(r.as_mut()).len(), 3);
     }
 }
+
+#[test]
+fn writing_sif_is_refused_with_the_reason_and_leaves_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("out.sif");
+    let e = StackWriter::create(&p, 4, 4, SampleFormat::U16, Some(1))
+        .err()
+        .expect("SIF is read-only")
+        .to_string();
+    assert!(e.contains("reads it only") && e.contains("out.sif"), "{e}");
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+}
