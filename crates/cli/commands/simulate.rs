@@ -239,12 +239,8 @@ fn write_stack(
 }
 
 fn calibration(out: &Path, plan: &CalibrationPlan, opts: &CameraOpts) -> Result<()> {
-    if plan.frames < 2 {
-        bail!("--frames must be at least 2 (temporal statistics need two frames)");
-    }
-    check_positive("bias-exposures", &plan.bias_exposures_s)?;
-    check_positive("flat-levels", &plan.flat_levels_dn)?;
-    check_positive("blooming-exposures", &plan.blooming_exposures_s)?;
+    // The plan's own check, which names each setting as its flag does.
+    plan.check().map_err(|e| anyhow::anyhow!("--{e}"))?;
     let cam = opts.camera(&opts.profile()?, None)?;
     let stacks = plan.stacks(&cam, opts.seed)?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
