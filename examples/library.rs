@@ -11,6 +11,7 @@ use std::path::Path;
 
 use anyhow::Result;
 use emccd_calib::manifest::{Entry, Manifest};
+use emccd_camera::acquisition::{frame_seed, CalibrationPlan, PlannedStack, Role};
 use emccd_camera::{PhysicalParams, VirtualCamera};
 use emccd_io::{Metadata, SampleFormat, StackWriter};
 use emccd_nn::train::{train, Image, RunPaths, TrainConfig};
@@ -20,25 +21,20 @@ use emccd_profile::CameraProfile;
 /// A 64×64 sub-array keeps the example to seconds.
 const SIZE: usize = 64;
 
-fn record(
-    cam: &VirtualCamera,
-    path: &Path,
-    exposure_s: f64,
-    electrons: f64,
-    frames: usize,
-    seed: u64,
-) -> Result<()> {
-    let photons = vec![(electrons / cam.physics.qe) as f32; SIZE * SIZE];
-    let mut w = StackWriter::create(path, SIZE, SIZE, SampleFormat::U16, Some(frames))?;
+/// Writes one planned stack of the acquisition as 16-bit TIFF.
+fn record(cam: &VirtualCamera, dir: &Path, stack: &PlannedStack, frames: usize) -> Result<()> {
+    let path = dir.join(&stack.file);
+    std::fs::create_dir_all(path.parent().unwrap_or(dir))?;
+    let mut w = StackWriter::create(&path, SIZE, SIZE, SampleFormat::U16, Some(frames))?;
     w.set_metadata(&Metadata {
-        exposure_s: Some(exposure_s),
+        exposure_s: Some(stack.exposure_s),
         em_gain: Some(cam.em_gain),
         ..Default::default()
     });
-    let e = cam.exposure(exposure_s);
+    let e = cam.exposure(stack.exposure_s);
     let mut buf = vec![0f32; SIZE * SIZE];
     for k in 0..frames {
-        e.frame(&photons, seed * 1000 + k as u64, &mut buf);
+        e.frame(&stack.photons, frame_seed(stack.seed, k), &mut buf);
         w.write_frame(&buf)?;
     }
     w.finish()?;
@@ -51,27 +47,31 @@ fn main() -> Result<()> {
     let truth = CameraProfile::load_arg("default")?.crop(0, 0, SIZE, SIZE)?;
     let cam = VirtualCamera::new(truth.clone(), PhysicalParams::default())?;
 
-    // 2. A calibration acquisition: dark stacks at four exposures, flats at six light levels.
+    // 2. A calibration acquisition: dark stacks at four exposures, flats at six light levels
+    //    (about 1–50 photoelectrons per pixel), as emccd_camera::acquisition designs them.
+    let plan = CalibrationPlan {
+        frames: 16,
+        bias_exposures_s: vec![0.01, 0.03, 0.1, 0.3],
+        flat_levels_dn: vec![10.0, 20.0, 50.0, 100.0, 200.0, 500.0],
+        blooming_exposures_s: vec![],
+        ..Default::default()
+    };
     let mut manifest = Manifest {
         camera: "virtual".into(),
         em_gain: cam.em_gain,
         ..Default::default()
     };
-    for (i, t) in [0.01, 0.03, 0.1, 0.3].into_iter().enumerate() {
-        let file = format!("bias_{i}.tif");
-        record(&cam, &dir.path().join(&file), t, 0.0, 16, i as u64)?;
-        manifest.bias.push(Entry {
-            file: file.into(),
-            exposure_s: Some(t),
-        });
-    }
-    for (i, e) in [1.0, 2.0, 5.0, 10.0, 20.0, 50.0].into_iter().enumerate() {
-        let file = format!("flat_{i}.tif");
-        record(&cam, &dir.path().join(&file), 0.01, e, 16, 10 + i as u64)?;
-        manifest.flat.push(Entry {
-            file: file.into(),
-            exposure_s: Some(0.01),
-        });
+    for stack in plan.stacks(&cam, 1)? {
+        record(&cam, dir.path(), &stack, plan.frames)?;
+        let entry = Entry {
+            file: stack.file.into(),
+            exposure_s: Some(stack.exposure_s),
+        };
+        match stack.role {
+            Role::Bias => manifest.bias.push(entry),
+            Role::Flat => manifest.flat.push(entry),
+            Role::Blooming => manifest.blooming.push(entry),
+        }
     }
     let path = dir.path().join("calibration.toml");
     std::fs::write(&path, manifest.to_toml("examples/library.rs"))?;
