@@ -599,3 +599,67 @@ fn the_bad_input_corpus_is_refused_cleanly() {
     let o = emccd(&["info", "frames-negative-exposure.fits"], d);
     assert!(ok(&o).contains("-1 s  (not a positive number of seconds"));
 }
+
+/// `adapt` refuses, before training and writing nothing: recordings of a size other than the
+/// profile's sensor (also a second recording after a good first one), a profile of another
+/// size, an output that is an input, and a recording without an exposure.
+#[test]
+fn adapt_refuses_mismatched_recordings_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    raw_frame(d, "good.tif", Some(0.01));
+    raw_frame(d, "no-exposure.tif", None);
+    let mut w = emccd_io::StackWriter::create(
+        d.join("small.tif"),
+        256,
+        256,
+        emccd_io::SampleFormat::U16,
+        Some(2),
+    )
+    .unwrap();
+    for _ in 0..2 {
+        w.write_frame(&vec![600.0; 256 * 256]).unwrap();
+    }
+    w.finish().unwrap();
+    emccd_profile::default_profile()
+        .crop(0, 0, 64, 64)
+        .unwrap()
+        .save(d.join("p64"))
+        .unwrap();
+    let before = files(d);
+    let adapt = |args: &[&str]| {
+        let mut a = vec!["adapt", "--steps", "2"];
+        a.extend_from_slice(args);
+        emccd(&a, d)
+    };
+    fails_with(
+        &adapt(&[
+            "good.tif",
+            "small.tif",
+            "--profile",
+            "default",
+            "-o",
+            "m.safetensors",
+        ]),
+        "small.tif: frames are 256×256, the profile's sensor is 512×512",
+    );
+    fails_with(
+        &adapt(&["good.tif", "--profile", "p64", "-o", "m.safetensors"]),
+        "good.tif: frames are 512×512, the profile's sensor is 64×64",
+    );
+    fails_with(
+        &adapt(&["good.tif", "--profile", "default", "-o", "good.tif"]),
+        "the output is an input",
+    );
+    fails_with(
+        &adapt(&[
+            "no-exposure.tif",
+            "--profile",
+            "default",
+            "-o",
+            "m.safetensors",
+        ]),
+        "no-exposure.tif: the header records no exposure; pass --exposure-s",
+    );
+    assert_eq!(files(d), before, "adapt wrote or removed files");
+}

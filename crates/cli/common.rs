@@ -29,6 +29,104 @@ pub fn progress(len: u64, what: &str) -> ProgressBar {
     pb
 }
 
+/// The progress bar of a training run and the step callback that feeds it: the smoothed loss
+/// and the latest validation PSNR. Without a terminal the bar is hidden and a line is logged at
+/// every `every`-th step instead, with the seconds since the run started (learning curves
+/// against wall-clock).
+pub fn step_progress(
+    steps: u64,
+    every: u64,
+) -> (
+    ProgressBar,
+    impl FnMut(&emccd_nn::train::StepReport) -> bool,
+) {
+    let pb = ProgressBar::new(steps);
+    pb.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} steps {msg} ETA {eta}")
+            .expect("template")
+            .progress_chars("=> "),
+    );
+    let every = every.max(1);
+    let t0 = std::time::Instant::now();
+    let bar = pb.clone();
+    let report = move |r: &emccd_nn::train::StepReport| {
+        bar.set_position(r.step);
+        let v = r.val_psnr.map_or(String::new(), |(o, i)| {
+            format!(" val PSNR {o:.2} dB (input {i:.2})")
+        });
+        bar.set_message(format!("loss {:.5}{v}", r.loss));
+        if bar.is_hidden() && (r.step % every == 0 || r.step == r.steps) {
+            let t = t0.elapsed().as_secs_f64();
+            eprintln!(
+                "step {}/{}: loss {:.5}{v} at {t:.0} s",
+                r.step, r.steps, r.loss
+            );
+        }
+        true
+    };
+    (pb, report)
+}
+
+/// A recording opened and checked against the profile, ready to stream.
+pub struct Recording {
+    /// Its path.
+    pub path: PathBuf,
+    /// Its frames.
+    pub reader: Box<dyn emccd_io::FrameReader>,
+    /// What it holds.
+    pub info: emccd_io::StackInfo,
+    /// Its exposure (s): `--exposure-s`, else the header's.
+    pub exposure: f64,
+}
+
+/// Opens a recording and checks it against the profile (sensor size) and the exposure rules
+/// (`exposure_arg` overrides the header's; outside the calibrated range only with
+/// `extrapolate`); warnings go to stderr.
+pub fn open_recording(
+    input: &Path,
+    profile: &CameraProfile,
+    exposure_arg: Option<f64>,
+    extrapolate: bool,
+) -> Result<Recording> {
+    let reader = emccd_io::open(input)?;
+    let info = reader.info().clone();
+    for w in &info.metadata.warnings {
+        eprintln!("warning: {}: {w}", input.display());
+    }
+    let (exposure, source) = match (exposure_arg, info.metadata.exposure_s) {
+        (Some(t), _) => (t, "--exposure-s"),
+        (None, Some(t)) => (t, "the file header"),
+        (None, None) => bail!(
+            "{}: the header records no exposure; pass --exposure-s",
+            input.display()
+        ),
+    };
+    emccd_nn::pipeline::check_exposure(exposure)
+        .with_context(|| format!("{}: the exposure from {source}", input.display()))?;
+    if (info.width, info.height) != (profile.width, profile.height) {
+        bail!(
+            "{}: frames are {}×{}, the profile's sensor is {}×{}",
+            input.display(),
+            info.width,
+            info.height,
+            profile.width,
+            profile.height
+        );
+    }
+    if let Some(w) = profile
+        .check_exposure_range(exposure, source, extrapolate)
+        .with_context(|| input.display().to_string())?
+    {
+        eprintln!("warning: {}: {w}", input.display());
+    }
+    Ok(Recording {
+        path: input.to_path_buf(),
+        reader,
+        info,
+        exposure,
+    })
+}
+
 /// Parses `WxH` (e.g. `128x96`).
 pub fn parse_size(s: &str) -> Result<(usize, usize), String> {
     let (w, h) = s

@@ -80,6 +80,8 @@ enum Command {
     Evaluate(commands::evaluate::Args),
     /// Train or fine-tune a denoising network on pairs synthesized on the fly.
     Train(commands::train::Args),
+    /// Adapt a network to your own recording (no clean data): fine-tune it on its scene.
+    Adapt(commands::adapt::Args),
     /// Benchmarks: synthesis (vs emccd-detect), calibration streaming, denoising, BM3D on BSD68.
     Bench(commands::bench::Args),
 }
@@ -103,6 +105,7 @@ fn main() {
         Command::Simulate(c) => commands::simulate::run(c),
         Command::Synthesize(a) => commands::synthesize::run(a),
         Command::Train(a) => commands::train::run(a),
+        Command::Adapt(a) => commands::adapt::run(a),
         Command::Denoise(a) => commands::denoise::run(a),
         Command::Evaluate(a) => commands::evaluate::run(a),
         Command::Bench(a) => commands::bench::run(a),
@@ -179,6 +182,17 @@ mod tests {
                 "500",
             ],
             vec!["emccd", "bench", "--frames", "3"],
+            vec![
+                "emccd",
+                "adapt",
+                "rec.tif",
+                "--profile",
+                "p",
+                "--init",
+                "microscopy",
+                "-o",
+                "a.safetensors",
+            ],
             vec![
                 "emccd",
                 "train",

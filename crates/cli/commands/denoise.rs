@@ -7,7 +7,7 @@ use emccd_nn::registry::{FrameDenoiser, Method};
 use emccd_nn::tile::Tiling;
 use emccd_nn::Denoiser;
 
-use crate::common::{load_profile, progress};
+use crate::common::{load_profile, open_recording, progress, Recording};
 
 /// Output units.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -150,14 +150,6 @@ fn parse_shard(s: &str) -> std::result::Result<Shard, String> {
     }
 }
 
-/// One input opened and checked against the profile, ready to stream.
-struct Input {
-    path: PathBuf,
-    reader: Box<dyn emccd_io::FrameReader>,
-    info: emccd_io::StackInfo,
-    exposure: f64,
-}
-
 pub fn run(a: Args) -> Result<()> {
     let profile = load_profile(&a.profile)?;
     let (method, model) = resolve(a.method, a.model.as_deref())?;
@@ -198,12 +190,12 @@ pub fn run(a: Args) -> Result<()> {
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     }
     for (input, out) in a.inputs.iter().zip(outs) {
-        let Input {
+        let Recording {
             mut reader,
             info,
             exposure,
             ..
-        } = open_input(&a, &profile, input)?;
+        } = open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
         let mut w = emccd_io::StackWriter::create(
             &out,
             info.width,
@@ -233,47 +225,6 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
-/// Opens an input and checks it against the profile and the exposure rules.
-fn open_input(a: &Args, profile: &emccd_profile::CameraProfile, input: &Path) -> Result<Input> {
-    let reader = emccd_io::open(input)?;
-    let info = reader.info().clone();
-    for w in &info.metadata.warnings {
-        eprintln!("warning: {}: {w}", input.display());
-    }
-    let (exposure, source) = match (a.exposure_s, info.metadata.exposure_s) {
-        (Some(t), _) => (t, "--exposure-s"),
-        (None, Some(t)) => (t, "the file header"),
-        (None, None) => bail!(
-            "{}: the header records no exposure; pass --exposure-s",
-            input.display()
-        ),
-    };
-    emccd_nn::pipeline::check_exposure(exposure)
-        .with_context(|| format!("{}: the exposure from {source}", input.display()))?;
-    if (info.width, info.height) != (profile.width, profile.height) {
-        bail!(
-            "{}: frames are {}×{}, the profile's sensor is {}×{}",
-            input.display(),
-            info.width,
-            info.height,
-            profile.width,
-            profile.height
-        );
-    }
-    if let Some(w) = profile
-        .check_exposure_range(exposure, source, a.extrapolate)
-        .with_context(|| input.display().to_string())?
-    {
-        eprintln!("warning: {}: {w}", input.display());
-    }
-    Ok(Input {
-        path: input.to_path_buf(),
-        reader,
-        info,
-        exposure,
-    })
-}
-
 /// Denoises the inputs, one logical stack in the order given, into one OME-Zarr store: this
 /// process's shard of the frames, skipping frames already complete (an earlier run, or another
 /// shard), so a killed run is resumed by running it again.
@@ -289,7 +240,7 @@ fn run_zarr(a: &Args, fd: &FrameDenoiser, profile_fp: &str) -> Result<()> {
     }
     let mut inputs = Vec::with_capacity(a.inputs.len());
     for path in &a.inputs {
-        let i = open_input(a, fd.profile, path)?;
+        let i = open_recording(path, fd.profile, a.exposure_s, a.extrapolate)?;
         inputs.push(i);
     }
     let frames: usize = inputs.iter().map(|i| i.info.frames).sum();

@@ -1,5 +1,6 @@
 //! One module per subcommand: an `Args` struct (the `--help` text) and a `run`.
 
+pub mod adapt;
 pub mod bench;
 pub mod calibrate;
 pub mod denoise;

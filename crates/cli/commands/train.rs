@@ -235,6 +235,7 @@ pub fn run(a: Args) -> Result<()> {
         profile_fingerprint: format!("{:016x}", profile.fingerprint()),
         steps: 0,
         train: None, // recorded by the run
+        adapted: None,
         recipe: format!(
             "{} train / {} val images; batch {} × {}², each pair used ≈{}×; AdamW lr {} wd {} warm-up {} + cosine; {:?} loss; {}; read noise ×{:?}; CIC {:?}; seed {}",
             train_imgs.len(),
@@ -260,34 +261,7 @@ pub fn run(a: Args) -> Result<()> {
         out: a.out.clone(),
         checkpoint: ckpt,
     };
-    let pb = indicatif::ProgressBar::new(a.steps);
-    pb.set_style(
-        indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} steps {msg} ETA {eta}")
-            .expect("template")
-            .progress_chars("=> "),
-    );
-    let every = a.checkpoint_every.max(1);
-    let t0 = std::time::Instant::now();
-    let mut report = |r: &emccd_nn::train::StepReport| {
-        pb.set_position(r.step);
-        let v = r.val_psnr.map_or(String::new(), |(o, i)| {
-            format!(" val PSNR {o:.2} dB (input {i:.2})")
-        });
-        pb.set_message(format!("loss {:.5}{v}", r.loss));
-        if !pb.is_hidden() {
-            return true;
-        }
-        // Without a terminal the bar is hidden: log a line at every checkpoint instead, with
-        // the seconds since this process started (learning curves against wall-clock).
-        if r.step % every == 0 || r.step == r.steps {
-            let t = t0.elapsed().as_secs_f64();
-            eprintln!(
-                "step {}/{}: loss {:.5}{v} at {t:.0} s",
-                r.step, r.steps, r.loss
-            );
-        }
-        true
-    };
+    let (pb, mut report) = crate::common::step_progress(a.steps, a.checkpoint_every);
     let model = train(
         train_imgs,
         val_imgs,

@@ -8,6 +8,7 @@
 
 #![deny(missing_docs)]
 
+pub mod adapt;
 mod error;
 pub mod model;
 pub mod norm;

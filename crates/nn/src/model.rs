@@ -267,6 +267,9 @@ pub struct ModelMeta {
     /// fine-tuned model; files written before it was recorded have none).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub train: Option<crate::train::TrainConfig>,
+    /// For a model adapted to a recording (`emccd adapt`): on what, and from which model.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub adapted: Option<crate::adapt::Adaptation>,
 }
 
 impl ModelMeta {

@@ -26,6 +26,7 @@ pub fn meta(base: usize, levels: usize) -> ModelMeta {
         ablate: Default::default(),
         profile_fingerprint: "0".into(),
         train: None,
+        adapted: None,
         steps: 0,
         recipe: "test".into(),
     }

@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Measures `emccd adapt` on recordings the models never saw (issue 13): for every stack that
+# tools/adapt_stacks.py wrote under DIR, adapt INIT on the stack, then score on the held-out
+# frames: INIT un-adapted, INIT adapted, BM3D + GAT and iterative BM3D (`ivst`). The ground
+# truth is used only to score.
+#
+# Usage: tools/adapt_bench.sh DIR PROFILE [INIT] [STEPS]
+#   DIR      tools/adapt_stacks.py's output (one folder per scene and level)
+#   PROFILE  the camera's profile (emccd calibrate of tools/unseen_camera.py's acquisition)
+#   INIT     the model to adapt (default: default)
+#   STEPS    adaptation steps (default 200)
+# Writes DIR/*/adapted-TAG.safetensors, DIR/*/eval-TAG.json and prints a per-level table.
+set -euo pipefail
+root="$(cd "$(dirname "$0")/.." && pwd)"
+dir="$1"; profile="$2"; init="${3:-default}"; steps="${4:-200}"
+E="${EMCCD:-$root/target/release/emccd}"
+tag="$(basename "${init%.safetensors}")"
+for d in "$dir"/*/; do
+    d="${d%/}"
+    [ -f "$d/stack.tif" ] || continue
+    m="$d/adapted-$tag.safetensors"
+    [ -f "$m" ] || "$E" adapt "$d/stack.tif" --profile "$profile" --exposure-s 0.01 --init "$init" \
+        --steps "$steps" -o "$m" 2>&1 | tail -1
+    [ -f "$d/eval-$tag.json" ] || "$E" evaluate "$d/pairs" --profile "$profile" --method "$init" \
+        --method "$m" --method bm3d --method ivst --json > "$d/eval-$tag.json"
+done
+python3 - "$dir" "$tag" <<'PY'
+import json, sys, glob, collections
+d, tag = sys.argv[1], sys.argv[2]
+acc = collections.defaultdict(list)
+for f in sorted(glob.glob(f"{d}/*/eval-{tag}.json")):
+    for p in json.load(open(f))["pairs"]:
+        meth = p["method"]
+        name = "adapted" if meth.endswith(f"adapted-{tag}.safetensors") else ("un-adapted" if meth not in ("bm3d", "ivst") else meth)
+        acc[(p["mean_electrons"], name)].append(p["psnr_db"])
+        acc[("all", name)].append(p["psnr_db"])
+cols = ["un-adapted", "adapted", "bm3d", "ivst"]
+print(f"| mean e-/px | {tag} | {tag} adapted | BM3D + GAT | ivst |")
+print("|---:|---:|---:|---:|---:|")
+for lv in sorted({k[0] for k in acc}, key=lambda v: (v == "all", 0 if v == "all" else float(v))):
+    print(f"| {lv} | " + " | ".join(f"{sum(acc[(lv, c)]) / len(acc[(lv, c)]):.2f}" for c in cols) + " |")
+PY
