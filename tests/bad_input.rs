@@ -617,6 +617,10 @@ fn adapt_refuses_mismatched_recordings_and_writes_nothing() {
         Some(2),
     )
     .unwrap();
+    w.set_metadata(&emccd_io::Metadata {
+        exposure_s: Some(0.01),
+        ..Default::default()
+    });
     for _ in 0..2 {
         w.write_frame(&vec![600.0; 256 * 256]).unwrap();
     }
