@@ -155,7 +155,7 @@ def denoise(
     ``method``: ``ivst`` (the default with no model: iterative BM3D, the most accurate at low
     light), ``bm3d``, ``hybrid`` (BM3D refined by a network), ``net`` (a network alone, the
     fastest) or ``none`` (preprocessing only). ``model``: a bundled model (``default``,
-    ``microscopy``, ``hybrid``) or a model file; a model alone picks the method it was trained
+    ``microscopy``, ``lowlight``, ``hybrid``) or a model file; a model alone picks the method it was trained
     for. ``exposure_s`` is required (arrays carry no header; :func:`read` returns it in the
     metadata). ``progress(done, total)`` is called after each frame; an exception it raises
     stops the work and is raised here. The CLI's warnings are issued as ``UserWarning``.

@@ -34,7 +34,7 @@ fn err(e: impl Into<anyhow::Error>) -> PyErr {
 }
 
 /// The bundled models, carried inside the module so an installed wheel needs no source tree.
-const EMBEDDED: [(&str, &[u8]); 3] = [
+const EMBEDDED: [(&str, &[u8]); 4] = [
     (
         "hybrid",
         include_bytes!("../../models/hybrid-unet.safetensors"),
@@ -46,6 +46,10 @@ const EMBEDDED: [(&str, &[u8]); 3] = [
     (
         "microscopy",
         include_bytes!("../../models/microscopy-unet.safetensors"),
+    ),
+    (
+        "lowlight",
+        include_bytes!("../../models/lowlight-unet.safetensors"),
     ),
 ];
 

@@ -31,8 +31,9 @@ pub struct Args {
     /// Allow an exposure outside the profile's calibrated dark-current range.
     #[arg(long)]
     pub extrapolate: bool,
-    /// The model to start from: `default`, `microscopy` or a model file.
-    #[arg(long, default_value = "default")]
+    /// The model to start from: a bundled one (`lowlight`, `default`, `microscopy`) or a model
+    /// file. `lowlight` is the best network at a few photoelectrons per pixel.
+    #[arg(long, default_value = "lowlight")]
     pub init: String,
     /// Fine-tuning steps (about 1 s each for 4 × 128² crops on 2 cores).
     #[arg(long, default_value_t = AdaptConfig::default().steps)]

@@ -25,7 +25,7 @@ pub struct Args {
     /// this many 512×512 16-bit frames (read from the page cache), with the peak memory.
     #[arg(long, value_name = "FRAMES")]
     pub calibration: Option<usize>,
-    /// Instead, measure denoising models (comma-separated files, or `default`, `microscopy`;
+    /// Instead, measure denoising models (comma-separated files, or `default`, `microscopy`, `lowlight`;
     /// `MODEL@8` = averaged over 8 flips/transposes): seconds
     /// per 512×512 frame, and PSNR on virtual-camera test pairs (--scenes at 20 and 200 photons,
     /// 10 ms) beside the input's and BM3D's (with the same VST).

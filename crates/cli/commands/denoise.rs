@@ -42,7 +42,9 @@ pub struct Args {
     #[arg(long, default_value = "default")]
     pub profile: String,
     /// Model file, or a bundled model: `hybrid` (BM3D-refining), `default` (a network trained on
-    /// natural images) or `microscopy` (fine-tuned on fluorescence microscopy). Default:
+    /// natural images), `microscopy` (fine-tuned on fluorescence microscopy) or `lowlight`
+    /// (trained for 0.3–30 mean photoelectrons per pixel on many cameras: the best network at
+    /// low light, README "Low light"). Default:
     /// `hybrid` for --method hybrid, `default` for --method net.
     #[arg(long)]
     pub model: Option<String>,

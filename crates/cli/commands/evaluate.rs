@@ -31,7 +31,7 @@ pub struct Args {
     /// Methods: `input`, `bm3d` (one BM3D + GAT pass), `ivst` (iterative BM3D, the default of
     /// `denoise`), `ivst:λ/b,λ/b,…` (iterative BM3D with these passes: the data's weight and the
     /// bin side, e.g. `ivst:1/3,0.7/2,0.4/1`), `hybrid` (the bundled BM3D-refining network), or
-    /// a model file (`default`, `microscopy` = the bundled networks; a hybrid model file runs as
+    /// a model file (`default`, `microscopy`, `lowlight` = the bundled networks; a hybrid model file runs as
     /// the hybrid method); repeatable. `MODEL@8` averages the model over 8 flips/transposes
     /// (self-ensemble; 2, 4, 8).
     #[arg(long = "method", required = true, num_args = 1..)]

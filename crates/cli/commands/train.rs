@@ -103,7 +103,7 @@ pub struct Args {
     /// Seed.
     #[arg(long, default_value_t = 897)]
     pub seed: u64,
-    /// Fine-tune from this model (a file, or the bundled `default` or `microscopy`).
+    /// Fine-tune from this model (a file, or a bundled model: `default`, `microscopy`, `lowlight`).
     #[arg(long)]
     pub init: Option<String>,
     /// Continue the run whose checkpoint is in OUT.ckpt/.

@@ -21,8 +21,10 @@ pub struct Bundled {
 }
 
 /// The bundled models: `hybrid` (BM3D-refining), `default` (natural images, the default
-/// profile) and `microscopy` (the default fine-tuned on fluorescence microscopy).
-pub const BUNDLED: [Bundled; 3] = [
+/// profile), `microscopy` (the default fine-tuned on fluorescence microscopy) and `lowlight`
+/// (the low-light run of README "Low light": 0.3–30 mean photoelectrons per pixel, many
+/// cameras' read noise and CIC, Charbonnier loss).
+pub const BUNDLED: [Bundled; 4] = [
     Bundled {
         name: "hybrid",
         file: "hybrid-unet.safetensors",
@@ -34,6 +36,10 @@ pub const BUNDLED: [Bundled; 3] = [
     Bundled {
         name: "microscopy",
         file: "microscopy-unet.safetensors",
+    },
+    Bundled {
+        name: "lowlight",
+        file: "lowlight-unet.safetensors",
     },
 ];
 

@@ -257,3 +257,19 @@ fn a_direct_unet_has_no_global_residual() {
         serde_json::from_str(r#"{"base":4,"levels":2,"in_channels":2}"#).unwrap();
     assert!(!old.direct);
 }
+
+/// Every bundled model is in `models/`, loads by name, and is the kind its method runs: the
+/// `hybrid` model a refinement network, the others denoisers.
+#[test]
+fn every_bundled_model_loads_by_name() {
+    for b in emccd_nn::registry::BUNDLED {
+        let m = emccd_nn::registry::load(b.name).unwrap_or_else(|e| panic!("{}: {e}", b.name));
+        assert_eq!(
+            m.meta.inputs == emccd_nn::Inputs::Hybrid,
+            b.name == "hybrid",
+            "{}",
+            b.name
+        );
+        assert!(m.meta.steps > 0, "{}: an untrained model", b.name);
+    }
+}
