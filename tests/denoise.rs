@@ -244,10 +244,11 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("absent.safetensors"));
 }
 
-/// With neither --method nor --model, `denoise` runs `ivst` (the most accurate method shipped on
-/// the low-light suite), which at a fraction of a photoelectron per pixel is not plain BM3D.
+/// With neither --method nor --model, `denoise` runs `blend` (the most accurate method shipped
+/// on the low-light suite) with the bundled `lowlight` network: the same frame as `--method
+/// blend --model lowlight`, and neither iterative nor plain BM3D alone.
 #[test]
-fn the_default_method_is_iterative_bm3d() {
+fn the_default_method_is_the_blend_of_ivst_and_lowlight() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let p = emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap();
@@ -298,6 +299,10 @@ fn the_default_method_is_iterative_bm3d() {
         emccd_io::read_all(d.join(out)).unwrap().1.concat()
     };
     let default = run(&[], "default.tif");
-    assert_eq!(default, run(&["--method", "ivst"], "ivst.tif"));
+    assert_eq!(
+        default,
+        run(&["--method", "blend", "--model", "lowlight"], "blend.tif")
+    );
+    assert_ne!(default, run(&["--method", "ivst"], "ivst.tif"));
     assert_ne!(default, run(&["--method", "bm3d"], "bm3d.tif"));
 }

@@ -73,8 +73,8 @@ enum Command {
     Simulate(commands::simulate::Cmd),
     /// Add noise from one of the noise models to clean images (training-pair synthesis).
     Synthesize(commands::synthesize::Args),
-    /// Denoise raw EMCCD frames: profile preprocessing, then iterative BM3D (default), one BM3D
-    /// pass, a network, or BM3D refined by a network.
+    /// Denoise raw EMCCD frames: profile preprocessing, then iterative BM3D averaged with a
+    /// network (default), iterative BM3D, one BM3D pass, a network, or BM3D refined by one.
     Denoise(commands::denoise::Args),
     /// PSNR/SSIM of denoisers (input, BM3D, models) on virtual-camera pairs.
     Evaluate(commands::evaluate::Args),

@@ -152,8 +152,8 @@ def denoise(
     profile, then the method runs. Returns float32 of the input's shape, in DN above bias
     (``units="dn"``) or photoelectrons (``"electrons"``).
 
-    ``method``: ``ivst`` (the default with no model: iterative BM3D, the most accurate at low
-    light), ``bm3d``, ``hybrid`` (BM3D refined by a network), ``net`` (a network alone, the
+    ``method``: ``blend`` (the default with no model: iterative BM3D and the ``lowlight``
+    network averaged, the most accurate at low light), ``ivst`` (iterative BM3D), ``bm3d``, ``hybrid`` (BM3D refined by a network), ``net`` (a network alone, the
     fastest) or ``none`` (preprocessing only). ``model``: a bundled model (``default``,
     ``microscopy``, ``lowlight``, ``hybrid``) or a model file; a model alone picks the method it was trained
     for. ``exposure_s`` is required (arrays carry no header; :func:`read` returns it in the

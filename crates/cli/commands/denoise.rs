@@ -19,10 +19,11 @@ pub enum Units {
 }
 
 /// Denoise raw EMCCD frames: remove blooming and the fixed pattern with the camera profile (paper
-/// eq. 4), then denoise — by default with `ivst` (BM3D with iterative variance stabilization),
-/// the most accurate method this build ships at low light (measured on the low-light suite, see
-/// the README: +0.33 dB over plain BM3D + GAT, +0.76 dB at 0.5 e⁻ per pixel); `--method bm3d`
-/// is one plain BM3D + GAT pass, `--method hybrid` refines BM3D's estimate with the bundled
+/// eq. 4), then denoise — by default with `blend`: BM3D with iterative variance stabilization
+/// (`ivst`) and the bundled `lowlight` network, averaged, the most accurate method this build
+/// ships at low light (measured on the low-light suite, see the README: +0.48 dB over plain
+/// BM3D + GAT, above it and above `ivst` at every light level); `--method ivst` is the
+/// classical half alone, `--method bm3d` one plain BM3D + GAT pass, `--method hybrid` refines BM3D's estimate with the bundled
 /// hybrid network (still in training), `--method net` runs a network alone (fastest), `--method
 /// none` only preprocesses. TIFF/BigTIFF, SIF, FITS and Zarr in (stacks are streamed frame by
 /// frame); float32 TIFF, FITS or OME-Zarr out (by the output's extension), in DN above bias by
@@ -48,7 +49,7 @@ pub struct Args {
     /// `hybrid` for --method hybrid, `default` for --method net.
     #[arg(long)]
     pub model: Option<String>,
-    /// Denoiser. Default: ivst, or the method --model was trained for when one is given.
+    /// Denoiser. Default: blend, or the method --model was trained for when one is given.
     #[arg(long, value_enum)]
     pub method: Option<Method>,
     /// Exposure in seconds, where the file header does not record it (overrides the header).

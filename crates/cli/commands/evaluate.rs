@@ -28,8 +28,8 @@ pub struct Args {
     /// else the bundled default.
     #[arg(long)]
     pub profile: Option<String>,
-    /// Methods: `input`, `bm3d` (one BM3D + GAT pass), `ivst` (iterative BM3D, the default of
-    /// `denoise`), `ivst:λ/b,λ/b,…` (iterative BM3D with these passes: the data's weight and the
+    /// Methods: `input`, `bm3d` (one BM3D + GAT pass), `ivst` (iterative BM3D), `blend` (`ivst`
+    /// and the `lowlight` network averaged, the default of `denoise`), `ivst:λ/b,λ/b,…` (iterative BM3D with these passes: the data's weight and the
     /// bin side, e.g. `ivst:1/3,0.7/2,0.4/1`), `hybrid` (the bundled BM3D-refining network), or
     /// a model file (`default`, `microscopy`, `lowlight` = the bundled networks; a hybrid model file runs as
     /// the hybrid method); repeatable. `MODEL@8` averages the model over 8 flips/transposes
@@ -99,6 +99,11 @@ pub fn run(a: Args) -> Result<()> {
                 .parse()
                 .map_err(|e: String| anyhow::anyhow!("--method {m}: {e}"))?;
             schedules.insert(m.clone(), s);
+        } else if m == "blend" {
+            models.insert(
+                m.clone(),
+                (crate::commands::denoise::load_model("lowlight")?, 1),
+            );
         } else if !["input", "bm3d", "ivst"].contains(&m.as_str()) {
             let (name, k) = crate::commands::denoise::model_spec(m)?;
             models.insert(m.clone(), (crate::commands::denoise::load_model(name)?, k));
@@ -143,6 +148,15 @@ pub fn run(a: Args) -> Result<()> {
                             &schedules[spec].0,
                         )?
                     }
+                    "blend" => emccd_nn::FrameDenoiser {
+                        profile: &prof,
+                        method: emccd_nn::Method::Blend,
+                        model: Some(&models["blend"].0),
+                        tiling: Default::default(),
+                        ensemble: 1,
+                        to_units: 1.0,
+                    }
+                    .run(&raw, p.exposure_s)?,
                     other => Pipeline {
                         model: &models[other].0,
                         profile: &prof,

@@ -273,3 +273,45 @@ fn every_bundled_model_loads_by_name() {
         assert!(m.meta.steps > 0, "{}: an untrained model", b.name);
     }
 }
+
+/// `blend` is the pixel average of `ivst` and the network on the same frame, and takes the
+/// bundled `lowlight` network when no model is named; it is the default method.
+#[test]
+fn blend_averages_ivst_and_the_network() {
+    use emccd_nn::registry::{resolve, FrameDenoiser, Method, DEFAULT_METHOD};
+    assert_eq!(DEFAULT_METHOD, Method::Blend);
+    let (m, model) = resolve(None, None, |name| {
+        assert_eq!(name, "lowlight");
+        emccd_nn::registry::load(name)
+    })
+    .unwrap();
+    assert_eq!(m, Method::Blend);
+    assert!(model.is_some());
+    let profile = emccd_profile::default_profile().crop(0, 0, 48, 40).unwrap();
+    let net = Denoiser::new(common::meta(4, 2), &emccd_nn::cpu()).unwrap();
+    let raw: Vec<f32> = (0..48 * 40)
+        .map(|i| 500.0 + ((i * 7919) % 97) as f32 * 3.0)
+        .collect();
+    let run = |method, model| {
+        FrameDenoiser {
+            profile: &profile,
+            method,
+            model,
+            tiling: Default::default(),
+            ensemble: 1,
+            to_units: 1.0,
+        }
+        .run(&raw, 0.01)
+        .unwrap()
+    };
+    let b = run(Method::Blend, Some(&net));
+    let n = run(Method::Net, Some(&net));
+    let i = run(Method::Ivst, None);
+    for k in 0..b.len() {
+        let want = 0.5 * (n[k] + i[k]);
+        assert!(
+            (b[k] - want).abs() <= 1e-4 * want.abs().max(1.0),
+            "pixel {k}"
+        );
+    }
+}
