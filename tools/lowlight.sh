@@ -9,7 +9,7 @@
 # Usage: tools/lowlight.sh [OUT] [METHOD...]
 #   OUT      where the acquisitions, profiles and results go (default out/lowlight; the
 #            acquisitions are made once, ~10 min, and reused)
-#   METHOD   as `emccd evaluate --method` takes them (default: input bm3d ivst hybrid default microscopy)
+#   METHOD   as `emccd evaluate --method` takes them (default: input bm3d blend ivst hybrid lowlight default microscopy)
 # Needs: python3 with emccd-detect, tifffile, pillow (pip install emccd-detect tifffile pillow).
 # Writes OUT/table.md (per light level and per camera, with seconds per 512x512 frame) and
 # OUT/eval/ (results.json, results.csv, input | methods | truth panels).
@@ -18,7 +18,7 @@ root="$(cd "$(dirname "$0")/.." && pwd)"
 out="${1:-out/lowlight}"
 shift || true
 methods=("$@")
-[ ${#methods[@]} -gt 0 ] || methods=(input bm3d ivst hybrid default microscopy)
+[ ${#methods[@]} -gt 0 ] || methods=(input bm3d blend ivst hybrid lowlight default microscopy)
 data="$root/../shared/data/clean"
 M="$data/natural/McMaster"
 F="$data/microscopy/fmd-confocal-bpae"
