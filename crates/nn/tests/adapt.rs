@@ -100,6 +100,9 @@ fn adaptation_improves_held_out_frames_and_records_its_provenance() {
     let dir = tempfile::tempdir().unwrap();
     let init = dir.path().join("init.safetensors");
     let dev = emccd_nn::cpu();
+    // A seeded initial network: unseeded, every run (and CI) started from another one, and the
+    // gain of 40 steps ranged from 5 % to 47 % (seeds 1–8: 19–47 %; this one 40 %).
+    dev.seed(5);
     Denoiser::new(common::meta(8, 2), &dev)
         .unwrap()
         .save(&init)
