@@ -665,5 +665,17 @@ fn adapt_refuses_mismatched_recordings_and_writes_nothing() {
         ]),
         "no-exposure.tif: the header records no exposure; pass --exposure-s",
     );
+    fails_with(
+        &adapt(&[
+            "good.tif",
+            "--profile",
+            "default",
+            "--method",
+            "noise2noise",
+            "-o",
+            "m.safetensors",
+        ]),
+        "1 frame(s) in all: --method noise2noise needs 2 or more frames",
+    );
     assert_eq!(files(d), before, "adapt wrote or removed files");
 }

@@ -4,24 +4,29 @@
 # frames: INIT un-adapted, INIT adapted, BM3D + GAT and iterative BM3D (`ivst`). The ground
 # truth is used only to score.
 #
-# Usage: tools/adapt_bench.sh DIR PROFILE [INIT] [STEPS]
+# Usage: tools/adapt_bench.sh DIR PROFILE [INIT] [STEPS] [METHOD]
 #   DIR      tools/adapt_stacks.py's output (one folder per scene and level)
 #   PROFILE  the camera's profile (emccd calibrate of tools/unseen_camera.py's acquisition)
-#   INIT     the model to adapt (default: default)
+#   INIT     the model to adapt (default: default), or `scratch` (a new network of
+#            `lowlight`'s architecture: the self-supervised baseline; no un-adapted column)
 #   STEPS    adaptation steps (default 200)
+#   METHOD   adapt --method (default resynthesis)
 # Writes DIR/*/adapted-TAG.safetensors, DIR/*/eval-TAG.json and prints a per-level table.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
-dir="$1"; profile="$2"; init="${3:-default}"; steps="${4:-200}"
+dir="$1"; profile="$2"; init="${3:-default}"; steps="${4:-200}"; method="${5:-resynthesis}"
 E="${EMCCD:-$root/target/release/emccd}"
 tag="$(basename "${init%.safetensors}")"
+[ "$method" = resynthesis ] || tag="$tag-$method"
+base=(--method "$init"); from=(--init "$init")
+[ "$init" = scratch ] && base=() && from=(--init lowlight --from-scratch)
 for d in "$dir"/*/; do
     d="${d%/}"
     [ -f "$d/stack.tif" ] || continue
     m="$d/adapted-$tag.safetensors"
-    [ -f "$m" ] || "$E" adapt "$d/stack.tif" --profile "$profile" --exposure-s 0.01 --init "$init" \
-        --steps "$steps" -o "$m" 2>&1 | tail -1
-    [ -f "$d/eval-$tag.json" ] || "$E" evaluate "$d/pairs" --profile "$profile" --method "$init" \
+    [ -f "$m" ] || "$E" adapt "$d/stack.tif" --profile "$profile" --exposure-s 0.01 "${from[@]}" \
+        --method "$method" --steps "$steps" -o "$m" 2>&1 | tail -1
+    [ -f "$d/eval-$tag.json" ] || "$E" evaluate "$d/pairs" --profile "$profile" "${base[@]}" \
         --method "$m" --method bm3d --method ivst --json > "$d/eval-$tag.json"
 done
 python3 - "$dir" "$tag" <<'PY'
@@ -38,5 +43,6 @@ cols = ["un-adapted", "adapted", "bm3d", "ivst"]
 print(f"| mean e-/px | {tag} | {tag} adapted | BM3D + GAT | ivst |")
 print("|---:|---:|---:|---:|---:|")
 for lv in sorted({k[0] for k in acc}, key=lambda v: (v == "all", 0 if v == "all" else float(v))):
-    print(f"| {lv} | " + " | ".join(f"{sum(acc[(lv, c)]) / len(acc[(lv, c)]):.2f}" for c in cols) + " |")
+    cell = lambda v: f"{sum(v) / len(v):.2f}" if v else "—"
+    print(f"| {lv} | " + " | ".join(cell(acc[(lv, c)]) for c in cols) + " |")
 PY

@@ -4,7 +4,10 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use emccd_camera::NoiseModelKind;
-use emccd_nn::adapt::{adapt, scene_estimate, AdaptConfig, Adaptation, FrameMean};
+use emccd_nn::adapt::{
+    adapt, scene_estimate, AdaptConfig, AdaptData, AdaptMethod, Adaptation, FrameMean, FrameSet,
+    Start,
+};
 use emccd_nn::train::RunPaths;
 
 use crate::common::{load_profile, open_recording, progress, step_progress, Recording};
@@ -17,6 +20,11 @@ use crate::common::{load_profile, open_recording, progress, step_progress, Recor
 /// ordinary model file (`emccd denoise --model OUT`) that records what it was adapted on and
 /// from which model. A checkpoint is kept in OUT.ckpt/; --resume continues an interrupted run.
 /// The more frames, the better the scene estimate: 20–50 is a good range.
+///
+/// --method noise2noise and --method neighbors train on the recorded frames themselves instead
+/// (self-supervised; up to 256 MiB of frames are kept); `--from-scratch --method neighbors` is
+/// the self-supervised baseline, a new network trained on the recordings alone (which may then
+/// show different scenes and exposures).
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Recordings of one static scene (TIFF/BigTIFF, SIF, FITS stacks; read frame by frame).
@@ -35,12 +43,28 @@ pub struct Args {
     /// file. `lowlight` is the best network at a few photoelectrons per pixel.
     #[arg(long, default_value = "lowlight")]
     pub init: String,
+    /// Start from a new network of --init's architecture (its weights are not used),
+    /// initialized from --seed.
+    #[arg(long)]
+    pub from_scratch: bool,
+    /// Where the training pairs come from: `resynthesis` (pairs synthesized from the scene
+    /// estimate with the profile's noise chain), `noise2noise` (one frame the input, another
+    /// the target: needs two frames or more of a static scene) or `neighbors` (adjacent pixels
+    /// of one frame as input and target, SRDTrans/Neighbor2Neighbor sampling).
+    #[arg(long, value_enum, default_value = "resynthesis")]
+    pub method: AdaptMethod,
     /// Fine-tuning steps (about 1 s each for 4 × 128² crops on 2 cores).
     #[arg(long, default_value_t = AdaptConfig::default().steps)]
     pub steps: u64,
-    /// Peak learning rate.
-    #[arg(long, default_value_t = AdaptConfig::default().lr)]
-    pub lr: f64,
+    /// Peak learning rate [default: 2e-4 fine-tuning, 1e-3 from scratch].
+    #[arg(long)]
+    pub lr: Option<f64>,
+    /// Largest training crop side (px; smaller frames use their own size).
+    #[arg(long, default_value_t = AdaptConfig::default().crop)]
+    pub crop: usize,
+    /// Crops per step.
+    #[arg(long, default_value_t = AdaptConfig::default().batch)]
+    pub batch: usize,
     /// Noise model of the synthesized pairs (`ours`: the profile's exact EMCCD chain).
     #[arg(long, value_enum, default_value = "ours")]
     pub noise_model: NoiseModelKind,
@@ -60,6 +84,7 @@ pub fn run(a: Args) -> Result<()> {
     profile
         .require_complete()
         .with_context(|| format!("profile {}: it cannot preprocess frames", a.profile))?;
+    let scratch = a.from_scratch;
     let init = emccd_nn::registry::model_path(&a.init)?;
     for input in &a.inputs {
         if input.canonicalize().ok() == a.out.canonicalize().ok() || *input == a.out {
@@ -69,14 +94,26 @@ pub fn run(a: Args) -> Result<()> {
             );
         }
     }
-    if init.canonicalize().ok() == a.out.canonicalize().ok() {
+    if !scratch && init.canonicalize().ok() == a.out.canonicalize().ok() {
         bail!(
             "{}: the output is the --init model; choose another -o, inputs are never overwritten",
             a.out.display()
         );
     }
+    let resynthesis = a.method == AdaptMethod::Resynthesis;
     let mut mean = FrameMean::new(profile.width, profile.height);
+    // The self-supervised methods keep frames in memory: up to 256 MiB of them.
+    let mut set = FrameSet::new(
+        profile.width,
+        profile.height,
+        if resynthesis {
+            0
+        } else {
+            (256 << 20) / (4 * profile.len()).max(1)
+        },
+    );
     let mut exposure = None;
+    let mut frames = 0usize;
     for input in &a.inputs {
         let Recording {
             mut reader,
@@ -84,49 +121,85 @@ pub fn run(a: Args) -> Result<()> {
             exposure: t,
             ..
         } = open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
+        // Neighbor sampling uses each frame alone: its recordings may differ in exposure.
         match exposure {
-            Some(e) if e != t => bail!(
-                "{}: exposure {t} s, the first recording's is {e} s: adapt on one exposure",
-                input.display()
+            Some(e) if e != t && a.method != AdaptMethod::Neighbors => bail!(
+                "{}: exposure {t} s, the first recording's is {e} s: --method {} adapts on one \
+                 exposure of one static scene",
+                input.display(),
+                a.method.name()
             ),
             _ => exposure = Some(t),
         }
-        let pb = progress(info.frames as u64, "averaging");
+        let pb = progress(info.frames as u64, "reading");
         let mut buf = vec![0f32; info.frame_len()];
         while reader
             .read_frame(&mut buf)
             .with_context(|| input.display().to_string())?
         {
+            frames += 1;
             let dn = emccd_nn::pipeline::preprocess(&profile, &buf, t)
-                .with_context(|| format!("{}: frame {}", input.display(), mean.frames() + 1))?;
-            mean.add(&dn)?;
+                .with_context(|| format!("{}: frame {frames}", input.display()))?;
+            if resynthesis {
+                mean.add(&dn)?;
+            } else {
+                set.add(&dn, t)?;
+            }
             pb.inc(1);
         }
         pb.finish_and_clear();
     }
     let exposure = exposure.context("no recordings")?;
-    if mean.frames() < 8 {
-        eprintln!(
-            "warning: {} frame(s): the scene estimate keeps much of their noise, and the model \
-             learns it as structure; 20–50 frames of the static scene are better",
-            mean.frames()
+    if frames < a.method.min_frames() {
+        bail!(
+            "{frames} frame(s) in all: --method {} needs {} or more frames of the static scene",
+            a.method.name(),
+            a.method.min_frames()
         );
     }
-    let scene = scene_estimate(&mean, &profile, exposure)?;
-    eprintln!(
-        "scene estimate from {} frames at {:.3} mean photoelectrons per pixel",
-        scene.frames, scene.mean_electrons
-    );
+    let scene;
+    let (data, level) = if resynthesis {
+        if frames < 8 {
+            eprintln!(
+                "warning: {frames} frame(s): the scene estimate keeps much of their noise, and \
+                 the model learns it as structure; 20–50 frames of the static scene are better"
+            );
+        }
+        scene = scene_estimate(&mean, &profile, exposure)?;
+        eprintln!(
+            "scene estimate from {frames} frames at {:.3} mean photoelectrons per pixel",
+            scene.mean_electrons
+        );
+        (AdaptData::Scene(&scene), scene.mean_electrons)
+    } else {
+        let level = set.mean_electrons(&profile)?;
+        eprintln!(
+            "{} of {frames} frames kept, at {level:.3} mean photoelectrons per pixel",
+            set.len()
+        );
+        (AdaptData::Frames(&set), level)
+    };
     let cfg = AdaptConfig {
+        method: a.method,
         steps: a.steps,
-        lr: a.lr,
+        lr: a.lr.unwrap_or(if scratch {
+            1e-3
+        } else {
+            AdaptConfig::default().lr
+        }),
         noise: a.noise_model,
         seed: a.seed,
+        crop: a.crop,
+        batch: a.batch,
         ..AdaptConfig::default()
     };
     let provenance = Adaptation {
-        method: "resynthesis".into(),
-        from: a.init.clone(),
+        method: a.method.name().into(),
+        from: if scratch {
+            format!("scratch ({}'s architecture)", a.init)
+        } else {
+            a.init.clone()
+        },
         files: a
             .inputs
             .iter()
@@ -135,18 +208,23 @@ pub fn run(a: Args) -> Result<()> {
                     .map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into())
             })
             .collect(),
-        frames: scene.frames,
-        mean_electrons: scene.mean_electrons,
+        frames,
+        mean_electrons: level,
     };
     let paths = RunPaths {
         out: a.out.clone(),
         checkpoint: PathBuf::from(format!("{}.ckpt", a.out.display())),
     };
     let (pb, mut report) = step_progress(a.steps, cfg.checkpoint_every);
+    let start = if scratch {
+        Start::Scratch(emccd_nn::Denoiser::read_meta(&init)?)
+    } else {
+        Start::Model(&init)
+    };
     let model = adapt(
-        &scene,
+        data,
         &profile,
-        &init,
+        start,
         &cfg,
         provenance,
         &paths,

@@ -1,12 +1,17 @@
 //! Adaptation of a model to a user's own recording, without clean data.
 //!
-//! The method ("resynthesis") uses what this project has and generic self-supervised tools do
-//! not: the calibrated camera. The recording's frames are preprocessed and averaged (a static
-//! scene: the mean of N frames has 1/N of a frame's noise variance), the average is denoised
-//! with iterative BM3D at *its* noise level (gain α/N, read noise σ/√N), and that scene estimate
-//! becomes the clean image of ordinary training: pairs synthesized from it with the profile's
-//! exact noise chain at the recording's own light level, the model fine-tuned on them. The
-//! network thus learns the sample's structures at the noise it will actually see.
+//! The default method ("resynthesis") uses what this project has and generic self-supervised
+//! tools do not: the calibrated camera. The recording's frames are preprocessed and averaged (a
+//! static scene: the mean of N frames has 1/N of a frame's noise variance), the average is
+//! denoised with iterative BM3D at *its* noise level (gain α/N, read noise σ/√N), and that scene
+//! estimate becomes the clean image of ordinary training: pairs synthesized from it with the
+//! profile's exact noise chain at the recording's own light level, the model fine-tuned on them.
+//! The network thus learns the sample's structures at the noise it will actually see.
+//!
+//! Two self-supervised methods train on the recorded frames themselves ([`AdaptMethod`]):
+//! Noise2Noise between frames of the static scene, and spatial-redundancy sampling of single
+//! frames (SRDTrans, Neighbor2Neighbor); the latter, from a new network, is the paper's
+//! self-supervised baseline.
 
 use std::path::Path;
 
@@ -14,13 +19,19 @@ use emccd_camera::NoiseModelKind;
 use emccd_profile::CameraProfile;
 use serde::{Deserialize, Serialize};
 
-use crate::train::{train, Image, Loss, RunPaths, StepReport, TrainConfig};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+
+use crate::norm::{frame_scale, prepare_scaled};
+use crate::train::{
+    orient, sub_image, train_from, Image, Loss, RunPaths, Source, StepReport, TrainConfig,
+};
 use crate::{Denoiser, Error, ModelMeta, Result};
 
 /// What an adapted model file records about its adaptation ([`ModelMeta::adapted`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Adaptation {
-    /// How it was adapted (`resynthesis`: see the module documentation).
+    /// How it was adapted ([`AdaptMethod::name`]).
     pub method: String,
     /// The model it started from (a bundled name or a file).
     pub from: String,
@@ -78,6 +89,251 @@ impl FrameMean {
     pub fn mean(&self) -> Vec<f32> {
         let n = self.frames.max(1) as f64;
         self.sum.iter().map(|&s| (s / n) as f32).collect()
+    }
+}
+
+/// Preprocessed frames (DN above bias) kept in memory with their exposures, up to a capacity:
+/// what the self-supervised methods train on. The frames may show different scenes and
+/// exposures (neighbor sampling needs neither a static scene nor one exposure).
+#[derive(Clone, Debug)]
+pub struct FrameSet {
+    width: usize,
+    height: usize,
+    capacity: usize,
+    frames: Vec<Vec<f32>>,
+    exposures: Vec<f64>,
+}
+
+impl FrameSet {
+    /// An empty set of `width × height` frames that keeps the first `capacity` added.
+    pub fn new(width: usize, height: usize, capacity: usize) -> FrameSet {
+        FrameSet {
+            width,
+            height,
+            capacity,
+            frames: Vec::new(),
+            exposures: Vec::new(),
+        }
+    }
+
+    /// Adds a frame taken with `exposure_s` (ignored once the set is full); an error if its
+    /// size differs.
+    pub fn add(&mut self, frame: &[f32], exposure_s: f64) -> Result<()> {
+        if frame.len() != self.width * self.height {
+            return Err(Error::Data(format!(
+                "a frame of {} pixels where the recording's frames have {}×{}",
+                frame.len(),
+                self.width,
+                self.height
+            )));
+        }
+        if self.frames.len() < self.capacity {
+            self.frames.push(frame.to_vec());
+            self.exposures.push(exposure_s);
+        }
+        Ok(())
+    }
+
+    /// Frames kept.
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// Whether no frame is kept.
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+
+    /// The frames' mean photoelectrons per pixel, as `profile` converts DN (the photon-transfer
+    /// slope is 2 DN per photoelectron's DN: the EM register's excess noise factor √2).
+    pub fn mean_electrons(&self, profile: &CameraProfile) -> Result<f64> {
+        let slope = profile.slope().map_err(|e| Error::Data(e.to_string()))?;
+        let (sum, n) = self
+            .frames
+            .iter()
+            .flatten()
+            .filter(|v| v.is_finite())
+            .fold((0.0, 0usize), |(s, n), &v| (s + v as f64, n + 1));
+        let m = sum / n.max(1) as f64 / (slope / 2.0);
+        if !(m > 0.0) {
+            return Err(Error::Data(
+                "the recording has no signal above bias: nothing to adapt to".into(),
+            ));
+        }
+        Ok(m)
+    }
+}
+
+/// Where an adaptation's training pairs come from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum AdaptMethod {
+    /// Pairs synthesized from the scene estimate with the profile's exact noise chain (see the
+    /// module documentation).
+    #[default]
+    Resynthesis,
+    /// Noise2Noise on frames of the static scene: a crop of one frame is the input, the same
+    /// crop of another frame the target. Their noises are independent and the target's mean is
+    /// the scene, so an L2 loss learns the clean image without ever seeing it.
+    Noise2noise,
+    /// Spatial-redundancy sampling (SRDTrans; Neighbor2Neighbor's sub-sampler, without its
+    /// regularizer): in every 2×2 cell of a frame one pixel goes to the input and an adjacent
+    /// one to the target, two half-size images of one frame with independent noise. Needs a
+    /// single frame, but trains on half-resolution images.
+    Neighbors,
+}
+
+impl AdaptMethod {
+    /// The name in the CLI and in a model file's provenance.
+    pub fn name(self) -> &'static str {
+        match self {
+            AdaptMethod::Resynthesis => "resynthesis",
+            AdaptMethod::Noise2noise => "noise2noise",
+            AdaptMethod::Neighbors => "neighbors",
+        }
+    }
+
+    /// Frames the method needs at least.
+    pub fn min_frames(self) -> usize {
+        match self {
+            AdaptMethod::Noise2noise => 2,
+            _ => 1,
+        }
+    }
+}
+
+/// Training pairs cut from recorded frames alone, in the network's units (as [`prepare`]
+/// would give for the input's whole frame), for the self-supervised methods.
+///
+/// [`prepare`]: crate::norm::prepare
+pub(crate) struct RecordedPairs {
+    frames: Vec<Vec<f32>>,
+    width: usize,
+    height: usize,
+    /// Each frame's normalizing scale (slope units), from the whole frame as at inference.
+    scales: Vec<f32>,
+    slope: f64,
+    /// Read-noise maps, one per exposure, and each frame's.
+    read_noise: Vec<Vec<f32>>,
+    map_of: Vec<usize>,
+    method: AdaptMethod,
+}
+
+impl RecordedPairs {
+    /// Pairs of `method` (not resynthesis) from `set`.
+    pub(crate) fn new(
+        set: &FrameSet,
+        profile: &CameraProfile,
+        method: AdaptMethod,
+    ) -> Result<RecordedPairs> {
+        if method == AdaptMethod::Resynthesis || set.len() < method.min_frames() {
+            return Err(Error::Data(format!(
+                "{} needs {} frame(s) of the recording, {} given",
+                method.name(),
+                method.min_frames(),
+                set.len()
+            )));
+        }
+        if (set.width, set.height) != (profile.width, profile.height) {
+            return Err(Error::Data(format!(
+                "frames are {}×{}, the profile's sensor is {}×{}",
+                set.width, set.height, profile.width, profile.height
+            )));
+        }
+        let slope = profile.slope().map_err(|e| Error::Data(e.to_string()))?;
+        let s = slope as f32;
+        let scales = set
+            .frames
+            .iter()
+            .map(|f| frame_scale(&f.iter().map(|v| v / s).collect::<Vec<f32>>()))
+            .collect();
+        let mut exposures: Vec<f64> = Vec::new();
+        let mut map_of = Vec::with_capacity(set.len());
+        for &t in &set.exposures {
+            crate::pipeline::check_exposure(t)?;
+            map_of.push(match exposures.iter().position(|&e| e == t) {
+                Some(k) => k,
+                None => {
+                    exposures.push(t);
+                    exposures.len() - 1
+                }
+            });
+        }
+        Ok(RecordedPairs {
+            frames: set.frames.clone(),
+            width: set.width,
+            height: set.height,
+            scales,
+            slope,
+            read_noise: exposures
+                .iter()
+                .map(|&t| profile.read_noise_near(t).to_vec())
+                .collect(),
+            map_of,
+            method,
+        })
+    }
+
+    /// The largest crop side, at most `crop`, a multiple of `multiple`, that the frames give
+    /// (the neighbor sampler halves a window twice the crop's side).
+    pub(crate) fn side(&self, crop: usize, multiple: usize) -> usize {
+        let k = if self.method == AdaptMethod::Neighbors {
+            2
+        } else {
+            1
+        };
+        crop.min(self.width / k).min(self.height / k) / multiple * multiple
+    }
+
+    /// Pair number `seed`: input [2, c, c] and target [c, c], 8-way augmented.
+    pub(crate) fn sample(&self, c: usize, seed: u64) -> (Vec<f32>, Vec<f32>) {
+        let mut rng = Pcg64::seed_from_u64(seed);
+        let (w, h) = (self.width, self.height);
+        let i = rng.random_range(0..self.frames.len());
+        let (inp, rn, tgt) = match self.method {
+            AdaptMethod::Neighbors => {
+                let (x0, y0) = (
+                    rng.random_range(0..=w - 2 * c),
+                    rng.random_range(0..=h - 2 * c),
+                );
+                let f = &self.frames[i];
+                let (mut a, mut r, mut b) =
+                    (vec![0f32; c * c], vec![0f32; c * c], vec![0f32; c * c]);
+                // One pixel of the cell, then one of its two neighbors in the cell.
+                const CELL: [(usize, usize); 4] = [(0, 0), (1, 0), (1, 1), (0, 1)];
+                for k in 0..c * c {
+                    let (cx, cy) = (x0 + 2 * (k % c), y0 + 2 * (k / c));
+                    let p = rng.random_range(0..4usize);
+                    let q = (p + if rng.random::<bool>() { 1 } else { 3 }) % 4;
+                    let at = |j: usize| (cy + CELL[j].1) * w + cx + CELL[j].0;
+                    a[k] = f[at(p)];
+                    r[k] = self.read_noise[self.map_of[i]][at(p)];
+                    b[k] = f[at(q)];
+                }
+                (a, r, b)
+            }
+            _ => {
+                let mut j = rng.random_range(0..self.frames.len() - 1);
+                if j >= i {
+                    j += 1;
+                }
+                let (x0, y0) = (rng.random_range(0..=w - c), rng.random_range(0..=h - c));
+                (
+                    sub_image(&self.frames[i], w, x0, y0, c, c),
+                    sub_image(&self.read_noise[self.map_of[i]], w, x0, y0, c, c),
+                    sub_image(&self.frames[j], w, x0, y0, c, c),
+                )
+            }
+        };
+        let mode = rng.random_range(0..8u8);
+        let p = prepare_scaled(
+            &orient(&inp, c, mode),
+            self.slope,
+            &orient(&rn, c, mode),
+            self.scales[i],
+        );
+        let target = orient(&tgt, c, mode).iter().map(|v| v / p.to_dn).collect();
+        (p.input, target)
     }
 }
 
@@ -162,6 +418,8 @@ pub fn scene_estimate(
 /// How an adaptation runs.
 #[derive(Clone, Debug, PartialEq)]
 pub struct AdaptConfig {
+    /// Where the training pairs come from.
+    pub method: AdaptMethod,
     /// Optimizer steps.
     pub steps: u64,
     /// Peak learning rate (a fine-tune: lower than training from scratch).
@@ -170,9 +428,9 @@ pub struct AdaptConfig {
     pub batch: usize,
     /// Largest crop side (smaller frames use their own size, rounded to the network's multiple).
     pub crop: usize,
-    /// Training pairs span the recording's mean light level ÷ and × this factor.
+    /// Resynthesized pairs span the recording's mean light level ÷ and × this factor.
     pub spread: f64,
-    /// Noise model of the synthesized pairs (`ours`: the calibrated exact chain).
+    /// Noise model of the resynthesized pairs (`ours`: the calibrated exact chain).
     pub noise: NoiseModelKind,
     /// Seed.
     pub seed: u64,
@@ -183,6 +441,7 @@ pub struct AdaptConfig {
 impl Default for AdaptConfig {
     fn default() -> AdaptConfig {
         AdaptConfig {
+            method: AdaptMethod::Resynthesis,
             steps: 300,
             lr: 2e-4,
             batch: 4,
@@ -195,14 +454,33 @@ impl Default for AdaptConfig {
     }
 }
 
-/// Fine-tunes the model at `init` on `scene` (see the module documentation) and writes it to
-/// `paths.out`, recording `provenance`. `report` is called after every step (return `false` to
-/// stop: the checkpoint stays and `--resume` continues).
+/// The network an adaptation starts from.
+#[derive(Clone, Debug)]
+pub enum Start<'a> {
+    /// A model file, fine-tuned.
+    Model(&'a Path),
+    /// A new network of this architecture, initialized from the seed: the self-supervised
+    /// baseline trained on the recording alone.
+    Scratch(ModelMeta),
+}
+
+/// What an adaptation trains on.
+#[derive(Clone, Copy, Debug)]
+pub enum AdaptData<'a> {
+    /// A recording's scene estimate ([`AdaptMethod::Resynthesis`]).
+    Scene(&'a SceneEstimate),
+    /// Recorded frames (the self-supervised methods).
+    Frames(&'a FrameSet),
+}
+
+/// Adapts a network to a recording (see the module documentation and [`AdaptMethod`]) and
+/// writes it to `paths.out`, recording `provenance`. `report` is called after every step
+/// (return `false` to stop: the checkpoint stays and `--resume` continues).
 #[allow(clippy::too_many_arguments)]
 pub fn adapt(
-    scene: &SceneEstimate,
+    data: AdaptData,
     profile: &CameraProfile,
-    init: &Path,
+    start: Start,
     cfg: &AdaptConfig,
     provenance: Adaptation,
     paths: &RunPaths,
@@ -215,18 +493,62 @@ pub fn adapt(
             cfg.spread
         )));
     }
-    let start = Denoiser::load(init, &crate::device())?;
-    let multiple = start.meta.multiple();
-    let side = cfg.crop.min(scene.image.width).min(scene.image.height) / multiple * multiple;
-    if side == 0 {
+    if cfg.batch == 0 || cfg.steps == 0 {
         return Err(Error::Data(format!(
-            "frames of {}×{} are smaller than the {multiple}-px unit of {}",
-            scene.image.width,
-            scene.image.height,
-            start.meta.arch.name()
+            "{} steps of {} crops: both must be at least 1",
+            cfg.steps, cfg.batch
         )));
     }
-    let m = scene.mean_electrons;
+    let (init, start_meta) = match &start {
+        Start::Model(p) => (Some(*p), Denoiser::read_meta(p)?),
+        Start::Scratch(m) => (
+            None,
+            ModelMeta {
+                steps: 0,
+                ..m.clone()
+            },
+        ),
+    };
+    let multiple = start_meta.multiple();
+    let (source, level, (w, h)) = match (cfg.method, data) {
+        (AdaptMethod::Resynthesis, AdaptData::Scene(scene)) => (
+            Source::Synthetic(vec![scene.image.clone()]),
+            scene.mean_electrons,
+            (scene.image.width, scene.image.height),
+        ),
+        (AdaptMethod::Resynthesis, AdaptData::Frames(_)) => {
+            return Err(Error::Data(
+                "resynthesis trains on a scene estimate, not on frames".into(),
+            ))
+        }
+        (m, AdaptData::Frames(set)) => (
+            Source::Recorded(RecordedPairs::new(set, profile, m)?),
+            set.mean_electrons(profile)?,
+            (set.width, set.height),
+        ),
+        (m, AdaptData::Scene(_)) => {
+            return Err(Error::Data(format!(
+                "{} trains on recorded frames, not on a scene estimate",
+                m.name()
+            )))
+        }
+    };
+    let side = match &source {
+        Source::Recorded(pairs) => pairs.side(cfg.crop, multiple),
+        Source::Synthetic(_) => cfg.crop.min(w).min(h) / multiple * multiple,
+    };
+    if side == 0 {
+        return Err(Error::Data(format!(
+            "frames of {w}×{h} are too small for the {multiple}-px unit of {}{}",
+            start_meta.arch.name(),
+            if cfg.method == AdaptMethod::Neighbors {
+                " at half resolution"
+            } else {
+                ""
+            }
+        )));
+    }
+    let m = level;
     let tc = TrainConfig {
         steps: cfg.steps,
         batch: cfg.batch,
@@ -234,10 +556,15 @@ pub fn adapt(
         lr: cfg.lr,
         warmup: (cfg.steps / 10).min(50),
         mean_electrons: Some([m / cfg.spread, m * cfg.spread]),
-        loss: Loss::Charbonnier,
+        // Recorded targets are noisy: only an L2 loss has the scene (their mean) as its
+        // minimizer; a Charbonnier loss would pull towards the skewed EM noise's median.
+        loss: match cfg.method {
+            AdaptMethod::Resynthesis => Loss::Charbonnier,
+            _ => Loss::L2,
+        },
         read_noise_scale: [1.0, 1.0],
         noise: cfg.noise,
-        ablate: start.meta.ablate,
+        ablate: start_meta.ablate,
         seed: cfg.seed,
         val_every: cfg.checkpoint_every,
         checkpoint_every: cfg.checkpoint_every,
@@ -259,16 +586,15 @@ pub fn adapt(
             cfg.seed
         ),
         adapted: Some(provenance),
-        ..start.meta.clone()
+        ..start_meta
     };
-    drop(start);
-    train(
-        vec![scene.image.clone()],
+    train_from(
+        source,
         Vec::new(),
         profile,
         tc,
         meta,
-        Some(init),
+        init,
         resume,
         paths,
         report,

@@ -21,6 +21,7 @@ use rand_pcg::Pcg64;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::adapt::RecordedPairs;
 use crate::model::{Denoiser, Inputs, ModelMeta, Net};
 use crate::norm::{frame_scale, prepare_hybrid, prepare_scaled, signal_scale};
 use crate::{Error, Result};
@@ -299,7 +300,14 @@ fn synth_sample(
 }
 
 /// The `ww × wh` window at (`x0`, `y0`) of a row-major image `w` pixels wide.
-fn sub_image(src: &[f32], w: usize, x0: usize, y0: usize, ww: usize, wh: usize) -> Vec<f32> {
+pub(crate) fn sub_image(
+    src: &[f32],
+    w: usize,
+    x0: usize,
+    y0: usize,
+    ww: usize,
+    wh: usize,
+) -> Vec<f32> {
     (0..ww * wh)
         .map(|i| src[(y0 + i / ww) * w + x0 + i % ww])
         .collect()
@@ -307,7 +315,7 @@ fn sub_image(src: &[f32], w: usize, x0: usize, y0: usize, ww: usize, wh: usize) 
 
 /// A c×c plane in one of the 8 orientations: optional transpose (`mode & 4`), then optional
 /// horizontal (`& 1`) and vertical (`& 2`) flips.
-fn orient(src: &[f32], c: usize, mode: u8) -> Vec<f32> {
+pub(crate) fn orient(src: &[f32], c: usize, mode: u8) -> Vec<f32> {
     let mut out = vec![0f32; c * c];
     for y in 0..c {
         for x in 0..c {
@@ -530,14 +538,65 @@ pub fn train(
     paths: &RunPaths,
     report: &mut dyn FnMut(&StepReport) -> bool,
 ) -> Result<Denoiser> {
+    if train_images.is_empty() {
+        return Err(Error::Data("no training images".into()));
+    }
+    train_from(
+        Source::Synthetic(train_images),
+        val_images,
+        profile,
+        cfg,
+        meta,
+        init,
+        resume,
+        paths,
+        report,
+    )
+}
+
+/// What a run trains on.
+pub(crate) enum Source {
+    /// Clean images: pairs synthesized from them with the camera model.
+    Synthetic(Vec<Image>),
+    /// Pairs cut from a recording alone (self-supervised adaptation).
+    Recorded(RecordedPairs),
+}
+
+/// A batch of pairs cut from a recording, a pure function of `seed`.
+fn recorded_batch(pairs: &RecordedPairs, cfg: &TrainConfig, seed: u64) -> Batch {
+    let samples: Vec<(Vec<f32>, Vec<f32>)> = (0..cfg.batch as u64)
+        .into_par_iter()
+        .map(|b| pairs.sample(cfg.crop, pair_seed(seed, b)))
+        .collect();
+    let (input, target): (Vec<Vec<f32>>, Vec<Vec<f32>>) = samples.into_iter().unzip();
+    Batch {
+        input: input.concat(),
+        target: target.concat(),
+    }
+}
+
+/// [`train`] on any [`Source`].
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn train_from(
+    source: Source,
+    val_images: Vec<Image>,
+    profile: &CameraProfile,
+    cfg: TrainConfig,
+    meta: ModelMeta,
+    init: Option<&Path>,
+    resume: bool,
+    paths: &RunPaths,
+    report: &mut dyn FnMut(&StepReport) -> bool,
+) -> Result<Denoiser> {
     profile
         .require_complete()
         .map_err(|e| Error::Data(e.to_string()))?;
     let c = cfg.crop;
-    if train_images.is_empty() {
-        return Err(Error::Data("no training images".into()));
-    }
-    for im in train_images.iter().chain(&val_images) {
+    let synthetic: &[Image] = match &source {
+        Source::Synthetic(images) => images,
+        Source::Recorded(_) => &[],
+    };
+    for im in synthetic.iter().chain(&val_images) {
         if im.width < c || im.height < c {
             return Err(Error::Data(format!(
                 "a {}×{} image is smaller than the {c}-px crop",
@@ -616,6 +675,13 @@ pub fn train(
             f64::NAN,
         )
     };
+    if matches!(source, Source::Recorded(_)) && model.meta.inputs != Inputs::Noisy {
+        return Err(Error::Data(format!(
+            "a {} network needs a base estimate of every training crop; recorded pairs train \
+             networks of noisy frames only",
+            model.meta.inputs.name()
+        )));
+    }
     if c % model.meta.multiple() != 0 {
         return Err(Error::Data(format!(
             "the crop ({c} px) must be a multiple of {} px for {}",
@@ -669,23 +735,19 @@ pub fn train(
 
     // Producer: batches for steps start.. on another thread.
     let (tx, rx) = mpsc::sync_channel::<Result<Batch>>(2);
-    let (imgs, prof, pcfg) = (train_images, profile.clone(), cfg.clone());
+    let (prof, pcfg) = (profile.clone(), cfg.clone());
     let producer = std::thread::spawn(move || {
         let mut pool = Pool {
             pairs: Default::default(),
         };
         for step in start..pcfg.steps {
-            let b = if pcfg.reuse > 1 {
-                pool.batch(&imgs, &prof, &pcfg, inputs, abl, step)
-            } else {
-                make_batch(
-                    &imgs,
-                    &prof,
-                    &pcfg,
-                    inputs,
-                    abl,
-                    pcfg.seed.wrapping_add(step.wrapping_mul(7919)),
-                )
+            let seed = pcfg.seed.wrapping_add(step.wrapping_mul(7919));
+            let b = match &source {
+                Source::Recorded(pairs) => Ok(recorded_batch(pairs, &pcfg, seed)),
+                Source::Synthetic(imgs) if pcfg.reuse > 1 => {
+                    pool.batch(imgs, &prof, &pcfg, inputs, abl, step)
+                }
+                Source::Synthetic(imgs) => make_batch(imgs, &prof, &pcfg, inputs, abl, seed),
             };
             if tx.send(b).is_err() {
                 break;

@@ -4,7 +4,10 @@
 mod common;
 
 use emccd_camera::{PhysicalParams, VirtualCamera};
-use emccd_nn::adapt::{adapt, scene_estimate, AdaptConfig, Adaptation, FrameMean};
+use emccd_nn::adapt::{
+    adapt, scene_estimate, AdaptConfig, AdaptData, AdaptMethod, Adaptation, FrameMean, FrameSet,
+    SceneEstimate, Start,
+};
 use emccd_nn::pipeline::{preprocess, Pipeline};
 use emccd_nn::train::RunPaths;
 use emccd_nn::Denoiser;
@@ -50,12 +53,22 @@ fn rmse(a: &[f32], b: &[f32]) -> f64 {
         .sqrt()
 }
 
-fn estimate(cam: &VirtualCamera, n: usize) -> emccd_nn::adapt::SceneEstimate {
+/// The scene estimate of `n` frames (seeds 100…).
+fn estimate(cam: &VirtualCamera, n: usize) -> SceneEstimate {
     let mut mean = FrameMean::new(SIDE, SIDE);
     for f in frames(cam, n, 100) {
         mean.add(&f).unwrap();
     }
     scene_estimate(&mean, &cam.profile, EXPOSURE).unwrap()
+}
+
+/// `n` frames (seeds 100…) as a frame set.
+fn frame_set(cam: &VirtualCamera, n: usize) -> FrameSet {
+    let mut set = FrameSet::new(SIDE, SIDE, n);
+    for f in frames(cam, n, 100) {
+        set.add(&f, EXPOSURE).unwrap();
+    }
+    set
 }
 
 /// The scene estimate of 16 frames: its level is the expected signal's (photo-signal, dark and
@@ -128,9 +141,9 @@ fn adaptation_improves_held_out_frames_and_records_its_provenance() {
     };
     let mut losses = Vec::new();
     let model = adapt(
-        &est,
+        AdaptData::Scene(&est),
         &cam.profile,
-        &init,
+        Start::Model(&init),
         &cfg,
         provenance.clone(),
         &paths,
@@ -185,4 +198,105 @@ fn adaptation_improves_held_out_frames_and_records_its_provenance() {
     small.add(&[1.0; 32 * 32]).unwrap();
     let e = scene_estimate(&small, &cam.profile, EXPOSURE).unwrap_err();
     assert!(e.to_string().contains("32×32"), "{e}");
+}
+
+/// The self-supervised methods on a tiny stack: from a new network, 60 steps of Noise2Noise
+/// between frames and of neighbor sampling within frames lower the self-supervised loss (the
+/// mean of the last 10 steps' smoothed loss below the first 10's); the file records the method
+/// and "scratch"; Noise2Noise refuses a one-frame recording and a hybrid network is refused.
+#[test]
+fn self_supervised_adaptation_lowers_its_loss() {
+    let cam = camera();
+    let dir = tempfile::tempdir().unwrap();
+    let set = frame_set(&cam, 8);
+    let level = set.mean_electrons(&cam.profile).unwrap();
+    // The set's level is the one the scene estimate reports for the same frames.
+    let want = estimate(&cam, 8).mean_electrons;
+    assert!((level / want - 1.0).abs() < 1e-9, "{level} vs {want}");
+    for method in [AdaptMethod::Noise2noise, AdaptMethod::Neighbors] {
+        let cfg = AdaptConfig {
+            method,
+            steps: 60,
+            lr: 2e-3,
+            crop: 32,
+            checkpoint_every: 100,
+            ..AdaptConfig::default()
+        };
+        let provenance = Adaptation {
+            method: method.name().into(),
+            from: "scratch".into(),
+            files: vec!["stack.tif".into()],
+            frames: set.len(),
+            mean_electrons: level,
+        };
+        let paths = RunPaths {
+            out: dir.path().join(format!("{}.safetensors", method.name())),
+            checkpoint: dir.path().join(format!("{}.ckpt", method.name())),
+        };
+        let mut losses = Vec::new();
+        adapt(
+            AdaptData::Frames(&set),
+            &cam.profile,
+            Start::Scratch(common::meta(8, 2)),
+            &cfg,
+            provenance.clone(),
+            &paths,
+            false,
+            &mut |r| {
+                losses.push(r.loss);
+                true
+            },
+        )
+        .unwrap();
+        let avg = |s: &[f64]| s.iter().sum::<f64>() / s.len() as f64;
+        let (first, last) = (avg(&losses[..10]), avg(&losses[50..]));
+        assert!(last < first, "{}: loss {first} → {last}", method.name());
+        let meta = Denoiser::read_meta(&paths.out).unwrap();
+        assert_eq!(meta.adapted.as_ref(), Some(&provenance));
+        assert_eq!(meta.steps, 60);
+    }
+
+    let mut one = FrameSet::new(SIDE, SIDE, 4);
+    one.add(&frames(&cam, 1, 5)[0], EXPOSURE).unwrap();
+    let out = dir.path().join("one.safetensors");
+    let run = |set: &FrameSet, meta, method| {
+        adapt(
+            AdaptData::Frames(set),
+            &cam.profile,
+            Start::Scratch(meta),
+            &AdaptConfig {
+                method,
+                steps: 2,
+                ..AdaptConfig::default()
+            },
+            Adaptation {
+                method: "x".into(),
+                from: "scratch".into(),
+                files: vec![],
+                frames: 1,
+                mean_electrons: 1.0,
+            },
+            &RunPaths {
+                out: out.clone(),
+                checkpoint: dir.path().join("one.ckpt"),
+            },
+            false,
+            &mut |_| true,
+        )
+        .unwrap_err()
+        .to_string()
+    };
+    let e = run(&one, common::meta(8, 2), AdaptMethod::Noise2noise);
+    assert!(
+        e.contains("noise2noise needs 2 frame(s) of the recording, 1 given"),
+        "{e}"
+    );
+    let mut hybrid = common::meta(8, 2);
+    hybrid.inputs = emccd_nn::Inputs::Hybrid;
+    if let emccd_nn::Arch::UNet(c) = &mut hybrid.arch {
+        c.in_channels = 3;
+    }
+    let e = run(&set, hybrid, AdaptMethod::Neighbors);
+    assert!(e.contains("networks of noisy frames only"), "{e}");
+    assert!(!out.exists());
 }
