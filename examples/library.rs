@@ -1,7 +1,8 @@
 //! The libraries without the CLI, end to end: record a calibration acquisition with the virtual
 //! camera (`emccd-camera`, written with `emccd-io`), calibrate it (`emccd-calib`), synthesize
 //! training pairs from the calibrated profile and fine-tune the bundled network a few steps
-//! (`emccd-nn`), then denoise a low-light frame and score it (`emccd-eval`).
+//! (`emccd-nn`), then denoise a low-light frame and score it (`emccd-eval`), and adapt the network
+//! to a short recording of that scene with no clean image (`emccd_nn::adapt`).
 //!
 //!     cargo run --release --example library
 //!
@@ -14,6 +15,7 @@ use emccd_calib::manifest::{Entry, Manifest};
 use emccd_camera::acquisition::{frame_seed, CalibrationPlan, PlannedStack, Role};
 use emccd_camera::{PhysicalParams, VirtualCamera};
 use emccd_io::{Metadata, SampleFormat, StackWriter};
+use emccd_nn::adapt::{adapt, AdaptConfig, AdaptData, AdaptMethod, Adaptation, FrameSet, Start};
 use emccd_nn::train::{train, Image, RunPaths, TrainConfig};
 use emccd_nn::{FrameDenoiser, Method, ModelMeta};
 use emccd_profile::CameraProfile;
@@ -169,5 +171,55 @@ fn main() -> Result<()> {
             emccd_eval::psnr(&out, &gt, peak)
         );
     }
+
+    // 6. Adapt the network to an 8-frame recording of the scene, self-supervised (Noise2Noise
+    //    between its frames), and denoise the same frame again.
+    let mut set = FrameSet::new(SIZE, SIZE, 8);
+    let mut frame = vec![0f32; SIZE * SIZE];
+    for k in 0..8 {
+        e.frame(&photons, 100 + k, &mut frame);
+        set.add(
+            &emccd_nn::pipeline::preprocess(&profile, &frame, 0.01)?,
+            0.01,
+        )?;
+    }
+    let adapted = adapt(
+        AdaptData::Frames(&set),
+        &profile,
+        Start::Model(&paths.out),
+        &AdaptConfig {
+            method: AdaptMethod::Noise2noise,
+            steps: 10,
+            batch: 2,
+            crop: 32,
+            lr: 5e-5,
+            ..Default::default()
+        },
+        Adaptation {
+            method: AdaptMethod::Noise2noise.name().into(),
+            from: "model.safetensors".into(),
+            files: vec!["(8 frames in memory)".into()],
+            frames: set.len(),
+            mean_electrons: set.mean_electrons(&profile)?,
+        },
+        &RunPaths {
+            out: dir.path().join("adapted.safetensors"),
+            checkpoint: dir.path().join("adapted.ckpt"),
+        },
+        false,
+        &mut |_| true,
+    )?;
+    let d = FrameDenoiser {
+        profile: &profile,
+        method: Method::Net,
+        model: Some(&adapted),
+        tiling: Default::default(),
+        ensemble: 1,
+        to_units: 1.0,
+    };
+    println!(
+        "adapted net: {:.2} dB",
+        emccd_eval::psnr(&d.run(&raw, 0.01)?, &gt, peak)
+    );
     Ok(())
 }

@@ -41,8 +41,18 @@ for m in eld pgn; do
     [ -f "$OUT/$m-own.safetensors" ] || $E train --clean $NAT/Kodak24 --steps 0 --init "$OUT/$m.safetensors" \
         --noise-model $m --ablate fpn,blooming -o "$OUT/$m-own.safetensors" 2> /dev/null
 done
+# The self-supervised baseline (the paper's SRDTrans row): a network of the same size and budget
+# (STEPS steps of 4 × 64², lr 2e-4, seed 11) trained from scratch on the 90 noisy test frames
+# alone, with SRDTrans's spatial-redundancy sampling (`adapt --method neighbors`). The frames are
+# 256² crops at the sensor's origin: the profile of that region.
+[ -f "$OUT/profile-256/profile.toml" ] || $E profile crop default --roi 0,0,256x256 "$OUT/profile-256" > /dev/null
+[ -f "$OUT/arch-8x4.safetensors" ] || $E train --profile default --clean $NAT/Kodak24 --base 8 --levels 4 \
+    --crop 64 --steps 0 --seed 11 -o "$OUT/arch-8x4.safetensors" 2> /dev/null
+[ -f "$OUT/selfsup.safetensors" ] || $E adapt "$OUT"/pairs/noisy/*.tif --profile "$OUT/profile-256" \
+    --init "$OUT/arch-8x4.safetensors" --from-scratch --method neighbors --crop 64 --batch 4 \
+    --steps "$STEPS" --lr 2e-4 --seed 11 -o "$OUT/selfsup.safetensors" 2> "$OUT/selfsup.log"
 methods=(--method input --method bm3d)
-for m in ours eld-own pgn-own eld pgn no-multiplicative no-readout no-fpn no-blooming; do
+for m in ours eld-own pgn-own eld pgn selfsup no-multiplicative no-readout no-fpn no-blooming; do
     methods+=(--method "$OUT/$m.safetensors")
 done
 # The bundled model (16 channels, 3000 steps of 4 × 128²) for scale.
