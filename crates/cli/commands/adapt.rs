@@ -27,7 +27,8 @@ use crate::common::{load_profile, open_recording, progress, step_progress, Recor
 /// show different scenes and exposures).
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Recordings of one static scene (TIFF/BigTIFF, SIF, FITS stacks; read frame by frame).
+    /// Recordings of one static scene (TIFF/BigTIFF, SIF, FITS stacks; read frame by frame);
+    /// with --method neighbors any recordings of the camera.
     #[arg(required = true, num_args = 1..)]
     pub inputs: Vec<PathBuf>,
     /// The camera's profile (`emccd calibrate`), or `default`.
@@ -47,10 +48,7 @@ pub struct Args {
     /// initialized from --seed.
     #[arg(long)]
     pub from_scratch: bool,
-    /// Where the training pairs come from: `resynthesis` (pairs synthesized from the scene
-    /// estimate with the profile's noise chain), `noise2noise` (one frame the input, another
-    /// the target: needs two frames or more of a static scene) or `neighbors` (adjacent pixels
-    /// of one frame as input and target, SRDTrans/Neighbor2Neighbor sampling).
+    /// Where the training pairs come from.
     #[arg(long, value_enum, default_value = "resynthesis")]
     pub method: AdaptMethod,
     /// Fine-tuning steps (about 1 s each for 4 × 128² crops on 2 cores).

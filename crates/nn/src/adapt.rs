@@ -168,8 +168,8 @@ impl FrameSet {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum AdaptMethod {
-    /// Pairs synthesized from the scene estimate with the profile's exact noise chain (see the
-    /// module documentation).
+    /// Pairs synthesized with the profile's exact noise chain from the scene estimate (the
+    /// frames' mean denoised by iterative BM3D at its own noise).
     #[default]
     Resynthesis,
     /// Noise2Noise on frames of the static scene: a crop of one frame is the input, the same
