@@ -630,6 +630,11 @@ fn adapt_refuses_mismatched_recordings_and_writes_nothing() {
         .unwrap()
         .save(d.join("p64"))
         .unwrap();
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("models/default-unet.safetensors"),
+        d.join("init.safetensors"),
+    )
+    .unwrap();
     let before = files(d);
     let adapt = |args: &[&str]| {
         let mut a = vec!["adapt", "--steps", "2"];
@@ -676,6 +681,19 @@ fn adapt_refuses_mismatched_recordings_and_writes_nothing() {
             "m.safetensors",
         ]),
         "1 frame(s) in all: --method noise2noise needs 2 or more frames",
+    );
+    fails_with(
+        &adapt(&[
+            "good.tif",
+            "--profile",
+            "default",
+            "--init",
+            "init.safetensors",
+            "--from-scratch",
+            "-o",
+            "init.safetensors",
+        ]),
+        "the output is the --init model",
     );
     assert_eq!(files(d), before, "adapt wrote or removed files");
 }

@@ -26,8 +26,10 @@ for d in "$dir"/*/; do
     m="$d/adapted-$tag.safetensors"
     [ -f "$m" ] || "$E" adapt "$d/stack.tif" --profile "$profile" --exposure-s 0.01 "${from[@]}" \
         --method "$method" --steps "$steps" -o "$m" 2>&1 | tail -1
-    [ -f "$d/eval-$tag.json" ] || "$E" evaluate "$d/pairs" --profile "$profile" "${base[@]}" \
-        --method "$m" --method bm3d --method ivst --json > "$d/eval-$tag.json"
+    # Written under a temporary name: a failed evaluation leaves no empty result behind.
+    [ -s "$d/eval-$tag.json" ] || { "$E" evaluate "$d/pairs" --profile "$profile" ${base[@]+"${base[@]}"} \
+        --method "$m" --method bm3d --method ivst --json > "$d/eval-$tag.json.tmp" &&
+        mv "$d/eval-$tag.json.tmp" "$d/eval-$tag.json"; }
 done
 python3 - "$dir" "$tag" <<'PY'
 import json, sys, glob, collections

@@ -57,7 +57,8 @@ pub struct Args {
     /// Peak learning rate [default: 2e-4 fine-tuning, 1e-3 from scratch].
     #[arg(long)]
     pub lr: Option<f64>,
-    /// Largest training crop side (px; smaller frames use their own size).
+    /// Largest training crop side (px; smaller frames use their own size, half of it with
+    /// --method neighbors).
     #[arg(long, default_value_t = AdaptConfig::default().crop)]
     pub crop: usize,
     /// Crops per step.
@@ -92,12 +93,13 @@ pub fn run(a: Args) -> Result<()> {
             );
         }
     }
-    if !scratch && init.canonicalize().ok() == a.out.canonicalize().ok() {
+    if init.canonicalize().ok() == a.out.canonicalize().ok() {
         bail!(
             "{}: the output is the --init model; choose another -o, inputs are never overwritten",
             a.out.display()
         );
     }
+    let init_meta = emccd_nn::Denoiser::read_meta(&init)?;
     let resynthesis = a.method == AdaptMethod::Resynthesis;
     let mut mean = FrameMean::new(profile.width, profile.height);
     // The self-supervised methods keep frames in memory: up to 256 MiB of them.
@@ -136,7 +138,8 @@ pub fn run(a: Args) -> Result<()> {
             .with_context(|| input.display().to_string())?
         {
             frames += 1;
-            let dn = emccd_nn::pipeline::preprocess(&profile, &buf, t)
+            // As `denoise` will for this model (an ablated one skips some corrections).
+            let dn = emccd_nn::pipeline::preprocess_ablated(&profile, &buf, t, init_meta.ablate)
                 .with_context(|| format!("{}: frame {frames}", input.display()))?;
             if resynthesis {
                 mean.add(&dn)?;
@@ -150,7 +153,7 @@ pub fn run(a: Args) -> Result<()> {
     let exposure = exposure.context("no recordings")?;
     if frames < a.method.min_frames() {
         bail!(
-            "{frames} frame(s) in all: --method {} needs {} or more frames of the static scene",
+            "{frames} frame(s) in all: --method {} needs {} or more frames",
             a.method.name(),
             a.method.min_frames()
         );
@@ -206,7 +209,7 @@ pub fn run(a: Args) -> Result<()> {
                     .map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into())
             })
             .collect(),
-        frames,
+        frames: if resynthesis { frames } else { set.len() },
         mean_electrons: level,
     };
     let paths = RunPaths {
@@ -215,7 +218,7 @@ pub fn run(a: Args) -> Result<()> {
     };
     let (pb, mut report) = step_progress(a.steps, cfg.checkpoint_every);
     let start = if scratch {
-        Start::Scratch(emccd_nn::Denoiser::read_meta(&init)?)
+        Start::Scratch(init_meta)
     } else {
         Start::Model(&init)
     };

@@ -37,7 +37,7 @@ pub struct Adaptation {
     pub from: String,
     /// The recordings it was adapted on (file names).
     pub files: Vec<String>,
-    /// Frames averaged into the scene estimate.
+    /// Frames it trained on (averaged into the scene estimate, or kept for self-supervision).
     pub frames: usize,
     /// The recording's mean photoelectrons per pixel, as the profile converts it.
     pub mean_electrons: f64,
@@ -93,8 +93,8 @@ impl FrameMean {
 }
 
 /// Preprocessed frames (DN above bias) kept in memory with their exposures, up to a capacity:
-/// what the self-supervised methods train on. The frames may show different scenes and
-/// exposures (neighbor sampling needs neither a static scene nor one exposure).
+/// what the self-supervised methods train on. For neighbor sampling the frames may show
+/// different scenes and exposures; Noise2Noise needs one exposure of a static scene.
 #[derive(Clone, Debug)]
 pub struct FrameSet {
     width: usize,
@@ -117,7 +117,7 @@ impl FrameSet {
     }
 
     /// Adds a frame taken with `exposure_s` (ignored once the set is full); an error if its
-    /// size differs.
+    /// size differs or a pixel is not a finite number (it would end training as a diverged run).
     pub fn add(&mut self, frame: &[f32], exposure_s: f64) -> Result<()> {
         if frame.len() != self.width * self.height {
             return Err(Error::Data(format!(
@@ -125,6 +125,14 @@ impl FrameSet {
                 frame.len(),
                 self.width,
                 self.height
+            )));
+        }
+        if let Some(k) = frame.iter().position(|v| !v.is_finite()) {
+            return Err(Error::Data(format!(
+                "pixel ({}, {}) is {}: frames to train on must be finite",
+                k % self.width,
+                k / self.width,
+                frame[k]
             )));
         }
         if self.frames.len() < self.capacity {
@@ -247,6 +255,13 @@ impl RecordedPairs {
             .iter()
             .map(|f| frame_scale(&f.iter().map(|v| v / s).collect::<Vec<f32>>()))
             .collect();
+        if method == AdaptMethod::Noise2noise
+            && set.exposures.iter().any(|&t| t != set.exposures[0])
+        {
+            return Err(Error::Data(
+                "noise2noise pairs frames of one static scene: the frames' exposures differ".into(),
+            ));
+        }
         let mut exposures: Vec<f64> = Vec::new();
         let mut map_of = Vec::with_capacity(set.len());
         for &t in &set.exposures {
@@ -510,6 +525,13 @@ pub fn adapt(
         ),
     };
     let multiple = start_meta.multiple();
+    if cfg.crop < multiple {
+        return Err(Error::Data(format!(
+            "a crop of {} px: {} works on multiples of {multiple} px",
+            cfg.crop,
+            start_meta.arch.name()
+        )));
+    }
     let (source, level, (w, h)) = match (cfg.method, data) {
         (AdaptMethod::Resynthesis, AdaptData::Scene(scene)) => (
             Source::Synthetic(vec![scene.image.clone()]),

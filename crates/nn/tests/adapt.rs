@@ -203,7 +203,8 @@ fn adaptation_improves_held_out_frames_and_records_its_provenance() {
 /// The self-supervised methods on a tiny stack: from a new network, 60 steps of Noise2Noise
 /// between frames and of neighbor sampling within frames lower the self-supervised loss (the
 /// mean of the last 10 steps' smoothed loss below the first 10's); the file records the method
-/// and "scratch"; Noise2Noise refuses a one-frame recording and a hybrid network is refused.
+/// and "scratch"; Noise2Noise refuses a one-frame recording and mixed exposures, a frame with a
+/// NaN is refused, and so is a hybrid network.
 #[test]
 fn self_supervised_adaptation_lowers_its_loss() {
     let cam = camera();
@@ -291,6 +292,19 @@ fn self_supervised_adaptation_lowers_its_loss() {
         e.contains("noise2noise needs 2 frame(s) of the recording, 1 given"),
         "{e}"
     );
+    let mut mixed = FrameSet::new(SIDE, SIDE, 4);
+    for (k, f) in frames(&cam, 2, 5).iter().enumerate() {
+        mixed.add(f, EXPOSURE * (k + 1) as f64).unwrap();
+    }
+    let e = run(&mixed, common::meta(8, 2), AdaptMethod::Noise2noise);
+    assert!(e.contains("exposures differ"), "{e}");
+    let mut nan = frames(&cam, 1, 5).remove(0);
+    nan[70] = f32::NAN;
+    let e = FrameSet::new(SIDE, SIDE, 4)
+        .add(&nan, EXPOSURE)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("pixel (6, 1) is NaN"), "{e}");
     let mut hybrid = common::meta(8, 2);
     hybrid.inputs = emccd_nn::Inputs::Hybrid;
     if let emccd_nn::Arch::UNet(c) = &mut hybrid.arch {
