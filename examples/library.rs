@@ -183,8 +183,9 @@ fn main() -> Result<()> {
             0.01,
         )?;
     }
+    let (kept, level) = (set.len(), set.mean_electrons(&profile)?);
     let adapted = adapt(
-        AdaptData::Frames(&set),
+        AdaptData::Frames(set),
         &profile,
         Start::Model(&paths.out),
         &AdaptConfig {
@@ -199,8 +200,8 @@ fn main() -> Result<()> {
             method: AdaptMethod::Noise2noise.name().into(),
             from: "model.safetensors".into(),
             files: vec!["(8 frames in memory)".into()],
-            frames: set.len(),
-            mean_electrons: set.mean_electrons(&profile)?,
+            frames: kept,
+            mean_electrons: level,
         },
         &RunPaths {
             out: dir.path().join("adapted.safetensors"),

@@ -159,7 +159,7 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     let scene;
-    let (data, level) = if resynthesis {
+    let (data, level, used) = if resynthesis {
         if frames < 8 {
             eprintln!(
                 "warning: {frames} frame(s): the scene estimate keeps much of their noise, and \
@@ -171,14 +171,15 @@ pub fn run(a: Args) -> Result<()> {
             "scene estimate from {frames} frames at {:.3} mean photoelectrons per pixel",
             scene.mean_electrons
         );
-        (AdaptData::Scene(&scene), scene.mean_electrons)
+        (AdaptData::Scene(&scene), scene.mean_electrons, frames)
     } else {
         let level = set.mean_electrons(&profile)?;
         eprintln!(
             "{} of {frames} frames kept, at {level:.3} mean photoelectrons per pixel",
             set.len()
         );
-        (AdaptData::Frames(&set), level)
+        let kept = set.len();
+        (AdaptData::Frames(set), level, kept)
     };
     let cfg = AdaptConfig {
         method: a.method,
@@ -209,7 +210,7 @@ pub fn run(a: Args) -> Result<()> {
                     .map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into())
             })
             .collect(),
-        frames: if resynthesis { frames } else { set.len() },
+        frames: used,
         mean_electrons: level,
     };
     let paths = RunPaths {

@@ -43,6 +43,24 @@ pub struct Adaptation {
     pub mean_electrons: f64,
 }
 
+/// An error unless `frame` has the recording's `width × height` pixels.
+fn check_size(frame: &[f32], width: usize, height: usize) -> Result<()> {
+    if frame.len() == width * height {
+        return Ok(());
+    }
+    Err(Error::Data(format!(
+        "a frame of {} pixels where the recording's frames have {width}×{height}",
+        frame.len()
+    )))
+}
+
+/// Photoelectrons per pixel of a mean preprocessed level `mean_dn` (DN above bias): an EM
+/// register's output has 2× the variance of the photoelectrons' Poisson noise (excess noise
+/// factor √2), so the photon-transfer slope is 2 DN per photoelectron's DN.
+fn electrons(mean_dn: f64, slope: f64) -> f64 {
+    mean_dn / (slope / 2.0)
+}
+
 /// Running mean of preprocessed frames (DN above bias), in bounded memory.
 #[derive(Clone, Debug)]
 pub struct FrameMean {
@@ -65,14 +83,7 @@ impl FrameMean {
 
     /// Adds one frame; an error if its size differs.
     pub fn add(&mut self, frame: &[f32]) -> Result<()> {
-        if frame.len() != self.sum.len() {
-            return Err(Error::Data(format!(
-                "a frame of {} pixels where the recording's frames have {}×{}",
-                frame.len(),
-                self.width,
-                self.height
-            )));
-        }
+        check_size(frame, self.width, self.height)?;
         for (s, &v) in self.sum.iter_mut().zip(frame) {
             *s += v as f64;
         }
@@ -119,14 +130,7 @@ impl FrameSet {
     /// Adds a frame taken with `exposure_s` (ignored once the set is full); an error if its
     /// size differs or a pixel is not a finite number (it would end training as a diverged run).
     pub fn add(&mut self, frame: &[f32], exposure_s: f64) -> Result<()> {
-        if frame.len() != self.width * self.height {
-            return Err(Error::Data(format!(
-                "a frame of {} pixels where the recording's frames have {}×{}",
-                frame.len(),
-                self.width,
-                self.height
-            )));
-        }
+        check_size(frame, self.width, self.height)?;
         if let Some(k) = frame.iter().position(|v| !v.is_finite()) {
             return Err(Error::Data(format!(
                 "pixel ({}, {}) is {}: frames to train on must be finite",
@@ -152,17 +156,13 @@ impl FrameSet {
         self.frames.is_empty()
     }
 
-    /// The frames' mean photoelectrons per pixel, as `profile` converts DN (the photon-transfer
-    /// slope is 2 DN per photoelectron's DN: the EM register's excess noise factor √2).
+    /// The frames' mean photoelectrons per pixel, as `profile` converts DN.
     pub fn mean_electrons(&self, profile: &CameraProfile) -> Result<f64> {
         let slope = profile.slope().map_err(|e| Error::Data(e.to_string()))?;
-        let (sum, n) = self
-            .frames
-            .iter()
-            .flatten()
-            .filter(|v| v.is_finite())
-            .fold((0.0, 0usize), |(s, n), &v| (s + v as f64, n + 1));
-        let m = sum / n.max(1) as f64 / (slope / 2.0);
+        // Every kept pixel is finite: `add` refuses others.
+        let n = self.frames.len() * self.width * self.height;
+        let sum: f64 = self.frames.iter().flatten().map(|&v| v as f64).sum();
+        let m = electrons(sum / n.max(1) as f64, slope);
         if !(m > 0.0) {
             return Err(Error::Data(
                 "the recording has no signal above bias: nothing to adapt to".into(),
@@ -228,9 +228,9 @@ pub(crate) struct RecordedPairs {
 }
 
 impl RecordedPairs {
-    /// Pairs of `method` (not resynthesis) from `set`.
+    /// Pairs of `method` (not resynthesis) from `set`, whose frames it takes.
     pub(crate) fn new(
-        set: &FrameSet,
+        set: FrameSet,
         profile: &CameraProfile,
         method: AdaptMethod,
     ) -> Result<RecordedPairs> {
@@ -248,13 +248,6 @@ impl RecordedPairs {
                 set.width, set.height, profile.width, profile.height
             )));
         }
-        let slope = profile.slope().map_err(|e| Error::Data(e.to_string()))?;
-        let s = slope as f32;
-        let scales = set
-            .frames
-            .iter()
-            .map(|f| frame_scale(&f.iter().map(|v| v / s).collect::<Vec<f32>>()))
-            .collect();
         if method == AdaptMethod::Noise2noise
             && set.exposures.iter().any(|&t| t != set.exposures[0])
         {
@@ -262,6 +255,13 @@ impl RecordedPairs {
                 "noise2noise pairs frames of one static scene: the frames' exposures differ".into(),
             ));
         }
+        let slope = profile.slope().map_err(|e| Error::Data(e.to_string()))?;
+        let s = slope as f32;
+        let scales = set
+            .frames
+            .iter()
+            .map(|f| frame_scale(&f.iter().map(|v| v / s).collect::<Vec<f32>>()))
+            .collect();
         let mut exposures: Vec<f64> = Vec::new();
         let mut map_of = Vec::with_capacity(set.len());
         for &t in &set.exposures {
@@ -275,7 +275,7 @@ impl RecordedPairs {
             });
         }
         Ok(RecordedPairs {
-            frames: set.frames.clone(),
+            frames: set.frames,
             width: set.width,
             height: set.height,
             scales,
@@ -396,9 +396,7 @@ pub fn scene_estimate(
         .map(|&v| v as f64)
         .sum::<f64>()
         / m.len() as f64;
-    // An EM register's output has 2× the variance of the photoelectrons' Poisson noise
-    // (excess noise factor √2), so the photon-transfer slope is 2 DN per photoelectron's DN.
-    let mean_electrons = finite_mean / (p.alpha / 2.0);
+    let mean_electrons = electrons(finite_mean, p.alpha);
     let peak = est
         .iter()
         .copied()
@@ -480,12 +478,12 @@ pub enum Start<'a> {
 }
 
 /// What an adaptation trains on.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub enum AdaptData<'a> {
     /// A recording's scene estimate ([`AdaptMethod::Resynthesis`]).
     Scene(&'a SceneEstimate),
-    /// Recorded frames (the self-supervised methods).
-    Frames(&'a FrameSet),
+    /// Recorded frames (the self-supervised methods), handed over: training keeps them.
+    Frames(FrameSet),
 }
 
 /// Adapts a network to a recording (see the module documentation and [`AdaptMethod`]) and
@@ -514,15 +512,9 @@ pub fn adapt(
             cfg.steps, cfg.batch
         )));
     }
-    let (init, start_meta) = match &start {
-        Start::Model(p) => (Some(*p), Denoiser::read_meta(p)?),
-        Start::Scratch(m) => (
-            None,
-            ModelMeta {
-                steps: 0,
-                ..m.clone()
-            },
-        ),
+    let (init, start_meta) = match start {
+        Start::Model(p) => (Some(p), Denoiser::read_meta(p)?),
+        Start::Scratch(m) => (None, ModelMeta { steps: 0, ..m }),
     };
     let multiple = start_meta.multiple();
     if cfg.crop < multiple {
@@ -543,11 +535,14 @@ pub fn adapt(
                 "resynthesis trains on a scene estimate, not on frames".into(),
             ))
         }
-        (m, AdaptData::Frames(set)) => (
-            Source::Recorded(RecordedPairs::new(set, profile, m)?),
-            set.mean_electrons(profile)?,
-            (set.width, set.height),
-        ),
+        (m, AdaptData::Frames(set)) => {
+            let (level, size) = (set.mean_electrons(profile)?, (set.width, set.height));
+            (
+                Source::Recorded(RecordedPairs::new(set, profile, m)?),
+                level,
+                size,
+            )
+        }
         (m, AdaptData::Scene(_)) => {
             return Err(Error::Data(format!(
                 "{} trains on recorded frames, not on a scene estimate",

@@ -236,7 +236,7 @@ fn self_supervised_adaptation_lowers_its_loss() {
         };
         let mut losses = Vec::new();
         adapt(
-            AdaptData::Frames(&set),
+            AdaptData::Frames(set.clone()),
             &cam.profile,
             Start::Scratch(common::meta(8, 2)),
             &cfg,
@@ -262,7 +262,7 @@ fn self_supervised_adaptation_lowers_its_loss() {
     let out = dir.path().join("one.safetensors");
     let run = |set: &FrameSet, meta, method| {
         adapt(
-            AdaptData::Frames(set),
+            AdaptData::Frames(set.clone()),
             &cam.profile,
             Start::Scratch(meta),
             &AdaptConfig {
