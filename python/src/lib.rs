@@ -440,7 +440,7 @@ fn denoise<'py>(
         .map_err(err)?;
     let to_units = match units {
         "dn" => 1.0f32,
-        "electrons" => (2.0 / p.slope().map_err(err)?) as f32,
+        "electrons" => (1.0 / p.dn_per_electron().map_err(err)?) as f32,
         u => {
             return Err(err(anyhow::anyhow!(
                 "units {u:?}: the units are \"dn\" (DN above bias) or \"electrons\""
@@ -570,14 +570,12 @@ fn simulate_pairs<'py>(
             if !(photons.is_finite() && photons >= 0.0) {
                 anyhow::bail!("{photons} photons at the brightest pixel: it must be a non-negative number (is the scene all zero?)");
             }
-            let e = cam.exposure(exposure_s);
-            let phot: Vec<f32> = img.iter().map(|&v| (v as f64 * photons) as f32).collect();
-            let truth = e.ground_truth(&phot);
+            let pair = cam.test_pair(&img, photons, exposure_s, seed);
             let mut noisy = vec![0f32; frames * w * h];
             for (k, out) in noisy.chunks_mut(w * h).enumerate() {
-                e.frame(&phot, seed.wrapping_mul(1_000_003).wrapping_add(k as u64), out);
+                pair.frame(k, out);
             }
-            Ok((noisy, truth))
+            Ok((noisy, pair.truth))
         })
         .map_err(err)?;
     let noisy =

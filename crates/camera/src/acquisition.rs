@@ -1,11 +1,12 @@
-//! A calibration acquisition as a user records one — dark (bias) stacks at several exposures,
-//! flat fields at several light levels, and blooming frames — designed for the virtual camera,
-//! and the truth it is made from. The caller writes the stacks (`emccd simulate calibration`
-//! streams them to TIFF with a progress bar); what each stack holds is decided here.
+//! What the virtual camera records, decided here and written by the caller (`emccd simulate`
+//! streams it to TIFF with a progress bar): a calibration acquisition as a user records one —
+//! dark (bias) stacks at several exposures, flat fields at several light levels, and blooming
+//! frames — with the truth it is made from; and test pairs, noisy frames of a clean scene with
+//! their ground truth, at the light levels asked for.
 
 use std::fmt::Write as _;
 
-use crate::{Error, VirtualCamera};
+use crate::{Error, Exposure, VirtualCamera};
 
 /// What to record.
 #[derive(Clone, Debug, PartialEq)]
@@ -222,6 +223,84 @@ impl CalibrationPlan {
     }
 }
 
+/// One light level of test pairs: an exposure and the photons the scene's brightest value (1.0)
+/// collects in it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PairLevel {
+    /// Exposure of the noisy frames, s.
+    pub exposure_s: f64,
+    /// Expected photons at the scene's brightest value.
+    pub photons: f64,
+    /// Ratio to a long reference exposure, for levels made by the paper's protocol.
+    pub ratio: Option<f64>,
+}
+
+impl PairLevel {
+    /// The paper's protocol: a short exposure at `ratio` to a long reference exposure, with the
+    /// reference's photons divided by the ratio.
+    pub fn from_ratio(reference_exposure_s: f64, reference_photons: f64, ratio: f64) -> PairLevel {
+        PairLevel {
+            exposure_s: reference_exposure_s / ratio,
+            photons: reference_photons / ratio,
+            ratio: Some(ratio),
+        }
+    }
+
+    /// The name of a scene's pair at this level (`stem_p20`, or `stem_r100` by ratio).
+    pub fn pair_name(&self, stem: &str) -> String {
+        match self.ratio {
+            Some(r) => format!("{stem}_r{r}"),
+            None => format!("{stem}_p{}", self.photons),
+        }
+    }
+}
+
+/// The seed of scene `scene`'s pair at level `level` of a run seeded with `seed`.
+pub fn pair_seed(seed: u64, scene: usize, level: usize) -> u64 {
+    seed.wrapping_mul(7919) ^ ((scene as u64) << 20) ^ level as u64
+}
+
+/// A test pair of one scene at one light level: the ground truth (the photo-signal in DN above
+/// bias) and as many noisy raw frames as asked for, frame k drawn from
+/// [`frame_seed`]`(seed, k)`, so a pair is the same however many of its frames are drawn.
+pub struct TestPair<'a> {
+    /// The exposure's truth: the fixed pattern and blooming factor that preprocessing removes.
+    pub exposure: Exposure<'a>,
+    /// The ground truth, DN above bias.
+    pub truth: Vec<f32>,
+    photons: Vec<f32>,
+    seed: u64,
+}
+
+impl VirtualCamera {
+    /// The test pair of `scene` (values in [0, 1], the camera's size) at `photons` expected
+    /// photons at its brightest value (1.0), exposed for `exposure_s`.
+    pub fn test_pair(
+        &self,
+        scene: &[f32],
+        photons: f64,
+        exposure_s: f64,
+        seed: u64,
+    ) -> TestPair<'_> {
+        let exposure = self.exposure(exposure_s);
+        let photons: Vec<f32> = scene.iter().map(|&v| (v as f64 * photons) as f32).collect();
+        TestPair {
+            truth: exposure.ground_truth(&photons),
+            exposure,
+            photons,
+            seed,
+        }
+    }
+}
+
+impl TestPair<'_> {
+    /// Noisy raw frame `k` (DN, integer-valued) into `out`.
+    pub fn frame(&self, k: usize, out: &mut [f32]) {
+        self.exposure
+            .frame(&self.photons, frame_seed(self.seed, k), out);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -268,5 +347,25 @@ mod tests {
             ..plan
         };
         assert!(bad.check().unwrap_err().to_string().contains("flat-levels"));
+    }
+
+    #[test]
+    fn a_test_pair_is_the_same_however_many_frames_are_drawn() {
+        let p = emccd_profile::default_profile().crop(0, 0, 16, 16).unwrap();
+        let cam = VirtualCamera::new(p, Default::default()).unwrap();
+        let scene: Vec<f32> = (0..256).map(|i| (i % 16) as f32 / 15.0).collect();
+        let level = PairLevel::from_ratio(1.6, 16000.0, 100.0);
+        assert_eq!((level.exposure_s, level.photons), (0.016, 160.0));
+        assert_eq!(level.pair_name("kodim01"), "kodim01_r100");
+        let pair = cam.test_pair(&scene, level.photons, level.exposure_s, 9);
+        let e = cam.exposure(level.exposure_s);
+        let phot: Vec<f32> = scene.iter().map(|&v| v * 160.0).collect();
+        assert_eq!(pair.truth, e.ground_truth(&phot));
+        let (mut a, mut b) = (vec![0f32; 256], vec![0f32; 256]);
+        pair.frame(3, &mut a);
+        e.frame(&phot, frame_seed(9, 3), &mut b);
+        assert_eq!(a, b);
+        pair.frame(2, &mut b);
+        assert_ne!(a, b, "frames differ");
     }
 }

@@ -86,14 +86,14 @@ pub fn run(a: Args) -> Result<()> {
     let scratch = a.from_scratch;
     let init = emccd_nn::registry::model_path(&a.init)?;
     for input in &a.inputs {
-        if input.canonicalize().ok() == a.out.canonicalize().ok() || *input == a.out {
+        if emccd_io::FileId::of(input) == emccd_io::FileId::of(&a.out) {
             bail!(
                 "{}: the output is an input; choose another -o, inputs are never overwritten",
                 a.out.display()
             );
         }
     }
-    if init.canonicalize().ok() == a.out.canonicalize().ok() {
+    if emccd_io::FileId::of(&init) == emccd_io::FileId::of(&a.out) {
         bail!(
             "{}: the output is the --init model; choose another -o, inputs are never overwritten",
             a.out.display()

@@ -236,7 +236,7 @@ fn bm3d_bench(sigmas: &[f64], limit: Option<usize>) -> Result<()> {
     use rand_distr::{Distribution, Normal};
     let dir =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/clean/natural/BSD68");
-    let mut scenes = crate::common::expand_inputs(&[dir])?;
+    let mut scenes = emccd_io::image_files(&[dir])?;
     if let Some(n) = limit {
         scenes.truncate(n);
     }
@@ -257,7 +257,11 @@ fn bm3d_bench(sigmas: &[f64], limit: Option<usize>) -> Result<()> {
     for &sigma in sigmas {
         let (mut pn, mut pd, mut secs) = (0.0, 0.0, 0.0);
         for (i, sc) in scenes.iter().enumerate() {
-            let (w, h, img) = crate::common::read_scene(sc)?;
+            let emccd_io::Image {
+                width: w,
+                height: h,
+                data: img,
+            } = emccd_io::Image::read_scene(sc)?;
             let clean: Vec<f32> = img.iter().map(|v| v * 255.0).collect();
             let mut rng = rand_pcg::Pcg64::seed_from_u64(1000 * sigma as u64 + i as u64);
             let nd = Normal::new(0.0, sigma).expect("σ > 0");
@@ -294,20 +298,20 @@ fn denoise_bench(
     use emccd_nn::pipeline::Pipeline;
     let specs = model_args
         .iter()
-        .map(|m| crate::commands::denoise::model_spec(m))
-        .collect::<Result<Vec<_>>>()?;
+        .map(|m| emccd_nn::registry::ModelSpec::parse(m))
+        .collect::<Result<Vec<_>, _>>()?;
     let models = specs
         .iter()
-        .map(|s| crate::commands::denoise::load_model(s.0))
-        .collect::<Result<Vec<_>>>()?;
+        .map(|s| emccd_nn::registry::load(s.model))
+        .collect::<Result<Vec<_>, _>>()?;
     let profile = crate::common::load_profile(profile_arg)?;
     let cam = VirtualCamera::new(profile.clone(), Default::default())?;
     let scenes = if scene_args.is_empty() {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../shared/data/clean/microscopy/fmd-confocal-bpae");
-        crate::common::expand_inputs(&[dir])?
+        emccd_io::image_files(&[dir])?
     } else {
-        crate::common::expand_inputs(scene_args)?
+        emccd_io::image_files(scene_args)?
     };
     let pipes: Vec<Pipeline> = models
         .iter()
@@ -316,7 +320,7 @@ fn denoise_bench(
             model: m,
             profile: &profile,
             tiling: Default::default(),
-            ensemble: s.1,
+            ensemble: s.ensemble,
             device: emccd_nn::device(),
         })
         .collect();
@@ -339,7 +343,11 @@ fn denoise_bench(
     }
     println!();
     for (si, sc) in scenes.iter().enumerate() {
-        let (w, h, img) = crate::common::read_scene(sc)?;
+        let emccd_io::Image {
+            width: w,
+            height: h,
+            data: img,
+        } = emccd_io::Image::read_scene(sc)?;
         if (w, h) != (cam.width(), cam.height()) {
             eprintln!(
                 "skipping {}: {w}×{h}, the camera is {}×{}",
@@ -355,14 +363,11 @@ fn denoise_bench(
             let mut raw = vec![0f32; w * h];
             e.frame(&phot, 1000 + (si * 2 + li) as u64, &mut raw);
             let peak = truth.iter().copied().fold(0f32, f32::max).max(1.0) as f64;
-            let pre = emccd_nn::pipeline::preprocess(&profile, &raw, 0.01)?;
+            // BM3D's time includes the preprocessing every method runs first.
             let t = Instant::now();
-            let bm = crate::commands::denoise::classical_frame(
-                &profile,
-                &raw,
-                0.01,
-                emccd_nn::Base::Bm3d,
-            )?;
+            let pre = emccd_nn::pipeline::preprocess(&profile, &raw, 0.01)?;
+            let bm =
+                emccd_nn::pipeline::classical_estimate(&profile, &pre, 0.01, emccd_nn::Base::Bm3d)?;
             bm_secs += t.elapsed().as_secs_f64();
             let (a, c) = (
                 emccd_eval::psnr(&pre, &truth, peak),

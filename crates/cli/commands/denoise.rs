@@ -5,7 +5,6 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use emccd_nn::registry::{FrameDenoiser, Method};
 use emccd_nn::tile::Tiling;
-use emccd_nn::Denoiser;
 
 use crate::common::{load_profile, open_recording, progress, Recording};
 
@@ -72,7 +71,7 @@ pub struct Args {
     /// Average the network over this many flips/transposes of each frame (1, 2, 4 or 8):
     /// a geometric self-ensemble, slightly higher PSNR for proportionally more time.
     #[arg(long, default_value_t = 1, value_parser = parse_ensemble)]
-    pub ensemble: u8,
+    pub ensemble: usize,
     /// Denoise only share I of N of the frames (I from 0; contiguous, one chunk per frame) into
     /// a `.zarr` output that N processes write at once — a SLURM array task passes
     /// `--shard $SLURM_ARRAY_TASK_ID/N` with N written out (a task resubmitted alone has an
@@ -90,38 +89,8 @@ fn parse_tile(s: &str) -> std::result::Result<usize, String> {
     }
 }
 
-fn parse_ensemble(s: &str) -> std::result::Result<u8, String> {
-    match s.parse::<u8>() {
-        Ok(k @ (1 | 2 | 4 | 8)) => Ok(k),
-        _ => Err("the self-ensemble is 1, 2, 4 or 8 orientations".into()),
-    }
-}
-
-/// The method and model `denoise` runs for its `--method` and `--model` arguments (see
-/// [`Args`]); an error where a model does not fit the method.
-pub fn resolve(method: Option<Method>, model: Option<&str>) -> Result<(Method, Option<Denoiser>)> {
-    Ok(emccd_nn::registry::resolve(
-        method,
-        model,
-        emccd_nn::registry::load,
-    )?)
-}
-
-/// Loads a model file, or a bundled model by name.
-pub fn load_model(arg: &str) -> Result<Denoiser> {
-    Ok(emccd_nn::registry::load(arg)?)
-}
-
-/// Splits a model argument of `evaluate`/`bench` into the model and its self-ensemble size:
-/// `microscopy@8` is the bundled microscopy model averaged over 8 orientations.
-pub fn model_spec(arg: &str) -> Result<(&str, usize)> {
-    match arg.rsplit_once('@') {
-        Some((name, k)) => match parse_ensemble(k) {
-            Ok(k) => Ok((name, k.into())),
-            Err(e) => bail!("{arg}: after `@`, {e}"),
-        },
-        None => Ok((arg, 1)),
-    }
+fn parse_ensemble(s: &str) -> std::result::Result<usize, String> {
+    emccd_nn::registry::ensemble_size(s).map_err(|e| e.to_string())
 }
 
 /// Which share of a stack one process of a job array denoises (`--shard I/N`, I from 0).
@@ -155,7 +124,8 @@ fn parse_shard(s: &str) -> std::result::Result<Shard, String> {
 
 pub fn run(a: Args) -> Result<()> {
     let profile = load_profile(&a.profile)?;
-    let (method, model) = resolve(a.method, a.model.as_deref())?;
+    let (method, model) =
+        emccd_nn::registry::resolve(a.method, a.model.as_deref(), emccd_nn::registry::load)?;
     let fp = format!("{:016x}", profile.fingerprint());
     if let Some(w) = model
         .as_ref()
@@ -178,10 +148,10 @@ pub fn run(a: Args) -> Result<()> {
             tile: a.tile,
             overlap: a.overlap,
         },
-        ensemble: a.ensemble.into(),
+        ensemble: a.ensemble,
         to_units: match a.units {
             Units::Dn => 1.0f32,
-            Units::Electrons => (2.0 / profile.slope()?) as f32,
+            Units::Electrons => (1.0 / profile.dn_per_electron()?) as f32,
         },
     };
     if zarr {
@@ -232,7 +202,7 @@ pub fn run(a: Args) -> Result<()> {
 /// process's shard of the frames, skipping frames already complete (an earlier run, or another
 /// shard), so a killed run is resumed by running it again.
 fn run_zarr(a: &Args, fd: &FrameDenoiser, profile_fp: &str) -> Result<()> {
-    let id = crate::common::file_id;
+    let id = emccd_io::FileId::of;
     let out_id = id(&a.out);
     if let Some(i) = a.inputs.iter().find(|i| id(i) == out_id) {
         bail!(
@@ -411,8 +381,8 @@ fn output_paths(inputs: &[PathBuf], out: &std::path::Path, several: bool) -> Res
             }
         })
         .collect();
-    let id = crate::common::file_id;
-    let ins: Vec<crate::common::FileId> = inputs.iter().map(|p| id(p)).collect();
+    let id = emccd_io::FileId::of;
+    let ins: Vec<emccd_io::FileId> = inputs.iter().map(|p| id(p)).collect();
     for (o, input) in outs.iter().zip(inputs) {
         let co = id(o);
         if let Some(k) = ins.iter().position(|i| *i == co) {
@@ -425,20 +395,6 @@ fn output_paths(inputs: &[PathBuf], out: &std::path::Path, several: bool) -> Res
         }
     }
     Ok(outs)
-}
-
-/// BM3D with variance stabilization (one pass, or iterated) on one raw frame, through the
-/// profile's preprocessing.
-pub fn classical_frame(
-    p: &emccd_profile::CameraProfile,
-    raw: &[f32],
-    exposure: f64,
-    base: emccd_nn::Base,
-) -> Result<Vec<f32>> {
-    let pre = emccd_nn::pipeline::preprocess(p, raw, exposure)?;
-    Ok(emccd_nn::pipeline::classical_estimate(
-        p, &pre, exposure, base,
-    )?)
 }
 
 /// One frame through the denoiser; errors name the input and the frame (from 1).

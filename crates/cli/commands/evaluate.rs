@@ -1,11 +1,10 @@
 //! `emccd evaluate`: PSNR and SSIM of denoisers on noisy/clean pairs from the virtual camera.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use emccd_eval::{PairsManifest, Score};
-use emccd_nn::pipeline::Pipeline;
+use emccd_nn::registry::Estimator;
 
 use crate::common::{load_profile, progress};
 
@@ -91,24 +90,11 @@ pub fn run(a: Args) -> Result<()> {
         .iter()
         .map(|d| load_camera(d, a.profile.as_deref()))
         .collect::<Result<Vec<_>>>()?;
-    let mut models = BTreeMap::new();
-    let mut schedules = BTreeMap::new();
-    for m in &a.methods {
-        if let Some(spec) = m.strip_prefix("ivst:") {
-            let s: emccd_eval::vst::Schedule = spec
-                .parse()
-                .map_err(|e: String| anyhow::anyhow!("--method {m}: {e}"))?;
-            schedules.insert(m.clone(), s);
-        } else if m == "blend" {
-            models.insert(
-                m.clone(),
-                (crate::commands::denoise::load_model("lowlight")?, 1),
-            );
-        } else if !["input", "bm3d", "ivst"].contains(&m.as_str()) {
-            let (name, k) = crate::commands::denoise::model_spec(m)?;
-            models.insert(m.clone(), (crate::commands::denoise::load_model(name)?, k));
-        }
-    }
+    let estimators = a
+        .methods
+        .iter()
+        .map(|m| Estimator::parse(m, emccd_nn::registry::load))
+        .collect::<Result<Vec<_>, _>>()?;
     if let Some(o) = &a.out {
         std::fs::create_dir_all(o).with_context(|| format!("creating {}", o.display()))?;
     }
@@ -129,43 +115,10 @@ pub fn run(a: Args) -> Result<()> {
             };
             let peak = emccd_eval::scores::truth_peak(&truth);
             let mut outputs: Vec<(String, Vec<f32>)> = Vec::new();
-            for m in &a.methods {
+            for est in &estimators {
+                let m = est.name();
                 let t = std::time::Instant::now();
-                let out = match m.as_str() {
-                    "input" => emccd_nn::pipeline::preprocess(&prof, &raw, p.exposure_s)?,
-                    "bm3d" | "ivst" => crate::commands::denoise::classical_frame(
-                        &prof,
-                        &raw,
-                        p.exposure_s,
-                        m.parse().map_err(|e: String| anyhow::anyhow!(e))?,
-                    )?,
-                    spec if schedules.contains_key(spec) => {
-                        let pre = emccd_nn::pipeline::preprocess(&prof, &raw, p.exposure_s)?;
-                        emccd_nn::pipeline::bm3d_passes(
-                            &prof,
-                            &pre,
-                            p.exposure_s,
-                            &schedules[spec].0,
-                        )?
-                    }
-                    "blend" => emccd_nn::FrameDenoiser {
-                        profile: &prof,
-                        method: emccd_nn::Method::Blend,
-                        model: Some(&models["blend"].0),
-                        tiling: Default::default(),
-                        ensemble: 1,
-                        to_units: 1.0,
-                    }
-                    .run(&raw, p.exposure_s)?,
-                    other => Pipeline {
-                        model: &models[other].0,
-                        profile: &prof,
-                        tiling: Default::default(),
-                        ensemble: models[other].1,
-                        device: emccd_nn::device(),
-                    }
-                    .denoise_raw(&raw, p.exposure_s)?,
-                };
+                let out = est.run(&prof, &raw, p.exposure_s)?;
                 scores.push(Score::measure(
                     m,
                     &cam.name,
@@ -176,7 +129,7 @@ pub fn run(a: Args) -> Result<()> {
                     h,
                     t.elapsed().as_secs_f64(),
                 ));
-                outputs.push((m.clone(), out));
+                outputs.push((m.to_string(), out));
                 pb.inc(1);
             }
             if let Some(o) = &a.out {

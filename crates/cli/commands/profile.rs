@@ -141,8 +141,8 @@ pub fn run(c: Cmd) -> Result<()> {
         } => {
             let p = load_profile(&profile)?;
             if out.exists()
-                && crate::common::file_id(&out)
-                    == crate::common::file_id(std::path::Path::new(&profile))
+                && emccd_io::FileId::of(&out)
+                    == emccd_io::FileId::of(std::path::Path::new(&profile))
             {
                 anyhow::bail!(
                     "{}: the output is the input profile; choose another folder",

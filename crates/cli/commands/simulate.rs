@@ -4,13 +4,15 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use emccd_calib::manifest::{Entry, Manifest as CalibrationManifest};
-use emccd_camera::acquisition::{frame_seed, CalibrationPlan, PlannedStack, Role};
+use emccd_camera::acquisition::{
+    frame_seed, pair_seed, CalibrationPlan, PairLevel, PlannedStack, Role,
+};
 use emccd_camera::{PhysicalParams, VirtualCamera};
 use emccd_eval::{Pair, PairsManifest};
 use emccd_io::{Metadata, SampleFormat, StackWriter};
 use emccd_profile::preprocess;
 
-use crate::common::{center_crop, expand_inputs, load_profile, parse_size, progress, read_scene};
+use crate::common::{load_profile, parse_size, progress};
 
 /// Options shared by both simulations: the camera's truth.
 #[derive(clap::Args, Debug, Clone)]
@@ -171,10 +173,10 @@ pub fn run(c: Cmd) -> Result<()> {
             check_positive("exposure-ratio", &exposure_ratio)?;
             check_positive("reference-exposure-s", &[reference_exposure_s])?;
             check_positive("reference-photons", &[reference_photons])?;
-            let levels: Vec<Level> = if exposure_ratio.is_empty() {
+            let levels: Vec<PairLevel> = if exposure_ratio.is_empty() {
                 photons
                     .iter()
-                    .map(|&p| Level {
+                    .map(|&p| PairLevel {
                         exposure_s,
                         photons: p,
                         ratio: None,
@@ -183,11 +185,7 @@ pub fn run(c: Cmd) -> Result<()> {
             } else {
                 exposure_ratio
                     .iter()
-                    .map(|&r| Level {
-                        exposure_s: reference_exposure_s / r,
-                        photons: reference_photons / r,
-                        ratio: Some(r),
-                    })
+                    .map(|&r| PairLevel::from_ratio(reference_exposure_s, reference_photons, r))
                     .collect()
             };
             pairs(&clean, &levels, frames, denoise.as_deref(), &out, &camera)
@@ -284,28 +282,19 @@ fn calibration(out: &Path, plan: &CalibrationPlan, opts: &CameraOpts) -> Result<
     Ok(())
 }
 
-/// One photon level of the test pairs: an exposure and the photons it collects at the peak.
-struct Level {
-    exposure_s: f64,
-    photons: f64,
-    ratio: Option<f64>,
-}
-
 fn pairs(
     clean: &[PathBuf],
-    levels: &[Level],
+    levels: &[PairLevel],
     frames: usize,
     denoise: Option<&str>,
     out: &Path,
     opts: &CameraOpts,
 ) -> Result<()> {
-    let model = denoise
-        .map(crate::commands::denoise::load_model)
-        .transpose()?;
+    let model = denoise.map(emccd_nn::registry::load).transpose()?;
     if frames == 0 {
         bail!("--frames must be at least 1");
     }
-    let scenes = expand_inputs(clean)?;
+    let scenes = emccd_io::image_files(clean)?;
     let dirs: &[&str] = if model.is_some() {
         &["noisy", "clean", "preview", "denoised"]
     } else {
@@ -344,18 +333,15 @@ fn scene_stem(si: usize, scene: &Path) -> String {
         .unwrap_or_else(|| format!("scene{si}"))
 }
 
-/// The name of a scene's pair at one light level.
-fn pair_name(stem: &str, lv: &Level) -> String {
-    match lv.ratio {
-        Some(r) => format!("{stem}_r{r}"),
-        None => format!("{stem}_p{}", lv.photons),
-    }
-}
-
 /// Refuses, before anything is written, a run that would overwrite its own outputs (two scenes
 /// with one file stem, from different folders) or an input scene (one that lies where an
 /// output goes, which would be replaced before it is read).
-fn check_outputs(scenes: &[PathBuf], levels: &[Level], dirs: &[&str], out: &Path) -> Result<()> {
+fn check_outputs(
+    scenes: &[PathBuf],
+    levels: &[PairLevel],
+    dirs: &[&str],
+    out: &Path,
+) -> Result<()> {
     let stems: Vec<String> = scenes
         .iter()
         .enumerate()
@@ -371,15 +357,15 @@ fn check_outputs(scenes: &[PathBuf], levels: &[Level], dirs: &[&str], out: &Path
             );
         }
     }
-    let inputs: std::collections::HashSet<crate::common::FileId> =
-        scenes.iter().map(|p| crate::common::file_id(p)).collect();
+    let inputs: std::collections::HashSet<emccd_io::FileId> =
+        scenes.iter().map(|p| emccd_io::FileId::of(p)).collect();
     for stem in &stems {
         for lv in levels {
-            let name = pair_name(stem, lv);
+            let name = lv.pair_name(stem);
             for d in dirs {
                 let ext = if *d == "preview" { "png" } else { "tif" };
                 let o = out.join(d).join(format!("{name}.{ext}"));
-                if inputs.contains(&crate::common::file_id(&o)) {
+                if inputs.contains(&emccd_io::FileId::of(&o)) {
                     bail!(
                         "{}: an output of this run is an input scene; choose another -o, inputs are never overwritten",
                         o.display()
@@ -393,7 +379,7 @@ fn check_outputs(scenes: &[PathBuf], levels: &[Level], dirs: &[&str], out: &Path
 
 fn write_pairs(
     scenes: &[PathBuf],
-    levels: &[Level],
+    levels: &[PairLevel],
     frames: usize,
     model: Option<&emccd_nn::Denoiser>,
     out: &Path,
@@ -415,26 +401,24 @@ fn write_pairs(
         pair: vec![],
     };
     for (si, scene) in scenes.iter().enumerate() {
-        let (sw, sh, img) =
-            read_scene(scene).with_context(|| format!("reading scene {}", scene.display()))?;
-        let (w, h) = (sw.min(full.width()), sh.min(full.height()));
+        let img = emccd_io::Image::read_scene(scene)
+            .with_context(|| format!("reading scene {}", scene.display()))?;
+        let (w, h) = (img.width.min(full.width()), img.height.min(full.height()));
         let cam = if (w, h) == (full.width(), full.height()) {
             full.clone()
         } else {
             opts.camera(&truth, Some((w, h)))?
         };
-        let img = center_crop(&img, sw, sh, w, h);
+        let img = img.center_crop(w, h).data;
         let stem = scene_stem(si, scene);
         for (pi, lv) in levels.iter().enumerate() {
             let (level, exposure_s) = (lv.photons, lv.exposure_s);
-            let e = cam.exposure(exposure_s);
-            let phot: Vec<f32> = img.iter().map(|&v| (v as f64 * level) as f32).collect();
-            let truth = e.ground_truth(&phot);
-            let name = pair_name(&stem, lv);
+            let pair = cam.test_pair(&img, level, exposure_s, pair_seed(opts.seed, si, pi));
+            let (e, truth) = (&pair.exposure, &pair.truth);
+            let name = lv.pair_name(&stem);
             let noisy_rel = format!("noisy/{name}.tif");
             let clean_rel = format!("clean/{name}.tif");
             let preview_rel = format!("preview/{name}.png");
-            let seed = opts.seed.wrapping_mul(7919) ^ ((si as u64) << 20) ^ pi as u64;
             let mut wr =
                 StackWriter::create(out.join(&noisy_rel), w, h, SampleFormat::U16, Some(frames))?;
             wr.set_metadata(&Metadata {
@@ -446,11 +430,7 @@ fn write_pairs(
             let mut raw = vec![0f32; w * h];
             let mut first = Vec::new();
             for k in 0..frames {
-                e.frame(
-                    &phot,
-                    seed.wrapping_mul(1_000_003).wrapping_add(k as u64),
-                    &mut raw,
-                );
+                pair.frame(k, &mut raw);
                 wr.write_frame(&raw)?;
                 if k == 0 {
                     first = raw.clone();
@@ -463,13 +443,13 @@ fn write_pairs(
                 exposure_s: Some(exposure_s),
                 ..Default::default()
             });
-            cw.write_frame(&truth)?;
+            cw.write_frame(truth)?;
             cw.finish()?;
             let raw_first = first.clone();
             // Preview and input PSNR use the preprocessed frame (true FPN and blooming removed).
             preprocess(&mut first, w, e.blooming_x, &e.fpn);
             let peak = truth.iter().copied().fold(0f32, f32::max).max(1.0);
-            let p_in = emccd_eval::psnr(&first, &truth, peak as f64);
+            let p_in = emccd_eval::psnr(&first, truth, peak as f64);
             let mut panels: Vec<&[f32]> = vec![&first];
             let mut denoised_out = None;
             let den;
@@ -490,11 +470,11 @@ fn write_pairs(
                 dw.finish()?;
                 denoised_out = Some((
                     rel,
-                    (emccd_eval::psnr(&den, &truth, peak as f64) * 100.0).round() / 100.0,
+                    (emccd_eval::psnr(&den, truth, peak as f64) * 100.0).round() / 100.0,
                 ));
                 panels.push(&den);
             }
-            panels.push(&truth);
+            panels.push(truth);
             let np = panels.len();
             let side = emccd_eval::scores::side_by_side(&panels, w, (0, 0), (w, h));
             emccd_io::write_png_preview(out.join(&preview_rel), np * w, h, &side, 0.0, peak)?;

@@ -6,7 +6,7 @@ use anyhow::{bail, Context, Result};
 use emccd_camera::{Ablation, EldModel, NoiseModel, NoiseModelKind, OursModel, PgnModel};
 use emccd_io::{Metadata, SampleFormat, StackWriter};
 
-use crate::common::{load_profile, read_scene};
+use crate::common::load_profile;
 
 /// Add noise from one of the noise models to a clean image, in the preprocessed domain (DN
 /// above bias; blooming and FPN are what preprocessing removes, so they are not added).
@@ -59,14 +59,18 @@ pub fn run(a: Args) -> Result<()> {
     if !(ab.fpn && ab.blooming) {
         bail!("--ablate: fpn and blooming are corrections of a network's preprocessing (`train --ablate`), not parts of the synthesized noise");
     }
-    if crate::common::file_id(&a.out) == crate::common::file_id(&a.input) {
+    if emccd_io::FileId::of(&a.out) == emccd_io::FileId::of(&a.input) {
         bail!(
             "{}: the output is the input image; choose another -o, the input is never overwritten",
             a.out.display()
         );
     }
-    let (w, h, img) =
-        read_scene(&a.input).with_context(|| format!("reading {}", a.input.display()))?;
+    let emccd_io::Image {
+        width: w,
+        height: h,
+        data: img,
+    } = emccd_io::Image::read_scene(&a.input)
+        .with_context(|| format!("reading {}", a.input.display()))?;
     let prof = if (w, h) == (p.width, p.height) {
         p
     } else if w <= p.width && h <= p.height {

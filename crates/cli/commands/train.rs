@@ -7,7 +7,7 @@ use emccd_camera::{Ablation, NoiseModelKind};
 use emccd_nn::train::{train, Image, Loss, RunPaths, TrainConfig};
 use emccd_nn::{Arch, Base, Inputs, ModelMeta, UNetConfig, UformerConfig};
 
-use crate::common::{expand_inputs, load_profile, read_scene};
+use crate::common::load_profile;
 
 /// Train a denoising network on noisy/clean pairs synthesized on the fly from clean images and a
 /// camera profile (random crops, 8-way flips/rotations, random photon level), with AdamW,
@@ -115,19 +115,11 @@ pub struct Args {
 }
 
 fn load_images(paths: &[PathBuf]) -> Result<Vec<(PathBuf, Image)>> {
-    expand_inputs(paths)?
+    emccd_io::image_files(paths)?
         .into_iter()
         .map(|p| {
-            let (w, h, data) =
-                read_scene(&p).with_context(|| format!("reading {}", p.display()))?;
-            Ok((
-                p,
-                Image {
-                    width: w,
-                    height: h,
-                    data,
-                },
-            ))
+            let img = Image::read_scene(&p).with_context(|| format!("reading {}", p.display()))?;
+            Ok((p, img))
         })
         .collect()
 }
@@ -158,7 +150,7 @@ pub fn run(a: Args) -> Result<()> {
         .map(emccd_nn::registry::model_path)
         .transpose()?;
     if let Some(i) = &init {
-        if crate::common::file_id(i) == crate::common::file_id(&a.out) {
+        if emccd_io::FileId::of(i) == emccd_io::FileId::of(&a.out) {
             bail!(
                 "{}: the output is the --init model; choose another -o, inputs are never overwritten",
                 a.out.display()

@@ -16,6 +16,7 @@
 
 mod error;
 pub mod fits;
+mod image;
 pub mod png_io;
 pub mod sif;
 pub mod tiff_io;
@@ -26,6 +27,7 @@ use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
 pub use error::{Error, Result};
+pub use image::{image_files, FileId, Image};
 
 /// The sample type stored in a file (what `emccd info` reports).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]

@@ -54,11 +54,11 @@ fn check_size(frame: &[f32], width: usize, height: usize) -> Result<()> {
     )))
 }
 
-/// Photoelectrons per pixel of a mean preprocessed level `mean_dn` (DN above bias): an EM
-/// register's output has 2× the variance of the photoelectrons' Poisson noise (excess noise
-/// factor √2), so the photon-transfer slope is 2 DN per photoelectron's DN.
-fn electrons(mean_dn: f64, slope: f64) -> f64 {
-    mean_dn / (slope / 2.0)
+/// `profile`'s DN per photoelectron, as this module's error.
+fn dn_per_electron(profile: &CameraProfile) -> Result<f64> {
+    profile
+        .dn_per_electron()
+        .map_err(|e| Error::Data(e.to_string()))
 }
 
 /// Running mean of preprocessed frames (DN above bias), in bounded memory.
@@ -158,11 +158,11 @@ impl FrameSet {
 
     /// The frames' mean photoelectrons per pixel, as `profile` converts DN.
     pub fn mean_electrons(&self, profile: &CameraProfile) -> Result<f64> {
-        let slope = profile.slope().map_err(|e| Error::Data(e.to_string()))?;
+        let k = dn_per_electron(profile)?;
         // Every kept pixel is finite: `add` refuses others.
         let n = self.frames.len() * self.width * self.height;
         let sum: f64 = self.frames.iter().flatten().map(|&v| v as f64).sum();
-        let m = electrons(sum / n.max(1) as f64, slope);
+        let m = sum / n.max(1) as f64 / k;
         if !(m > 0.0) {
             return Err(Error::Data(
                 "the recording has no signal above bias: nothing to adapt to".into(),
@@ -396,7 +396,7 @@ pub fn scene_estimate(
         .map(|&v| v as f64)
         .sum::<f64>()
         / m.len() as f64;
-    let mean_electrons = electrons(finite_mean, p.alpha);
+    let mean_electrons = finite_mean / dn_per_electron(profile)?;
     let peak = est
         .iter()
         .copied()

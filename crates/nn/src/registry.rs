@@ -305,3 +305,204 @@ impl FrameDenoiser<'_> {
         Ok(d)
     }
 }
+
+/// The largest self-ensemble: the eight flips and transposes of a frame.
+const ENSEMBLES: [usize; 4] = [1, 2, 4, 8];
+
+/// A self-ensemble size (orientations a network is averaged over): 1, 2, 4 or 8.
+pub fn ensemble_size(k: &str) -> Result<usize> {
+    match k.parse::<usize>() {
+        Ok(k) if ENSEMBLES.contains(&k) => Ok(k),
+        _ => Err(Error::Model(
+            "the self-ensemble is 1, 2, 4 or 8 orientations".into(),
+        )),
+    }
+}
+
+/// A model argument with an optional self-ensemble suffix: `microscopy@8` is the bundled
+/// `microscopy` model averaged over 8 orientations.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ModelSpec<'a> {
+    /// The model: a bundled name or a file.
+    pub model: &'a str,
+    /// Orientations averaged (1 without a suffix).
+    pub ensemble: usize,
+}
+
+impl<'a> ModelSpec<'a> {
+    /// Splits `MODEL[@K]`.
+    pub fn parse(arg: &'a str) -> Result<ModelSpec<'a>> {
+        match arg.rsplit_once('@') {
+            Some((model, k)) => Ok(ModelSpec {
+                model,
+                ensemble: ensemble_size(k)
+                    .map_err(|e| Error::Model(format!("{arg}: after `@`, {e}")))?,
+            }),
+            None => Ok(ModelSpec {
+                model: arg,
+                ensemble: 1,
+            }),
+        }
+    }
+}
+
+/// A method under comparison, by the name `emccd evaluate --method` takes: `input` (the
+/// preprocessed frame, no denoising), `bm3d`, `ivst`, `ivst:λ/b,…` (iterative BM3D with these
+/// passes, for comparing schedules), `blend`, or a model (a bundled name or a file, `@K` for a
+/// K-orientation self-ensemble; a hybrid model runs as [`Method::Hybrid`]). Models are loaded
+/// once, when the name is parsed; every run goes through the same code as `emccd denoise`.
+pub struct Estimator {
+    name: String,
+    kind: Kind,
+}
+
+enum Kind {
+    Input,
+    Classical(Base),
+    Passes(emccd_eval::vst::Schedule),
+    Network {
+        method: Method,
+        model: Denoiser,
+        ensemble: usize,
+    },
+}
+
+impl Estimator {
+    /// The estimator `name` stands for, with its model loaded by `load` ([`load`], or a
+    /// loader that also knows models embedded in a program).
+    pub fn parse(name: &str, load: impl Fn(&str) -> Result<Denoiser>) -> Result<Estimator> {
+        let kind = if name == "input" {
+            Kind::Input
+        } else if let Ok(base) = name.parse::<Base>() {
+            Kind::Classical(base)
+        } else if let Some(passes) = name.strip_prefix("ivst:") {
+            Kind::Passes(
+                passes
+                    .parse()
+                    .map_err(|e: String| Error::Model(format!("--method {name}: {e}")))?,
+            )
+        } else if name == "blend" {
+            Kind::Network {
+                method: Method::Blend,
+                model: load("lowlight")?,
+                ensemble: 1,
+            }
+        } else {
+            let spec = ModelSpec::parse(name)?;
+            let model = load(spec.model)?;
+            Kind::Network {
+                method: if model.meta.inputs == Inputs::Hybrid {
+                    Method::Hybrid
+                } else {
+                    Method::Net
+                },
+                model,
+                ensemble: spec.ensemble,
+            }
+        };
+        Ok(Estimator {
+            name: name.to_string(),
+            kind,
+        })
+    }
+
+    /// The name it was parsed from.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Its estimate of one raw frame (DN, the profile's size) taken with `exposure_s`, in DN
+    /// above bias.
+    pub fn run(&self, profile: &CameraProfile, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+        match &self.kind {
+            Kind::Input => preprocess(profile, raw, exposure_s),
+            Kind::Classical(base) => {
+                let pre = preprocess(profile, raw, exposure_s)?;
+                classical_estimate(profile, &pre, exposure_s, *base)
+            }
+            Kind::Passes(s) => {
+                let pre = preprocess(profile, raw, exposure_s)?;
+                crate::pipeline::bm3d_passes(profile, &pre, exposure_s, &s.0)
+            }
+            Kind::Network {
+                method,
+                model,
+                ensemble,
+            } => FrameDenoiser {
+                profile,
+                method: *method,
+                model: Some(model),
+                tiling: Tiling::default(),
+                ensemble: *ensemble,
+                to_units: 1.0,
+            }
+            .run(raw, exposure_s),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn model_specs_split_the_self_ensemble() {
+        assert_eq!(
+            ModelSpec::parse("microscopy@8").unwrap(),
+            ModelSpec {
+                model: "microscopy",
+                ensemble: 8
+            }
+        );
+        assert_eq!(
+            ModelSpec::parse("out/m.safetensors").unwrap(),
+            ModelSpec {
+                model: "out/m.safetensors",
+                ensemble: 1
+            }
+        );
+        let e = ModelSpec::parse("default@3").unwrap_err().to_string();
+        assert!(e.contains("default@3") && e.contains("1, 2, 4 or 8"), "{e}");
+    }
+
+    #[test]
+    fn classical_estimators_need_no_model_and_match_denoise() {
+        let p = emccd_profile::default_profile().crop(0, 0, 32, 32).unwrap();
+        let no_model = |m: &str| Err(Error::Model(format!("{m}: no models in this test")));
+        let raw: Vec<f32> = (0..32 * 32)
+            .map(|i| 120.0 + (i % 7) as f32 * 30.0)
+            .collect();
+        for (name, method) in [
+            ("bm3d", Method::Bm3d),
+            ("ivst", Method::Ivst),
+            ("input", Method::None),
+        ] {
+            let est = Estimator::parse(name, no_model).unwrap();
+            assert_eq!(est.name(), name);
+            let fd = FrameDenoiser {
+                profile: &p,
+                method,
+                model: None,
+                tiling: Tiling::default(),
+                ensemble: 1,
+                to_units: 1.0,
+            };
+            assert_eq!(
+                est.run(&p, &raw, 0.01).unwrap(),
+                fd.run(&raw, 0.01).unwrap(),
+                "{name}"
+            );
+        }
+        assert!(Estimator::parse("ivst:1/3,0.5/1", no_model).is_ok());
+        let e = Estimator::parse("ivst:x", no_model)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("ivst:x"), "{e}");
+        let e = Estimator::parse("blend", no_model)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("lowlight"), "{e}");
+    }
+}

@@ -27,15 +27,7 @@ use crate::norm::{frame_scale, prepare_hybrid, prepare_scaled, signal_scale};
 use crate::{Error, Result};
 
 /// A clean training image, values in [0, 1].
-#[derive(Clone, Debug)]
-pub struct Image {
-    /// Width.
-    pub width: usize,
-    /// Height.
-    pub height: usize,
-    /// Row-major pixels.
-    pub data: Vec<f32>,
-}
+pub use emccd_io::Image;
 
 /// The training loss on network-unit outputs.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -197,7 +189,9 @@ fn synth_sample(
     let y0 = rng.random_range(0..=h - c);
     let mode = rng.random_range(0..8u8);
     let slope = profile.slope().map_err(|e| Error::Data(e.to_string()))?;
-    let k_mean = slope / 2.0;
+    let k_mean = profile
+        .dn_per_electron()
+        .map_err(|e| Error::Data(e.to_string()))?;
     // Electrons per unit of the clean image (whose values lie in [0, 1]).
     let per_unit = match cfg.mean_electrons {
         Some(range) => {
@@ -255,7 +249,7 @@ fn synth_sample(
             // The EM gain and e⁻/DN set the DN per electron; the slope they imply is the profile's.
             PgnModel::new(
                 pgn.em_gain,
-                2.0 * pgn.em_gain / slope,
+                pgn.em_gain / k_mean,
                 cic,
                 pgn.dark_e_per_s,
                 0.01,

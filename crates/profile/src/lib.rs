@@ -234,6 +234,13 @@ impl CameraProfile {
         })
     }
 
+    /// DN per photoelectron, K = s / 2: an EM register's output has twice the variance of the
+    /// photoelectrons' Poisson noise (excess noise factor √2), so the photon-transfer slope s is
+    /// 2K. The one conversion between DN above bias and photoelectrons.
+    pub fn dn_per_electron(&self) -> Result<f64> {
+        Ok(self.slope()? / 2.0)
+    }
+
     /// Whether bias frames were calibrated (FPN and read-noise maps exist).
     pub fn has_bias(&self) -> bool {
         !self.exposures_s.is_empty()
