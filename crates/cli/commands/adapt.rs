@@ -4,10 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use emccd_camera::NoiseModelKind;
-use emccd_nn::adapt::{
-    adapt, scene_estimate, AdaptConfig, AdaptData, AdaptMethod, Adaptation, FrameMean, FrameSet,
-    Start,
-};
+use emccd_nn::adapt::{adapt, AdaptConfig, AdaptData, AdaptMethod, Adaptation, Recorded, Start};
 use emccd_nn::train::RunPaths;
 
 use crate::common::{load_profile, open_recording, progress, step_progress, Recording};
@@ -100,87 +97,44 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     let init_meta = emccd_nn::Denoiser::read_meta(&init)?;
-    let resynthesis = a.method == AdaptMethod::Resynthesis;
-    let mut mean = FrameMean::new(profile.width, profile.height);
     // The self-supervised methods keep frames in memory: up to 256 MiB of them.
-    let mut set = FrameSet::new(
-        profile.width,
-        profile.height,
-        if resynthesis {
-            0
-        } else {
-            (256 << 20) / (4 * profile.len()).max(1)
-        },
-    );
-    let mut exposure = None;
-    let mut frames = 0usize;
+    let mut rec = Recorded::new(a.method, &profile, init_meta.ablate, 256 << 20);
     for input in &a.inputs {
         let Recording {
             mut reader,
             info,
-            exposure: t,
+            exposure,
             ..
         } = open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
-        // Neighbor sampling uses each frame alone: its recordings may differ in exposure.
-        match exposure {
-            Some(e) if e != t && a.method != AdaptMethod::Neighbors => bail!(
-                "{}: exposure {t} s, the first recording's is {e} s: --method {} adapts on one \
-                 exposure of one static scene",
-                input.display(),
-                a.method.name()
-            ),
-            _ => exposure = Some(t),
-        }
+        rec.start_recording(exposure)
+            .with_context(|| input.display().to_string())?;
         let pb = progress(info.frames as u64, "reading");
         let mut buf = vec![0f32; info.frame_len()];
         while reader
             .read_frame(&mut buf)
             .with_context(|| input.display().to_string())?
         {
-            frames += 1;
-            // As `denoise` will for this model (an ablated one skips some corrections).
-            let dn = emccd_nn::pipeline::preprocess_ablated(&profile, &buf, t, init_meta.ablate)
-                .with_context(|| format!("{}: frame {frames}", input.display()))?;
-            if resynthesis {
-                mean.add(&dn)?;
-            } else {
-                set.add(&dn, t)?;
-            }
+            rec.add_raw(&profile, &buf)
+                .with_context(|| format!("{}: frame {}", input.display(), rec.frames()))?;
             pb.inc(1);
         }
         pb.finish_and_clear();
     }
-    let exposure = exposure.context("no recordings")?;
-    if frames < a.method.min_frames() {
-        bail!(
-            "{frames} frame(s) in all: --method {} needs {} or more frames",
-            a.method.name(),
-            a.method.min_frames()
-        );
+    if let Some(w) = rec.warning() {
+        eprintln!("warning: {w}");
     }
-    let scene;
-    let (data, level, used) = if resynthesis {
-        if frames < 8 {
-            eprintln!(
-                "warning: {frames} frame(s): the scene estimate keeps much of their noise, and \
-                 the model learns it as structure; 20–50 frames of the static scene are better"
-            );
-        }
-        scene = scene_estimate(&mean, &profile, exposure)?;
-        eprintln!(
-            "scene estimate from {frames} frames at {:.3} mean photoelectrons per pixel",
-            scene.mean_electrons
-        );
-        (AdaptData::Scene(&scene), scene.mean_electrons, frames)
-    } else {
-        let level = set.mean_electrons(&profile)?;
-        eprintln!(
+    let frames = rec.frames();
+    let data = rec.finish(&profile)?;
+    let level = data.mean_electrons(&profile)?;
+    match &data {
+        AdaptData::Scene(_) => eprintln!(
+            "scene estimate from {frames} frames at {level:.3} mean photoelectrons per pixel"
+        ),
+        AdaptData::Frames(_) => eprintln!(
             "{} of {frames} frames kept, at {level:.3} mean photoelectrons per pixel",
-            set.len()
-        );
-        let kept = set.len();
-        (AdaptData::Frames(set), level, kept)
-    };
+            data.frames()
+        ),
+    }
     let cfg = AdaptConfig {
         method: a.method,
         steps: a.steps,
@@ -210,7 +164,7 @@ pub fn run(a: Args) -> Result<()> {
                     .map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into())
             })
             .collect(),
-        frames: used,
+        frames: data.frames(),
         mean_electrons: level,
     };
     let paths = RunPaths {

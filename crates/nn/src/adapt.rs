@@ -15,7 +15,7 @@
 
 use std::path::Path;
 
-use emccd_camera::NoiseModelKind;
+use emccd_camera::{Ablation, NoiseModelKind};
 use emccd_profile::CameraProfile;
 use serde::{Deserialize, Serialize};
 
@@ -479,11 +479,143 @@ pub enum Start<'a> {
 
 /// What an adaptation trains on.
 #[derive(Clone, Debug)]
-pub enum AdaptData<'a> {
+pub enum AdaptData {
     /// A recording's scene estimate ([`AdaptMethod::Resynthesis`]).
-    Scene(&'a SceneEstimate),
+    Scene(SceneEstimate),
     /// Recorded frames (the self-supervised methods), handed over: training keeps them.
     Frames(FrameSet),
+}
+
+impl AdaptData {
+    /// The recording's mean photoelectrons per pixel, as `profile` converts DN.
+    pub fn mean_electrons(&self, profile: &CameraProfile) -> Result<f64> {
+        match self {
+            AdaptData::Scene(s) => Ok(s.mean_electrons),
+            AdaptData::Frames(set) => set.mean_electrons(profile),
+        }
+    }
+
+    /// Frames it stands for: averaged into the scene estimate, or kept.
+    pub fn frames(&self) -> usize {
+        match self {
+            AdaptData::Scene(s) => s.frames,
+            AdaptData::Frames(set) => set.len(),
+        }
+    }
+}
+
+/// Fewer frames than this make a scene estimate that keeps much of their noise.
+const FEW_SCENE_FRAMES: usize = 8;
+
+/// Recordings gathered for adaptation, frame by frame in bounded memory: every raw frame is
+/// preprocessed as `emccd denoise` will preprocess it for the model (its ablations included),
+/// then averaged ([`AdaptMethod::Resynthesis`]) or kept, up to a byte budget (the
+/// self-supervised methods).
+pub struct Recorded {
+    method: AdaptMethod,
+    ablate: Ablation,
+    mean: FrameMean,
+    set: FrameSet,
+    exposure: Option<f64>,
+    frames: usize,
+}
+
+impl Recorded {
+    /// An empty gathering for `method` and a model made with `ablate`, keeping at most
+    /// `max_bytes` of frames for the self-supervised methods.
+    pub fn new(
+        method: AdaptMethod,
+        profile: &CameraProfile,
+        ablate: Ablation,
+        max_bytes: usize,
+    ) -> Recorded {
+        let keep = if method == AdaptMethod::Resynthesis {
+            0
+        } else {
+            max_bytes / (4 * profile.len()).max(1)
+        };
+        Recorded {
+            method,
+            ablate,
+            mean: FrameMean::new(profile.width, profile.height),
+            set: FrameSet::new(profile.width, profile.height, keep),
+            exposure: None,
+            frames: 0,
+        }
+    }
+
+    /// Starts the next recording, taken with `exposure_s`. Neighbor sampling uses each frame
+    /// alone, so its recordings may differ in exposure; the other methods adapt on one
+    /// exposure of one static scene, and a different one is an error.
+    pub fn start_recording(&mut self, exposure_s: f64) -> Result<()> {
+        match self.exposure {
+            Some(e) if e != exposure_s && self.method != AdaptMethod::Neighbors => {
+                Err(Error::Data(format!(
+                    "exposure {exposure_s} s, the first recording's is {e} s: --method {} adapts \
+                     on one exposure of one static scene",
+                    self.method.name()
+                )))
+            }
+            _ => {
+                self.exposure = Some(exposure_s);
+                Ok(())
+            }
+        }
+    }
+
+    /// Adds one raw frame (DN, the profile's size) of the current recording; an error names
+    /// what is wrong with it ([`Recorded::frames`] counts it).
+    pub fn add_raw(&mut self, profile: &CameraProfile, raw: &[f32]) -> Result<()> {
+        let t = self
+            .exposure
+            .ok_or_else(|| Error::Data("a frame before its recording was started".into()))?;
+        self.frames += 1;
+        let dn = crate::pipeline::preprocess_ablated(profile, raw, t, self.ablate)?;
+        if self.method == AdaptMethod::Resynthesis {
+            self.mean.add(&dn)
+        } else {
+            self.set.add(&dn, t)
+        }
+    }
+
+    /// Frames added so far.
+    pub fn frames(&self) -> usize {
+        self.frames
+    }
+
+    /// The warning a user deserves about these recordings, if any: too few frames for a
+    /// clean scene estimate.
+    pub fn warning(&self) -> Option<String> {
+        (self.method == AdaptMethod::Resynthesis && (1..FEW_SCENE_FRAMES).contains(&self.frames))
+            .then(|| {
+                format!(
+                "{} frame(s): the scene estimate keeps much of their noise, and the model learns \
+                 it as structure; 20–50 frames of the static scene are better",
+                self.frames
+            )
+            })
+    }
+
+    /// What the method trains on: the scene estimate (resynthesis) or the kept frames; an
+    /// error with no recording or fewer frames than the method needs.
+    pub fn finish(self, profile: &CameraProfile) -> Result<AdaptData> {
+        let exposure = self
+            .exposure
+            .ok_or_else(|| Error::Data("no recordings".into()))?;
+        if self.frames < self.method.min_frames() {
+            return Err(Error::Data(format!(
+                "{} frame(s) in all: --method {} needs {} or more frames",
+                self.frames,
+                self.method.name(),
+                self.method.min_frames()
+            )));
+        }
+        Ok(if self.method == AdaptMethod::Resynthesis {
+            AdaptData::Scene(scene_estimate(&self.mean, profile, exposure)?)
+        } else {
+            AdaptData::Frames(self.set)
+        })
+    }
 }
 
 /// Adapts a network to a recording (see the module documentation and [`AdaptMethod`]) and
@@ -525,11 +657,14 @@ pub fn adapt(
         )));
     }
     let (source, level, (w, h)) = match (cfg.method, data) {
-        (AdaptMethod::Resynthesis, AdaptData::Scene(scene)) => (
-            Source::Synthetic(vec![scene.image.clone()]),
-            scene.mean_electrons,
-            (scene.image.width, scene.image.height),
-        ),
+        (AdaptMethod::Resynthesis, AdaptData::Scene(scene)) => {
+            let size = (scene.image.width, scene.image.height);
+            (
+                Source::Synthetic(vec![scene.image]),
+                scene.mean_electrons,
+                size,
+            )
+        }
         (AdaptMethod::Resynthesis, AdaptData::Frames(_)) => {
             return Err(Error::Data(
                 "resynthesis trains on a scene estimate, not on frames".into(),

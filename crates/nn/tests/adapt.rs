@@ -6,7 +6,7 @@ mod common;
 use emccd_camera::{PhysicalParams, VirtualCamera};
 use emccd_nn::adapt::{
     adapt, scene_estimate, AdaptConfig, AdaptData, AdaptMethod, Adaptation, FrameMean, FrameSet,
-    SceneEstimate, Start,
+    Recorded, SceneEstimate, Start,
 };
 use emccd_nn::pipeline::{preprocess, Pipeline};
 use emccd_nn::train::RunPaths;
@@ -141,7 +141,7 @@ fn adaptation_improves_held_out_frames_and_records_its_provenance() {
     };
     let mut losses = Vec::new();
     let model = adapt(
-        AdaptData::Scene(&est),
+        AdaptData::Scene(est.clone()),
         &cam.profile,
         Start::Model(&init),
         &cfg,
@@ -313,4 +313,72 @@ fn self_supervised_adaptation_lowers_its_loss() {
     let e = run(&set, hybrid, AdaptMethod::Neighbors);
     assert!(e.contains("networks of noisy frames only"), "{e}");
     assert!(!out.exists());
+}
+
+/// Gathering raw frames as `emccd adapt` does: the same scene estimate as averaging the
+/// preprocessed frames by hand; one exposure for the methods that need a static scene, any for
+/// neighbor sampling; too few frames an error, few a warning.
+#[test]
+fn recordings_are_gathered_as_the_methods_need() {
+    let cam = camera();
+    let exp = cam.exposure(EXPOSURE);
+    let ph = photons();
+    let raw = |k: u64| {
+        let mut r = vec![0f32; SIDE * SIDE];
+        exp.frame(&ph, 100 + k, &mut r);
+        r
+    };
+    let mut rec = Recorded::new(
+        AdaptMethod::Resynthesis,
+        &cam.profile,
+        Default::default(),
+        1 << 20,
+    );
+    rec.start_recording(EXPOSURE).unwrap();
+    for k in 0..4 {
+        rec.add_raw(&cam.profile, &raw(k)).unwrap();
+    }
+    assert!(rec.warning().unwrap().contains("4 frame(s)"));
+    let AdaptData::Scene(got) = rec.finish(&cam.profile).unwrap() else {
+        panic!("resynthesis trains on a scene estimate")
+    };
+    let want = estimate(&cam, 4);
+    assert_eq!((got.image.data, got.frames), (want.image.data, 4));
+
+    let mut n2n = Recorded::new(
+        AdaptMethod::Noise2noise,
+        &cam.profile,
+        Default::default(),
+        1 << 20,
+    );
+    n2n.start_recording(EXPOSURE).unwrap();
+    n2n.add_raw(&cam.profile, &raw(0)).unwrap();
+    assert!(n2n.warning().is_none());
+    let e = n2n.start_recording(2.0 * EXPOSURE).unwrap_err().to_string();
+    assert!(e.contains("one exposure"), "{e}");
+    let e = n2n.finish(&cam.profile).unwrap_err().to_string();
+    assert!(e.contains("1 frame(s)") && e.contains("2 or more"), "{e}");
+
+    // 64² float frames: a 40 kB budget keeps two of three
+    let mut nb = Recorded::new(
+        AdaptMethod::Neighbors,
+        &cam.profile,
+        Default::default(),
+        40_000,
+    );
+    for (k, t) in [EXPOSURE, 2.0 * EXPOSURE, EXPOSURE].into_iter().enumerate() {
+        nb.start_recording(t).unwrap();
+        nb.add_raw(&cam.profile, &raw(k as u64)).unwrap();
+    }
+    let data = nb.finish(&cam.profile).unwrap();
+    assert_eq!(
+        (data.frames(), matches!(data, AdaptData::Frames(_))),
+        (2, true)
+    );
+    let e = Recorded::new(AdaptMethod::Neighbors, &cam.profile, Default::default(), 1)
+        .finish(&cam.profile)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("no recordings"), "{e}");
 }
