@@ -4,20 +4,24 @@
 # frames: INIT un-adapted, INIT adapted, BM3D + GAT and iterative BM3D (`ivst`). The ground
 # truth is used only to score.
 #
-# Usage: tools/adapt_bench.sh DIR PROFILE [INIT] [STEPS] [METHOD]
+# Usage: tools/adapt_bench.sh DIR PROFILE [INIT] [STEPS] [METHOD] [LR]
 #   DIR      tools/adapt_stacks.py's output (one folder per scene and level)
 #   PROFILE  the camera's profile (emccd calibrate of tools/unseen_camera.py's acquisition)
 #   INIT     the model to adapt (default: default), or `scratch` (a new network of
 #            `lowlight`'s architecture: the self-supervised baseline; no un-adapted column)
 #   STEPS    adaptation steps (default 200)
 #   METHOD   adapt --method (default resynthesis)
+#   LR       adapt --lr (default: adapt's own)
 # Writes DIR/*/adapted-TAG.safetensors, DIR/*/eval-TAG.json and prints a per-level table.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
-dir="$1"; profile="$2"; init="${3:-default}"; steps="${4:-200}"; method="${5:-resynthesis}"
+dir="$1"; profile="$2"; init="${3:-default}"; steps="${4:-200}"; method="${5:-resynthesis}"; lr="${6:-}"
 E="${EMCCD:-$root/target/release/emccd}"
 tag="$(basename "${init%.safetensors}")"
 [ "$method" = resynthesis ] || tag="$tag-$method"
+[ "$steps" = 200 ] || tag="$tag-s$steps"
+rate=()
+[ -z "$lr" ] || { rate=(--lr "$lr"); tag="$tag-lr$lr"; }
 base=(--method "$init"); from=(--init "$init")
 [ "$init" = scratch ] && base=() && from=(--init lowlight --from-scratch)
 for d in "$dir"/*/; do
@@ -25,7 +29,7 @@ for d in "$dir"/*/; do
     [ -f "$d/stack.tif" ] || continue
     m="$d/adapted-$tag.safetensors"
     [ -f "$m" ] || "$E" adapt "$d/stack.tif" --profile "$profile" --exposure-s 0.01 "${from[@]}" \
-        --method "$method" --steps "$steps" -o "$m" 2>&1 | tail -1
+        --method "$method" --steps "$steps" ${rate[@]+"${rate[@]}"} -o "$m" 2>&1 | tail -1
     # Written under a temporary name: a failed evaluation leaves no empty result behind.
     [ -s "$d/eval-$tag.json" ] || { "$E" evaluate "$d/pairs" --profile "$profile" ${base[@]+"${base[@]}"} \
         --method "$m" --method bm3d --method ivst --json > "$d/eval-$tag.json.tmp" &&
