@@ -2,9 +2,9 @@
 
 use std::path::PathBuf;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use emccd_camera::{Ablation, NoiseModelKind};
-use emccd_nn::train::{train, Image, Loss, RunPaths, TrainConfig};
+use emccd_nn::train::{train, Loss, RunPaths, TrainConfig, TrainImages};
 use emccd_nn::{Arch, Base, Inputs, ModelMeta, UNetConfig, UformerConfig};
 
 use crate::common::load_profile;
@@ -114,16 +114,6 @@ pub struct Args {
     pub out: PathBuf,
 }
 
-fn load_images(paths: &[PathBuf]) -> Result<Vec<(PathBuf, Image)>> {
-    emccd_io::image_files(paths)?
-        .into_iter()
-        .map(|p| {
-            let img = Image::read_scene(&p).with_context(|| format!("reading {}", p.display()))?;
-            Ok((p, img))
-        })
-        .collect()
-}
-
 pub fn run(a: Args) -> Result<()> {
     if !emccd_nn::model::ARCHS.contains(&a.arch.as_str()) {
         bail!(
@@ -158,19 +148,7 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     let profile = load_profile(&a.profile)?;
-    let all = load_images(&a.clean)?;
-    let (train_imgs, val_imgs): (Vec<Image>, Vec<Image>) = if a.val.is_empty() {
-        let (t, v): (Vec<_>, Vec<_>) = all.into_iter().enumerate().partition(|(i, _)| i % 10 != 9);
-        (
-            t.into_iter().map(|(_, x)| x.1).collect(),
-            v.into_iter().map(|(_, x)| x.1).collect(),
-        )
-    } else {
-        (
-            all.into_iter().map(|x| x.1).collect(),
-            load_images(&a.val)?.into_iter().map(|x| x.1).collect(),
-        )
-    };
+    let images = TrainImages::read(&a.clean, &a.val)?;
     let noise = a.noise_model;
     let inputs = a.inputs;
     if a.direct && (inputs == Inputs::Hybrid || a.arch != "unet") {
@@ -228,25 +206,7 @@ pub fn run(a: Args) -> Result<()> {
         steps: 0,
         train: None, // recorded by the run
         adapted: None,
-        recipe: format!(
-            "{} train / {} val images; batch {} × {}², each pair used ≈{}×; AdamW lr {} wd {} warm-up {} + cosine; {:?} loss; {}; read noise ×{:?}; CIC {:?}; seed {}",
-            train_imgs.len(),
-            val_imgs.len(),
-            cfg.batch,
-            cfg.crop,
-            cfg.reuse,
-            cfg.lr,
-            cfg.weight_decay,
-            cfg.warmup,
-            cfg.loss,
-            match cfg.mean_electrons {
-                Some(r) => format!("mean electrons {r:?}"),
-                None => format!("peak electrons {:?}", cfg.electrons),
-            },
-            cfg.read_noise_scale,
-            cfg.cic_e,
-            cfg.seed
-        ),
+        recipe: cfg.recipe(&images),
     };
     let ckpt = PathBuf::from(format!("{}.ckpt", a.out.display()));
     let paths = RunPaths {
@@ -255,8 +215,8 @@ pub fn run(a: Args) -> Result<()> {
     };
     let (pb, mut report) = crate::common::step_progress(a.steps, a.checkpoint_every);
     let model = train(
-        train_imgs,
-        val_imgs,
+        images.train,
+        images.val,
         &profile,
         cfg,
         meta,

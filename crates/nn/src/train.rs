@@ -145,7 +145,69 @@ fn one() -> u32 {
     1
 }
 
+/// Clean images for a run: what it trains on and what it validates on.
+#[derive(Clone, Debug)]
+pub struct TrainImages {
+    /// Pairs are synthesized from these.
+    pub train: Vec<Image>,
+    /// Held out: validation PSNR, never trained on.
+    pub val: Vec<Image>,
+}
+
+impl TrainImages {
+    /// Reads the clean scenes of `clean` and `val` (files, or folders of PNG, TIFF and FITS
+    /// files); with no `val`, every tenth image of `clean` is held out for validation instead.
+    pub fn read(clean: &[std::path::PathBuf], val: &[std::path::PathBuf]) -> Result<TrainImages> {
+        let read = |paths: &[std::path::PathBuf]| -> Result<Vec<Image>> {
+            emccd_io::image_files(paths)
+                .map_err(|e| Error::Data(e.to_string()))?
+                .iter()
+                .map(|p| {
+                    Image::read_scene(p)
+                        .map_err(|e| Error::Data(format!("reading {}: {e}", p.display())))
+                })
+                .collect()
+        };
+        let all = read(clean)?;
+        if !val.is_empty() {
+            return Ok(TrainImages {
+                train: all,
+                val: read(val)?,
+            });
+        }
+        let (train, val): (Vec<_>, Vec<_>) =
+            all.into_iter().enumerate().partition(|(i, _)| i % 10 != 9);
+        Ok(TrainImages {
+            train: train.into_iter().map(|x| x.1).collect(),
+            val: val.into_iter().map(|x| x.1).collect(),
+        })
+    }
+}
+
 impl TrainConfig {
+    /// A one-line description of the run on `images`, for the model file's `recipe`.
+    pub fn recipe(&self, images: &TrainImages) -> String {
+        format!(
+            "{} train / {} val images; batch {} × {}², each pair used ≈{}×; AdamW lr {} wd {} warm-up {} + cosine; {:?} loss; {}; read noise ×{:?}; CIC {:?}; seed {}",
+            images.train.len(),
+            images.val.len(),
+            self.batch,
+            self.crop,
+            self.reuse,
+            self.lr,
+            self.weight_decay,
+            self.warmup,
+            self.loss,
+            match self.mean_electrons {
+                Some(r) => format!("mean electrons {r:?}"),
+                None => format!("peak electrons {:?}", self.electrons),
+            },
+            self.read_noise_scale,
+            self.cic_e,
+            self.seed
+        )
+    }
+
     /// Learning rate at `step`: linear warm-up, then cosine decay to 1 % of the peak.
     pub fn lr_at(&self, step: u64) -> f64 {
         let w = self.warmup.max(1);
@@ -836,6 +898,35 @@ pub(crate) fn train_from(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn every_tenth_image_is_held_out_unless_validation_images_are_given() {
+        let dir = tempfile::tempdir().unwrap();
+        let write = |name: &str, v: f32| {
+            let path = dir.path().join(name);
+            let mut w =
+                emccd_io::StackWriter::create(&path, 2, 2, emccd_io::SampleFormat::F32, Some(1))
+                    .unwrap();
+            w.write_frame(&[v, v, v, 2.0 * v]).unwrap();
+            w.finish().unwrap();
+            path
+        };
+        for k in 0..12 {
+            write(&format!("s{k:02}.tif"), (k + 1) as f32);
+        }
+        let all = [dir.path().to_path_buf()];
+        let imgs = TrainImages::read(&all, &[]).unwrap();
+        assert_eq!((imgs.train.len(), imgs.val.len()), (11, 1));
+        // float scenes are scaled by their maximum: every image is 0.5, 0.5, 0.5, 1
+        assert_eq!(imgs.val[0].data, vec![0.5, 0.5, 0.5, 1.0]);
+        let val = write("val.tiff", 3.0);
+        let imgs = TrainImages::read(&all, &[val]).unwrap();
+        assert_eq!((imgs.train.len(), imgs.val.len()), (13, 1));
+        let e = TrainImages::read(&[dir.path().join("none")], &[])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("none") && e.contains("no such file"), "{e}");
+    }
 
     fn setup() -> (Vec<Image>, CameraProfile, TrainConfig) {
         let (w, h) = (48, 40);
