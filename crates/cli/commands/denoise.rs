@@ -347,19 +347,17 @@ fn run_zarr(a: &Args, fd: &FrameDenoiser, profile_fp: &str) -> Result<()> {
 
 /// FNV-1a over a file's bytes: which model file a store was made with, whatever its name.
 fn file_hash(path: &Path) -> Result<u64> {
+    use std::hash::Hasher;
     use std::io::Read;
     let mut f = std::fs::File::open(path).with_context(|| path.display().to_string())?;
-    let mut h: u64 = 0xcbf29ce484222325;
+    let mut h = fnv::FnvHasher::default();
     let mut buf = vec![0u8; 1 << 16];
     loop {
         let n = f.read(&mut buf)?;
         if n == 0 {
-            return Ok(h);
+            return Ok(h.finish());
         }
-        for &b in &buf[..n] {
-            h ^= b as u64;
-            h = h.wrapping_mul(0x100000001b3);
-        }
+        h.write(&buf[..n]);
     }
 }
 

@@ -408,13 +408,9 @@ impl CameraProfile {
     /// A 64-bit FNV-1a hash of every parameter and map, so a model can record which profile it was
     /// trained for and warn when used with another.
     pub fn fingerprint(&self) -> u64 {
-        let mut h: u64 = 0xcbf29ce484222325;
-        let mut eat = |bytes: &[u8]| {
-            for &b in bytes {
-                h ^= b as u64;
-                h = h.wrapping_mul(0x100000001b3);
-            }
-        };
+        use std::hash::Hasher;
+        let mut h = fnv::FnvHasher::default();
+        let mut eat = |bytes: &[u8]| h.write(bytes);
         eat(self.to_toml_string().as_bytes());
         for m in [&self.maps.fpn_base, &self.maps.fpn_theta]
             .into_iter()
@@ -424,7 +420,7 @@ impl CameraProfile {
                 eat(&v.to_le_bytes());
             }
         }
-        h
+        h.finish()
     }
 
     /// The sub-array `x0..x0+w`, `y0..y0+h` (for simulating or calibrating a region of interest).

@@ -55,10 +55,10 @@ struct TomlProfile {
 
 /// FNV-1a, 64 bits: a checksum that pairs the two files of a profile (not a security measure).
 fn fnv1a64(bytes: &[u8]) -> String {
-    let h = bytes.iter().fold(0xcbf29ce484222325u64, |h, &b| {
-        (h ^ b as u64).wrapping_mul(0x100000001b3)
-    });
-    format!("{h:016x}")
+    use std::hash::Hasher;
+    let mut h = fnv::FnvHasher::default();
+    h.write(bytes);
+    format!("{:016x}", h.finish())
 }
 
 fn f32_bytes(v: &[f32]) -> Vec<u8> {
