@@ -2,8 +2,8 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
-use emccd_eval::{PairsManifest, Score};
+use anyhow::{Context, Result};
+use emccd_eval::{PairFrames, PairsManifest, Score};
 use emccd_nn::registry::Estimator;
 
 use crate::common::{load_profile, progress};
@@ -43,11 +43,6 @@ pub struct Args {
     pub out: Option<PathBuf>,
 }
 
-fn read_first(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
-    let (info, buf) = emccd_io::read_first(path)?;
-    Ok((info.width, info.height, buf))
-}
-
 struct Camera {
     dir: PathBuf,
     name: String,
@@ -55,30 +50,23 @@ struct Camera {
     profile: emccd_profile::CameraProfile,
 }
 
+/// A folder of pairs with the profile to denoise them with: `--profile`, else the one
+/// pairs.toml names, else the bundled default.
 fn load_camera(dir: &Path, profile: Option<&str>) -> Result<Camera> {
-    let mpath = dir.join(PairsManifest::FILE);
     let file = PairsManifest::load(dir).map_err(anyhow::Error::msg)?;
-    let profile = match (profile, &file.profile) {
+    let profile = match (profile, file.profile_arg(dir)) {
         (Some(p), _) => load_profile(p)?,
-        // `default`, a directory relative to pairs.toml, or (as `simulate pairs` records it) as given.
-        (None, Some(p)) => {
-            let rel = dir.join(p);
-            let p = if p != "default" && rel.is_dir() {
-                rel.to_string_lossy().into_owned()
-            } else {
-                p.clone()
-            };
-            load_profile(&p).with_context(|| format!("the profile {} names", mpath.display()))?
-        }
+        (None, Some(p)) => load_profile(&p).with_context(|| {
+            format!(
+                "the profile {} names",
+                dir.join(PairsManifest::FILE).display()
+            )
+        })?,
         (None, None) => load_profile("default")?,
     };
-    let name = file
-        .camera
-        .clone()
-        .unwrap_or_else(|| dir.display().to_string());
     Ok(Camera {
         dir: dir.to_path_buf(),
-        name,
+        name: file.camera_name(dir),
         file,
         profile,
     })
@@ -103,11 +91,12 @@ pub fn run(a: Args) -> Result<()> {
     let mut scores = Vec::new();
     for cam in &cameras {
         for p in &cam.file.pair {
-            let (w, h, raw) = read_first(&cam.dir.join(&p.noisy))?;
-            let (cw, ch, truth) = read_first(&cam.dir.join(&p.clean))?;
-            if (w, h) != (cw, ch) {
-                bail!("{}: noisy {w}×{h} and clean {cw}×{ch} differ", p.noisy);
-            }
+            let PairFrames {
+                width: w,
+                height: h,
+                noisy: raw,
+                clean: truth,
+            } = p.read(&cam.dir).map_err(anyhow::Error::msg)?;
             let prof = if (w, h) == (cam.profile.width, cam.profile.height) {
                 cam.profile.clone()
             } else {

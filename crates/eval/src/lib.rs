@@ -11,7 +11,7 @@ pub mod pairs;
 pub mod scores;
 pub mod vst;
 
-pub use pairs::{Pair, PairsManifest};
+pub use pairs::{Pair, PairFrames, PairsManifest};
 pub use scores::{LevelUnit, Score, Summary};
 
 use rayon::prelude::*;

@@ -73,6 +73,41 @@ pub struct Pair {
     pub psnr_denoised_db: Option<f64>,
 }
 
+/// A pair's frames, read: the first noisy frame and the ground truth, of one size.
+#[derive(Clone, Debug)]
+pub struct PairFrames {
+    /// Width, px.
+    pub width: usize,
+    /// Height, px.
+    pub height: usize,
+    /// The first raw noisy frame (DN).
+    pub noisy: Vec<f32>,
+    /// The ground truth (DN above bias).
+    pub clean: Vec<f32>,
+}
+
+impl Pair {
+    /// Reads the pair's first noisy frame and its truth from the folder `dir` of its
+    /// manifest; an error (naming the file) where a file is unreadable or the sizes differ.
+    pub fn read(&self, dir: &Path) -> Result<PairFrames, String> {
+        let read = |f: &str| emccd_io::read_first(dir.join(f)).map_err(|e| e.to_string());
+        let (info, noisy) = read(&self.noisy)?;
+        let (cinfo, clean) = read(&self.clean)?;
+        if (info.width, info.height) != (cinfo.width, cinfo.height) {
+            return Err(format!(
+                "{}: noisy {}×{} and clean {}×{} differ",
+                self.noisy, info.width, info.height, cinfo.width, cinfo.height
+            ));
+        }
+        Ok(PairFrames {
+            width: info.width,
+            height: info.height,
+            noisy,
+            clean,
+        })
+    }
+}
+
 impl PairsManifest {
     /// The manifest's file name in a pairs folder.
     pub const FILE: &'static str = "pairs.toml";
@@ -97,6 +132,27 @@ impl PairsManifest {
             ));
         }
         Ok(m)
+    }
+
+    /// The profile the pairs name, as an argument for loading it: a folder relative to the
+    /// manifest's `dir` where one is there, else as written (`default`, or a path as `simulate
+    /// pairs` records it); `None` where none is named.
+    pub fn profile_arg(&self, dir: &Path) -> Option<String> {
+        self.profile.as_ref().map(|p| {
+            let rel = dir.join(p);
+            if p != "default" && rel.is_dir() {
+                rel.to_string_lossy().into_owned()
+            } else {
+                p.clone()
+            }
+        })
+    }
+
+    /// The camera's name for tables: `camera`, else the folder `dir`.
+    pub fn camera_name(&self, dir: &Path) -> String {
+        self.camera
+            .clone()
+            .unwrap_or_else(|| dir.display().to_string())
     }
 
     /// The manifest as TOML, after a comment line saying who wrote it.
@@ -150,5 +206,53 @@ mod tests {
         .unwrap();
         let e = PairsManifest::load(dir.path()).unwrap_err();
         assert!(e.contains("n.tif") && e.contains("positive"), "{e}");
+    }
+
+    #[test]
+    fn pairs_are_read_with_their_profile_and_camera_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let write = |name: &str, w: usize, v: f32| {
+            let path = dir.path().join(name);
+            std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+            let mut wr =
+                emccd_io::StackWriter::create(&path, w, 2, emccd_io::SampleFormat::F32, Some(1))
+                    .unwrap();
+            wr.write_frame(&vec![v; w * 2]).unwrap();
+            wr.finish().unwrap();
+        };
+        write("noisy/a.tif", 3, 100.0);
+        write("clean/a.tif", 3, 7.0);
+        write("clean/b.tif", 4, 7.0);
+        std::fs::create_dir(dir.path().join("prof")).unwrap();
+        let pair = |clean: &str| Pair {
+            noisy: "noisy/a.tif".into(),
+            clean: clean.into(),
+            ..Default::default()
+        };
+        let f = pair("clean/a.tif").read(dir.path()).unwrap();
+        assert_eq!(
+            (f.width, f.height, f.noisy[0], f.clean[5]),
+            (3, 2, 100.0, 7.0)
+        );
+        let e = pair("clean/b.tif").read(dir.path()).unwrap_err();
+        assert!(e.contains("3×2") && e.contains("4×2"), "{e}");
+        let e = pair("clean/c.tif").read(dir.path()).unwrap_err();
+        assert!(e.contains("c.tif"), "{e}");
+        let named = |p: &str| PairsManifest {
+            profile: Some(p.into()),
+            ..Default::default()
+        };
+        let d = dir.path();
+        assert_eq!(
+            named("prof").profile_arg(d),
+            Some(d.join("prof").to_string_lossy().into())
+        );
+        assert_eq!(named("default").profile_arg(d).as_deref(), Some("default"));
+        assert_eq!(named("/x/y").profile_arg(d).as_deref(), Some("/x/y"));
+        assert_eq!(PairsManifest::default().profile_arg(d), None);
+        assert_eq!(
+            PairsManifest::default().camera_name(d),
+            d.display().to_string()
+        );
     }
 }
