@@ -107,15 +107,17 @@ pub fn run(a: Args) -> Result<()> {
             ..
         } = open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
         rec.start_recording(exposure)
-            .with_context(|| input.display().to_string())?;
+            .map_err(|e| anyhow::anyhow!("{}: {e}", input.display()))?;
         let pb = progress(info.frames as u64, "reading");
         let mut buf = vec![0f32; info.frame_len()];
+        let mut k = 0;
         while reader
             .read_frame(&mut buf)
             .with_context(|| input.display().to_string())?
         {
+            k += 1;
             rec.add_raw(&profile, &buf)
-                .with_context(|| format!("{}: frame {}", input.display(), rec.frames()))?;
+                .with_context(|| format!("{}: frame {k}", input.display()))?;
             pb.inc(1);
         }
         pb.finish_and_clear();

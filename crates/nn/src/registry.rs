@@ -248,7 +248,8 @@ pub struct FrameDenoiser<'a> {
     pub tiling: Tiling,
     /// Orientations the network is averaged over (1, 2, 4 or 8).
     pub ensemble: usize,
-    /// Factor from DN above bias to the output's units (1, or 2/slope for photoelectrons).
+    /// Factor from DN above bias to the output's units (1, or 1 / [`CameraProfile::dn_per_electron`]
+    /// for photoelectrons).
     pub to_units: f32,
 }
 
@@ -306,7 +307,7 @@ impl FrameDenoiser<'_> {
     }
 }
 
-/// The largest self-ensemble: the eight flips and transposes of a frame.
+/// The self-ensemble sizes allowed: up to the eight flips and transposes of a frame.
 const ENSEMBLES: [usize; 4] = [1, 2, 4, 8];
 
 /// A self-ensemble size (orientations a network is averaged over): 1, 2, 4 or 8.

@@ -163,8 +163,15 @@ impl TrainImages {
                 .map_err(|e| Error::Data(e.to_string()))?
                 .iter()
                 .map(|p| {
-                    Image::read_scene(p)
-                        .map_err(|e| Error::Data(format!("reading {}: {e}", p.display())))
+                    Image::read_scene(p).map_err(|e| {
+                        // The reader's errors mostly name the file already.
+                        let (e, name) = (e.to_string(), p.display().to_string());
+                        Error::Data(if e.contains(&name) {
+                            e
+                        } else {
+                            format!("{name}: {e}")
+                        })
+                    })
                 })
                 .collect()
         };
@@ -907,7 +914,7 @@ mod tests {
             let mut w =
                 emccd_io::StackWriter::create(&path, 2, 2, emccd_io::SampleFormat::F32, Some(1))
                     .unwrap();
-            w.write_frame(&[v, v, v, 2.0 * v]).unwrap();
+            w.write_frame(&[v, 12.0, 12.0, 24.0]).unwrap();
             w.finish().unwrap();
             path
         };
@@ -917,11 +924,15 @@ mod tests {
         let all = [dir.path().to_path_buf()];
         let imgs = TrainImages::read(&all, &[]).unwrap();
         assert_eq!((imgs.train.len(), imgs.val.len()), (11, 1));
-        // float scenes are scaled by their maximum: every image is 0.5, 0.5, 0.5, 1
-        assert_eq!(imgs.val[0].data, vec![0.5, 0.5, 0.5, 1.0]);
-        let val = write("val.tiff", 3.0);
+        // float scenes are scaled by their maximum (24 for s11): the tenth, s09, is held out
+        let first = |imgs: &[Image]| imgs.iter().map(|i| i.data[0]).collect::<Vec<f32>>();
+        assert_eq!(first(&imgs.val), vec![10.0 / 24.0]);
+        assert!(!first(&imgs.train).contains(&(10.0 / 24.0)));
+        let val_dir = tempfile::tempdir().unwrap();
+        let val = val_dir.path().join("v.tif");
+        std::fs::rename(write("v.tif", 3.0), &val).unwrap();
         let imgs = TrainImages::read(&all, &[val]).unwrap();
-        assert_eq!((imgs.train.len(), imgs.val.len()), (13, 1));
+        assert_eq!((imgs.train.len(), imgs.val.len()), (12, 1));
         let e = TrainImages::read(&[dir.path().join("none")], &[])
             .unwrap_err()
             .to_string();
