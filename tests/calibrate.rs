@@ -247,6 +247,8 @@ fn real_ixon_bias_read_noise_matches_an_independent_estimate() {
         "truncation warning expected"
     );
     assert!(out.contains("not calibrated"), "{out}");
+    // The printed summary (emccd_calib's Calibration::summary) gives the report's number.
+    assert!(out.contains(&format!("{rms:.3} DN rms")), "{out}");
 }
 
 fn write_u16(path: &Path, w: usize, h: usize, frames: &[Vec<f32>]) {

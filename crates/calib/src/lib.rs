@@ -22,6 +22,7 @@ pub mod normality;
 pub mod ptc;
 pub mod report;
 pub mod stats;
+mod summary;
 
 mod calibrate;
 
