@@ -437,8 +437,12 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
                 Some(f) => signal.iter_mut().zip(&f).for_each(|(v, f)| *v -= f),
                 None => fpn_sub = false,
             }
-            let (median_dn, variance_dn2, variance_se_dn2, pixels) =
-                ptc::level_stats(&signal, &var, width, crop);
+            let ptc::LevelStats {
+                median_dn,
+                variance_dn2,
+                variance_se_dn2,
+                pixels,
+            } = ptc::level_stats(&signal, &var, width, crop);
             // Every recorded frame carries at least read noise: frames that never vary (a
             // constant or all-zero stack) are not a recording, and would drag the slope anywhere.
             if !(variance_dn2 > 0.0 && variance_dn2.is_finite() && median_dn.is_finite()) {

@@ -345,12 +345,23 @@ pub fn normal_quantile(p: f64) -> f64 {
     x - u / (1.0 + x * u / 2.0)
 }
 
-/// Median and the normal-consistent MAD (1.4826·median|x − median|), NaNs ignored; NaN for
-/// none.
-pub fn median_mad(v: &[f64]) -> (f64, f64) {
+/// A robust location and scale.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Robust {
+    /// The median.
+    pub median: f64,
+    /// The normal-consistent MAD, 1.4826·median|x − median| (σ for normal data).
+    pub sigma: f64,
+}
+
+/// Median and the normal-consistent MAD, NaNs ignored; NaN for none.
+pub fn median_mad(v: &[f64]) -> Robust {
     let m = emccd_profile::median(v.iter().copied()).unwrap_or(f64::NAN);
     let mad = emccd_profile::median(v.iter().map(|x| (x - m).abs())).unwrap_or(f64::NAN);
-    (m, 1.4826 * mad)
+    Robust {
+        median: m,
+        sigma: 1.4826 * mad,
+    }
 }
 
 #[cfg(test)]

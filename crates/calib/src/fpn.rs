@@ -243,7 +243,10 @@ pub fn fit(
     let mut inlier = usable.clone();
     for i in 1..e {
         let r: Vec<f64> = (0..n).filter(|&p| usable[p]).map(|p| ratio(i, p)).collect();
-        let (m, mad) = median_mad(&r);
+        let crate::fit::Robust {
+            median: m,
+            sigma: mad,
+        } = median_mad(&r);
         // Floor the scale at 1e-4 (0.02 DN at 200 DN) so a noiseless map does not reject everything.
         let lim = 6.0 * mad.max(1e-4);
         for p in 0..n {

@@ -65,14 +65,22 @@ pub fn central_crop(width: usize, height: usize, side: usize) -> [usize; 4] {
     [(width - cw) / 2, (height - ch) / 2, cw, ch]
 }
 
+/// One flat's point of the photon-transfer curve.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LevelStats {
+    /// Median signal over the crop's kept pixels, DN above bias.
+    pub median_dn: f64,
+    /// Mean temporal variance over the kept pixels, DN².
+    pub variance_dn2: f64,
+    /// Its standard error from the spread over pixels, DN².
+    pub variance_se_dn2: f64,
+    /// Pixels kept (outliers in signal or variance removed).
+    pub pixels: usize,
+}
+
 /// Median signal and robust mean variance of one flat on `crop`. `signal` is the per-pixel
 /// temporal mean already corrected for FPN and blooming; `var` the temporal variance.
-pub fn level_stats(
-    signal: &[f32],
-    var: &[f32],
-    width: usize,
-    crop: [usize; 4],
-) -> (f64, f64, f64, usize) {
+pub fn level_stats(signal: &[f32], var: &[f32], width: usize, crop: [usize; 4]) -> LevelStats {
     let [x0, y0, cw, ch] = crop;
     let mut s = Vec::with_capacity(cw * ch);
     let mut v = Vec::with_capacity(cw * ch);
@@ -83,8 +91,8 @@ pub fn level_stats(
         }
     }
     // Hot pixels, defects and dust shadows are far from the crowd in signal or variance.
-    let (ms, ss) = median_mad(&s);
-    let (mv, sv) = median_mad(&v);
+    let (s_rob, v_rob) = (median_mad(&s), median_mad(&v));
+    let (ms, ss, mv, sv) = (s_rob.median, s_rob.sigma, v_rob.median, v_rob.sigma);
     let keep: Vec<usize> = (0..s.len())
         .filter(|&i| {
             (s[i] - ms).abs() <= 6.0 * ss.max(1e-6 * ms.abs().max(1.0))
@@ -97,7 +105,12 @@ pub fn level_stats(
     let mean_v = keep.iter().map(|&i| v[i]).sum::<f64>() / k;
     let sd_v =
         (keep.iter().map(|&i| (v[i] - mean_v).powi(2)).sum::<f64>() / (k - 1.0).max(1.0)).sqrt();
-    (med, mean_v, sd_v / k.sqrt(), keep.len())
+    LevelStats {
+        median_dn: med,
+        variance_dn2: mean_v,
+        variance_se_dn2: sd_v / k.sqrt(),
+        pixels: keep.len(),
+    }
 }
 
 /// Fits the included levels; excludes non-linear ones (worst first) while more than three remain.
@@ -126,7 +139,7 @@ pub fn fit(levels: &mut [FlatLevel]) -> Result<LineFit> {
                 (b - (f.slope * a + f.intercept)) / (f.slope * a + f.intercept).abs().max(1e-9)
             })
             .collect();
-        let (_, scale) = median_mad(&rel);
+        let scale = median_mad(&rel).sigma;
         let (worst, r) = rel
             .iter()
             .enumerate()
