@@ -134,10 +134,10 @@ fn main() -> Result<()> {
         false,
         &paths,
         &mut |r| {
-            if let (Some((out, input)), 0) = (r.val_psnr, r.step % 4) {
+            if let (Some(p), 0) = (r.val_psnr, r.step % 4) {
                 println!(
-                    "step {}/{}: loss {:.4}, validation {out:.2} dB (input {input:.2} dB)",
-                    r.step, r.steps, r.loss
+                    "step {}/{}: loss {:.4}, validation {:.2} dB (input {:.2} dB)",
+                    r.step, r.steps, r.loss, p.denoised_db, p.noisy_db
                 );
             }
             true

@@ -51,8 +51,11 @@ pub fn step_progress(
     let bar = pb.clone();
     let report = move |r: &emccd_nn::train::StepReport| {
         bar.set_position(r.step);
-        let v = r.val_psnr.map_or(String::new(), |(o, i)| {
-            format!(" val PSNR {o:.2} dB (input {i:.2})")
+        let v = r.val_psnr.map_or(String::new(), |p| {
+            format!(
+                " val PSNR {:.2} dB (input {:.2})",
+                p.denoised_db, p.noisy_db
+            )
         });
         bar.set_message(format!("loss {:.5}{v}", r.loss));
         if bar.is_hidden() && (r.step % every == 0 || r.step == r.steps) {

@@ -198,6 +198,15 @@ pub fn levenberg_marquardt<const P: usize>(
     }
 }
 
+/// Where a minimization ended.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Minimum {
+    /// The point.
+    pub x: Vec<f64>,
+    /// The function's value there.
+    pub value: f64,
+}
+
 /// Nelder–Mead minimization of `f` from `x0` with initial simplex steps `step`.
 /// Stops when the simplex's function values agree within `ftol` (absolute) or after `max_eval`.
 pub fn nelder_mead(
@@ -206,7 +215,7 @@ pub fn nelder_mead(
     step: &[f64],
     ftol: f64,
     max_eval: usize,
-) -> (Vec<f64>, f64) {
+) -> Minimum {
     let n = x0.len();
     let mut pts: Vec<Vec<f64>> = vec![x0.to_vec()];
     for i in 0..n {
@@ -278,7 +287,10 @@ pub fn nelder_mead(
     let best = (0..=n)
         .min_by(|&a, &b| fv(vals[a]).total_cmp(&fv(vals[b])))
         .unwrap_or(0);
-    (pts[best].clone(), vals[best])
+    Minimum {
+        x: pts[best].clone(),
+        value: vals[best],
+    }
 }
 
 /// Standard normal CDF.
@@ -416,7 +428,8 @@ mod tests {
     fn nelder_mead_finds_a_quadratic_minimum() {
         let f =
             |x: &[f64]| (x[0] - 1.0).powi(2) + 10.0 * (x[1] + 2.0).powi(2) + (x[2] - 0.5).powi(2);
-        let (x, v) = nelder_mead(&f, &[0.0, 0.0, 0.0], &[0.5, 0.5, 0.5], 1e-14, 5000);
+        let Minimum { x, value: v } =
+            nelder_mead(&f, &[0.0, 0.0, 0.0], &[0.5, 0.5, 0.5], 1e-14, 5000);
         assert!(
             v < 1e-10 && (x[0] - 1.0).abs() < 1e-4 && (x[1] + 2.0).abs() < 1e-4,
             "{x:?}"

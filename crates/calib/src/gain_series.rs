@@ -292,9 +292,11 @@ fn fit_pixel(data: &[SettingData], p: usize, anchor: usize) -> PixelFit {
         s
     };
     let step = vec![0.05; x0.len()];
-    let (mut best, mut fbest) = nelder_mead(&nll, &x0, &step, 1e-7, 3000);
+    let first = nelder_mead(&nll, &x0, &step, 1e-7, 3000);
+    let (mut best, mut fbest) = (first.x, first.value);
     // One restart from the optimum shakes off a collapsed simplex.
-    let (b2, f2b) = nelder_mead(&nll, &best, &vec![0.01; x0.len()], 1e-8, 2000);
+    let again = nelder_mead(&nll, &best, &vec![0.01; x0.len()], 1e-8, 2000);
+    let (b2, f2b) = (again.x, again.value);
     if f2b < fbest {
         best = b2;
         fbest = f2b;

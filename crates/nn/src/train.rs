@@ -501,8 +501,17 @@ pub struct StepReport {
     pub steps: u64,
     /// Smoothed training loss.
     pub loss: f64,
-    /// Latest validation PSNR (output, input), dB.
-    pub val_psnr: Option<(f64, f64)>,
+    /// Latest validation PSNR.
+    pub val_psnr: Option<ValPsnr>,
+}
+
+/// Validation PSNR on the held-out crops, dB.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ValPsnr {
+    /// Of the network's output.
+    pub denoised_db: f64,
+    /// Of its noisy input (the same for every step: the crops are fixed).
+    pub noisy_db: f64,
 }
 
 /// Where and how a run is saved.
@@ -548,7 +557,7 @@ fn load_net_with_ids(meta: ModelMeta, path: &Path, device: &Device) -> Result<De
 /// Validation PSNR (dB, peak = clean maximum) of the network output and of its residual
 /// channel (the noisy input; for a hybrid network, the BM3D estimate it refines), averaged over
 /// the fixed validation batch.
-fn validate(model: &Denoiser, val: &Batch, n: usize, c: usize, device: &Device) -> (f64, f64) {
+fn validate(model: &Denoiser, val: &Batch, n: usize, c: usize, device: &Device) -> ValPsnr {
     let net = model.net.valid();
     let ch = model.meta.inputs.channels();
     let base = model.meta.inputs.residual();
@@ -583,7 +592,10 @@ fn validate(model: &Denoiser, val: &Batch, n: usize, c: usize, device: &Device) 
         po += emccd_eval::psnr(o, t, peak);
         pi += emccd_eval::psnr(i, t, peak);
     }
-    (po / n as f64, pi / n as f64)
+    ValPsnr {
+        denoised_db: po / n as f64,
+        noisy_db: pi / n as f64,
+    }
 }
 
 /// Trains (or fine-tunes from `init`, or resumes from the checkpoint directory) and writes the
