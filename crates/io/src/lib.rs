@@ -11,6 +11,30 @@
 //! hand-written, since `fitsrs` only reads), PNG for clean scenes (the `png` crate; colour is
 //! converted to luminance), and Zarr stores — a folder, opened by [`open`] too — through the
 //! `zarrs` crate, with an OME-Zarr writer that many processes fill at once ([`zarr`]).
+//!
+//! A stack written and streamed back, one frame at a time:
+//!
+//! ```
+//! # fn main() -> emccd_io::Result<()> {
+//! let dir = tempfile::tempdir()?;
+//! let path = dir.path().join("stack.tif");
+//! let mut w = emccd_io::StackWriter::create(&path, 4, 2, emccd_io::SampleFormat::U16, Some(3))?;
+//! for k in 0..3 {
+//!     w.write_frame(&[100.0 + k as f32; 8])?;
+//! }
+//! w.finish()?; // renamed into place only now
+//! let mut r = emccd_io::open(&path)?;
+//! let info = r.info().clone();
+//! assert_eq!((info.width, info.height, info.frames), (4, 2, 3));
+//! let mut frame = vec![0f32; info.frame_len()];
+//! let mut k = 0;
+//! while r.read_frame(&mut frame)? {
+//!     assert_eq!(frame[0], 100.0 + k as f32);
+//!     k += 1;
+//! }
+//! # Ok(())
+//! # }
+//! ```
 
 #![deny(missing_docs)]
 

@@ -5,6 +5,29 @@
 //! Network code has no backend type: burn 0.22 tensors carry their backend in their `Device`.
 //! The pure-Rust `flex` CPU backend is the default feature; `vulkan`/`wgpu` add burn's wgpu
 //! GPU backend (no build-time downloads), picked by [`device`] when present.
+//!
+//! A frame from the virtual camera denoised as `emccd evaluate --method bm3d` does it, through
+//! the profile it was recorded with ([`registry::Estimator`]; a bundled network is named the
+//! same way, e.g. `lowlight` or `lowlight@8`):
+//!
+//! ```
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! use emccd_camera::{PhysicalParams, VirtualCamera};
+//! use emccd_nn::registry::{self, Estimator};
+//! let profile = emccd_profile::default_profile().crop(0, 0, 64, 64)?;
+//! let cam = VirtualCamera::new(profile.clone(), PhysicalParams::default())?;
+//! let scene: Vec<f32> = (0..64 * 64).map(|i| if (i / 64) % 16 < 8 { 1.0 } else { 0.2 }).collect();
+//! let pair = cam.test_pair(&scene, 200.0, 0.01, 1);
+//! let mut raw = vec![0f32; 64 * 64];
+//! pair.frame(0, &mut raw);
+//! let peak = pair.truth.iter().copied().fold(0f32, f32::max) as f64;
+//! let input = Estimator::parse("input", registry::load)?.run(&profile, &raw, 0.01)?;
+//! let bm3d = Estimator::parse("bm3d", registry::load)?.run(&profile, &raw, 0.01)?;
+//! let gain = emccd_eval::psnr(&bm3d, &pair.truth, peak) - emccd_eval::psnr(&input, &pair.truth, peak);
+//! assert!(gain > 3.0, "BM3D gains {gain:.1} dB");
+//! # Ok(())
+//! # }
+//! ```
 
 #![deny(missing_docs)]
 

@@ -9,6 +9,22 @@
 //! the two comparison noise models (ELD and the Poisson–Gamma–Normal model) so that all three are
 //! calibrated from the same frames. Estimating these numbers is `emccd-calib`'s job; simulating a
 //! camera from them is `emccd-camera`'s.
+//!
+//! The bundled default (an iXon Ultra 897 model), cut to a sub-array as a recording with a
+//! cropped sensor would need:
+//!
+//! ```
+//! # fn main() -> emccd_profile::Result<()> {
+//! let p = emccd_profile::default_profile().crop(0, 0, 64, 64)?;
+//! assert_eq!((p.width, p.height), (64, 64));
+//! // The photon-transfer slope s = K·f² with f² = 2: K DN per photoelectron.
+//! assert_eq!(p.dn_per_electron()?, p.slope()? / 2.0);
+//! let mut fpn = vec![0f32; p.len()];
+//! p.fpn_at(0.01, &mut fpn); // the fixed pattern of a 10 ms frame, DN
+//! assert!(fpn.iter().all(|v| v.is_finite()));
+//! # Ok(())
+//! # }
+//! ```
 
 #![deny(missing_docs)]
 
