@@ -15,8 +15,10 @@ use emccd_calib::manifest::{Entry, Manifest};
 use emccd_camera::acquisition::{frame_seed, CalibrationPlan, PlannedStack, Role};
 use emccd_camera::{PhysicalParams, VirtualCamera};
 use emccd_io::{Metadata, SampleFormat, StackWriter};
-use emccd_nn::adapt::{adapt, AdaptConfig, AdaptData, AdaptMethod, Adaptation, FrameSet, Start};
-use emccd_nn::train::{train, Image, RunPaths, TrainConfig};
+use emccd_nn::adapt::{
+    adapt, AdaptConfig, AdaptData, AdaptMethod, AdaptRun, Adaptation, FrameSet, Start,
+};
+use emccd_nn::train::{train, Image, Run, RunPaths, TrainConfig, TrainImages};
 use emccd_nn::{FrameDenoiser, Method, ModelMeta};
 use emccd_profile::CameraProfile;
 
@@ -125,14 +127,11 @@ fn main() -> Result<()> {
     };
     let images: Vec<Image> = (0..4).map(|k| scene(48, 48, k)).collect();
     let model = train(
-        images,
-        vec![scene(48, 48, 9)],
-        &profile,
-        cfg,
-        meta,
-        Some(&init),
-        false,
-        &paths,
+        TrainImages {
+            train: images,
+            val: vec![scene(48, 48, 9)],
+        },
+        Run::new(&profile, cfg, meta, &paths).with_init(Some(&init)),
         &mut |r| {
             if let (Some(p), 0) = (r.val_psnr, r.step % 4) {
                 println!(
@@ -186,28 +185,30 @@ fn main() -> Result<()> {
     let (kept, level) = (set.len(), set.mean_electrons(&profile)?);
     let adapted = adapt(
         AdaptData::Frames(set),
-        &profile,
-        Start::Model(&paths.out),
-        &AdaptConfig {
-            method: AdaptMethod::Noise2noise,
-            steps: 10,
-            batch: 2,
-            crop: 32,
-            lr: 5e-5,
-            ..Default::default()
+        AdaptRun {
+            profile: &profile,
+            start: Start::Model(&paths.out),
+            cfg: &AdaptConfig {
+                method: AdaptMethod::Noise2noise,
+                steps: 10,
+                batch: 2,
+                crop: 32,
+                lr: 5e-5,
+                ..Default::default()
+            },
+            provenance: Adaptation {
+                method: AdaptMethod::Noise2noise.name().into(),
+                from: "model.safetensors".into(),
+                files: vec!["(8 frames in memory)".into()],
+                frames: kept,
+                mean_electrons: level,
+            },
+            paths: &RunPaths {
+                out: dir.path().join("adapted.safetensors"),
+                checkpoint: dir.path().join("adapted.ckpt"),
+            },
+            resume: false,
         },
-        Adaptation {
-            method: AdaptMethod::Noise2noise.name().into(),
-            from: "model.safetensors".into(),
-            files: vec!["(8 frames in memory)".into()],
-            frames: kept,
-            mean_electrons: level,
-        },
-        &RunPaths {
-            out: dir.path().join("adapted.safetensors"),
-            checkpoint: dir.path().join("adapted.ckpt"),
-        },
-        false,
         &mut |_| true,
     )?;
     let d = FrameDenoiser {

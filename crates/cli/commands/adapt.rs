@@ -4,7 +4,9 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use emccd_camera::NoiseModelKind;
-use emccd_nn::adapt::{adapt, AdaptConfig, AdaptData, AdaptMethod, Adaptation, Recorded, Start};
+use emccd_nn::adapt::{
+    adapt, AdaptConfig, AdaptData, AdaptMethod, AdaptRun, Adaptation, Recorded, Start,
+};
 use emccd_nn::train::RunPaths;
 
 use crate::common::{load_profile, open_recording, progress, step_progress, Recording};
@@ -181,12 +183,14 @@ pub fn run(a: Args) -> Result<()> {
     };
     let model = adapt(
         data,
-        &profile,
-        start,
-        &cfg,
-        provenance,
-        &paths,
-        a.resume,
+        AdaptRun {
+            profile: &profile,
+            start: start,
+            cfg: &cfg,
+            provenance: provenance,
+            paths: &paths,
+            resume: a.resume,
+        },
         &mut report,
     )?;
     pb.finish();

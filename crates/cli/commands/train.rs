@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Result};
 use emccd_camera::{Ablation, NoiseModelKind};
-use emccd_nn::train::{train, Loss, RunPaths, TrainConfig, TrainImages};
+use emccd_nn::train::{train, Loss, Run, RunPaths, TrainConfig, TrainImages};
 use emccd_nn::{Arch, Base, Inputs, ModelMeta, UNetConfig, UformerConfig};
 
 use crate::common::load_profile;
@@ -215,14 +215,10 @@ pub fn run(a: Args) -> Result<()> {
     };
     let (pb, mut report) = crate::common::step_progress(a.steps, a.checkpoint_every);
     let model = train(
-        images.train,
-        images.val,
-        &profile,
-        cfg,
-        meta,
-        init.as_deref(),
-        a.resume,
-        &paths,
+        images,
+        Run::new(&profile, cfg, meta, &paths)
+            .with_init(init.as_deref())
+            .resuming(a.resume),
         &mut report,
     )?;
     pb.finish();

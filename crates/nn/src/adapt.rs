@@ -24,7 +24,7 @@ use rand_pcg::Pcg64;
 
 use crate::norm::{frame_scale, prepare_scaled};
 use crate::train::{
-    orient, sub_image, train_from, Image, Loss, RunPaths, Source, StepReport, TrainConfig,
+    orient, sub_image, train_from, Image, Loss, Run, RunPaths, Source, StepReport, TrainConfig,
 };
 use crate::{Denoiser, Error, ModelMeta, Result};
 
@@ -477,6 +477,24 @@ pub enum Start<'a> {
     Scratch(ModelMeta),
 }
 
+/// One adaptation: the camera, the network it starts from, the recipe, what the model file
+/// will record about it, and where it is saved.
+#[derive(Clone, Debug)]
+pub struct AdaptRun<'a> {
+    /// The recording's camera.
+    pub profile: &'a CameraProfile,
+    /// The network it starts from.
+    pub start: Start<'a>,
+    /// The recipe.
+    pub cfg: &'a AdaptConfig,
+    /// What the adapted model file records ([`ModelMeta::adapted`]).
+    pub provenance: Adaptation,
+    /// The output and the checkpoint directory.
+    pub paths: &'a RunPaths,
+    /// Continue from the checkpoint in `paths.checkpoint`.
+    pub resume: bool,
+}
+
 /// What an adaptation trains on.
 #[derive(Clone, Debug)]
 pub enum AdaptData {
@@ -621,17 +639,19 @@ impl Recorded {
 /// Adapts a network to a recording (see the module documentation and [`AdaptMethod`]) and
 /// writes it to `paths.out`, recording `provenance`. `report` is called after every step
 /// (return `false` to stop: the checkpoint stays and `--resume` continues).
-#[allow(clippy::too_many_arguments)]
 pub fn adapt(
     data: AdaptData,
-    profile: &CameraProfile,
-    start: Start,
-    cfg: &AdaptConfig,
-    provenance: Adaptation,
-    paths: &RunPaths,
-    resume: bool,
+    run: AdaptRun,
     report: &mut dyn FnMut(&StepReport) -> bool,
 ) -> Result<Denoiser> {
+    let AdaptRun {
+        profile,
+        start,
+        cfg,
+        provenance,
+        paths,
+        resume,
+    } = run;
     if !(cfg.spread >= 1.0 && cfg.spread.is_finite()) {
         return Err(Error::Data(format!(
             "spread {}: must be at least 1",
@@ -743,12 +763,9 @@ pub fn adapt(
     train_from(
         source,
         Vec::new(),
-        profile,
-        tc,
-        meta,
-        init,
-        resume,
-        paths,
+        Run::new(profile, tc, meta, paths)
+            .with_init(init)
+            .resuming(resume),
         report,
     )
 }

@@ -598,35 +598,70 @@ fn validate(model: &Denoiser, val: &Batch, n: usize, c: usize, device: &Device) 
     }
 }
 
-/// Trains (or fine-tunes from `init`, or resumes from the checkpoint directory) and writes the
-/// model to `paths.out`. `report` is called after every step; returning `false` stops the run
-/// there (as an interruption would: the last checkpoint stays, no final model is written).
-#[allow(clippy::too_many_arguments)]
+/// One training run: the camera whose noise the pairs are synthesized with, the recipe, the
+/// model's metadata (its `steps` and `train` are filled in by the run) and where it is saved;
+/// a new network unless [`Run::with_init`] names a model file to fine-tune, and continued from
+/// its checkpoint with [`Run::resuming`].
+#[derive(Clone, Debug)]
+pub struct Run<'a> {
+    /// The camera.
+    pub profile: &'a CameraProfile,
+    /// The recipe.
+    pub cfg: TrainConfig,
+    /// The model's architecture, inputs and description.
+    pub meta: ModelMeta,
+    /// The output and the checkpoint directory.
+    pub paths: &'a RunPaths,
+    /// A model file to fine-tune, else a new network from the seed.
+    pub init: Option<&'a Path>,
+    /// Continue from the checkpoint in `paths.checkpoint`.
+    pub resume: bool,
+}
+
+impl<'a> Run<'a> {
+    /// A run of a new network.
+    pub fn new(
+        profile: &'a CameraProfile,
+        cfg: TrainConfig,
+        meta: ModelMeta,
+        paths: &'a RunPaths,
+    ) -> Run<'a> {
+        Run {
+            profile,
+            cfg,
+            meta,
+            paths,
+            init: None,
+            resume: false,
+        }
+    }
+
+    /// Fine-tunes the model file `init` (if given) instead.
+    pub fn with_init(mut self, init: Option<&'a Path>) -> Run<'a> {
+        self.init = init;
+        self
+    }
+
+    /// Continues the run from its checkpoint where `resume` is true.
+    pub fn resuming(mut self, resume: bool) -> Run<'a> {
+        self.resume = resume;
+        self
+    }
+}
+
+/// Trains (or fine-tunes, or resumes: see [`Run`]) on pairs synthesized from `images.train`,
+/// validating on `images.val`, and writes the model to `run.paths.out`. `report` is called
+/// after every step; returning `false` stops the run there (as an interruption would: the last
+/// checkpoint stays, no final model is written).
 pub fn train(
-    train_images: Vec<Image>,
-    val_images: Vec<Image>,
-    profile: &CameraProfile,
-    cfg: TrainConfig,
-    meta: ModelMeta,
-    init: Option<&Path>,
-    resume: bool,
-    paths: &RunPaths,
+    images: TrainImages,
+    run: Run,
     report: &mut dyn FnMut(&StepReport) -> bool,
 ) -> Result<Denoiser> {
-    if train_images.is_empty() {
+    if images.train.is_empty() {
         return Err(Error::Data("no training images".into()));
     }
-    train_from(
-        Source::Synthetic(train_images),
-        val_images,
-        profile,
-        cfg,
-        meta,
-        init,
-        resume,
-        paths,
-        report,
-    )
+    train_from(Source::Synthetic(images.train), images.val, run, report)
 }
 
 /// What a run trains on.
@@ -655,14 +690,17 @@ fn recorded_batch(pairs: &RecordedPairs, cfg: &TrainConfig, seed: u64) -> Batch 
 pub(crate) fn train_from(
     source: Source,
     val_images: Vec<Image>,
-    profile: &CameraProfile,
-    cfg: TrainConfig,
-    meta: ModelMeta,
-    init: Option<&Path>,
-    resume: bool,
-    paths: &RunPaths,
+    run: Run,
     report: &mut dyn FnMut(&StepReport) -> bool,
 ) -> Result<Denoiser> {
+    let Run {
+        profile,
+        cfg,
+        meta,
+        paths,
+        init,
+        resume,
+    } = run;
     profile
         .require_complete()
         .map_err(|e| Error::Data(e.to_string()))?;

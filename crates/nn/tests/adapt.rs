@@ -5,8 +5,8 @@ mod common;
 
 use emccd_camera::{PhysicalParams, VirtualCamera};
 use emccd_nn::adapt::{
-    adapt, scene_estimate, AdaptConfig, AdaptData, AdaptMethod, Adaptation, FrameMean, FrameSet,
-    Recorded, SceneEstimate, Start,
+    adapt, scene_estimate, AdaptConfig, AdaptData, AdaptMethod, AdaptRun, Adaptation, FrameMean,
+    FrameSet, Recorded, SceneEstimate, Start,
 };
 use emccd_nn::pipeline::{preprocess, Pipeline};
 use emccd_nn::train::RunPaths;
@@ -142,12 +142,14 @@ fn adaptation_improves_held_out_frames_and_records_its_provenance() {
     let mut losses = Vec::new();
     let model = adapt(
         AdaptData::Scene(est.clone()),
-        &cam.profile,
-        Start::Model(&init),
-        &cfg,
-        provenance.clone(),
-        &paths,
-        false,
+        AdaptRun {
+            profile: &cam.profile,
+            start: Start::Model(&init),
+            cfg: &cfg,
+            provenance: provenance.clone(),
+            paths: &paths,
+            resume: false,
+        },
         &mut |r| {
             losses.push(r.loss);
             true
@@ -237,12 +239,14 @@ fn self_supervised_adaptation_lowers_its_loss() {
         let mut losses = Vec::new();
         adapt(
             AdaptData::Frames(set.clone()),
-            &cam.profile,
-            Start::Scratch(common::meta(8, 2)),
-            &cfg,
-            provenance.clone(),
-            &paths,
-            false,
+            AdaptRun {
+                profile: &cam.profile,
+                start: Start::Scratch(common::meta(8, 2)),
+                cfg: &cfg,
+                provenance: provenance.clone(),
+                paths: &paths,
+                resume: false,
+            },
             &mut |r| {
                 losses.push(r.loss);
                 true
@@ -263,25 +267,27 @@ fn self_supervised_adaptation_lowers_its_loss() {
     let run = |set: &FrameSet, meta, method| {
         adapt(
             AdaptData::Frames(set.clone()),
-            &cam.profile,
-            Start::Scratch(meta),
-            &AdaptConfig {
-                method,
-                steps: 2,
-                ..AdaptConfig::default()
+            AdaptRun {
+                profile: &cam.profile,
+                start: Start::Scratch(meta),
+                cfg: &AdaptConfig {
+                    method,
+                    steps: 2,
+                    ..AdaptConfig::default()
+                },
+                provenance: Adaptation {
+                    method: "x".into(),
+                    from: "scratch".into(),
+                    files: vec![],
+                    frames: 1,
+                    mean_electrons: 1.0,
+                },
+                paths: &RunPaths {
+                    out: out.clone(),
+                    checkpoint: dir.path().join("one.ckpt"),
+                },
+                resume: false,
             },
-            Adaptation {
-                method: "x".into(),
-                from: "scratch".into(),
-                files: vec![],
-                frames: 1,
-                mean_electrons: 1.0,
-            },
-            &RunPaths {
-                out: out.clone(),
-                checkpoint: dir.path().join("one.ckpt"),
-            },
-            false,
             &mut |_| true,
         )
         .unwrap_err()

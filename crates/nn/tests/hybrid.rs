@@ -200,7 +200,7 @@ fn a_zeroed_output_layer_makes_a_trained_hybrid_the_identity() {
 /// no longer zero. (A zeroed layer that lost its trainable mark stayed zero for good.)
 #[test]
 fn a_hybrid_moved_onto_another_base_learns_again() {
-    use emccd_nn::train::{train, Image, RunPaths, TrainConfig};
+    use emccd_nn::train::{train, Image, Run, RunPaths, TrainConfig, TrainImages};
     let dir = tempfile::tempdir().unwrap();
     let bundled = common::bundled("hybrid");
     let cfg = TrainConfig {
@@ -232,14 +232,17 @@ fn a_hybrid_moved_onto_another_base_learns_again() {
         data: scene(48, 40),
     }];
     let m = train(
-        images,
-        Vec::new(),
-        &emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap(),
-        cfg,
-        meta,
-        Some(&bundled),
-        false,
-        &paths,
+        TrainImages {
+            train: images,
+            val: Vec::new(),
+        },
+        Run::new(
+            &emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap(),
+            cfg,
+            meta,
+            &paths,
+        )
+        .with_init(Some(&bundled)),
         &mut |_| true,
     )
     .unwrap();

@@ -1,7 +1,7 @@
 //! Learning: a small fixed-seed run in the low-light recipe lowers its loss. In its own test
 //! binary because burn's seeded initialization draws from a process-wide generator.
 
-use emccd_nn::train::{train, Image, RunPaths, TrainConfig};
+use emccd_nn::train::{train, Image, Run, RunPaths, TrainConfig, TrainImages};
 mod common;
 
 use common::{meta, scene};
@@ -47,14 +47,16 @@ fn a_low_light_training_run_lowers_its_loss() {
     };
     let mut losses = Vec::new();
     train(
-        images(),
-        Vec::new(),
-        &emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap(),
-        cfg,
-        meta(8, 2),
-        None,
-        false,
-        &paths,
+        TrainImages {
+            train: images(),
+            val: Vec::new(),
+        },
+        Run::new(
+            &emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap(),
+            cfg,
+            meta(8, 2),
+            &paths,
+        ),
         &mut |r| {
             losses.push(r.loss);
             true

@@ -2,7 +2,7 @@
 //! Alone in its own test binary because burn's seeded initialization draws from a process-wide
 //! generator that tests running in parallel would also draw from.
 
-use emccd_nn::train::{train, Image, RunPaths, TrainConfig};
+use emccd_nn::train::{train, Image, Run, RunPaths, TrainConfig, TrainImages};
 mod common;
 
 use common::{meta, scene};
@@ -45,14 +45,11 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
     };
     let mut seen = Vec::new();
     let full = train(
-        images(),
-        images()[..1].to_vec(),
-        &prof,
-        cfg.clone(),
-        meta(4, 2),
-        None,
-        false,
-        &paths("full"),
+        TrainImages {
+            train: images(),
+            val: images()[..1].to_vec(),
+        },
+        Run::new(&prof, cfg.clone(), meta(4, 2), &paths("full")),
         &mut |r| {
             seen.push((r.step, r.loss, r.val_psnr));
             true
@@ -67,27 +64,21 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
     // Interrupted after 2 steps (the checkpoint at step 2), then resumed to 4.
     let p = paths("split");
     train(
-        images(),
-        images()[..1].to_vec(),
-        &prof,
-        cfg.clone(),
-        meta(4, 2),
-        None,
-        false,
-        &p,
+        TrainImages {
+            train: images(),
+            val: images()[..1].to_vec(),
+        },
+        Run::new(&prof, cfg.clone(), meta(4, 2), &p),
         &mut |r| r.step < 2,
     )
     .unwrap();
     assert!(!p.out.exists(), "an interrupted run writes no final model");
     let resumed = train(
-        images(),
-        images()[..1].to_vec(),
-        &prof,
-        cfg,
-        meta(4, 2),
-        None,
-        true,
-        &p,
+        TrainImages {
+            train: images(),
+            val: images()[..1].to_vec(),
+        },
+        Run::new(&prof, cfg, meta(4, 2), &p).resuming(true),
         &mut |_| true,
     )
     .unwrap();
