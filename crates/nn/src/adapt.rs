@@ -54,13 +54,6 @@ fn check_size(frame: &[f32], width: usize, height: usize) -> Result<()> {
     )))
 }
 
-/// `profile`'s DN per photoelectron, as this module's error.
-fn dn_per_electron(profile: &CameraProfile) -> Result<f64> {
-    profile
-        .dn_per_electron()
-        .map_err(|e| Error::Data(e.to_string()))
-}
-
 /// Running mean of preprocessed frames (DN above bias), in bounded memory.
 #[derive(Clone, Debug)]
 pub struct FrameMean {
@@ -158,7 +151,7 @@ impl FrameSet {
 
     /// The frames' mean photoelectrons per pixel, as `profile` converts DN.
     pub fn mean_electrons(&self, profile: &CameraProfile) -> Result<f64> {
-        let k = dn_per_electron(profile)?;
+        let k = profile.dn_per_electron()?;
         // Every kept pixel is finite: `add` refuses others.
         let n = self.frames.len() * self.width * self.height;
         let sum: f64 = self.frames.iter().flatten().map(|&v| v as f64).sum();
@@ -255,7 +248,7 @@ impl RecordedPairs {
                 "noise2noise pairs frames of one static scene: the frames' exposures differ".into(),
             ));
         }
-        let slope = profile.slope().map_err(|e| Error::Data(e.to_string()))?;
+        let slope = profile.slope()?;
         let s = slope as f32;
         let scales = set
             .frames
@@ -396,7 +389,7 @@ pub fn scene_estimate(
         .map(|&v| v as f64)
         .sum::<f64>()
         / m.len() as f64;
-    let mean_electrons = finite_mean / dn_per_electron(profile)?;
+    let mean_electrons = finite_mean / profile.dn_per_electron()?;
     let peak = est
         .iter()
         .copied()
@@ -532,10 +525,15 @@ const FEW_SCENE_FRAMES: usize = 8;
 pub struct Recorded {
     method: AdaptMethod,
     ablate: Ablation,
-    mean: FrameMean,
-    set: FrameSet,
+    kept: Kept,
     exposure: Option<f64>,
     frames: usize,
+}
+
+/// What gathering keeps of the frames: their mean (resynthesis) or the frames themselves.
+enum Kept {
+    Mean(FrameMean),
+    Frames(FrameSet),
 }
 
 impl Recorded {
@@ -547,16 +545,16 @@ impl Recorded {
         ablate: Ablation,
         max_bytes: usize,
     ) -> Recorded {
-        let keep = if method == AdaptMethod::Resynthesis {
-            0
+        let (w, h) = (profile.width, profile.height);
+        let kept = if method == AdaptMethod::Resynthesis {
+            Kept::Mean(FrameMean::new(w, h))
         } else {
-            max_bytes / (4 * profile.len()).max(1)
+            Kept::Frames(FrameSet::new(w, h, max_bytes / (4 * profile.len()).max(1)))
         };
         Recorded {
             method,
             ablate,
-            mean: FrameMean::new(profile.width, profile.height),
-            set: FrameSet::new(profile.width, profile.height, keep),
+            kept,
             exposure: None,
             frames: 0,
         }
@@ -589,10 +587,9 @@ impl Recorded {
             .ok_or_else(|| Error::Data("a frame before its recording was started".into()))?;
         self.frames += 1;
         let dn = crate::pipeline::preprocess_ablated(profile, raw, t, self.ablate)?;
-        if self.method == AdaptMethod::Resynthesis {
-            self.mean.add(&dn)
-        } else {
-            self.set.add(&dn, t)
+        match &mut self.kept {
+            Kept::Mean(mean) => mean.add(&dn),
+            Kept::Frames(set) => set.add(&dn, t),
         }
     }
 
@@ -628,10 +625,9 @@ impl Recorded {
                 self.method.min_frames()
             )));
         }
-        Ok(if self.method == AdaptMethod::Resynthesis {
-            AdaptData::Scene(scene_estimate(&self.mean, profile, exposure)?)
-        } else {
-            AdaptData::Frames(self.set)
+        Ok(match self.kept {
+            Kept::Mean(mean) => AdaptData::Scene(scene_estimate(&mean, profile, exposure)?),
+            Kept::Frames(set) => AdaptData::Frames(set),
         })
     }
 }

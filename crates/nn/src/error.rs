@@ -32,5 +32,19 @@ impl Error {
     }
 }
 
+/// A profile that cannot serve a request (no slope, incomplete maps): the data are unusable.
+impl From<emccd_profile::Error> for Error {
+    fn from(e: emccd_profile::Error) -> Error {
+        Error::Data(e.to_string())
+    }
+}
+
+/// A noise model that cannot be built from the profile's parameters: the data are unusable.
+impl From<emccd_camera::Error> for Error {
+    fn from(e: emccd_camera::Error) -> Error {
+        Error::Data(e.to_string())
+    }
+}
+
 /// Result with [`Error`].
 pub type Result<T> = std::result::Result<T, Error>;

@@ -90,7 +90,7 @@ pub fn preprocess_ablated(
 /// the quantization's share.
 pub fn vst_params(p: &CameraProfile, exposure_s: f64) -> Result<emccd_eval::vst::PoissonGaussian> {
     usable(p, p.len(), exposure_s)?;
-    let slope = p.slope().map_err(|e| Error::Data(e.to_string()))?;
+    let slope = p.slope()?;
     Ok(vst_from(
         slope,
         p.read_noise_near(exposure_s),
@@ -161,7 +161,7 @@ impl Pipeline<'_> {
     pub fn denoise_preprocessed(&self, dn: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
         let p = self.profile;
         usable(p, dn.len(), exposure_s)?;
-        let slope = p.slope().map_err(|e| Error::Data(e.to_string()))?;
+        let slope = p.slope()?;
         let rn = p.read_noise_near(exposure_s);
         let inputs = self.model.meta.inputs;
         let prep = match inputs {

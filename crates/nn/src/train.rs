@@ -257,10 +257,8 @@ fn synth_sample(
     let x0 = rng.random_range(0..=w - c);
     let y0 = rng.random_range(0..=h - c);
     let mode = rng.random_range(0..8u8);
-    let slope = profile.slope().map_err(|e| Error::Data(e.to_string()))?;
-    let k_mean = profile
-        .dn_per_electron()
-        .map_err(|e| Error::Data(e.to_string()))?;
+    let slope = profile.slope()?;
+    let k_mean = profile.dn_per_electron()?;
     // Electrons per unit of the clean image (whose values lie in [0, 1]).
     let per_unit = match cfg.mean_electrons {
         Some(range) => {
@@ -299,13 +297,12 @@ fn synth_sample(
                 profile.quantization_dn,
                 vec![rn.clone()],
                 abl,
-            )
-            .map_err(|e| Error::Data(e.to_string()))?;
+            )?;
             model.synthesize(&clean, w, &mut noisy, noise_seed);
         }
-        NoiseModelKind::Eld => EldModel::from_profile(profile)
-            .map_err(|e| Error::Data(e.to_string()))?
-            .synthesize(&clean, w, &mut noisy, noise_seed),
+        NoiseModelKind::Eld => {
+            EldModel::from_profile(profile)?.synthesize(&clean, w, &mut noisy, noise_seed)
+        }
         NoiseModelKind::Pgn => {
             let pgn = profile
                 .pgn
@@ -324,8 +321,7 @@ fn synth_sample(
                 0.01,
                 pgn.read_sigma_dn,
                 profile.quantization_dn,
-            )
-            .map_err(|e| Error::Data(e.to_string()))?
+            )?
             .with_read_noise_map(rn.clone())
             .synthesize(&clean, w, &mut noisy, noise_seed)
         }
@@ -701,9 +697,7 @@ pub(crate) fn train_from(
         init,
         resume,
     } = run;
-    profile
-        .require_complete()
-        .map_err(|e| Error::Data(e.to_string()))?;
+    profile.require_complete()?;
     let c = cfg.crop;
     let synthetic: &[Image] = match &source {
         Source::Synthetic(images) => images,
