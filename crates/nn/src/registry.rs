@@ -358,12 +358,12 @@ pub struct Estimator {
 }
 
 enum Kind {
-    Input,
-    Classical(Base),
+    /// Iterative BM3D with the passes given.
     Passes(emccd_eval::vst::Schedule),
-    Network {
+    /// What `emccd denoise` runs for this method and model.
+    Denoise {
         method: Method,
-        model: Denoiser,
+        model: Option<Denoiser>,
         ensemble: usize,
     },
 }
@@ -372,10 +372,18 @@ impl Estimator {
     /// The estimator `name` stands for, with its model loaded by `load` ([`load`], or a
     /// loader that also knows models embedded in a program).
     pub fn parse(name: &str, load: impl Fn(&str) -> Result<Denoiser>) -> Result<Estimator> {
-        let kind = if name == "input" {
-            Kind::Input
-        } else if let Ok(base) = name.parse::<Base>() {
-            Kind::Classical(base)
+        let classical = match name {
+            "input" => Some(Method::None),
+            "bm3d" => Some(Method::Bm3d),
+            "ivst" => Some(Method::Ivst),
+            _ => None,
+        };
+        let kind = if let Some(method) = classical {
+            Kind::Denoise {
+                method,
+                model: None,
+                ensemble: 1,
+            }
         } else if let Some(passes) = name.strip_prefix("ivst:") {
             Kind::Passes(
                 passes
@@ -383,21 +391,21 @@ impl Estimator {
                     .map_err(|e: String| Error::Model(format!("--method {name}: {e}")))?,
             )
         } else if name == "blend" {
-            Kind::Network {
+            Kind::Denoise {
                 method: Method::Blend,
-                model: load("lowlight")?,
+                model: Some(load("lowlight")?),
                 ensemble: 1,
             }
         } else {
             let spec = ModelSpec::parse(name)?;
             let model = load(spec.model)?;
-            Kind::Network {
+            Kind::Denoise {
                 method: if model.meta.inputs == Inputs::Hybrid {
                     Method::Hybrid
                 } else {
                     Method::Net
                 },
-                model,
+                model: Some(model),
                 ensemble: spec.ensemble,
             }
         };
@@ -416,23 +424,18 @@ impl Estimator {
     /// above bias.
     pub fn run(&self, profile: &CameraProfile, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
         match &self.kind {
-            Kind::Input => preprocess(profile, raw, exposure_s),
-            Kind::Classical(base) => {
-                let pre = preprocess(profile, raw, exposure_s)?;
-                classical_estimate(profile, &pre, exposure_s, *base)
-            }
             Kind::Passes(s) => {
                 let pre = preprocess(profile, raw, exposure_s)?;
                 crate::pipeline::bm3d_passes(profile, &pre, exposure_s, &s.0)
             }
-            Kind::Network {
+            Kind::Denoise {
                 method,
                 model,
                 ensemble,
             } => FrameDenoiser {
                 profile,
                 method: *method,
-                model: Some(model),
+                model: model.as_ref(),
                 tiling: Tiling::default(),
                 ensemble: *ensemble,
                 to_units: 1.0,
