@@ -185,9 +185,9 @@ pub fn run(a: Args) -> Result<()> {
         data,
         AdaptRun {
             profile: &profile,
-            start: start,
+            start,
             cfg: &cfg,
-            provenance: provenance,
+            provenance,
             paths: &paths,
             resume: a.resume,
         },
