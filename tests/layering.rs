@@ -9,7 +9,7 @@ const ALLOWED: [(&str, &[&str]); 6] = [
     ("io", &[]),
     ("profile", &["emccd-io"]),
     ("camera", &["emccd-profile"]),
-    ("eval", &["emccd-io"]),
+    ("eval", &["emccd-camera", "emccd-io", "emccd-profile"]),
     ("calib", &["emccd-io", "emccd-profile"]),
     (
         "nn",

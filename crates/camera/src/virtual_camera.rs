@@ -123,6 +123,16 @@ impl VirtualCamera {
         })
     }
 
+    /// A camera over the top-left `width`×`height` of this one's sensor, with the same physics
+    /// (hot pixels drawn for that size, as a camera built on the cropped profile draws them).
+    pub fn crop(&self, width: usize, height: usize) -> Result<VirtualCamera, Error> {
+        let profile = self
+            .profile
+            .crop(0, 0, width, height)
+            .map_err(|e| Error::Parameter(e.to_string()))?;
+        VirtualCamera::new(profile, self.physics.clone())
+    }
+
     /// The bundled default profile with default physics.
     pub fn default_camera() -> VirtualCamera {
         VirtualCamera::new(emccd_profile::default_profile(), PhysicalParams::default())

@@ -317,11 +317,8 @@ fn denoise_bench(
         .iter()
         .zip(&specs)
         .map(|(m, s)| Pipeline {
-            model: m,
-            profile: &profile,
-            tiling: Default::default(),
             ensemble: s.ensemble,
-            device: emccd_nn::device(),
+            ..Pipeline::new(m, &profile)
         })
         .collect();
     let e = cam.exposure(0.01);

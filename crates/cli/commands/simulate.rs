@@ -4,13 +4,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use emccd_calib::manifest::{Entry, Manifest as CalibrationManifest};
-use emccd_camera::acquisition::{
-    frame_seed, pair_seed, CalibrationPlan, PairLevel, PlannedStack, Role,
-};
+use emccd_camera::acquisition::{frame_seed, CalibrationPlan, PairLevel, PlannedStack, Role};
 use emccd_camera::{PhysicalParams, VirtualCamera};
-use emccd_eval::{Pair, PairsManifest};
+use emccd_eval::virtual_pairs::{write_pairs, Denoise, PairsPlan};
 use emccd_io::{Metadata, SampleFormat, StackWriter};
-use emccd_profile::preprocess;
+use emccd_nn::pipeline::Pipeline;
+use emccd_profile::CameraProfile;
 
 use crate::common::{load_profile, parse_size, progress};
 
@@ -53,16 +52,8 @@ impl CameraOpts {
         })
     }
 
-    /// A camera over `profile` (or its top-left `roi`) with the physics flags.
-    fn camera(
-        &self,
-        profile: &emccd_profile::CameraProfile,
-        roi: Option<(usize, usize)>,
-    ) -> Result<VirtualCamera> {
-        let p = match roi {
-            Some((w, h)) => profile.crop(0, 0, w, h)?,
-            None => profile.clone(),
-        };
+    /// The camera: the truth profile with the physics flags.
+    fn camera(&self) -> Result<VirtualCamera> {
         let phys = PhysicalParams {
             qe: self.qe,
             dark_e_per_s: self.dark,
@@ -71,7 +62,7 @@ impl CameraOpts {
             hot_dark_e_per_s: self.hot_dark,
             seed: self.seed ^ 0x5eed,
         };
-        Ok(VirtualCamera::new(p, phys)?)
+        Ok(VirtualCamera::new(self.profile()?, phys)?)
     }
 }
 
@@ -239,7 +230,7 @@ fn write_stack(
 fn calibration(out: &Path, plan: &CalibrationPlan, opts: &CameraOpts) -> Result<()> {
     // The plan's own check, which names each setting as its flag does.
     plan.check().map_err(|e| anyhow::anyhow!("--{e}"))?;
-    let cam = opts.camera(&opts.profile()?, None)?;
+    let cam = opts.camera()?;
     let stacks = plan.stacks(&cam, opts.seed)?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let pb = progress(plan.total_frames(), "frames");
@@ -295,213 +286,31 @@ fn pairs(
         bail!("--frames must be at least 1");
     }
     let scenes = emccd_io::image_files(clean)?;
-    let dirs: &[&str] = if model.is_some() {
-        &["noisy", "clean", "preview", "denoised"]
-    } else {
-        &["noisy", "clean", "preview"]
+    let camera = opts.camera()?;
+    let run_model = |profile: &CameraProfile, raw: &[f32], exposure_s: f64| {
+        let m = model.as_ref().expect("called only with a model");
+        Pipeline::new(m, profile)
+            .denoise_raw(raw, exposure_s)
+            .map_err(|e| e.to_string())
     };
-    check_outputs(&scenes, levels, dirs, out)?;
-    // Folders this run creates hold only what it writes: on failure they are removed again, so
-    // a failed run leaves nothing behind (folders that existed before are left alone).
-    let mut created: Vec<PathBuf> = Vec::new();
-    for dir in std::iter::once(out.to_path_buf()).chain(dirs.iter().map(|d| out.join(d))) {
-        if !dir.exists() {
-            created.push(dir.clone());
-        }
-        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-    }
-    // Stopped by Ctrl-C, the run's own folders go too if nothing was finished in them.
-    for d in &created {
-        emccd_io::track_new_dir(d);
-    }
-    let r = write_pairs(&scenes, levels, frames, model.as_ref(), out, opts);
-    emccd_io::untrack_new_dirs();
-    if r.is_err() {
-        // `out` first if this run made it: everything under it is then this run's.
-        for d in &created {
-            let _ = std::fs::remove_dir_all(d);
-        }
-    }
-    r
-}
-
-/// The stem of scene `si`'s output names.
-fn scene_stem(si: usize, scene: &Path) -> String {
-    scene
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_else(|| format!("scene{si}"))
-}
-
-/// Refuses, before anything is written, a run that would overwrite its own outputs (two scenes
-/// with one file stem, from different folders) or an input scene (one that lies where an
-/// output goes, which would be replaced before it is read).
-fn check_outputs(
-    scenes: &[PathBuf],
-    levels: &[PairLevel],
-    dirs: &[&str],
-    out: &Path,
-) -> Result<()> {
-    let stems: Vec<String> = scenes
-        .iter()
-        .enumerate()
-        .map(|(i, s)| scene_stem(i, s))
-        .collect();
-    let mut by_stem: std::collections::HashMap<&str, &Path> = Default::default();
-    for (stem, scene) in stems.iter().zip(scenes) {
-        if let Some(other) = by_stem.insert(stem, scene) {
-            bail!(
-                "scenes {} and {} have the same name, so their pairs would overwrite each other; rename one",
-                other.display(),
-                scene.display()
-            );
-        }
-    }
-    let inputs: std::collections::HashSet<emccd_io::FileId> =
-        scenes.iter().map(|p| emccd_io::FileId::of(p)).collect();
-    for stem in &stems {
-        for lv in levels {
-            let name = lv.pair_name(stem);
-            for d in dirs {
-                let ext = if *d == "preview" { "png" } else { "tif" };
-                let o = out.join(d).join(format!("{name}.{ext}"));
-                if inputs.contains(&emccd_io::FileId::of(&o)) {
-                    bail!(
-                        "{}: an output of this run is an input scene; choose another -o, inputs are never overwritten",
-                        o.display()
-                    );
-                }
-            }
-        }
-    }
-    Ok(())
-}
-
-fn write_pairs(
-    scenes: &[PathBuf],
-    levels: &[PairLevel],
-    frames: usize,
-    model: Option<&emccd_nn::Denoiser>,
-    out: &Path,
-    opts: &CameraOpts,
-) -> Result<()> {
-    let truth = opts.profile()?;
-    let full = opts.camera(&truth, None)?;
+    let plan = PairsPlan {
+        scenes: &scenes,
+        levels,
+        frames,
+        seed: opts.seed,
+        camera_name: "virtual-897",
+        profile: &opts.profile,
+    };
     let pb = progress((scenes.len() * levels.len()) as u64, "pairs");
-    let mut manifest = PairsManifest {
-        camera: Some("virtual-897".into()),
-        profile: Some(opts.profile.clone()),
-        em_gain: Some(full.em_gain),
-        k_dn_per_e: Some(full.k_dn()),
-        qe: Some(full.physics.qe),
-        note: Some("noisy: raw 16-bit frames; clean: photo-signal in DN above bias (K·QE·photons), float32. \
-               psnr_input_db: preprocessed noisy frame (eq. 4 with the true FPN and blooming) against clean, \
-               data range = the clean frame's peak."
-            .into()),
-        pair: vec![],
-    };
-    for (si, scene) in scenes.iter().enumerate() {
-        let img = emccd_io::Image::read_scene(scene)
-            .with_context(|| format!("reading scene {}", scene.display()))?;
-        let (w, h) = (img.width.min(full.width()), img.height.min(full.height()));
-        let cam = if (w, h) == (full.width(), full.height()) {
-            full.clone()
-        } else {
-            opts.camera(&truth, Some((w, h)))?
-        };
-        let img = img.center_crop(w, h).data;
-        let stem = scene_stem(si, scene);
-        for (pi, lv) in levels.iter().enumerate() {
-            let (level, exposure_s) = (lv.photons, lv.exposure_s);
-            let pair = cam.test_pair(&img, level, exposure_s, pair_seed(opts.seed, si, pi));
-            let (e, truth) = (&pair.exposure, &pair.truth);
-            let name = lv.pair_name(&stem);
-            let noisy_rel = format!("noisy/{name}.tif");
-            let clean_rel = format!("clean/{name}.tif");
-            let preview_rel = format!("preview/{name}.png");
-            let mut wr =
-                StackWriter::create(out.join(&noisy_rel), w, h, SampleFormat::U16, Some(frames))?;
-            wr.set_metadata(&Metadata {
-                exposure_s: Some(exposure_s),
-                em_gain: Some(cam.em_gain),
-                camera_model: Some("virtual-897".into()),
-                ..Default::default()
-            });
-            let mut raw = vec![0f32; w * h];
-            let mut first = Vec::new();
-            for k in 0..frames {
-                pair.frame(k, &mut raw);
-                wr.write_frame(&raw)?;
-                if k == 0 {
-                    first = raw.clone();
-                }
-            }
-            wr.finish()?;
-            let mut cw =
-                StackWriter::create(out.join(&clean_rel), w, h, SampleFormat::F32, Some(1))?;
-            cw.set_metadata(&Metadata {
-                exposure_s: Some(exposure_s),
-                ..Default::default()
-            });
-            cw.write_frame(truth)?;
-            cw.finish()?;
-            let raw_first = first.clone();
-            // Preview and input PSNR use the preprocessed frame (true FPN and blooming removed).
-            preprocess(&mut first, w, e.blooming_x, &e.fpn);
-            let peak = truth.iter().copied().fold(0f32, f32::max).max(1.0);
-            let p_in = emccd_eval::psnr(&first, truth, peak as f64);
-            let mut panels: Vec<&[f32]> = vec![&first];
-            let mut denoised_out = None;
-            let den;
-            if let Some(m) = &model {
-                // The profile the camera was built from, as a user's calibrated profile.
-                let prof = cam.profile.clone();
-                let pipe = emccd_nn::pipeline::Pipeline {
-                    model: m,
-                    profile: &prof,
-                    tiling: Default::default(),
-                    ensemble: 1,
-                    device: emccd_nn::device(),
-                };
-                den = pipe.denoise_raw(&raw_first, exposure_s)?;
-                let rel = format!("denoised/{name}.tif");
-                let mut dw = StackWriter::create(out.join(&rel), w, h, SampleFormat::F32, Some(1))?;
-                dw.write_frame(&den)?;
-                dw.finish()?;
-                denoised_out = Some((
-                    rel,
-                    (emccd_eval::psnr(&den, truth, peak as f64) * 100.0).round() / 100.0,
-                ));
-                panels.push(&den);
-            }
-            panels.push(truth);
-            let np = panels.len();
-            let side = emccd_eval::scores::side_by_side(&panels, w, (0, 0), (w, h));
-            emccd_io::write_png_preview(out.join(&preview_rel), np * w, h, &side, 0.0, peak)?;
-            manifest.pair.push(Pair {
-                scene: scene.display().to_string(),
-                noisy: noisy_rel,
-                clean: clean_rel,
-                preview: Some(preview_rel),
-                exposure_s,
-                photons: level,
-                exposure_ratio: lv.ratio,
-                mean_electrons: None,
-                frames: Some(frames),
-                width: Some(w),
-                height: Some(h),
-                psnr_input_db: Some((p_in * 100.0).round() / 100.0),
-                denoised: denoised_out.as_ref().map(|d| d.0.clone()),
-                psnr_denoised_db: denoised_out.map(|d| d.1),
-            });
-            pb.inc(1);
-        }
-    }
+    let manifest = write_pairs(
+        out,
+        &plan,
+        &camera,
+        model.is_some().then_some(&run_model as &Denoise),
+        || pb.inc(1),
+    )
+    .map_err(anyhow::Error::msg)?;
     pb.finish_and_clear();
-    emccd_io::write_atomic(
-        out.join(PairsManifest::FILE),
-        manifest.to_toml("`emccd simulate pairs`").as_bytes(),
-    )?;
     println!(
         "{:<40} {:>9} {:>12} {:>14}",
         "pair", "photons", "PSNR in (dB)", "denoised (dB)"

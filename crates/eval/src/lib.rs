@@ -19,6 +19,7 @@
 pub mod bm3d;
 pub mod pairs;
 pub mod scores;
+pub mod virtual_pairs;
 pub mod vst;
 
 pub use pairs::{Pair, PairFrames, PairsManifest};

@@ -150,6 +150,20 @@ pub fn bm3d_passes(
     ))
 }
 
+impl<'a> Pipeline<'a> {
+    /// Plain inference of `model` through `profile`: default tiling, no self-ensemble, on
+    /// [`crate::device`].
+    pub fn new(model: &'a Denoiser, profile: &'a CameraProfile) -> Pipeline<'a> {
+        Pipeline {
+            model,
+            profile,
+            tiling: Tiling::default(),
+            ensemble: 1,
+            device: crate::device(),
+        }
+    }
+}
+
 impl Pipeline<'_> {
     /// The preprocessed frame (DN above bias) at `exposure_s`: blooming and FPN removed, unless
     /// the model was made for an ablation that skips them.

@@ -1,0 +1,333 @@
+//! A folder of test pairs from the virtual camera, as `emccd simulate pairs` writes it: per
+//! scene and light level a stack of noisy raw frames (`noisy/`, 16-bit), the ground truth
+//! (`clean/`, DN above bias, float32), a preview PNG (`preview/`) and, with a denoiser, its
+//! output for the first frame (`denoised/`); then `pairs.toml`.
+
+use std::collections::{HashMap, HashSet};
+use std::path::{Path, PathBuf};
+
+use emccd_camera::acquisition::{pair_seed, PairLevel};
+use emccd_camera::VirtualCamera;
+use emccd_io::{FileId, Metadata, SampleFormat, StackWriter};
+use emccd_profile::CameraProfile;
+
+use crate::{Pair, PairsManifest};
+
+/// What to write: the scenes, the levels, and how the manifest names the camera.
+#[derive(Clone, Debug)]
+pub struct PairsPlan<'a> {
+    /// Clean scenes (image files, values in [0, 1]); one larger than the camera is
+    /// centre-cropped to it, a smaller one gets a camera over the sensor's top-left corner.
+    pub scenes: &'a [PathBuf],
+    /// The light levels of every scene.
+    pub levels: &'a [PairLevel],
+    /// Noisy frames per pair (≥ 1).
+    pub frames: usize,
+    /// The run's seed: pair (scene, level) draws from [`pair_seed`]`(seed, scene, level)`.
+    pub seed: u64,
+    /// The camera's name, in the manifest and the frames' metadata.
+    pub camera_name: &'a str,
+    /// The profile the manifest names (`default`, or a path as given).
+    pub profile: &'a str,
+}
+
+/// Denoises a raw frame (profile, frame, exposure in s) to DN above bias.
+pub type Denoise<'a> = dyn Fn(&CameraProfile, &[f32], f64) -> Result<Vec<f32>, String> + 'a;
+
+/// The subfolders a run writes.
+fn subfolders(denoised: bool) -> &'static [&'static str] {
+    if denoised {
+        &["noisy", "clean", "preview", "denoised"]
+    } else {
+        &["noisy", "clean", "preview"]
+    }
+}
+
+/// The stem of scene `si`'s output names.
+fn scene_stem(si: usize, scene: &Path) -> String {
+    scene
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| format!("scene{si}"))
+}
+
+/// Writes the pairs of `plan` from `camera` to `out` and returns the manifest it wrote, calling
+/// `tick` after each pair. `denoise` also denoises each pair's first frame (with the camera's
+/// own profile, as a user's calibrated profile) and records the PSNR after. Refuses, before
+/// anything is written, a run that would overwrite its own outputs (two scenes with one file
+/// stem) or an input scene; folders it creates are removed again if it fails or is stopped.
+pub fn write_pairs(
+    out: &Path,
+    plan: &PairsPlan,
+    camera: &VirtualCamera,
+    denoise: Option<&Denoise>,
+    mut tick: impl FnMut(),
+) -> Result<PairsManifest, String> {
+    if plan.frames == 0 {
+        return Err("a pair needs at least 1 noisy frame".into());
+    }
+    let dirs = subfolders(denoise.is_some());
+    check_outputs(plan, dirs, out)?;
+    let mut created: Vec<PathBuf> = Vec::new();
+    for dir in std::iter::once(out.to_path_buf()).chain(dirs.iter().map(|d| out.join(d))) {
+        if !dir.exists() {
+            created.push(dir.clone());
+        }
+        std::fs::create_dir_all(&dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
+    }
+    // Stopped by Ctrl-C, the run's own folders go too if nothing was finished in them.
+    for d in &created {
+        emccd_io::track_new_dir(d);
+    }
+    let r = write_all(out, plan, camera, denoise, &mut tick);
+    emccd_io::untrack_new_dirs();
+    if r.is_err() {
+        // `out` first if this run made it: everything under it is then this run's.
+        for d in &created {
+            let _ = std::fs::remove_dir_all(d);
+        }
+    }
+    r
+}
+
+fn check_outputs(plan: &PairsPlan, dirs: &[&str], out: &Path) -> Result<(), String> {
+    let stems: Vec<String> = plan
+        .scenes
+        .iter()
+        .enumerate()
+        .map(|(i, s)| scene_stem(i, s))
+        .collect();
+    let mut by_stem: HashMap<&str, &Path> = HashMap::new();
+    for (stem, scene) in stems.iter().zip(plan.scenes) {
+        if let Some(other) = by_stem.insert(stem, scene) {
+            return Err(format!(
+                "scenes {} and {} have the same name, so their pairs would overwrite each other; rename one",
+                other.display(),
+                scene.display()
+            ));
+        }
+    }
+    let inputs: HashSet<FileId> = plan.scenes.iter().map(|p| FileId::of(p)).collect();
+    for stem in &stems {
+        for lv in plan.levels {
+            let name = lv.pair_name(stem);
+            for d in dirs {
+                let ext = if *d == "preview" { "png" } else { "tif" };
+                let o = out.join(d).join(format!("{name}.{ext}"));
+                if inputs.contains(&FileId::of(&o)) {
+                    return Err(format!(
+                        "{}: an output of this run is an input scene; choose another -o, inputs are never overwritten",
+                        o.display()
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Rounds a dB figure to the manifest's two decimals.
+fn db2(v: f64) -> f64 {
+    (v * 100.0).round() / 100.0
+}
+
+fn write_all(
+    out: &Path,
+    plan: &PairsPlan,
+    full: &VirtualCamera,
+    denoise: Option<&Denoise>,
+    tick: &mut dyn FnMut(),
+) -> Result<PairsManifest, String> {
+    let io = |e: emccd_io::Error| e.to_string();
+    let mut manifest = PairsManifest {
+        camera: Some(plan.camera_name.into()),
+        profile: Some(plan.profile.into()),
+        em_gain: Some(full.em_gain),
+        k_dn_per_e: Some(full.k_dn()),
+        qe: Some(full.physics.qe),
+        note: Some("noisy: raw 16-bit frames; clean: photo-signal in DN above bias (K·QE·photons), float32. \
+               psnr_input_db: preprocessed noisy frame (eq. 4 with the true FPN and blooming) against clean, \
+               data range = the clean frame's peak."
+            .into()),
+        pair: vec![],
+    };
+    for (si, scene) in plan.scenes.iter().enumerate() {
+        let img = emccd_io::Image::read_scene(scene)
+            .map_err(|e| format!("reading scene {}: {e}", scene.display()))?;
+        let (w, h) = (img.width.min(full.width()), img.height.min(full.height()));
+        let cropped;
+        let cam = if (w, h) == (full.width(), full.height()) {
+            full
+        } else {
+            cropped = full.crop(w, h).map_err(|e| e.to_string())?;
+            &cropped
+        };
+        let img = img.center_crop(w, h).data;
+        let stem = scene_stem(si, scene);
+        for (pi, lv) in plan.levels.iter().enumerate() {
+            let (level, exposure_s) = (lv.photons, lv.exposure_s);
+            let pair = cam.test_pair(&img, level, exposure_s, pair_seed(plan.seed, si, pi));
+            let (e, truth) = (&pair.exposure, &pair.truth);
+            let name = lv.pair_name(&stem);
+            let noisy_rel = format!("noisy/{name}.tif");
+            let clean_rel = format!("clean/{name}.tif");
+            let preview_rel = format!("preview/{name}.png");
+            let mut wr = StackWriter::create(
+                out.join(&noisy_rel),
+                w,
+                h,
+                SampleFormat::U16,
+                Some(plan.frames),
+            )
+            .map_err(io)?;
+            wr.set_metadata(&Metadata {
+                exposure_s: Some(exposure_s),
+                em_gain: Some(cam.em_gain),
+                camera_model: Some(plan.camera_name.into()),
+                ..Default::default()
+            });
+            let mut raw = vec![0f32; w * h];
+            let mut first = Vec::new();
+            for k in 0..plan.frames {
+                pair.frame(k, &mut raw);
+                wr.write_frame(&raw).map_err(io)?;
+                if k == 0 {
+                    first = raw.clone();
+                }
+            }
+            wr.finish().map_err(io)?;
+            let mut cw =
+                StackWriter::create(out.join(&clean_rel), w, h, SampleFormat::F32, Some(1))
+                    .map_err(io)?;
+            cw.set_metadata(&Metadata {
+                exposure_s: Some(exposure_s),
+                ..Default::default()
+            });
+            cw.write_frame(truth).map_err(io)?;
+            cw.finish().map_err(io)?;
+            let raw_first = first.clone();
+            // Preview and input PSNR use the preprocessed frame (true FPN and blooming removed).
+            emccd_profile::preprocess(&mut first, w, e.blooming_x, &e.fpn);
+            let peak = truth.iter().copied().fold(0f32, f32::max).max(1.0);
+            let p_in = crate::psnr(&first, truth, peak as f64);
+            let mut panels: Vec<&[f32]> = vec![&first];
+            let mut denoised = None;
+            let den;
+            if let Some(d) = denoise {
+                den = d(&cam.profile, &raw_first, exposure_s)?;
+                let rel = format!("denoised/{name}.tif");
+                let mut dw = StackWriter::create(out.join(&rel), w, h, SampleFormat::F32, Some(1))
+                    .map_err(io)?;
+                dw.write_frame(&den).map_err(io)?;
+                dw.finish().map_err(io)?;
+                denoised = Some((rel, db2(crate::psnr(&den, truth, peak as f64))));
+                panels.push(&den);
+            }
+            panels.push(truth);
+            let np = panels.len();
+            let side = crate::scores::side_by_side(&panels, w, (0, 0), (w, h));
+            emccd_io::write_png_preview(out.join(&preview_rel), np * w, h, &side, 0.0, peak)
+                .map_err(io)?;
+            let (denoised, psnr_denoised_db) = denoised.unzip();
+            manifest.pair.push(Pair {
+                scene: scene.display().to_string(),
+                noisy: noisy_rel,
+                clean: clean_rel,
+                preview: Some(preview_rel),
+                exposure_s,
+                photons: level,
+                exposure_ratio: lv.ratio,
+                mean_electrons: None,
+                frames: Some(plan.frames),
+                width: Some(w),
+                height: Some(h),
+                psnr_input_db: Some(db2(p_in)),
+                denoised,
+                psnr_denoised_db,
+            });
+            tick();
+        }
+    }
+    emccd_io::write_atomic(
+        out.join(PairsManifest::FILE),
+        manifest.to_toml("`emccd simulate pairs`").as_bytes(),
+    )
+    .map_err(io)?;
+    Ok(manifest)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 12×10 gradient scene written as a float TIFF under `dir/name`.
+    fn scene(dir: &Path, name: &str) -> PathBuf {
+        let path = dir.join(name);
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        let mut w = StackWriter::create(&path, 12, 10, SampleFormat::F32, Some(1)).unwrap();
+        let v: Vec<f32> = (0..120).map(|i| (i % 12) as f32 / 11.0).collect();
+        w.write_frame(&v).unwrap();
+        w.finish().unwrap();
+        path
+    }
+
+    #[test]
+    fn writes_pairs_that_read_back_and_refuses_clashing_names() {
+        let dir = tempfile::tempdir().unwrap();
+        let cam = VirtualCamera::new(
+            emccd_profile::default_profile().crop(0, 0, 16, 8).unwrap(),
+            Default::default(),
+        )
+        .unwrap();
+        let scenes = [scene(dir.path(), "a.tif")];
+        let levels = [PairLevel {
+            exposure_s: 0.01,
+            photons: 30.0,
+            ratio: None,
+        }];
+        let plan = PairsPlan {
+            scenes: &scenes,
+            levels: &levels,
+            frames: 2,
+            seed: 3,
+            camera_name: "test-cam",
+            profile: "default",
+        };
+        let out = dir.path().join("pairs");
+        let mut ticks = 0;
+        let m = write_pairs(&out, &plan, &cam, None, || ticks += 1).unwrap();
+        assert_eq!(ticks, 1);
+        // 12×10 scene on a 16×8 camera: 12 wide (the camera over the corner), 8 high (cropped).
+        let back = PairsManifest::load(&out).unwrap();
+        assert_eq!(back.pair.len(), 1);
+        assert_eq!((m.pair[0].width, m.pair[0].height), (Some(12), Some(8)));
+        let f = back.pair[0].read(&out).unwrap();
+        let img = emccd_io::Image::read_scene(&scenes[0])
+            .unwrap()
+            .center_crop(12, 8)
+            .data;
+        let corner = cam.crop(12, 8).unwrap();
+        let want = corner.test_pair(&img, 30.0, 0.01, pair_seed(3, 0, 0));
+        assert_eq!(f.clean, want.truth);
+        let mut raw = vec![0f32; 96];
+        want.frame(0, &mut raw);
+        assert_eq!(f.noisy, raw);
+
+        // Two scenes with one stem would overwrite each other: refused, nothing written.
+        let twins = [scenes[0].clone(), scene(dir.path(), "b/a.tif")];
+        let other = dir.path().join("other");
+        let e = write_pairs(
+            &other,
+            &PairsPlan {
+                scenes: &twins,
+                ..plan
+            },
+            &cam,
+            None,
+            || {},
+        )
+        .unwrap_err();
+        assert!(e.contains("same name"), "{e}");
+        assert!(!other.exists());
+    }
+}
