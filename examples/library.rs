@@ -1,5 +1,5 @@
 //! The libraries without the CLI, end to end: record a calibration acquisition with the virtual
-//! camera (`emccd-camera`, written with `emccd-io`), calibrate it (`emccd-calib`), synthesize
+//! camera (`emccd-camera`), calibrate it (`emccd-calib`), synthesize
 //! training pairs from the calibrated profile and fine-tune the bundled network a few steps
 //! (`emccd-nn`), then denoise a low-light frame and score it (`emccd-eval`), and adapt the network
 //! to a short recording of that scene with no clean image (`emccd_nn::adapt`).
@@ -8,13 +8,10 @@
 //!
 //! Everything it writes goes to a temporary folder that is removed at the end.
 
-use std::path::Path;
-
 use anyhow::Result;
-use emccd_calib::manifest::{Entry, Manifest};
-use emccd_camera::acquisition::{frame_seed, CalibrationPlan, PlannedStack, Role};
+use emccd_calib::manifest::Manifest;
+use emccd_camera::acquisition::CalibrationPlan;
 use emccd_camera::{PhysicalParams, VirtualCamera};
-use emccd_io::{Metadata, SampleFormat, StackWriter};
 use emccd_nn::adapt::{
     adapt, AdaptConfig, AdaptData, AdaptMethod, AdaptRun, Adaptation, FrameSet, Start,
 };
@@ -24,26 +21,6 @@ use emccd_profile::CameraProfile;
 
 /// A 64×64 sub-array keeps the example to seconds.
 const SIZE: usize = 64;
-
-/// Writes one planned stack of the acquisition as 16-bit TIFF.
-fn record(cam: &VirtualCamera, dir: &Path, stack: &PlannedStack, frames: usize) -> Result<()> {
-    let path = dir.join(&stack.file);
-    std::fs::create_dir_all(path.parent().unwrap_or(dir))?;
-    let mut w = StackWriter::create(&path, SIZE, SIZE, SampleFormat::U16, Some(frames))?;
-    w.set_metadata(&Metadata {
-        exposure_s: Some(stack.exposure_s),
-        em_gain: Some(cam.em_gain),
-        ..Default::default()
-    });
-    let e = cam.exposure(stack.exposure_s);
-    let mut buf = vec![0f32; SIZE * SIZE];
-    for k in 0..frames {
-        e.frame(&stack.photons, frame_seed(stack.seed, k), &mut buf);
-        w.write_frame(&buf)?;
-    }
-    w.finish()?;
-    Ok(())
-}
 
 fn main() -> Result<()> {
     let dir = tempfile::tempdir()?;
@@ -60,25 +37,8 @@ fn main() -> Result<()> {
         blooming_exposures_s: vec![],
         ..Default::default()
     };
-    let mut manifest = Manifest {
-        camera: "virtual".into(),
-        em_gain: cam.em_gain,
-        ..Default::default()
-    };
-    for stack in plan.stacks(&cam, 1)? {
-        record(&cam, dir.path(), &stack, plan.frames)?;
-        let entry = Entry {
-            file: stack.file.into(),
-            exposure_s: Some(stack.exposure_s),
-        };
-        match stack.role {
-            Role::Bias => manifest.bias.push(entry),
-            Role::Flat => manifest.flat.push(entry),
-            Role::Blooming => manifest.blooming.push(entry),
-        }
-    }
+    plan.record(&cam, 1, dir.path(), "virtual", "examples/library.rs", || {})?;
     let path = dir.path().join("calibration.toml");
-    std::fs::write(&path, manifest.to_toml("examples/library.rs"))?;
 
     // 3. Calibrate: the photon-transfer slope comes back.
     let cal = emccd_calib::calibrate(

@@ -8,7 +8,7 @@ use std::collections::BTreeSet;
 const ALLOWED: [(&str, &[&str]); 6] = [
     ("io", &[]),
     ("profile", &["emccd-io"]),
-    ("camera", &["emccd-profile"]),
+    ("camera", &["emccd-calib", "emccd-io", "emccd-profile"]),
     ("eval", &["emccd-camera", "emccd-io", "emccd-profile"]),
     ("calib", &["emccd-io", "emccd-profile"]),
     (

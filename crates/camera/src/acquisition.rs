@@ -1,10 +1,14 @@
-//! What the virtual camera records, decided here and written by the caller (`emccd simulate`
-//! streams it to TIFF with a progress bar): a calibration acquisition as a user records one —
-//! dark (bias) stacks at several exposures, flat fields at several light levels, and blooming
-//! frames — with the truth it is made from; and test pairs, noisy frames of a clean scene with
-//! their ground truth, at the light levels asked for.
+//! What the virtual camera records: a calibration acquisition as a user records one — dark
+//! (bias) stacks at several exposures, flat fields at several light levels, and blooming frames —
+//! written as 16-bit TIFF stacks with the manifest `emccd-calib` reads
+//! ([`CalibrationPlan::record`]), and the truth it is made from; and test pairs, noisy frames of
+//! a clean scene with their ground truth, at the light levels asked for.
 
 use std::fmt::Write as _;
+use std::path::Path;
+
+use emccd_calib::manifest::{Entry, Manifest};
+use emccd_io::{Metadata, SampleFormat, StackWriter};
 
 use crate::{Error, Exposure, VirtualCamera};
 
@@ -152,6 +156,67 @@ impl CalibrationPlan {
             });
         }
         Ok(out)
+    }
+
+    /// Records the acquisition with `cam` into `dir` (made if missing): every stack of
+    /// [`CalibrationPlan::stacks`] as a 16-bit TIFF streamed frame by frame, then its manifest
+    /// `calibration.toml` (written atomically, naming the camera `camera_name` and the writer
+    /// `written_by`), which is returned. `tick` is called after every frame.
+    pub fn record(
+        &self,
+        cam: &VirtualCamera,
+        seed: u64,
+        dir: &Path,
+        camera_name: &str,
+        written_by: &str,
+        mut tick: impl FnMut(),
+    ) -> Result<Manifest, Error> {
+        let mut manifest = Manifest {
+            camera: camera_name.into(),
+            em_gain: cam.em_gain,
+            ..Default::default()
+        };
+        for stack in self.stacks(cam, seed)? {
+            let path = dir.join(&stack.file);
+            if let Some(parent) = path.parent() {
+                std::fs::create_dir_all(parent).map_err(emccd_io::Error::from)?;
+            }
+            let mut w = StackWriter::create(
+                &path,
+                cam.width(),
+                cam.height(),
+                SampleFormat::U16,
+                Some(self.frames),
+            )?;
+            w.set_metadata(&Metadata {
+                exposure_s: Some(stack.exposure_s),
+                em_gain: Some(cam.em_gain),
+                camera_model: Some(camera_name.into()),
+                ..Default::default()
+            });
+            let e = cam.exposure(stack.exposure_s);
+            let mut buf = vec![0f32; cam.profile.len()];
+            for k in 0..self.frames {
+                e.frame(&stack.photons, frame_seed(stack.seed, k), &mut buf);
+                w.write_frame(&buf)?;
+                tick();
+            }
+            w.finish()?;
+            let entry = Entry {
+                file: stack.file.into(),
+                exposure_s: Some(stack.exposure_s),
+            };
+            match stack.role {
+                Role::Bias => manifest.bias.push(entry),
+                Role::Flat => manifest.flat.push(entry),
+                Role::Blooming => manifest.blooming.push(entry),
+            }
+        }
+        emccd_io::write_atomic(
+            dir.join("calibration.toml"),
+            manifest.to_toml(written_by).as_bytes(),
+        )?;
+        Ok(manifest)
     }
 
     /// The truth of this acquisition made by `cam`, as `truth.toml` holds it (the maps are in
@@ -347,6 +412,42 @@ mod tests {
             ..plan
         };
         assert!(bad.check().unwrap_err().to_string().contains("flat-levels"));
+    }
+
+    #[test]
+    fn a_recorded_acquisition_reads_back_through_its_manifest() {
+        let p = emccd_profile::default_profile().crop(0, 0, 8, 6).unwrap();
+        let cam = VirtualCamera::new(p, PhysicalParams::default()).unwrap();
+        let plan = CalibrationPlan {
+            frames: 3,
+            bias_exposures_s: vec![0.01],
+            flat_levels_dn: vec![100.0, 200.0],
+            blooming_exposures_s: vec![0.01],
+            ..Default::default()
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let mut frames = 0;
+        let m = plan
+            .record(&cam, 5, dir.path(), "cam", "a test", || frames += 1)
+            .unwrap();
+        assert_eq!(frames, plan.total_frames());
+        let back = Manifest::load(dir.path().join("calibration.toml")).unwrap();
+        assert_eq!(
+            (back.bias.len(), back.flat.len(), back.blooming.len()),
+            (1, 2, 1)
+        );
+        assert_eq!(back.camera, "cam");
+        // The second flat's third frame is the frame the plan's seed gives.
+        let stack = &plan.stacks(&cam, 5).unwrap()[2];
+        let mut r = emccd_io::open(dir.path().join(&m.flat[1].file)).unwrap();
+        let mut got = vec![0f32; 48];
+        for _ in 0..3 {
+            assert!(r.read_frame(&mut got).unwrap());
+        }
+        let mut want = vec![0f32; 48];
+        cam.exposure(0.01)
+            .frame(&stack.photons, frame_seed(stack.seed, 2), &mut want);
+        assert_eq!(got, want);
     }
 
     #[test]

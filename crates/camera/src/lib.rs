@@ -41,11 +41,15 @@ pub mod virtual_camera;
 pub use noise::{Ablation, EldModel, Moments, NoiseModel, NoiseModelKind, OursModel, PgnModel};
 pub use virtual_camera::{Exposure, PhysicalParams, VirtualCamera};
 
-/// Errors from building a model with invalid parameters.
+/// Errors from building a model with invalid parameters, or from writing what the camera
+/// recorded.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum Error {
     /// A parameter is outside its valid range.
     #[error("{0}")]
     Parameter(String),
+    /// A recording could not be written.
+    #[error(transparent)]
+    Write(#[from] emccd_io::Error),
 }

@@ -3,11 +3,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use emccd_calib::manifest::{Entry, Manifest as CalibrationManifest};
-use emccd_camera::acquisition::{frame_seed, CalibrationPlan, PairLevel, PlannedStack, Role};
+use emccd_camera::acquisition::{CalibrationPlan, PairLevel};
 use emccd_camera::{PhysicalParams, VirtualCamera};
 use emccd_eval::virtual_pairs::{write_pairs, Denoise, PairsPlan};
-use emccd_io::{Metadata, SampleFormat, StackWriter};
 use emccd_nn::pipeline::Pipeline;
 use emccd_profile::CameraProfile;
 
@@ -191,71 +189,21 @@ fn check_positive(name: &str, v: &[f64]) -> Result<()> {
     Ok(())
 }
 
-/// Writes one planned stack as 16-bit TIFF, frame by frame.
-fn write_stack(
-    out: &Path,
-    cam: &VirtualCamera,
-    stack: &PlannedStack,
-    frames: usize,
-    pb: &indicatif::ProgressBar,
-) -> Result<()> {
-    let path = out.join(&stack.file);
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    }
-    let e = cam.exposure(stack.exposure_s);
-    let mut w = StackWriter::create(
-        &path,
-        cam.width(),
-        cam.height(),
-        SampleFormat::U16,
-        Some(frames),
-    )?;
-    w.set_metadata(&Metadata {
-        exposure_s: Some(stack.exposure_s),
-        em_gain: Some(cam.em_gain),
-        camera_model: Some("virtual-897".into()),
-        ..Default::default()
-    });
-    let mut buf = vec![0f32; cam.profile.len()];
-    for k in 0..frames {
-        e.frame(&stack.photons, frame_seed(stack.seed, k), &mut buf);
-        w.write_frame(&buf)?;
-        pb.inc(1);
-    }
-    w.finish()?;
-    Ok(())
-}
-
 fn calibration(out: &Path, plan: &CalibrationPlan, opts: &CameraOpts) -> Result<()> {
     // The plan's own check, which names each setting as its flag does.
     plan.check().map_err(|e| anyhow::anyhow!("--{e}"))?;
     let cam = opts.camera()?;
-    let stacks = plan.stacks(&cam, opts.seed)?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let pb = progress(plan.total_frames(), "frames");
-    let mut manifest = CalibrationManifest {
-        camera: "virtual-897".into(),
-        em_gain: cam.em_gain,
-        ..Default::default()
-    };
-    for stack in &stacks {
-        write_stack(out, &cam, stack, plan.frames, &pb)?;
-        let entry = Entry {
-            file: stack.file.clone().into(),
-            exposure_s: Some(stack.exposure_s),
-        };
-        match stack.role {
-            Role::Bias => manifest.bias.push(entry),
-            Role::Flat => manifest.flat.push(entry),
-            Role::Blooming => manifest.blooming.push(entry),
-        }
-    }
-    pb.finish_and_clear();
-    emccd_io::write_atomic(
-        out.join("calibration.toml"),
-        manifest.to_toml("`emccd simulate calibration`").as_bytes(),
+    plan.record(
+        &cam,
+        opts.seed,
+        out,
+        "virtual-897",
+        "`emccd simulate calibration`",
+        || pb.inc(1),
     )?;
+    pb.finish_and_clear();
     cam.profile
         .save(out.join("truth"))
         .context("writing the truth profile")?;
