@@ -35,7 +35,7 @@ pub struct Args {
     #[arg(long, default_value = "default")]
     pub profile: String,
     /// With --denoise: test scenes (files or directories) the camera's size; default: the six
-    /// microscopy fields in ../shared/data/clean/microscopy/fmd-confocal-bpae.
+    /// microscopy fields in DATA/clean/microscopy/fmd-confocal-bpae.
     #[arg(long, num_args = 1..)]
     pub scenes: Vec<std::path::PathBuf>,
     /// Instead, validate BM3D on BSD68 with additive Gaussian noise of these σ (8-bit units,
@@ -45,6 +45,10 @@ pub struct Args {
     /// With --bm3d: use only the first N images.
     #[arg(long)]
     pub images: Option<usize>,
+    /// The project's data folder (--bm3d reads DATA/clean/natural/BSD68; --denoise's default
+    /// scenes are under it too).
+    #[arg(long, default_value = "../shared/data")]
+    pub data: std::path::PathBuf,
     /// Instead, measure archive-scale streaming: write a BigTIFF raw stack of this many GB
     /// (512×512 u16 frames of the virtual camera) and one of --net-frames frames, run `emccd info`,
     /// `emccd denoise --method none` (to OME-Zarr) and a network denoise of the first
@@ -231,21 +235,23 @@ fn archive_bench(gb: f64, dir: &std::path::Path, net_frames: usize) -> Result<()
     Ok(())
 }
 
-fn bm3d_bench(sigmas: &[f64], limit: Option<usize>) -> Result<()> {
-    use rand::SeedableRng;
-    use rand_distr::{Distribution, Normal};
-    let dir =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/clean/natural/BSD68");
-    let mut scenes = emccd_io::image_files(&[dir])?;
+/// `data/sub`, or an error that says how to point --data at the project's data.
+fn data_folder(data: &std::path::Path, sub: &str) -> Result<std::path::PathBuf> {
+    let dir = data.join(sub);
+    if !dir.is_dir() {
+        anyhow::bail!(
+            "{}: no such folder; --data names the project's data folder (../shared/data from the repository root)",
+            dir.display()
+        );
+    }
+    Ok(dir)
+}
+
+fn bm3d_bench(sigmas: &[f64], limit: Option<usize>, data: &std::path::Path) -> Result<()> {
+    let mut scenes = emccd_io::image_files(&[data_folder(data, "clean/natural/BSD68")?])?;
     if let Some(n) = limit {
         scenes.truncate(n);
     }
-    let published = |s: f64| match s as u32 {
-        15 => Some(31.07),
-        25 => Some(28.57),
-        50 => Some(25.62),
-        _ => None,
-    };
     println!(
         "BM3D on BSD68 ({} images), additive Gaussian noise, PSNR for 8-bit range",
         scenes.len()
@@ -257,26 +263,17 @@ fn bm3d_bench(sigmas: &[f64], limit: Option<usize>) -> Result<()> {
     for &sigma in sigmas {
         let (mut pn, mut pd, mut secs) = (0.0, 0.0, 0.0);
         for (i, sc) in scenes.iter().enumerate() {
-            let emccd_io::Image {
-                width: w,
-                height: h,
-                data: img,
-            } = emccd_io::Image::read_scene(sc)?;
-            let clean: Vec<f32> = img.iter().map(|v| v * 255.0).collect();
-            let mut rng = rand_pcg::Pcg64::seed_from_u64(1000 * sigma as u64 + i as u64);
-            let nd = Normal::new(0.0, sigma).expect("σ > 0");
-            let noisy: Vec<f32> = clean
-                .iter()
-                .map(|&c| c + nd.sample(&mut rng) as f32)
-                .collect();
-            let t = Instant::now();
-            let den = emccd_eval::bm3d::bm3d(&noisy, w, h, sigma, 255.0);
-            secs += t.elapsed().as_secs_f64();
-            pn += emccd_eval::psnr(&noisy, &clean, 255.0);
-            pd += emccd_eval::psnr(&den, &clean, 255.0);
+            let img = emccd_io::Image::read_scene(sc)?;
+            let clean: Vec<f32> = img.data.iter().map(|v| v * 255.0).collect();
+            let seed = 1000 * sigma as u64 + i as u64;
+            let t = emccd_eval::bm3d::gaussian_trial(&clean, img.width, img.height, sigma, seed);
+            pn += t.noisy_db;
+            pd += t.denoised_db;
+            secs += t.seconds;
         }
         let n = scenes.len().max(1) as f64;
-        let p = published(sigma).map_or("–".into(), |v: f64| format!("{v:.2}"));
+        let p =
+            emccd_eval::bm3d::published_bsd68_db(sigma).map_or("–".into(), |v| format!("{v:.2}"));
         println!(
             "{:>6} {:>10.2} {:>10.2} {:>10} {:>12.2}",
             sigma,
@@ -294,6 +291,7 @@ fn denoise_bench(
     profile_arg: &str,
     scene_args: &[std::path::PathBuf],
     frames: usize,
+    data: &std::path::Path,
 ) -> Result<()> {
     use emccd_nn::pipeline::Pipeline;
     let specs = model_args
@@ -307,9 +305,7 @@ fn denoise_bench(
     let profile = crate::common::load_profile(profile_arg)?;
     let cam = VirtualCamera::new(profile.clone(), Default::default())?;
     let scenes = if scene_args.is_empty() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../shared/data/clean/microscopy/fmd-confocal-bpae");
-        emccd_io::image_files(&[dir])?
+        emccd_io::image_files(&[data_folder(data, "clean/microscopy/fmd-confocal-bpae")?])?
     } else {
         emccd_io::image_files(scene_args)?
     };
@@ -518,32 +514,18 @@ fn time_frames(frames: usize, mut f: impl FnMut(u64)) -> f64 {
     t.elapsed().as_secs_f64() / frames as f64
 }
 
-const PY: &str = r#"
-import sys, time, warnings
-warnings.filterwarnings("ignore")
-import numpy as np
-from emccd_detect.emccd_detect import EMCCDDetect
-frames, electrons = int(sys.argv[1]), float(sys.argv[2])
-d = EMCCDDetect(em_gain=300.0, full_well_image=78000.0, full_well_serial=105000.0, dark_current=0.001,
-                cic=0.005, read_noise=90.0, bias=180.0, qe=0.9, cr_rate=0.0, pixel_pitch=16e-6,
-                eperdn=29.8, nbits=16, numel_gain_register=604)
-flux = np.full((512, 512), electrons / 0.9 / 0.01)
-d.sim_sub_frame(flux, 0.01)
-t = time.perf_counter()
-for _ in range(frames):
-    d.sim_sub_frame(flux, 0.01)
-print((time.perf_counter() - t) / frames)
-"#;
+/// emccd-detect's timing script (run with `python3 -c`, so the binary needs no tools/ folder).
+const EMCCD_DETECT_SPEED: &str = include_str!("../../../tools/emccd_detect_speed.py");
 
 pub fn run(a: Args) -> Result<()> {
     if let Some(frames) = a.calibration {
         return calibration_bench(frames.max(2));
     }
     if !a.denoise.is_empty() {
-        return denoise_bench(&a.denoise, &a.profile, &a.scenes, a.frames);
+        return denoise_bench(&a.denoise, &a.profile, &a.scenes, a.frames, &a.data);
     }
     if !a.bm3d.is_empty() {
-        return bm3d_bench(&a.bm3d, a.images);
+        return bm3d_bench(&a.bm3d, a.images, &a.data);
     }
     if let Some(gb) = a.archive {
         if !(gb > 0.0 && gb.is_finite()) {
@@ -582,7 +564,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     let py = Command::new("python3")
         .arg("-c")
-        .arg(PY)
+        .arg(EMCCD_DETECT_SPEED)
         .arg(frames.min(10).to_string())
         .arg(a.electrons.to_string())
         .output();
