@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use emccd_camera::NoiseModelKind;
 use emccd_nn::adapt::{
     adapt, AdaptConfig, AdaptData, AdaptMethod, AdaptRun, Adaptation, Recorded, Start,
@@ -85,19 +85,9 @@ pub fn run(a: Args) -> Result<()> {
     let scratch = a.from_scratch;
     let init = emccd_nn::registry::model_path(&a.init)?;
     for input in &a.inputs {
-        if emccd_io::FileId::of(input) == emccd_io::FileId::of(&a.out) {
-            bail!(
-                "{}: the output is an input; choose another -o, inputs are never overwritten",
-                a.out.display()
-            );
-        }
+        emccd_io::refuse_overwrite(&a.out, input, "an input")?;
     }
-    if emccd_io::FileId::of(&init) == emccd_io::FileId::of(&a.out) {
-        bail!(
-            "{}: the output is the --init model; choose another -o, inputs are never overwritten",
-            a.out.display()
-        );
-    }
+    emccd_io::refuse_overwrite(&a.out, &init, "the --init model")?;
     let init_meta = emccd_nn::Denoiser::read_meta(&init)?;
     // The self-supervised methods keep frames in memory: up to 256 MiB of them.
     let mut rec = Recorded::new(a.method, &profile, init_meta.ablate, 256 << 20);

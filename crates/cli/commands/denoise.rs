@@ -3,6 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
+use emccd_io::zarr::Shard;
 use emccd_nn::registry::{FrameDenoiser, Method};
 use emccd_nn::tile::Tiling;
 
@@ -78,7 +79,7 @@ pub struct Args {
     /// array of one; tools/slurm/denoise-array.sbatch does this). Frames already complete in
     /// the store are skipped, so a killed shard is resumed by running it again. Several inputs
     /// are one stack in the order given.
-    #[arg(long, value_parser = parse_shard, allow_hyphen_values = true)]
+    #[arg(long, allow_hyphen_values = true)]
     pub shard: Option<Shard>,
 }
 
@@ -91,35 +92,6 @@ fn parse_tile(s: &str) -> std::result::Result<usize, String> {
 
 fn parse_ensemble(s: &str) -> std::result::Result<usize, String> {
     emccd_nn::registry::ensemble_size(s).map_err(|e| e.to_string())
-}
-
-/// Which share of a stack one process of a job array denoises (`--shard I/N`, I from 0).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Shard {
-    /// This process's index, from 0.
-    pub index: usize,
-    /// How many processes share the stack.
-    pub count: usize,
-}
-
-impl Shard {
-    /// The frames (from 0) of a `frames`-long stack that this shard denoises: contiguous, and
-    /// together the N shards cover every frame once.
-    pub fn range(self, frames: usize) -> std::ops::Range<usize> {
-        let at = |i: usize| (i as u128 * frames as u128 / self.count as u128) as usize;
-        at(self.index)..at(self.index + 1)
-    }
-}
-
-fn parse_shard(s: &str) -> std::result::Result<Shard, String> {
-    let bad = || {
-        format!("'{s}': a shard is I/N with 0 ≤ I < N (I counts from 0, as SLURM_ARRAY_TASK_ID does with --array=0-N-1)")
-    };
-    let (i, n) = s.split_once('/').ok_or_else(bad)?;
-    match (i.trim().parse::<usize>(), n.trim().parse::<usize>()) {
-        (Ok(index), Ok(count)) if index < count => Ok(Shard { index, count }),
-        _ => Err(bad()),
-    }
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -158,7 +130,7 @@ pub fn run(a: Args) -> Result<()> {
         return run_zarr(&a, &fd, &fp);
     }
     let several = a.inputs.len() > 1;
-    let outs = output_paths(&a.inputs, &a.out, several)?;
+    let outs = emccd_io::output_paths(&a.inputs, &a.out, several.then_some("_denoised.tif"))?;
     if several {
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     }
@@ -202,14 +174,8 @@ pub fn run(a: Args) -> Result<()> {
 /// process's shard of the frames, skipping frames already complete (an earlier run, or another
 /// shard), so a killed run is resumed by running it again.
 fn run_zarr(a: &Args, fd: &FrameDenoiser, profile_fp: &str) -> Result<()> {
-    let id = emccd_io::FileId::of;
-    let out_id = id(&a.out);
-    if let Some(i) = a.inputs.iter().find(|i| id(i) == out_id) {
-        bail!(
-            "{}: the output is the input {}; choose another -o, the input is never overwritten",
-            a.out.display(),
-            i.display()
-        );
+    for i in &a.inputs {
+        emccd_io::refuse_overwrite(&a.out, i, &format!("the input {}", i.display()))?;
     }
     let mut inputs = Vec::with_capacity(a.inputs.len());
     for path in &a.inputs {
@@ -225,20 +191,10 @@ fn run_zarr(a: &Args, fd: &FrameDenoiser, profile_fp: &str) -> Result<()> {
     // is another input), the model by its bytes, not by how it was named.
     let mut ids = Vec::with_capacity(inputs.len());
     for i in &inputs {
-        let m = std::fs::metadata(&i.path).with_context(|| i.path.display().to_string())?;
-        let modified = m
-            .modified()
-            .ok()
-            .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
-            .map(|d| d.as_nanos().to_string());
-        let real = std::fs::canonicalize(&i.path).unwrap_or_else(|_| i.path.clone());
-        ids.push(serde_json::json!({
-            "file": real.display().to_string(),
-            "bytes": m.len(),
-            "modified_ns": modified,
-            "frames": i.info.frames,
-            "exposure_s": i.exposure,
-        }));
+        let mut stamp = serde_json::to_value(emccd_io::FileStamp::of(&i.path)?)?;
+        stamp["frames"] = i.info.frames.into();
+        stamp["exposure_s"] = i.exposure.into();
+        ids.push(stamp);
     }
     let model_name = fd.model.map(|_| {
         a.model.clone().unwrap_or_else(|| {
@@ -253,7 +209,7 @@ fn run_zarr(a: &Args, fd: &FrameDenoiser, profile_fp: &str) -> Result<()> {
     let model_hash = match &model_name {
         Some(n) => Some(format!(
             "{:016x}",
-            file_hash(&emccd_nn::registry::model_path(n)?)?
+            emccd_io::content_hash(&emccd_nn::registry::model_path(n)?)?
         )),
         None => None,
     };
@@ -288,7 +244,7 @@ fn run_zarr(a: &Args, fd: &FrameDenoiser, profile_fp: &str) -> Result<()> {
         notes,
     };
     let (store, _created) = emccd_io::zarr::ZarrStackWriter::create_or_open(&a.out, &spec)?;
-    let shard = a.shard.unwrap_or(Shard { index: 0, count: 1 });
+    let shard = a.shard.unwrap_or(Shard::ALL);
     let range = shard.range(frames);
     let share = if shard.count > 1 {
         format!("shard {}/{}: ", shard.index, shard.count)
@@ -343,56 +299,6 @@ fn run_zarr(a: &Args, fd: &FrameDenoiser, profile_fp: &str) -> Result<()> {
         if done < frames { " (the other shards write the rest)" } else { "" }
     );
     Ok(())
-}
-
-/// FNV-1a over a file's bytes: which model file a store was made with, whatever its name.
-fn file_hash(path: &Path) -> Result<u64> {
-    use std::hash::Hasher;
-    use std::io::Read;
-    let mut f = std::fs::File::open(path).with_context(|| path.display().to_string())?;
-    let mut h = fnv::FnvHasher::default();
-    let mut buf = vec![0u8; 1 << 16];
-    loop {
-        let n = f.read(&mut buf)?;
-        if n == 0 {
-            return Ok(h.finish());
-        }
-        h.write(&buf[..n]);
-    }
-}
-
-/// Where each input's result goes: `out` itself for one input, `OUT/STEM_denoised.tif` for
-/// several. Refused before anything runs: an output that is one of the inputs (it would be
-/// replaced, or overwritten before it is read) and two inputs that would share an output.
-fn output_paths(inputs: &[PathBuf], out: &std::path::Path, several: bool) -> Result<Vec<PathBuf>> {
-    let outs: Vec<PathBuf> = inputs
-        .iter()
-        .map(|input| {
-            if several {
-                let stem = input
-                    .file_stem()
-                    .map(|s| s.to_string_lossy().into_owned())
-                    .unwrap_or_else(|| "frame".into());
-                out.join(format!("{stem}_denoised.tif"))
-            } else {
-                out.to_path_buf()
-            }
-        })
-        .collect();
-    let id = emccd_io::FileId::of;
-    let ins: Vec<emccd_io::FileId> = inputs.iter().map(|p| id(p)).collect();
-    for (o, input) in outs.iter().zip(inputs) {
-        let co = id(o);
-        if let Some(k) = ins.iter().position(|i| *i == co) {
-            bail!("{}: the output for {} is the input {}; choose another -o, the input is never overwritten", o.display(), input.display(), inputs[k].display());
-        }
-    }
-    for (i, o) in outs.iter().enumerate() {
-        if let Some(j) = outs[..i].iter().position(|p| p == o) {
-            bail!("{} and {} would both be written to {}; denoise them in separate runs (different -o) or rename one", inputs[j].display(), inputs[i].display(), o.display());
-        }
-    }
-    Ok(outs)
 }
 
 /// One frame through the denoiser; errors name the input and the frame (from 1).

@@ -140,15 +140,7 @@ pub fn run(c: Cmd) -> Result<()> {
             roi: (x, y, w, h),
         } => {
             let p = load_profile(&profile)?;
-            if out.exists()
-                && emccd_io::FileId::of(&out)
-                    == emccd_io::FileId::of(std::path::Path::new(&profile))
-            {
-                anyhow::bail!(
-                    "{}: the output is the input profile; choose another folder",
-                    out.display()
-                );
-            }
+            emccd_io::refuse_overwrite(&out, std::path::Path::new(&profile), "the input profile")?;
             let c = p
                 .crop(x, y, w, h)
                 .with_context(|| format!("profile {profile}"))?;

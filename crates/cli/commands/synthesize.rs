@@ -59,12 +59,7 @@ pub fn run(a: Args) -> Result<()> {
     if !(ab.fpn && ab.blooming) {
         bail!("--ablate: fpn and blooming are corrections of a network's preprocessing (`train --ablate`), not parts of the synthesized noise");
     }
-    if emccd_io::FileId::of(&a.out) == emccd_io::FileId::of(&a.input) {
-        bail!(
-            "{}: the output is the input image; choose another -o, the input is never overwritten",
-            a.out.display()
-        );
-    }
+    emccd_io::refuse_overwrite(&a.out, &a.input, "the input image")?;
     let emccd_io::Image {
         width: w,
         height: h,

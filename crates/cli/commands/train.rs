@@ -140,12 +140,7 @@ pub fn run(a: Args) -> Result<()> {
         .map(emccd_nn::registry::model_path)
         .transpose()?;
     if let Some(i) = &init {
-        if emccd_io::FileId::of(i) == emccd_io::FileId::of(&a.out) {
-            bail!(
-                "{}: the output is the --init model; choose another -o, inputs are never overwritten",
-                a.out.display()
-            );
-        }
+        emccd_io::refuse_overwrite(&a.out, i, "the --init model")?;
     }
     let profile = load_profile(&a.profile)?;
     let images = TrainImages::read(&a.clean, &a.val)?;

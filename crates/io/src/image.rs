@@ -1,5 +1,4 @@
-//! Clean scenes (the images pairs and training data are made from) and the identity of files,
-//! for refusing a run that would overwrite one of its inputs.
+//! Clean scenes: the images pairs and training data are made from.
 
 use std::path::{Path, PathBuf};
 
@@ -82,51 +81,6 @@ pub fn image_files(inputs: &[PathBuf]) -> Result<Vec<PathBuf>> {
     Ok(out)
 }
 
-/// What identifies a file, for comparing files rather than spellings: its device and inode where
-/// it exists (so `./x.tif`, `a/../x.tif`, and symbolic and hard links to `x.tif` are one file),
-/// else the absolute path it would have.
-#[derive(Clone, Debug, PartialEq, Eq, Hash)]
-pub enum FileId {
-    /// An existing file.
-    Inode(u64, u64),
-    /// A file not (yet) there.
-    Path(PathBuf),
-}
-
-impl FileId {
-    /// The identity of `p`.
-    pub fn of(p: &Path) -> FileId {
-        #[cfg(unix)]
-        {
-            use std::os::unix::fs::MetadataExt;
-            if let Ok(m) = std::fs::metadata(p) {
-                return FileId::Inode(m.dev(), m.ino());
-            }
-        }
-        FileId::Path(canonical(p))
-    }
-}
-
-/// The absolute path a file has or would have (its folder resolved).
-fn canonical(p: &Path) -> PathBuf {
-    if let Ok(c) = p.canonicalize() {
-        return c;
-    }
-    match (
-        p.parent().filter(|d| !d.as_os_str().is_empty()),
-        p.file_name(),
-    ) {
-        (Some(d), Some(f)) => d
-            .canonicalize()
-            .map(|d| d.join(f))
-            .unwrap_or_else(|_| p.to_path_buf()),
-        (None, Some(f)) => std::env::current_dir()
-            .map(|d| d.join(f))
-            .unwrap_or_else(|_| p.to_path_buf()),
-        _ => p.to_path_buf(),
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -154,14 +108,5 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("nothing") && e.contains("no such file"), "{e}");
-        // one file, however it is spelled; a file not yet there by its absolute path
-        assert_eq!(
-            FileId::of(&path),
-            FileId::of(&dir.path().join(".").join("s.tif"))
-        );
-        assert_eq!(
-            FileId::of(&dir.path().join("new.tif")),
-            FileId::Path(dir.path().canonicalize().unwrap().join("new.tif"))
-        );
     }
 }

@@ -39,6 +39,7 @@
 #![deny(missing_docs)]
 
 mod error;
+mod files;
 pub mod fits;
 mod image;
 pub mod png_io;
@@ -51,7 +52,8 @@ use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
 pub use error::{Error, Result};
-pub use image::{image_files, FileId, Image};
+pub use files::{content_hash, output_paths, refuse_overwrite, FileId, FileStamp};
+pub use image::{image_files, Image};
 
 /// The sample type stored in a file (what `emccd info` reports).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]

@@ -21,6 +21,43 @@ use zarrs::group::{Group, GroupBuilder};
 
 use crate::{Error, Format, FrameReader, Limits, Metadata, PixelType, Result, StackInfo};
 
+/// Which share of a stack one process of a job array writes (`I/N`, I from 0, as
+/// `SLURM_ARRAY_TASK_ID` counts with `--array=0-N-1`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Shard {
+    /// This process's index, from 0.
+    pub index: usize,
+    /// How many processes share the stack.
+    pub count: usize,
+}
+
+impl Shard {
+    /// The whole stack, for a process that works alone.
+    pub const ALL: Shard = Shard { index: 0, count: 1 };
+
+    /// The frames (from 0) of a `frames`-long stack that this shard writes: contiguous, and
+    /// together the N shards cover every frame once.
+    pub fn range(self, frames: usize) -> std::ops::Range<usize> {
+        let at = |i: usize| (i as u128 * frames as u128 / self.count as u128) as usize;
+        at(self.index)..at(self.index + 1)
+    }
+}
+
+impl std::str::FromStr for Shard {
+    type Err = String;
+
+    fn from_str(s: &str) -> std::result::Result<Shard, String> {
+        let bad = || {
+            format!("'{s}': a shard is I/N with 0 ≤ I < N (I counts from 0, as SLURM_ARRAY_TASK_ID does with --array=0-N-1)")
+        };
+        let (i, n) = s.split_once('/').ok_or_else(bad)?;
+        match (i.trim().parse::<usize>(), n.trim().parse::<usize>()) {
+            (Ok(index), Ok(count)) if index < count => Ok(Shard { index, count }),
+            _ => Err(bad()),
+        }
+    }
+}
+
 /// The folder of completion markers inside a store written by [`ZarrStackWriter`].
 pub const DONE_DIR: &str = ".emccd-done";
 /// Where each [`ZarrStackWriter`] stages its chunks before renaming them into place.
@@ -502,4 +539,28 @@ fn first_difference(theirs: &Value, ours: &Value, at: &str) -> String {
 /// A temporary folder beside `path` (same filesystem, so the rename into place is atomic).
 fn temp_dir_beside(path: &Path) -> std::io::Result<tempfile::TempDir> {
     crate::make_beside(path, |b, dir| b.tempdir_in(dir))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Shard;
+
+    #[test]
+    fn shards_cover_every_frame_once_and_parse_as_slurm_counts() {
+        for (frames, count) in [(10, 3), (2, 5), (7, 7), (0, 2)] {
+            let mut next = 0;
+            for index in 0..count {
+                let r = Shard { index, count }.range(frames);
+                assert_eq!(r.start, next, "{frames} frames, shard {index}/{count}");
+                next = r.end;
+            }
+            assert_eq!(next, frames);
+        }
+        assert_eq!("2/3".parse(), Ok(Shard { index: 2, count: 3 }));
+        assert_eq!(Shard::ALL.range(5), 0..5);
+        for bad in ["3/3", "1", "-1/2", "a/b", "0/0"] {
+            let e = bad.parse::<Shard>().unwrap_err();
+            assert!(e.contains("I/N"), "{bad}: {e}");
+        }
+    }
 }

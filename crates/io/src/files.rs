@@ -1,0 +1,235 @@
+//! The identity of files: for refusing a run that would overwrite one of its inputs, for naming
+//! each input's output, and for recording what an output was made from.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use crate::{Error, Result};
+
+/// What identifies a file, for comparing files rather than spellings: its device and inode where
+/// it exists (so `./x.tif`, `a/../x.tif`, and symbolic and hard links to `x.tif` are one file),
+/// else the absolute path it would have.
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub enum FileId {
+    /// An existing file.
+    Inode(u64, u64),
+    /// A file not (yet) there.
+    Path(PathBuf),
+}
+
+impl FileId {
+    /// The identity of `p`.
+    pub fn of(p: &Path) -> FileId {
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::MetadataExt;
+            if let Ok(m) = std::fs::metadata(p) {
+                return FileId::Inode(m.dev(), m.ino());
+            }
+        }
+        FileId::Path(canonical(p))
+    }
+}
+
+/// The absolute path a file has or would have (its folder resolved).
+fn canonical(p: &Path) -> PathBuf {
+    if let Ok(c) = p.canonicalize() {
+        return c;
+    }
+    match (
+        p.parent().filter(|d| !d.as_os_str().is_empty()),
+        p.file_name(),
+    ) {
+        (Some(d), Some(f)) => d
+            .canonicalize()
+            .map(|d| d.join(f))
+            .unwrap_or_else(|_| p.to_path_buf()),
+        (None, Some(f)) => std::env::current_dir()
+            .map(|d| d.join(f))
+            .unwrap_or_else(|_| p.to_path_buf()),
+        _ => p.to_path_buf(),
+    }
+}
+
+/// Refuses `out` where it is `input` (however spelled or linked): the message names the output
+/// and `what` the input is ("the input x.tif", "the --init model").
+pub fn refuse_overwrite(out: &Path, input: &Path, what: &str) -> Result<()> {
+    if FileId::of(out) == FileId::of(input) {
+        return Err(Error::Usage(format!(
+            "{}: the output is {what}; choose another output, inputs are never overwritten",
+            out.display()
+        )));
+    }
+    Ok(())
+}
+
+/// Where each input's result goes: `out` itself for one input without `suffix`, else
+/// `out/STEM{suffix}` (`x.tif` → `out/x_denoised.tif`). Refused before anything runs: an output
+/// that is one of the inputs (it would be replaced, or overwritten before it is read) and two
+/// inputs that would share an output.
+pub fn output_paths(inputs: &[PathBuf], out: &Path, suffix: Option<&str>) -> Result<Vec<PathBuf>> {
+    let outs: Vec<PathBuf> = inputs
+        .iter()
+        .map(|input| match suffix {
+            Some(suffix) => {
+                let stem = input
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_else(|| "frame".into());
+                out.join(format!("{stem}{suffix}"))
+            }
+            None => out.to_path_buf(),
+        })
+        .collect();
+    for (o, input) in outs.iter().zip(inputs) {
+        for other in inputs {
+            refuse_overwrite(
+                o,
+                other,
+                &if other == input {
+                    format!("the input {}", other.display())
+                } else {
+                    format!(
+                        "the input {}, the output for {}",
+                        other.display(),
+                        input.display()
+                    )
+                },
+            )?;
+        }
+    }
+    for (i, o) in outs.iter().enumerate() {
+        if let Some(j) = outs[..i].iter().position(|p| p == o) {
+            return Err(Error::Usage(format!(
+                "{} and {} would both be written to {}; run them separately (different outputs) or rename one",
+                inputs[j].display(),
+                inputs[i].display(),
+                o.display()
+            )));
+        }
+    }
+    Ok(outs)
+}
+
+/// What an input file was when it was read: its real path, size and modification time (a file
+/// rewritten in between is another input). Recorded in an output's provenance.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct FileStamp {
+    /// The file's canonical path.
+    pub file: String,
+    /// Its size in bytes.
+    pub bytes: u64,
+    /// Its modification time, ns since the Unix epoch, where the file system keeps one.
+    pub modified_ns: Option<String>,
+}
+
+impl FileStamp {
+    /// The stamp of `path` now.
+    pub fn of(path: &Path) -> Result<FileStamp> {
+        let m = std::fs::metadata(path).map_err(|e| Error::from(e).with_path(path))?;
+        let modified_ns = m
+            .modified()
+            .ok()
+            .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+            .map(|d| d.as_nanos().to_string());
+        let real = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf());
+        Ok(FileStamp {
+            file: real.display().to_string(),
+            bytes: m.len(),
+            modified_ns,
+        })
+    }
+}
+
+/// FNV-1a over a file's bytes: which file (a model, say) an output was made with, whatever its
+/// name.
+pub fn content_hash(path: &Path) -> Result<u64> {
+    use std::hash::Hasher;
+    use std::io::Read;
+    let mut f = std::fs::File::open(path).map_err(|e| Error::from(e).with_path(path))?;
+    let mut h = fnv::FnvHasher::default();
+    let mut buf = vec![0u8; 1 << 16];
+    loop {
+        let n = f
+            .read(&mut buf)
+            .map_err(|e| Error::from(e).with_path(path))?;
+        if n == 0 {
+            return Ok(h.finish());
+        }
+        h.write(&buf[..n]);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn files_are_known_however_spelled_and_outputs_never_replace_inputs() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::create_dir_all(d.join("a")).unwrap();
+        std::fs::create_dir_all(d.join("b")).unwrap();
+        for f in ["s.tif", "a/x.tif", "b/x.tif"] {
+            std::fs::write(d.join(f), f).unwrap();
+        }
+        let path = d.join("s.tif");
+        // one file, however it is spelled; a file not yet there by its absolute path
+        assert_eq!(FileId::of(&path), FileId::of(&d.join(".").join("s.tif")));
+        assert_eq!(
+            FileId::of(&d.join("new.tif")),
+            FileId::Path(d.canonicalize().unwrap().join("new.tif"))
+        );
+        let e = refuse_overwrite(&d.join("a/../s.tif"), &path, "the input s.tif").unwrap_err();
+        assert!(
+            e.to_string().contains("the output is the input s.tif"),
+            "{e}"
+        );
+        assert!(refuse_overwrite(&d.join("o.tif"), &path, "the input").is_ok());
+        let ins = [path.clone(), d.join("a/x.tif")];
+        assert_eq!(
+            output_paths(&ins, &d.join("out"), Some("_d.tif")).unwrap(),
+            vec![d.join("out/s_d.tif"), d.join("out/x_d.tif")]
+        );
+        assert_eq!(
+            output_paths(&ins[..1], &d.join("o.tif"), None).unwrap(),
+            vec![d.join("o.tif")]
+        );
+        let e = output_paths(&ins[..1], &path, None)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("is the input"), "{e}");
+        let twins = [d.join("a/x.tif"), d.join("b/x.tif")];
+        let e = output_paths(&twins, d, Some("_d.tif"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("would both be written"), "{e}");
+        // an input that is another input's output
+        std::fs::write(d.join("a/x_d.tif"), "x").unwrap();
+        let e = output_paths(
+            &[d.join("a/x.tif"), d.join("a/x_d.tif")],
+            &d.join("a"),
+            Some("_d.tif"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("is the input"), "{e}");
+    }
+
+    #[test]
+    fn stamps_and_hashes_follow_the_content() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("m.bin");
+        std::fs::write(&p, b"abc").unwrap();
+        let s = FileStamp::of(&p).unwrap();
+        assert_eq!(s.bytes, 3);
+        assert!(s.file.ends_with("m.bin"));
+        // FNV-1a 64 of "abc"
+        assert_eq!(content_hash(&p).unwrap(), 0xe71fa2190541574b);
+        let e = content_hash(&dir.path().join("none"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("none"), "{e}");
+    }
+}
