@@ -104,21 +104,9 @@ pub fn open_recording(
             input.display()
         ),
     };
-    emccd_nn::pipeline::check_exposure(exposure)
-        .with_context(|| format!("{}: the exposure from {source}", input.display()))?;
-    if (info.width, info.height) != (profile.width, profile.height) {
-        bail!(
-            "{}: frames are {}×{}, the profile's sensor is {}×{}",
-            input.display(),
-            info.width,
-            info.height,
-            profile.width,
-            profile.height
-        );
-    }
     if let Some(w) = profile
-        .check_exposure_range(exposure, source, extrapolate)
-        .with_context(|| input.display().to_string())?
+        .check_frames(info.width, info.height, exposure, source, extrapolate)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", input.display()))?
     {
         eprintln!("warning: {}: {w}", input.display());
     }

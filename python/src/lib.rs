@@ -463,23 +463,17 @@ fn denoise<'py>(
     let cb = Callback::new(progress, f as u64);
     let r = py.detach(|| -> anyhow::Result<(Vec<f32>, Vec<String>)> {
         let mut warnings = Vec::new();
-        emccd_nn::pipeline::check_exposure(exposure_s)
-            .map_err(|e| anyhow::anyhow!("the exposure: {e}"))?;
         p.require_complete()
             .map_err(|e| anyhow::anyhow!("the profile cannot denoise: {e}"))?;
-        if (w, h) != (p.width, p.height) {
-            anyhow::bail!(
-                "frames are {w}×{h}, the profile's sensor is {}×{} (a sub-array readout needs the profile cropped to it: Profile.crop)",
-                p.width,
-                p.height
-            );
-        }
-        if let Some(wn) = p.check_exposure_range(exposure_s, "exposure_s", extrapolate)? {
+        if let Some(wn) = p.check_frames(w, h, exposure_s, "exposure_s", extrapolate)? {
             warnings.push(wn);
         }
         let (method, net) = registry::resolve(method, model.as_deref(), load_model)?;
         let fp = format!("{:016x}", p.fingerprint());
-        if let Some(wn) = net.as_ref().and_then(|m| registry::profile_mismatch(m, &fp)) {
+        if let Some(wn) = net
+            .as_ref()
+            .and_then(|m| registry::profile_mismatch(m, &fp))
+        {
             warnings.push(wn);
         }
         let fd = FrameDenoiser {
@@ -537,7 +531,7 @@ fn simulate_pairs<'py>(
             if frames == 0 {
                 anyhow::bail!("frames must be at least 1");
             }
-            emccd_nn::pipeline::check_exposure(exposure_s)
+            emccd_profile::check_exposure(exposure_s)
                 .map_err(|e| anyhow::anyhow!("exposure_s: {e}"))?;
             if let Some(i) = img.iter().position(|v| !v.is_finite() || *v < 0.0) {
                 anyhow::bail!(

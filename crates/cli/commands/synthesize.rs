@@ -49,7 +49,7 @@ pub fn run(a: Args) -> Result<()> {
             a.signal_dn
         );
     }
-    emccd_nn::pipeline::check_exposure(a.exposure_s)
+    emccd_profile::check_exposure(a.exposure_s)
         .map_err(|e| anyhow::anyhow!("--exposure-s: {e}"))?;
     if a.frames == 0 {
         bail!("--frames must be at least 1");

@@ -258,7 +258,7 @@ impl RecordedPairs {
         let mut exposures: Vec<f64> = Vec::new();
         let mut map_of = Vec::with_capacity(set.len());
         for &t in &set.exposures {
-            crate::pipeline::check_exposure(t)?;
+            emccd_profile::check_exposure(t)?;
             map_of.push(match exposures.iter().position(|&e| e == t) {
                 Some(k) => k,
                 None => {

@@ -40,17 +40,7 @@ fn usable(p: &CameraProfile, len: usize, exposure_s: f64) -> Result<()> {
             p.len()
         )));
     }
-    check_exposure(exposure_s)
-}
-
-/// An exposure is a positive, finite number of seconds (a header or a flag can say anything).
-pub fn check_exposure(exposure_s: f64) -> Result<()> {
-    if !(exposure_s.is_finite() && exposure_s > 0.0) {
-        return Err(Error::Data(format!(
-            "exposure {exposure_s} s: it must be a positive number of seconds"
-        )));
-    }
-    Ok(())
+    Ok(emccd_profile::check_exposure(exposure_s)?)
 }
 
 /// The preprocessed frame (DN above bias) at `exposure_s`: blooming and FPN removed.

@@ -208,6 +208,16 @@ pub struct ProfileSummary {
     pub fingerprint: String,
 }
 
+/// An exposure is a positive, finite number of seconds (a header or a flag can say anything).
+pub fn check_exposure(exposure_s: f64) -> Result<()> {
+    if !(exposure_s.is_finite() && exposure_s > 0.0) {
+        return Err(Error::Parameter(format!(
+            "exposure {exposure_s} s: it must be a positive number of seconds"
+        )));
+    }
+    Ok(())
+}
+
 /// Median of `f32` or `f64` values, NaNs ignored (the mean of the middle two for an even
 /// count); `None` when no value is left, so each caller says what an empty set means.
 pub fn median<T: Into<f64>>(values: impl IntoIterator<Item = T>) -> Option<f64> {
@@ -331,6 +341,30 @@ impl CameraProfile {
     pub fn exposure_in_range(&self, exposure_s: f64) -> bool {
         let (lo, hi) = self.exposure_range();
         exposure_s >= lo * (1.0 - 1e-9) && exposure_s <= hi * (1.0 + 1e-9)
+    }
+
+    /// Whether frames of `width`×`height` exposed `exposure_s` (taken from `source`, for the
+    /// messages) can be corrected with this profile: the exposure is a positive number of
+    /// seconds, the frames are the sensor's size, and the exposure is in the calibrated range
+    /// or near enough ([`CameraProfile::check_exposure_range`]: `Ok(Some(warning))` where the
+    /// fixed pattern is extrapolated).
+    pub fn check_frames(
+        &self,
+        width: usize,
+        height: usize,
+        exposure_s: f64,
+        source: &str,
+        extrapolate: bool,
+    ) -> Result<Option<String>> {
+        check_exposure(exposure_s)
+            .map_err(|e| Error::Parameter(format!("the exposure from {source}: {e}")))?;
+        if (width, height) != (self.width, self.height) {
+            return Err(Error::Parameter(format!(
+                "frames are {width}×{height}, the profile's sensor is {}×{} (a sub-array readout needs the profile cropped to its region)",
+                self.width, self.height
+            )));
+        }
+        self.check_exposure_range(exposure_s, source, extrapolate)
     }
 
     /// Whether frames taken with `exposure_s` can be corrected: inside the calibrated range,
