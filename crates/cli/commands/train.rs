@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Result};
 use emccd_camera::{Ablation, NoiseModelKind};
 use emccd_nn::train::{train, Loss, Run, RunPaths, TrainConfig, TrainImages};
-use emccd_nn::{Arch, Base, Inputs, ModelMeta, UNetConfig, UformerConfig};
+use emccd_nn::{Arch, Base, Inputs, ModelMeta};
 
 use crate::common::load_profile;
 
@@ -115,13 +115,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    if !emccd_nn::model::ARCHS.contains(&a.arch.as_str()) {
-        bail!(
-            "--arch {}: this build has {}",
-            a.arch,
-            emccd_nn::model::ARCHS.join(", ")
-        );
-    }
+    let arch = Arch::for_training(&a.arch, a.inputs, a.base, a.levels, a.direct)?;
     let pairs = [
         ("--read-noise-scale", Some(&a.read_noise_scale)),
         ("--electrons", Some(&a.electrons)),
@@ -146,12 +140,6 @@ pub fn run(a: Args) -> Result<()> {
     let images = TrainImages::read(&a.clean, &a.val)?;
     let noise = a.noise_model;
     let inputs = a.inputs;
-    if a.direct && (inputs == Inputs::Hybrid || a.arch != "unet") {
-        bail!("--direct: only a U-Net denoiser (--arch unet --inputs noisy) has a direct output");
-    }
-    if inputs == Inputs::Hybrid && a.arch != "unet" {
-        bail!("--inputs hybrid: the refinement network is a U-Net in this build (--arch unet)");
-    }
     let base: Base = match (a.hybrid_base, &a.init) {
         (Some(_), _) if inputs != Inputs::Hybrid => {
             bail!("--hybrid-base: only a refinement network (--inputs hybrid) has a base estimate")
@@ -183,16 +171,7 @@ pub fn run(a: Args) -> Result<()> {
         ..TrainConfig::default()
     };
     let meta = ModelMeta {
-        arch: match UformerConfig::by_name(&a.arch) {
-            Some(c) => Arch::Uformer(c),
-            None => Arch::UNet(UNetConfig {
-                base: a.base,
-                levels: a.levels,
-                in_channels: inputs.channels(),
-                residual: inputs.residual(),
-                direct: a.direct,
-            }),
-        },
+        arch,
         inputs,
         base,
         noise_model: noise,

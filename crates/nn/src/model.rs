@@ -48,6 +48,47 @@ impl Arch {
         }
     }
 
+    /// The architecture named `name` (one of [`ARCHS`]) for a new network taking `inputs`: a
+    /// Uformer preset, or a U-Net of `base` channels over `levels` levels (`direct`: it outputs
+    /// its prediction alone instead of adding a residual to the input). Refuses what this build
+    /// has not: an unknown name, a refinement network (hybrid inputs) or a direct output on
+    /// anything but a U-Net denoiser.
+    pub fn for_training(
+        name: &str,
+        inputs: Inputs,
+        base: usize,
+        levels: usize,
+        direct: bool,
+    ) -> Result<Arch> {
+        let uformer = UformerConfig::by_name(name);
+        if uformer.is_none() && name != "unet" {
+            return Err(Error::Model(format!(
+                "architecture {name:?}: this build has {}",
+                ARCHS.join(", ")
+            )));
+        }
+        if direct && (inputs == Inputs::Hybrid || name != "unet") {
+            return Err(Error::Model(
+                "a direct output: only a U-Net denoiser (arch unet, noisy inputs) has one".into(),
+            ));
+        }
+        if inputs == Inputs::Hybrid && name != "unet" {
+            return Err(Error::Model(
+                "hybrid inputs: the refinement network is a U-Net in this build (arch unet)".into(),
+            ));
+        }
+        Ok(match uformer {
+            Some(c) => Arch::Uformer(c),
+            None => Arch::UNet(UNetConfig {
+                base,
+                levels,
+                in_channels: inputs.channels(),
+                residual: inputs.residual(),
+                direct,
+            }),
+        })
+    }
+
     /// Input channels of the network.
     pub fn in_channels(&self) -> usize {
         match self {
@@ -435,4 +476,29 @@ fn import_error(path: &Path, e: impl std::fmt::Display) -> Error {
         "{}: {n} weights have other shapes than the metadata's network (the file's metadata and weights disagree); the first:{first}…",
         path.display()
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn architectures_for_training_are_the_builds_and_their_combinations() {
+        let unet = Arch::for_training("unet", Inputs::Hybrid, 16, 3, false).unwrap();
+        assert_eq!(unet.name(), "unet");
+        assert_eq!(unet.in_channels(), Inputs::Hybrid.channels());
+        let t = Arch::for_training("uformer-t", Inputs::Noisy, 16, 3, false).unwrap();
+        assert_eq!(t.name(), "uformer-t");
+        for (name, inputs, direct, says) in [
+            ("resnet", Inputs::Noisy, false, "this build has"),
+            ("uformer-s", Inputs::Noisy, true, "direct output"),
+            ("unet", Inputs::Hybrid, true, "direct output"),
+            ("uformer-b", Inputs::Hybrid, false, "refinement network"),
+        ] {
+            let e = Arch::for_training(name, inputs, 16, 3, direct)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(says), "{name}: {e}");
+        }
+    }
 }
