@@ -9,7 +9,7 @@ use emccd_profile::CameraProfile;
 
 use crate::model::{Denoiser, Inputs};
 use crate::norm::{prepare, prepare_hybrid, signal_scale};
-use crate::tile::{run_ensemble, Tiling};
+use crate::tile::{run_ensemble, Planes, Tiling};
 use crate::{Error, Result};
 
 /// A model ready for inference with the profile it is applied through.
@@ -178,12 +178,15 @@ impl Pipeline<'_> {
             }
         };
         let multiple = self.model.meta.multiple();
+        let planes = Planes {
+            data: &prep.input,
+            channels: inputs.channels(),
+            width: p.width,
+            height: p.height,
+        };
         let out = run_ensemble(
             &self.model.net,
-            &prep.input,
-            inputs.channels(),
-            p.width,
-            p.height,
+            planes,
             multiple,
             self.tiling,
             self.ensemble,

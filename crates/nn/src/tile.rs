@@ -25,6 +25,19 @@ impl Default for Tiling {
     }
 }
 
+/// A network input: `channels` planes of `width`×`height`, channel-major ([C, H, W]).
+#[derive(Clone, Copy, Debug)]
+pub struct Planes<'a> {
+    /// The pixels, plane after plane.
+    pub data: &'a [f32],
+    /// Planes.
+    pub channels: usize,
+    /// Width.
+    pub width: usize,
+    /// Height.
+    pub height: usize,
+}
+
 /// Where the tiles of a frame go: the frame padded to the network's multiple, the tile size
 /// along each axis, the overlap actually used, and the tile origins.
 #[derive(Clone, Debug)]
@@ -99,17 +112,15 @@ fn ramp(i: usize, s: usize, t: usize, o: usize, len: usize) -> f32 {
     lo.min(hi).max(1e-3)
 }
 
-/// Runs `net` on a [C, H, W] channel-major input; returns the [H, W] output.
-pub fn run(
-    net: &Net,
-    input: &[f32],
-    channels: usize,
-    width: usize,
-    height: usize,
-    multiple: usize,
-    tiling: Tiling,
-    device: &Device,
-) -> Vec<f32> {
+/// Runs `net` (which needs sides that are multiples of `multiple`) on `input`; returns the
+/// [H, W] output.
+pub fn run(net: &Net, input: Planes, multiple: usize, tiling: Tiling, device: &Device) -> Vec<f32> {
+    let Planes {
+        data: input,
+        channels,
+        width,
+        height,
+    } = input;
     let Layout {
         padded: (pw, ph),
         tile: (tw, th),
@@ -179,13 +190,9 @@ fn dihedral(t: usize, x: usize, y: usize, width: usize, height: usize) -> usize 
 /// [`run`] averaged over the first `k` of the eight flips/transposes of the frame (k = 1: plain
 /// `run`; 2: + horizontal flip; 4: + vertical flips; 8: + transposes). The network saw all eight
 /// orientations in training, so each is an equally good estimate with partly independent errors.
-#[allow(clippy::too_many_arguments)]
 pub fn run_ensemble(
     net: &Net,
-    input: &[f32],
-    channels: usize,
-    width: usize,
-    height: usize,
+    planes: Planes,
     multiple: usize,
     tiling: Tiling,
     k: usize,
@@ -193,10 +200,14 @@ pub fn run_ensemble(
 ) -> Vec<f32> {
     let k = k.clamp(1, 8);
     if k == 1 {
-        return run(
-            net, input, channels, width, height, multiple, tiling, device,
-        );
+        return run(net, planes, multiple, tiling, device);
     }
+    let Planes {
+        data: input,
+        channels,
+        width,
+        height,
+    } = planes;
     let n = width * height;
     let mut acc = vec![0f32; n];
     let mut moved = vec![0f32; channels * n];
@@ -213,7 +224,13 @@ pub fn run_ensemble(
         } else {
             (width, height)
         };
-        let out = run(net, &moved, channels, tw, th, multiple, tiling, device);
+        let moved_planes = Planes {
+            data: &moved,
+            channels,
+            width: tw,
+            height: th,
+        };
+        let out = run(net, moved_planes, multiple, tiling, device);
         for y in 0..height {
             for x in 0..width {
                 acc[y * width + x] += out[dihedral(t, x, y, width, height)];

@@ -1,6 +1,6 @@
 //! Network layer: tiling without seams, model files, and resumable, deterministic training.
 
-use emccd_nn::tile::{run, run_ensemble, Tiling};
+use emccd_nn::tile::{run, run_ensemble, Planes, Tiling};
 mod common;
 
 use common::{meta, scene, tiling_mismatch};
@@ -81,7 +81,15 @@ fn self_ensemble_averages_the_network_over_flips_and_transposes() {
     let mut input = img.clone();
     input.extend(img.iter().map(|v| v.sqrt() * 0.1));
     let tiles = Tiling::default();
-    let got = run_ensemble(&net, &input, 2, w, h, 4, tiles, 8, &dev);
+    fn planes(data: &[f32], width: usize, height: usize) -> Planes<'_> {
+        Planes {
+            data,
+            channels: 2,
+            width,
+            height,
+        }
+    }
+    let got = run_ensemble(&net, planes(&input, w, h), 4, tiles, 8, &dev);
     // The expectation, written independently: each orientation as a coordinate map from the
     // original frame, applied to the input and undone on the output.
     let maps: [fn(usize, usize, usize, usize) -> (usize, usize); 8] = [
@@ -106,7 +114,7 @@ fn self_ensemble_averages_the_network_over_flips_and_transposes() {
                 }
             }
         }
-        let out = run(&net, &moved, 2, tw, th, 4, tiles, &dev);
+        let out = run(&net, planes(&moved, tw, th), 4, tiles, &dev);
         for y in 0..h {
             for x in 0..w {
                 let (tx, ty) = map(x, y, w, h);
@@ -124,7 +132,7 @@ fn self_ensemble_averages_the_network_over_flips_and_transposes() {
         "self-ensemble differs from the average of the eight orientations by {worst}"
     );
     // The network is not flip-equivariant, so the average differs from the plain output.
-    let plain = run(&net, &input, 2, w, h, 4, tiles, &dev);
+    let plain = run(&net, planes(&input, w, h), 4, tiles, &dev);
     assert!(got.iter().zip(&plain).any(|(a, b)| (a - b).abs() > 1e-4));
 }
 
@@ -141,16 +149,13 @@ fn the_bundled_default_model_output_is_pinned() {
     let img = scene(w, h);
     let mut input = img.clone();
     input.extend(img.iter().map(|v| (v.max(0.0) + 0.01).sqrt() * 0.1));
-    let out = run(
-        &m.net,
-        &input,
-        2,
-        w,
-        h,
-        m.meta.multiple(),
-        Tiling::default(),
-        &dev,
-    );
+    let planes = Planes {
+        data: &input,
+        channels: 2,
+        width: w,
+        height: h,
+    };
+    let out = run(&m.net, planes, m.meta.multiple(), Tiling::default(), &dev);
     let n = out.len() as f64;
     let mean = out.iter().map(|&v| v as f64).sum::<f64>() / n;
     let sd = (out.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / n).sqrt();

@@ -1,7 +1,7 @@
 //! Helpers shared by the network tests.
 #![allow(dead_code)] // each test binary uses its own subset
 
-use emccd_nn::tile::{run, Tiling};
+use emccd_nn::tile::{run, Planes, Tiling};
 use emccd_nn::{Arch, ModelMeta, Net, UNetConfig};
 
 /// A bundled model file, `models/NAME-unet.safetensors` at the repository root.
@@ -64,12 +64,15 @@ pub fn tiling_mismatch(
     let img = scene(w, h);
     let mut input = img.clone();
     input.extend(img.iter().map(|v| v.sqrt() * 0.1));
+    let planes = Planes {
+        data: &input,
+        channels: 2,
+        width: w,
+        height: h,
+    };
     let whole = run(
         net,
-        &input,
-        2,
-        w,
-        h,
+        planes,
         multiple,
         Tiling {
             tile: w.max(h).next_multiple_of(multiple),
@@ -77,7 +80,7 @@ pub fn tiling_mismatch(
         },
         &dev,
     );
-    let tiled = run(net, &input, 2, w, h, multiple, tiles, &dev);
+    let tiled = run(net, planes, multiple, tiles, &dev);
     // A seam is narrow: over the whole interior its error would be diluted by the pixels that
     // only one tile covers. So the mismatch is measured over the overlap bands alone (where
     // neighbouring tiles meet), and over the whole interior; the worse of the two is returned.
