@@ -91,33 +91,27 @@ pub fn run(a: Args) -> Result<()> {
     let mut scores = Vec::new();
     for cam in &cameras {
         for p in &cam.file.pair {
+            let frames = p.read(&cam.dir).map_err(anyhow::Error::msg)?;
             let PairFrames {
                 width: w,
                 height: h,
                 noisy: raw,
                 clean: truth,
-            } = p.read(&cam.dir).map_err(anyhow::Error::msg)?;
+            } = &frames;
+            let (w, h) = (*w, *h);
             let prof = if (w, h) == (cam.profile.width, cam.profile.height) {
                 cam.profile.clone()
             } else {
                 cam.profile.crop(0, 0, w, h)?
             };
-            let peak = emccd_eval::scores::truth_peak(&truth);
+            let peak = emccd_eval::scores::truth_peak(truth);
             let mut outputs: Vec<(String, Vec<f32>)> = Vec::new();
             for est in &estimators {
                 let m = est.name();
                 let t = std::time::Instant::now();
-                let out = est.run(&prof, &raw, p.exposure_s)?;
-                scores.push(Score::measure(
-                    m,
-                    &cam.name,
-                    p,
-                    &out,
-                    &truth,
-                    w,
-                    h,
-                    t.elapsed().as_secs_f64(),
-                ));
+                let out = est.run(&prof, raw, p.exposure_s)?;
+                let seconds = t.elapsed().as_secs_f64();
+                scores.push(Score::measure(m, &cam.name, p, &frames, &out, seconds));
                 outputs.push((m.to_string(), out));
                 pb.inc(1);
             }
@@ -135,7 +129,7 @@ pub fn run(a: Args) -> Result<()> {
                 } else {
                     String::new()
                 };
-                write_panel(o, &stem, p, w, h, &outputs, &truth, peak)?;
+                write_panel(o, &stem, p, w, h, &outputs, truth, peak)?;
             }
         }
     }

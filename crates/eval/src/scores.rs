@@ -5,7 +5,7 @@ use std::fmt::Write as _;
 
 use serde::Serialize;
 
-use crate::pairs::Pair;
+use crate::pairs::{Pair, PairFrames};
 
 /// One method on one pair.
 #[derive(Clone, Debug, Serialize)]
@@ -37,18 +37,17 @@ pub struct Score {
 }
 
 impl Score {
-    /// Scores `out` against `truth` (`w`×`h`, photo-signal in DN above bias) for `pair`.
-    #[allow(clippy::too_many_arguments)]
+    /// Scores `out`, `method`'s estimate for `pair` of `camera`, against the pair's ground
+    /// truth in `frames` (photo-signal in DN above bias); `seconds` is what the method took.
     pub fn measure(
         method: &str,
         camera: &str,
         pair: &Pair,
+        frames: &PairFrames,
         out: &[f32],
-        truth: &[f32],
-        w: usize,
-        h: usize,
         seconds: f64,
     ) -> Score {
+        let (truth, w, h) = (&frames.clean, frames.width, frames.height);
         let peak = truth_peak(truth);
         Score {
             method: method.into(),
