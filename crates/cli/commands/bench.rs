@@ -293,15 +293,16 @@ fn denoise_bench(
     frames: usize,
     data: &std::path::Path,
 ) -> Result<()> {
-    use emccd_nn::pipeline::Pipeline;
-    let specs = model_args
-        .iter()
-        .map(|m| emccd_nn::registry::ModelSpec::parse(m))
-        .collect::<Result<Vec<_>, _>>()?;
-    let models = specs
-        .iter()
-        .map(|s| emccd_nn::registry::load(s.model))
-        .collect::<Result<Vec<_>, _>>()?;
+    use emccd_nn::registry::{load, Estimator};
+    let bm3d = Estimator::parse("bm3d", load)?;
+    let mut models = Vec::with_capacity(model_args.len());
+    for m in model_args {
+        let est = Estimator::parse(m, load)?;
+        if est.model().is_none() {
+            anyhow::bail!("--denoise {m}: not a model (a file, or `default`, `microscopy`, `lowlight`; `MODEL@8` for the self-ensemble)");
+        }
+        models.push(est);
+    }
     let profile = crate::common::load_profile(profile_arg)?;
     let cam = VirtualCamera::new(profile.clone(), Default::default())?;
     let scenes = if scene_args.is_empty() {
@@ -309,14 +310,6 @@ fn denoise_bench(
     } else {
         emccd_io::image_files(scene_args)?
     };
-    let pipes: Vec<Pipeline> = models
-        .iter()
-        .zip(&specs)
-        .map(|(m, s)| Pipeline {
-            ensemble: s.ensemble,
-            ..Pipeline::new(m, &profile)
-        })
-        .collect();
     let e = cam.exposure(0.01);
     let k = models.len();
     let (mut pin, mut pbm, mut n, mut bm_secs) = (0.0, 0.0, 0usize, 0.0);
@@ -356,11 +349,10 @@ fn denoise_bench(
             let mut raw = vec![0f32; w * h];
             e.frame(&phot, 1000 + (si * 2 + li) as u64, &mut raw);
             let peak = truth.iter().copied().fold(0f32, f32::max).max(1.0) as f64;
-            // BM3D's time includes the preprocessing every method runs first.
-            let t = Instant::now();
             let pre = emccd_nn::pipeline::preprocess(&profile, &raw, 0.01)?;
-            let bm =
-                emccd_nn::pipeline::classical_estimate(&profile, &pre, 0.01, emccd_nn::Base::Bm3d)?;
+            // Every method's time includes the preprocessing it runs first.
+            let t = Instant::now();
+            let bm = bm3d.run(&profile, &raw, 0.01)?;
             bm_secs += t.elapsed().as_secs_f64();
             let (a, c) = (
                 emccd_eval::psnr(&pre, &truth, peak),
@@ -373,17 +365,9 @@ fn denoise_bench(
                 a,
                 c
             );
-            for (mi, pipe) in pipes.iter().enumerate() {
-                // A model made for an ablation has its own preprocessing.
-                let own;
-                let input = if pipe.model.meta.ablate.is_full() {
-                    &pre
-                } else {
-                    own = pipe.preprocess(&raw, 0.01)?;
-                    &own
-                };
+            for (mi, est) in models.iter().enumerate() {
                 let t = Instant::now();
-                let den = pipe.denoise_preprocessed(input, 0.01)?;
+                let den = est.run(&profile, &raw, 0.01)?;
                 if timed[mi] < frames.max(1) {
                     secs[mi] += t.elapsed().as_secs_f64();
                     timed[mi] += 1;
@@ -406,13 +390,13 @@ fn denoise_bench(
         pbm / nn,
         bm_secs / nn
     );
-    for (i, m) in models.iter().enumerate() {
-        let nparams = burn::module::Module::num_params(&m.net);
+    for (i, est) in models.iter().enumerate() {
+        let m = est.model().expect("a model argument runs a network");
         println!(
             "model {}: {} ({} params, {} steps, noise model {}): {:.2} dB ({:+.2} vs BM3D), {:.3} s per 512×512 frame",
             i + 1,
-            model_args[i],
-            nparams,
+            est.name(),
+            burn::module::Module::num_params(&m.net),
             m.meta.steps,
             m.meta.noise_model.name(),
             pout[i] / nn,

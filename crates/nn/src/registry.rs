@@ -420,6 +420,14 @@ impl Estimator {
         &self.name
     }
 
+    /// The network it runs, if any.
+    pub fn model(&self) -> Option<&Denoiser> {
+        match &self.kind {
+            Kind::Denoise { model, .. } => model.as_ref(),
+            Kind::Passes(_) => None,
+        }
+    }
+
     /// Its estimate of one raw frame (DN, the profile's size) taken with `exposure_s`, in DN
     /// above bias.
     pub fn run(&self, profile: &CameraProfile, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
