@@ -50,10 +50,11 @@ pub struct Args {
     /// Where the training pairs come from.
     #[arg(long, value_enum, default_value = "resynthesis")]
     pub method: AdaptMethod,
-    /// Fine-tuning steps (about 1 s each for 4 × 128² crops on 2 cores).
+    /// Fine-tuning steps (about 1 s each for 4 × 128² crops on 2 cores; the default takes
+    /// about 8 minutes).
     #[arg(long, default_value_t = AdaptConfig::default().steps)]
     pub steps: u64,
-    /// Peak learning rate [default: 2e-4 fine-tuning, 1e-3 from scratch].
+    /// Peak learning rate [default: 5e-4 fine-tuning, 1e-3 from scratch].
     #[arg(long)]
     pub lr: Option<f64>,
     /// Largest training crop side (px; smaller frames use their own size, half of it with

@@ -21,19 +21,19 @@ pub struct CameraOpts {
     #[arg(long, value_parser = parse_size)]
     pub crop: Option<(usize, usize)>,
     /// Quantum efficiency.
-    #[arg(long, default_value_t = 0.9)]
+    #[arg(long, default_value_t = PhysicalParams::default().qe)]
     pub qe: f64,
     /// Clock-induced charge, e⁻ per pixel per frame.
-    #[arg(long, default_value_t = 0.005)]
+    #[arg(long, default_value_t = PhysicalParams::default().cic_e)]
     pub cic: f64,
     /// Dark current, e⁻ per pixel per second.
-    #[arg(long, default_value_t = 0.001)]
+    #[arg(long, default_value_t = PhysicalParams::default().dark_e_per_s)]
     pub dark: f64,
     /// Fraction of hot pixels (dark current `--hot-dark`).
-    #[arg(long, default_value_t = 2e-4)]
+    #[arg(long, default_value_t = PhysicalParams::default().hot_fraction)]
     pub hot_fraction: f64,
     /// Dark current of hot pixels, e⁻ per pixel per second.
-    #[arg(long, default_value_t = 50.0)]
+    #[arg(long, default_value_t = PhysicalParams::default().hot_dark_e_per_s)]
     pub hot_dark: f64,
     /// Random seed (same seed, same files).
     #[arg(long, default_value_t = 1)]
