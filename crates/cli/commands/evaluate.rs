@@ -135,12 +135,12 @@ pub fn run(a: Args) -> Result<()> {
     }
     pb.finish_and_clear();
     let camera_names: Vec<String> = cameras.iter().map(|c| c.name.clone()).collect();
-    let (unit, summaries) = emccd_eval::scores::summarize(&scores, &a.methods, &camera_names);
+    let table = emccd_eval::scores::summarize(&scores, &a.methods, &camera_names);
     let v = serde_json::json!({
         "psnr_data_range": "ground-truth peak per pair; psnr_paper_db: images / 65535, range 1 (the paper's convention)",
         "lpips": "not computed: its network weights cannot be obtained offline",
-        "level_unit": unit.describe(),
-        "summary": summaries,
+        "level_unit": table.unit.describe(),
+        "summary": table.rows,
         "pairs": scores,
     });
     if let Some(o) = &a.out {
@@ -152,7 +152,7 @@ pub fn run(a: Args) -> Result<()> {
     if a.json {
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
-        print!("{}", emccd_eval::scores::markdown(unit, &summaries));
+        print!("{}", table.markdown());
     }
     if let Some(o) = &a.out {
         emccd_io::write_atomic(

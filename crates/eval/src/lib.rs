@@ -23,7 +23,7 @@ pub mod virtual_pairs;
 pub mod vst;
 
 pub use pairs::{Pair, PairFrames, PairsManifest};
-pub use scores::{LevelUnit, Score, Summary};
+pub use scores::{LevelUnit, Score, Summaries, Summary};
 
 use rayon::prelude::*;
 

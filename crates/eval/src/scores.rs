@@ -146,13 +146,18 @@ fn mean(v: impl Iterator<Item = f64>) -> f64 {
     s / n.max(1) as f64
 }
 
+/// The rows of an evaluation table and the unit of their light levels.
+#[derive(Clone, Debug)]
+pub struct Summaries {
+    /// What the rows' levels are.
+    pub unit: LevelUnit,
+    /// Per method (and camera): overall, then per level.
+    pub rows: Vec<Summary>,
+}
+
 /// Averages of `scores` per method (in `methods` order): over everything, then per level;
 /// with several `cameras`, the same again per camera.
-pub fn summarize(
-    scores: &[Score],
-    methods: &[String],
-    cameras: &[String],
-) -> (LevelUnit, Vec<Summary>) {
+pub fn summarize(scores: &[Score], methods: &[String], cameras: &[String]) -> Summaries {
     let unit = LevelUnit::for_scores(scores);
     let mut levels: Vec<f64> = scores.iter().map(|s| unit.level(s)).collect();
     levels.sort_by(f64::total_cmp);
@@ -202,12 +207,17 @@ pub fn summarize(
             }
         }
     }
-    (unit, out)
+    Summaries { unit, rows: out }
 }
 
-/// The summaries as the Markdown table `emccd evaluate` prints, with its two lines of
-/// conventions above.
-pub fn markdown(unit: LevelUnit, summaries: &[Summary]) -> String {
+impl Summaries {
+    /// The Markdown table `emccd evaluate` prints, with its two lines of conventions above.
+    pub fn markdown(&self) -> String {
+        markdown(self.unit, &self.rows)
+    }
+}
+
+fn markdown(unit: LevelUnit, summaries: &[Summary]) -> String {
     let mut t = String::new();
     let _ = writeln!(t, "PSNR data range: the ground truth's peak; \"paper\": images / 65535 with range 1. LPIPS: not computed (no weights offline).");
     let _ = writeln!(
@@ -317,11 +327,12 @@ mod tests {
             score("bm3d", "a", 4.0, 26.0),
             score("net", "a", 1.0, 19.0),
         ];
-        let (unit, s) = summarize(
+        let table = summarize(
             &scores,
             &["bm3d".into(), "net".into()],
             &["a".into(), "b".into()],
         );
+        let (unit, s) = (table.unit, &table.rows);
         assert_eq!(unit, LevelUnit::MeanElectrons);
         let all = &s[0];
         assert_eq!(
@@ -349,7 +360,7 @@ mod tests {
             b, 2,
             "camera b: bm3d overall and at 1 e⁻ (no net scores there)"
         );
-        let md = markdown(unit, &s);
+        let md = table.markdown();
         assert!(md.contains("| all | bm3d | all | 3 | 22.67 |"), "{md}");
         assert!(csv(&scores)
             .lines()
