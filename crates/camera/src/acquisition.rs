@@ -179,7 +179,8 @@ impl CalibrationPlan {
         for stack in self.stacks(cam, seed)? {
             let path = dir.join(&stack.file);
             if let Some(parent) = path.parent() {
-                std::fs::create_dir_all(parent).map_err(emccd_io::Error::from)?;
+                std::fs::create_dir_all(parent)
+                    .map_err(|e| emccd_io::Error::from(e).with_path(parent))?;
             }
             let mut w = StackWriter::create(
                 &path,

@@ -140,7 +140,14 @@ pub fn run(c: Cmd) -> Result<()> {
             roi: (x, y, w, h),
         } => {
             let p = load_profile(&profile)?;
-            emccd_io::refuse_overwrite(&out, std::path::Path::new(&profile), "the input profile")?;
+            // `default` is the bundled profile, never a folder here.
+            if profile != "default" {
+                emccd_io::refuse_overwrite(
+                    &out,
+                    std::path::Path::new(&profile),
+                    "the input profile",
+                )?;
+            }
             let c = p
                 .crop(x, y, w, h)
                 .with_context(|| format!("profile {profile}"))?;

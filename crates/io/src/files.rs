@@ -56,12 +56,16 @@ fn canonical(p: &Path) -> PathBuf {
 /// and `what` the input is ("the input x.tif", "the --init model").
 pub fn refuse_overwrite(out: &Path, input: &Path, what: &str) -> Result<()> {
     if FileId::of(out) == FileId::of(input) {
-        return Err(Error::Usage(format!(
-            "{}: the output is {what}; choose another output, inputs are never overwritten",
-            out.display()
-        )));
+        return Err(overwrite_error(out, what));
     }
     Ok(())
+}
+
+fn overwrite_error(out: &Path, what: &str) -> Error {
+    Error::Usage(format!(
+        "{}: the output is {what}; choose another output, inputs are never overwritten",
+        out.display()
+    ))
 }
 
 /// Where each input's result goes: `out` itself for one input without `suffix`, else
@@ -82,21 +86,22 @@ pub fn output_paths(inputs: &[PathBuf], out: &Path, suffix: Option<&str>) -> Res
             None => out.to_path_buf(),
         })
         .collect();
+    // Each file's identity once: thousands of inputs are compared in memory, not on disk.
+    let ids: Vec<FileId> = inputs.iter().map(|p| FileId::of(p)).collect();
     for (o, input) in outs.iter().zip(inputs) {
-        for other in inputs {
-            refuse_overwrite(
-                o,
-                other,
-                &if other == input {
-                    format!("the input {}", other.display())
-                } else {
-                    format!(
-                        "the input {}, the output for {}",
-                        other.display(),
-                        input.display()
-                    )
-                },
-            )?;
+        let oid = FileId::of(o);
+        if let Some(k) = ids.iter().position(|i| *i == oid) {
+            let other = &inputs[k];
+            let what = if other == input {
+                format!("the input {}", other.display())
+            } else {
+                format!(
+                    "the input {}, the output for {}",
+                    other.display(),
+                    input.display()
+                )
+            };
+            return Err(overwrite_error(o, &what));
         }
     }
     for (i, o) in outs.iter().enumerate() {
