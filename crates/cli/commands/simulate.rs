@@ -235,12 +235,13 @@ fn pairs(
     }
     let scenes = emccd_io::image_files(clean)?;
     let camera = opts.camera()?;
-    let run_model = |profile: &CameraProfile, raw: &[f32], exposure_s: f64| {
-        let m = model.as_ref().expect("called only with a model");
-        Pipeline::new(m, profile)
-            .denoise_raw(raw, exposure_s)
-            .map_err(|e| e.to_string())
-    };
+    let run_model = model.as_ref().map(|m| {
+        move |profile: &CameraProfile, raw: &[f32], exposure_s: f64| {
+            Pipeline::new(m, profile)
+                .denoise_raw(raw, exposure_s)
+                .map_err(|e| e.to_string())
+        }
+    });
     let plan = PairsPlan {
         scenes: &scenes,
         levels,
@@ -254,7 +255,7 @@ fn pairs(
         out,
         &plan,
         &camera,
-        model.is_some().then_some(&run_model as &Denoise),
+        run_model.as_ref().map(|f| f as &Denoise),
         || pb.inc(1),
     )
     .map_err(anyhow::Error::msg)?;
