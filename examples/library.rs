@@ -16,7 +16,7 @@ use emccd_nn::adapt::{
     adapt, AdaptConfig, AdaptData, AdaptMethod, AdaptRun, Adaptation, FrameSet, Start,
 };
 use emccd_nn::train::{train, Image, Run, RunPaths, TrainConfig, TrainImages};
-use emccd_nn::{FrameDenoiser, Method, ModelMeta};
+use emccd_nn::{FrameDenoiser, Method, ModelMeta, Units};
 use emccd_profile::CameraProfile;
 
 /// A 64×64 sub-array keeps the example to seconds.
@@ -121,7 +121,7 @@ fn main() -> Result<()> {
             model: method.uses_model().then_some(&model),
             tiling: Default::default(),
             ensemble: 1,
-            to_units: 1.0,
+            units: Units::Dn,
         };
         let out = d.run(&raw, 0.01)?;
         println!(
@@ -177,7 +177,7 @@ fn main() -> Result<()> {
         model: Some(&adapted),
         tiling: Default::default(),
         ensemble: 1,
-        to_units: 1.0,
+        units: Units::Dn,
     };
     println!(
         "adapted net: {:.2} dB",

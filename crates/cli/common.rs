@@ -1,9 +1,9 @@
 //! Helpers shared by subcommands: the bundled default profile, progress bars, parsing.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use anyhow::{bail, Context, Result};
-use emccd_profile::CameraProfile;
+use anyhow::{Context, Result};
+use emccd_profile::{CameraProfile, Recording};
 use indicatif::{ProgressBar, ProgressStyle};
 
 /// Loads `--profile`: a directory, or `default` for the bundled profile.
@@ -70,52 +70,20 @@ pub fn step_progress(
     (pb, report)
 }
 
-/// A recording opened and checked against the profile, ready to stream.
-pub struct Recording {
-    /// Its path.
-    pub path: PathBuf,
-    /// Its frames.
-    pub reader: Box<dyn emccd_io::FrameReader>,
-    /// What it holds.
-    pub info: emccd_io::StackInfo,
-    /// Its exposure (s): `--exposure-s`, else the header's.
-    pub exposure: f64,
-}
-
-/// Opens a recording and checks it against the profile (sensor size) and the exposure rules
-/// (`exposure_arg` overrides the header's; outside the calibrated range only with
-/// `extrapolate`); warnings go to stderr.
+/// Opens a recording and checks it against the profile ([`Recording::open`]: `exposure_arg`
+/// overrides the header's; outside the calibrated range only with `extrapolate`); its warnings
+/// go to stderr.
 pub fn open_recording(
     input: &Path,
     profile: &CameraProfile,
     exposure_arg: Option<f64>,
     extrapolate: bool,
 ) -> Result<Recording> {
-    let reader = emccd_io::open(input)?;
-    let info = reader.info().clone();
-    for w in &info.metadata.warnings {
-        eprintln!("warning: {}: {w}", input.display());
+    let r = Recording::open(input, profile, exposure_arg, "--exposure-s", extrapolate)?;
+    for w in &r.warnings {
+        eprintln!("warning: {w}");
     }
-    let (exposure, source) = match (exposure_arg, info.metadata.exposure_s) {
-        (Some(t), _) => (t, "--exposure-s"),
-        (None, Some(t)) => (t, "the file header"),
-        (None, None) => bail!(
-            "{}: the header records no exposure; pass --exposure-s",
-            input.display()
-        ),
-    };
-    if let Some(w) = profile
-        .check_frames(info.width, info.height, exposure, source, extrapolate)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", input.display()))?
-    {
-        eprintln!("warning: {}: {w}", input.display());
-    }
-    Ok(Recording {
-        path: input.to_path_buf(),
-        reader,
-        info,
-        exposure,
-    })
+    Ok(r)
 }
 
 /// Parses `WxH` (e.g. `128x96`).

@@ -438,15 +438,8 @@ fn denoise<'py>(
         .map(|m| m.parse::<Method>())
         .transpose()
         .map_err(err)?;
-    let to_units = match units {
-        "dn" => 1.0f32,
-        "electrons" => (1.0 / p.dn_per_electron().map_err(err)?) as f32,
-        u => {
-            return Err(err(anyhow::anyhow!(
-                "units {u:?}: the units are \"dn\" (DN above bias) or \"electrons\""
-            )))
-        }
-    };
+    let units: registry::Units = units.parse().map_err(err)?;
+    units.factor(p).map_err(err)?;
     if tile < 64 {
         return Err(err(anyhow::anyhow!(
             "tile {tile}: a tile is at least 64 px"
@@ -468,7 +461,9 @@ fn denoise<'py>(
         if let Some(wn) = p.check_frames(w, h, exposure_s, "exposure_s", extrapolate)? {
             warnings.push(wn);
         }
-        let (method, net) = registry::resolve(method, model.as_deref(), load_model)?;
+        let registry::Resolved {
+            method, model: net, ..
+        } = registry::resolve(method, model.as_deref(), load_model)?;
         let fp = format!("{:016x}", p.fingerprint());
         if let Some(wn) = net
             .as_ref()
@@ -482,7 +477,7 @@ fn denoise<'py>(
             model: net.as_ref(),
             tiling: emccd_nn::tile::Tiling { tile, overlap },
             ensemble,
-            to_units,
+            units,
         };
         let mut out = Vec::with_capacity(raw.len());
         for (k, frame) in raw.chunks(w * h).enumerate() {

@@ -9,7 +9,9 @@ use emccd_nn::adapt::{
 };
 use emccd_nn::train::RunPaths;
 
-use crate::common::{load_profile, open_recording, progress, step_progress, Recording};
+use emccd_profile::Recording;
+
+use crate::common::{load_profile, open_recording, progress, step_progress};
 
 /// Adapt a denoising network to your own recording, with no clean images: the frames are
 /// preprocessed as `denoise` does (blooming, fixed pattern), averaged (the scene must be static

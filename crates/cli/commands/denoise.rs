@@ -4,19 +4,11 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use emccd_io::zarr::Shard;
-use emccd_nn::registry::{FrameDenoiser, Method};
+use emccd_nn::registry::{FrameDenoiser, Method, Resolved, Units};
 use emccd_nn::tile::Tiling;
+use emccd_profile::Recording;
 
-use crate::common::{load_profile, open_recording, progress, Recording};
-
-/// Output units.
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Units {
-    /// DN above bias (the photo-signal, blooming and fixed pattern removed).
-    Dn,
-    /// Photo-electrons: DN / K with K = s/2 (the EM register's f² = 2).
-    Electrons,
-}
+use crate::common::{load_profile, open_recording, progress};
 
 /// Denoise raw EMCCD frames: remove blooming and the fixed pattern with the camera profile (paper
 /// eq. 4), then denoise — by default with `blend`: BM3D with iterative variance stabilization
@@ -96,8 +88,11 @@ fn parse_ensemble(s: &str) -> std::result::Result<usize, String> {
 
 pub fn run(a: Args) -> Result<()> {
     let profile = load_profile(&a.profile)?;
-    let (method, model) =
-        emccd_nn::registry::resolve(a.method, a.model.as_deref(), emccd_nn::registry::load)?;
+    let Resolved {
+        method,
+        model,
+        model_name,
+    } = emccd_nn::registry::resolve(a.method, a.model.as_deref(), emccd_nn::registry::load)?;
     let fp = format!("{:016x}", profile.fingerprint());
     if let Some(w) = model
         .as_ref()
@@ -121,13 +116,12 @@ pub fn run(a: Args) -> Result<()> {
             overlap: a.overlap,
         },
         ensemble: a.ensemble,
-        to_units: match a.units {
-            Units::Dn => 1.0f32,
-            Units::Electrons => (1.0 / profile.dn_per_electron()?) as f32,
-        },
+        units: a.units,
     };
+    // An impossible unit conversion is an error now, not at the first frame.
+    a.units.factor(&profile)?;
     if zarr {
-        return run_zarr(&a, &fd, &fp);
+        return run_zarr(&a, &fd, model_name.as_deref());
     }
     let several = a.inputs.len() > 1;
     let outs = emccd_io::output_paths(&a.inputs, &a.out, several.then_some("_denoised.tif"))?;
@@ -173,74 +167,38 @@ pub fn run(a: Args) -> Result<()> {
 /// Denoises the inputs, one logical stack in the order given, into one OME-Zarr store: this
 /// process's shard of the frames, skipping frames already complete (an earlier run, or another
 /// shard), so a killed run is resumed by running it again.
-fn run_zarr(a: &Args, fd: &FrameDenoiser, profile_fp: &str) -> Result<()> {
+fn run_zarr(a: &Args, fd: &FrameDenoiser, model_name: Option<&str>) -> Result<()> {
     for i in &a.inputs {
         emccd_io::refuse_overwrite(&a.out, i, &format!("the input {}", i.display()))?;
     }
     let mut inputs = Vec::with_capacity(a.inputs.len());
     for path in &a.inputs {
-        let i = open_recording(path, fd.profile, a.exposure_s, a.extrapolate)?;
-        inputs.push(i);
+        inputs.push(open_recording(
+            path,
+            fd.profile,
+            a.exposure_s,
+            a.extrapolate,
+        )?);
     }
     let frames: usize = inputs.iter().map(|i| i.info.frames).sum();
     if frames == 0 {
         bail!("the inputs hold no frame");
     }
-    // What the frames are a function of, compared by every process that writes the store: each
-    // input by its real path, size and modification time (a file rewritten between two shards
-    // is another input), the model by its bytes, not by how it was named.
-    let mut ids = Vec::with_capacity(inputs.len());
-    for i in &inputs {
-        let mut stamp = serde_json::to_value(emccd_io::FileStamp::of(&i.path)?)?;
-        stamp["frames"] = i.info.frames.into();
-        stamp["exposure_s"] = i.exposure.into();
-        ids.push(stamp);
-    }
-    let model_name = fd.model.map(|_| {
-        a.model.clone().unwrap_or_else(|| {
-            if fd.method == Method::Hybrid {
-                "hybrid"
-            } else {
-                "default"
-            }
-            .to_string()
-        })
-    });
-    let model_hash = match &model_name {
-        Some(n) => Some(format!(
-            "{:016x}",
-            emccd_io::content_hash(&emccd_nn::registry::model_path(n)?)?
-        )),
-        None => None,
-    };
-    let net = fd.model.is_some();
-    let provenance = serde_json::json!({
-        "software": format!("emccd {}", env!("CARGO_PKG_VERSION")),
-        "inputs": ids,
-        "profile_fingerprint": profile_fp,
-        "method": fd.method.name(),
-        "model_hash": model_hash,
-        "units": match a.units { Units::Dn => "DN above bias", Units::Electrons => "photoelectrons" },
-        "tile": net.then_some(a.tile),
-        "overlap": net.then_some(a.overlap),
-        "ensemble": net.then_some(a.ensemble),
-    });
     let notes = serde_json::json!({
         "inputs": a.inputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
         "profile": a.profile,
         "model": model_name,
     });
-    let name = a
-        .out
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
     let spec = emccd_io::zarr::ZarrStackSpec {
         width: fd.profile.width,
         height: fd.profile.height,
         frames,
-        name,
-        provenance,
+        name: a
+            .out
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        provenance: emccd_nn::stack::provenance(fd, model_name, &inputs)?,
         notes,
     };
     let (store, _created) = emccd_io::zarr::ZarrStackWriter::create_or_open(&a.out, &spec)?;
@@ -262,40 +220,17 @@ fn run_zarr(a: &Args, fd: &FrameDenoiser, profile_fp: &str) -> Result<()> {
         range.clone().filter(|&k| !store.is_done(k)).count() as u64,
         "frames",
     );
-    let mut buf = vec![0f32; fd.profile.width * fd.profile.height];
-    let (mut k, mut written, mut skipped) = (0usize, 0usize, 0usize);
-    for mut i in inputs {
-        if k >= range.end {
-            break;
-        }
-        let at = |j: usize| format!("{}: frame {}", i.path.display(), j + 1);
-        // j counts this input's frames (what messages name), k the stack's.
-        for j in 0..i.info.frames {
-            if k >= range.end {
-                break;
-            }
-            if range.contains(&k) && !store.is_done(k) {
-                if !i.reader.read_frame(&mut buf).with_context(|| at(j))? {
-                    bail!("{}: the file ended before it", at(j));
-                }
-                store.write_frame(k, &denoise_frame(fd, &i.path, j, &buf, i.exposure)?)?;
-                written += 1;
-                pb.inc(1);
-            } else {
-                skipped += range.contains(&k) as usize;
-                i.reader.skip_frame().with_context(|| at(j))?;
-            }
-            k += 1;
-        }
-    }
+    let run = emccd_nn::stack::denoise_shard(fd, inputs, &store, range.clone(), &mut || pb.inc(1))?;
     pb.finish_and_clear();
     let done = store.done_count();
     eprintln!(
-        "{share}{} → {}: frames {}–{} ({written} denoised now, {skipped} were already done); {done} of {frames} frames of the store complete{}",
+        "{share}{} → {}: frames {}–{} ({} denoised now, {} were already done); {done} of {frames} frames of the store complete{}",
         if a.inputs.len() == 1 { a.inputs[0].display().to_string() } else { format!("{} inputs", a.inputs.len()) },
         a.out.display(),
         range.start + 1,
         range.end,
+        run.written,
+        run.skipped,
         if done < frames { " (the other shards write the rest)" } else { "" }
     );
     Ok(())

@@ -20,6 +20,18 @@ pub enum Error {
     /// Training input is unusable.
     #[error("{0}")]
     Data(String),
+    /// A file (a recording, an output store) that cannot be read or written.
+    #[error(transparent)]
+    File(#[from] emccd_io::Error),
+    /// A frame of a recording that cannot be read: `at` names the file and the frame.
+    #[error("{at}")]
+    Frame {
+        /// The file and the frame (from 1).
+        at: String,
+        /// Why.
+        #[source]
+        source: emccd_io::Error,
+    },
 }
 
 impl Error {

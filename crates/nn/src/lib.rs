@@ -37,6 +37,7 @@ pub mod model;
 pub mod norm;
 pub mod pipeline;
 pub mod registry;
+pub mod stack;
 pub mod tile;
 pub mod train;
 pub mod uformer;
@@ -44,7 +45,7 @@ pub mod unet;
 
 pub use error::{Error, Result};
 pub use model::{Arch, Base, Denoiser, Inputs, ModelMeta, Net};
-pub use registry::{FrameDenoiser, Method};
+pub use registry::{FrameDenoiser, Method, Units};
 pub use uformer::{Uformer, UformerConfig};
 pub use unet::{UNet, UNetConfig};
 

@@ -175,6 +175,68 @@ impl std::str::FromStr for Method {
     }
 }
 
+/// The units denoised frames are written in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum Units {
+    /// DN above bias (the photo-signal, blooming and fixed pattern removed).
+    #[default]
+    Dn,
+    /// Photo-electrons: DN / K with K = s/2 (the EM register's f² = 2).
+    Electrons,
+}
+
+impl Units {
+    /// The name `--units` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Units::Dn => "dn",
+            Units::Electrons => "electrons",
+        }
+    }
+
+    /// What the values are, in words (for provenance and reports).
+    pub fn describe(self) -> &'static str {
+        match self {
+            Units::Dn => "DN above bias",
+            Units::Electrons => "photoelectrons",
+        }
+    }
+
+    /// The factor from DN above bias to these units through `profile`.
+    pub fn factor(self, profile: &CameraProfile) -> Result<f32> {
+        Ok(match self {
+            Units::Dn => 1.0,
+            Units::Electrons => (1.0 / profile.dn_per_electron()?) as f32,
+        })
+    }
+}
+
+impl std::str::FromStr for Units {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Units> {
+        [Units::Dn, Units::Electrons]
+            .into_iter()
+            .find(|u| u.name() == s)
+            .ok_or_else(|| {
+                Error::Data(format!(
+                    "units {s:?}: the units are \"dn\" (DN above bias) or \"electrons\""
+                ))
+            })
+    }
+}
+
+/// What a request runs ([`resolve`]).
+pub struct Resolved {
+    /// The method.
+    pub method: Method,
+    /// The network, for the methods that run one.
+    pub model: Option<Denoiser>,
+    /// The model argument it was loaded from, as given or defaulted (a bundled name or a
+    /// file): what provenance names and hashes.
+    pub model_name: Option<String>,
+}
+
 /// The method and model a request runs: `method` and `model` as given (either may be absent),
 /// with `load` turning a model argument into a model ([`load`], or a loader that also knows
 /// models embedded in a program). The model a method takes by default is `hybrid` for
@@ -184,15 +246,20 @@ pub fn resolve(
     method: Option<Method>,
     model: Option<&str>,
     load: impl Fn(&str) -> Result<Denoiser>,
-) -> Result<(Method, Option<Denoiser>)> {
+) -> Result<Resolved> {
     let hybrid = |m: &Denoiser| m.meta.inputs == Inputs::Hybrid;
+    let classical = |method| Resolved {
+        method,
+        model: None,
+        model_name: None,
+    };
     match (method, model) {
-        (None, None) if !DEFAULT_METHOD.uses_model() => Ok((DEFAULT_METHOD, None)),
+        (None, None) if !DEFAULT_METHOD.uses_model() => Ok(classical(DEFAULT_METHOD)),
         (Some(c), Some(m)) if !c.uses_model() => Err(Error::Model(format!(
             "--model {m}: --method {} runs no network",
             c.name()
         ))),
-        (Some(c), None) if !c.uses_model() => Ok((c, None)),
+        (Some(c), None) if !c.uses_model() => Ok(classical(c)),
         (None, Some(name)) => {
             let m = load(name)?;
             let method = if hybrid(&m) {
@@ -200,7 +267,11 @@ pub fn resolve(
             } else {
                 Method::Net
             };
-            Ok((method, Some(m)))
+            Ok(Resolved {
+                method,
+                model: Some(m),
+                model_name: Some(name.to_string()),
+            })
         }
         (method, name) => {
             let method = method.unwrap_or(DEFAULT_METHOD);
@@ -220,7 +291,11 @@ pub fn resolve(
                     }
                 )));
             }
-            Ok((method, Some(m)))
+            Ok(Resolved {
+                method,
+                model: Some(m),
+                model_name: Some(name.to_string()),
+            })
         }
     }
 }
@@ -248,9 +323,8 @@ pub struct FrameDenoiser<'a> {
     pub tiling: Tiling,
     /// Orientations the network is averaged over (1, 2, 4 or 8).
     pub ensemble: usize,
-    /// Factor from DN above bias to the output's units (1, or 1 / [`CameraProfile::dn_per_electron`]
-    /// for photoelectrons).
-    pub to_units: f32,
+    /// The output's units.
+    pub units: Units,
 }
 
 impl FrameDenoiser<'_> {
@@ -300,8 +374,9 @@ impl FrameDenoiser<'_> {
             }
             (None, None) => preprocess(self.profile, raw, exposure_s)?,
         };
-        if self.to_units != 1.0 {
-            d.iter_mut().for_each(|v| *v *= self.to_units);
+        let to_units = self.units.factor(self.profile)?;
+        if to_units != 1.0 {
+            d.iter_mut().for_each(|v| *v *= to_units);
         }
         Ok(d)
     }
@@ -446,7 +521,7 @@ impl Estimator {
                 model: model.as_ref(),
                 tiling: Tiling::default(),
                 ensemble: *ensemble,
-                to_units: 1.0,
+                units: Units::Dn,
             }
             .run(raw, exposure_s),
         }
@@ -497,7 +572,7 @@ mod tests {
                 model: None,
                 tiling: Tiling::default(),
                 ensemble: 1,
-                to_units: 1.0,
+                units: Units::Dn,
             };
             assert_eq!(
                 est.run(&p, &raw, 0.01).unwrap(),

@@ -285,13 +285,15 @@ fn every_bundled_model_loads_by_name() {
 fn blend_averages_ivst_and_the_network() {
     use emccd_nn::registry::{resolve, FrameDenoiser, Method, DEFAULT_METHOD};
     assert_eq!(DEFAULT_METHOD, Method::Blend);
-    let (m, model) = resolve(None, None, |name| {
+    let r = resolve(None, None, |name| {
         assert_eq!(name, "lowlight");
         emccd_nn::registry::load(name)
     })
     .unwrap();
-    assert_eq!(m, Method::Blend);
-    assert!(model.is_some());
+    assert_eq!(r.method, Method::Blend);
+    assert!(r.model.is_some());
+    // What provenance names (and hashes) is the model that ran, not another default.
+    assert_eq!(r.model_name.as_deref(), Some("lowlight"));
     let profile = emccd_profile::default_profile().crop(0, 0, 48, 40).unwrap();
     let net = Denoiser::new(common::meta(4, 2), &emccd_nn::cpu()).unwrap();
     let raw: Vec<f32> = (0..48 * 40)
@@ -304,7 +306,7 @@ fn blend_averages_ivst_and_the_network() {
             model,
             tiling: Default::default(),
             ensemble: 1,
-            to_units: 1.0,
+            units: emccd_nn::registry::Units::Dn,
         }
         .run(&raw, 0.01)
         .unwrap()
@@ -318,5 +320,99 @@ fn blend_averages_ivst_and_the_network() {
             (b[k] - want).abs() <= 1e-4 * want.abs().max(1.0),
             "pixel {k}"
         );
+    }
+}
+
+/// A stack denoised into a Zarr store in shares: a share writes only its frames, a later run
+/// skips what is done and writes the rest, and the frames are what `FrameDenoiser::run` gives;
+/// the provenance hashes the model that runs (`blend` without a model: `lowlight`).
+#[test]
+fn a_stack_is_denoised_in_shards_with_the_model_it_ran_in_its_provenance() {
+    use emccd_io::zarr::{ZarrStackSpec, ZarrStackWriter};
+    use emccd_nn::registry::{load, model_path, resolve, FrameDenoiser, Method, Units};
+    use emccd_nn::stack::{denoise_shard, provenance, ShardRun};
+    use emccd_profile::Recording;
+
+    let (w, h, n) = (48, 40, 5);
+    let profile = emccd_profile::default_profile().crop(0, 0, w, h).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("raw.tif");
+    let mut wr =
+        emccd_io::StackWriter::create(&path, w, h, emccd_io::SampleFormat::U16, Some(n)).unwrap();
+    wr.set_metadata(&emccd_io::Metadata {
+        exposure_s: Some(0.01),
+        ..Default::default()
+    });
+    let raws: Vec<Vec<f32>> = (0..n)
+        .map(|k| {
+            (0..w * h)
+                .map(|i| (500 + (i * 7919 + k * 104729) % 97 * 3) as f32)
+                .collect()
+        })
+        .collect();
+    for f in &raws {
+        wr.write_frame(f).unwrap();
+    }
+    wr.finish().unwrap();
+    let open = || Recording::open(&path, &profile, None, "--exposure-s", false).unwrap();
+
+    let r = resolve(None, None, load).unwrap();
+    let blend = FrameDenoiser {
+        profile: &profile,
+        method: r.method,
+        model: r.model.as_ref(),
+        tiling: Default::default(),
+        ensemble: 1,
+        units: Units::Dn,
+    };
+    let p = provenance(&blend, r.model_name.as_deref(), &[open()]).unwrap();
+    let lowlight = emccd_io::content_hash(&model_path("lowlight").unwrap()).unwrap();
+    assert_eq!(p["model_hash"], format!("{lowlight:016x}"));
+    assert_eq!(
+        (p["method"].as_str(), p["inputs"][0]["frames"].as_u64()),
+        (Some("blend"), Some(5))
+    );
+
+    let fd = FrameDenoiser {
+        method: Method::None,
+        model: None,
+        ..blend
+    };
+    let spec = ZarrStackSpec {
+        width: w,
+        height: h,
+        frames: n,
+        name: "t".into(),
+        provenance: provenance(&fd, None, &[open()]).unwrap(),
+        notes: serde_json::Value::Null,
+    };
+    let out = dir.path().join("out.zarr");
+    let (store, created) = ZarrStackWriter::create_or_open(&out, &spec).unwrap();
+    assert!(created);
+    let mut calls = 0;
+    let first = denoise_shard(&fd, vec![open()], &store, 1..3, &mut || calls += 1).unwrap();
+    assert_eq!(
+        (first, calls),
+        (
+            ShardRun {
+                written: 2,
+                skipped: 0
+            },
+            2
+        )
+    );
+    assert_eq!(store.done_count(), 2);
+    let rest = denoise_shard(&fd, vec![open()], &store, 0..n, &mut || ()).unwrap();
+    assert_eq!(
+        rest,
+        ShardRun {
+            written: 3,
+            skipped: 2
+        }
+    );
+    drop(store);
+    let (_, frames) = emccd_io::read_all(&out).unwrap();
+    for (k, (got, raw)) in frames.iter().zip(&raws).enumerate() {
+        assert_eq!(got, &fd.run(raw, 0.01).unwrap(), "frame {k}");
     }
 }

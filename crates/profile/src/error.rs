@@ -10,6 +10,9 @@ pub enum Error {
     /// A parameter is out of its valid range (NaN gain, mismatched map sizes, …).
     #[error("{0}")]
     Parameter(String),
+    /// A recording that cannot be read.
+    #[error(transparent)]
+    Read(#[from] emccd_io::Error),
     /// An operating-system error.
     #[error(transparent)]
     Io(#[from] std::io::Error),

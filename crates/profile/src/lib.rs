@@ -32,12 +32,14 @@ mod blooming;
 mod default;
 mod error;
 mod fpn;
+mod recording;
 mod store;
 
 pub use blooming::{apply_blooming, column_means, preprocess, remove_blooming};
 pub use default::{default_profile, DEFAULT_PROFILE_SEED};
 pub use error::{Error, Result};
 pub use fpn::{logistic, FpnForm};
+pub use recording::Recording;
 
 use serde::{Deserialize, Serialize};
 

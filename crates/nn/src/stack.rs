@@ -1,0 +1,109 @@
+//! Recordings denoised into one OME-Zarr stack that several processes (a SLURM array) fill at
+//! once, each its own share of the frames, resumable frame by frame.
+
+use std::ops::Range;
+
+use emccd_io::zarr::ZarrStackWriter;
+use emccd_profile::Recording;
+use serde_json::{json, Value};
+
+use crate::registry::{model_path, FrameDenoiser};
+use crate::{Error, Result};
+
+/// What a denoised stack's frames are a function of, compared by every process that writes
+/// the store: each input by its real path, size and modification time (a file rewritten
+/// between two shards is another input) with its frame count and exposure, the profile, the
+/// method, the model by its bytes (not by how it was named: `model_name` is the argument it
+/// was loaded from) and the output's units and network settings.
+pub fn provenance(
+    fd: &FrameDenoiser,
+    model_name: Option<&str>,
+    inputs: &[Recording],
+) -> Result<Value> {
+    let mut ids = Vec::with_capacity(inputs.len());
+    for i in inputs {
+        let mut stamp = serde_json::to_value(emccd_io::FileStamp::of(&i.path)?)
+            .map_err(|e| Error::Data(e.to_string()))?;
+        stamp["frames"] = i.info.frames.into();
+        stamp["exposure_s"] = i.exposure.into();
+        ids.push(stamp);
+    }
+    let model_hash = match model_name.filter(|_| fd.model.is_some()) {
+        Some(n) => Some(format!("{:016x}", emccd_io::content_hash(&model_path(n)?)?)),
+        None => None,
+    };
+    let net = fd.model.is_some();
+    Ok(json!({
+        "software": format!("emccd {}", env!("CARGO_PKG_VERSION")),
+        "inputs": ids,
+        "profile_fingerprint": format!("{:016x}", fd.profile.fingerprint()),
+        "method": fd.method.name(),
+        "model_hash": model_hash,
+        "units": fd.units.describe(),
+        "tile": net.then_some(fd.tiling.tile),
+        "overlap": net.then_some(fd.tiling.overlap),
+        "ensemble": net.then_some(fd.ensemble),
+    }))
+}
+
+/// What one process did to its share of a stack ([`denoise_shard`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ShardRun {
+    /// Frames denoised and stored now.
+    pub written: usize,
+    /// Frames of the share that were already complete (an earlier run, or another process).
+    pub skipped: usize,
+}
+
+/// Denoises frames `range` (from 0) of the stack that `inputs` make in the order given into
+/// `store`, skipping frames already complete there, so that a killed run is resumed by running
+/// it again; the other frames are skipped over unread. `on_frame` is called after every frame
+/// stored. Errors name the input and its frame (from 1).
+pub fn denoise_shard(
+    fd: &FrameDenoiser,
+    inputs: Vec<Recording>,
+    store: &ZarrStackWriter,
+    range: Range<usize>,
+    on_frame: &mut dyn FnMut(),
+) -> Result<ShardRun> {
+    let mut buf = vec![0f32; fd.profile.len()];
+    let mut run = ShardRun {
+        written: 0,
+        skipped: 0,
+    };
+    // k counts the stack's frames, j each input's (what messages name).
+    let mut k = 0usize;
+    for mut i in inputs {
+        if k >= range.end {
+            break;
+        }
+        let at = |j: usize| format!("{}: frame {}", i.path.display(), j + 1);
+        for j in 0..i.info.frames {
+            if k >= range.end {
+                break;
+            }
+            if range.contains(&k) && !store.is_done(k) {
+                let read = i
+                    .reader
+                    .read_frame(&mut buf)
+                    .map_err(|source| Error::Frame { at: at(j), source })?;
+                if !read {
+                    return Err(Error::Data(format!("{}: the file ended before it", at(j))));
+                }
+                let out = fd
+                    .run(&buf, i.exposure)
+                    .map_err(|e| Error::Data(format!("{}: {e}", at(j))))?;
+                store.write_frame(k, &out)?;
+                run.written += 1;
+                on_frame();
+            } else {
+                run.skipped += range.contains(&k) as usize;
+                i.reader
+                    .skip_frame()
+                    .map_err(|source| Error::Frame { at: at(j), source })?;
+            }
+            k += 1;
+        }
+    }
+    Ok(run)
+}
