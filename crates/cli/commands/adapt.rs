@@ -9,8 +9,6 @@ use emccd_nn::adapt::{
 };
 use emccd_nn::train::RunPaths;
 
-use emccd_profile::Recording;
-
 use crate::common::{load_profile, open_recording, progress, step_progress};
 
 /// Adapt a denoising network to your own recording, with no clean images: the frames are
@@ -95,26 +93,9 @@ pub fn run(a: Args) -> Result<()> {
     // The self-supervised methods keep frames in memory: up to 256 MiB of them.
     let mut rec = Recorded::new(a.method, &profile, init_meta.ablate, 256 << 20);
     for input in &a.inputs {
-        let Recording {
-            mut reader,
-            info,
-            exposure,
-            ..
-        } = open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
-        rec.start_recording(exposure)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", input.display()))?;
-        let pb = progress(info.frames as u64, "reading");
-        let mut buf = vec![0f32; info.frame_len()];
-        let mut k = 0;
-        while reader
-            .read_frame(&mut buf)
-            .with_context(|| input.display().to_string())?
-        {
-            k += 1;
-            rec.add_raw(&profile, &buf)
-                .with_context(|| format!("{}: frame {k}", input.display()))?;
-            pb.inc(1);
-        }
+        let recording = open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
+        let pb = progress(recording.info.frames as u64, "reading");
+        rec.add_recording(&profile, recording, &mut || pb.inc(1))?;
         pb.finish_and_clear();
     }
     if let Some(w) = rec.warning() {

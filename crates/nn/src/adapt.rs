@@ -596,6 +596,36 @@ impl Recorded {
         }
     }
 
+    /// Adds every frame of `recording` (opened and checked against `profile`), streamed;
+    /// `on_frame` is called after each. Errors name the file and the frame (from 1).
+    pub fn add_recording(
+        &mut self,
+        profile: &CameraProfile,
+        mut recording: emccd_profile::Recording,
+        on_frame: &mut dyn FnMut(),
+    ) -> Result<()> {
+        let name = recording.path.display().to_string();
+        self.start_recording(recording.exposure)
+            .map_err(|e| Error::Data(format!("{name}: {e}")))?;
+        let mut buf = vec![0f32; recording.info.frame_len()];
+        for k in 1.. {
+            let read = recording
+                .reader
+                .read_frame(&mut buf)
+                .map_err(|source| Error::Frame {
+                    at: format!("{name}: frame {k}"),
+                    source,
+                })?;
+            if !read {
+                break;
+            }
+            self.add_raw(profile, &buf)
+                .map_err(|e| Error::Data(format!("{name}: frame {k}: {e}")))?;
+            on_frame();
+        }
+        Ok(())
+    }
+
     /// Frames added so far.
     pub fn frames(&self) -> usize {
         self.frames
