@@ -3,12 +3,12 @@
 //! (`clean/`, DN above bias, float32), a preview PNG (`preview/`) and, with a denoiser, its
 //! output for the first frame (`denoised/`); then `pairs.toml`.
 
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use emccd_camera::acquisition::{pair_seed, PairLevel};
 use emccd_camera::VirtualCamera;
-use emccd_io::{FileId, Metadata, SampleFormat, StackWriter};
+use emccd_io::{Metadata, SampleFormat, StackWriter};
 use emccd_profile::CameraProfile;
 
 use crate::{Pair, PairsManifest};
@@ -107,21 +107,21 @@ fn check_outputs(plan: &PairsPlan, dirs: &[&str], out: &Path) -> Result<(), Stri
             ));
         }
     }
-    let inputs: HashSet<FileId> = plan.scenes.iter().map(|p| FileId::of(p)).collect();
+    let mut outputs = Vec::new();
     for stem in &stems {
         for lv in plan.levels {
             let name = lv.pair_name(stem);
             for d in dirs {
                 let ext = if *d == "preview" { "png" } else { "tif" };
-                let o = out.join(d).join(format!("{name}.{ext}"));
-                if inputs.contains(&FileId::of(&o)) {
-                    return Err(format!(
-                        "{}: an output of this run is an input scene; choose another -o, inputs are never overwritten",
-                        o.display()
-                    ));
-                }
+                outputs.push(out.join(d).join(format!("{name}.{ext}")));
             }
         }
+    }
+    if let Some((o, _)) = emccd_io::input_among(&outputs, plan.scenes) {
+        return Err(format!(
+            "{}: an output of this run is an input scene; choose another -o, inputs are never overwritten",
+            outputs[o].display()
+        ));
     }
     Ok(())
 }

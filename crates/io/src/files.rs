@@ -1,6 +1,7 @@
 //! The identity of files: for refusing a run that would overwrite one of its inputs, for naming
 //! each input's output, and for recording what an output was made from.
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
@@ -68,6 +69,22 @@ fn overwrite_error(out: &Path, what: &str) -> Error {
     ))
 }
 
+/// The first output that is one of the inputs (the same file, however named), as (index in
+/// `outputs`, index in `inputs`). Each file's identity is looked up once: thousands of inputs
+/// are compared in memory, not on disk.
+pub fn input_among(outputs: &[PathBuf], inputs: &[PathBuf]) -> Option<(usize, usize)> {
+    let ids: HashMap<FileId, usize> = inputs
+        .iter()
+        .enumerate()
+        .rev()
+        .map(|(k, p)| (FileId::of(p), k))
+        .collect();
+    outputs
+        .iter()
+        .enumerate()
+        .find_map(|(o, p)| ids.get(&FileId::of(p)).map(|&k| (o, k)))
+}
+
 /// Where each input's result goes: `out` itself for one input without `suffix`, else
 /// `out/STEM{suffix}` (`x.tif` → `out/x_denoised.tif`). Refused before anything runs: an output
 /// that is one of the inputs (it would be replaced, or overwritten before it is read) and two
@@ -86,23 +103,19 @@ pub fn output_paths(inputs: &[PathBuf], out: &Path, suffix: Option<&str>) -> Res
             None => out.to_path_buf(),
         })
         .collect();
-    // Each file's identity once: thousands of inputs are compared in memory, not on disk.
-    let ids: Vec<FileId> = inputs.iter().map(|p| FileId::of(p)).collect();
-    for (o, input) in outs.iter().zip(inputs) {
-        let oid = FileId::of(o);
-        if let Some(k) = ids.iter().position(|i| *i == oid) {
-            let other = &inputs[k];
-            let what = if other == input {
-                format!("the input {}", other.display())
-            } else {
-                format!(
-                    "the input {}, the output for {}",
-                    other.display(),
-                    input.display()
-                )
-            };
-            return Err(overwrite_error(o, &what));
-        }
+    // outs[i] is inputs[i]'s output.
+    if let Some((i, k)) = input_among(&outs, inputs) {
+        let (input, other) = (&inputs[i], &inputs[k]);
+        let what = if other == input {
+            format!("the input {}", other.display())
+        } else {
+            format!(
+                "the input {}, the output for {}",
+                other.display(),
+                input.display()
+            )
+        };
+        return Err(overwrite_error(&outs[i], &what));
     }
     for (i, o) in outs.iter().enumerate() {
         if let Some(j) = outs[..i].iter().position(|p| p == o) {
@@ -220,6 +233,11 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(e.contains("is the input"), "{e}");
+        // the first output that is an input, with the first input it is
+        let outs = [d.join("new.tif"), d.join("b/../a/x.tif"), d.join("s.tif")];
+        let ins = [d.join("s.tif"), d.join("a/x.tif"), d.join("./a/x.tif")];
+        assert_eq!(input_among(&outs, &ins), Some((1, 1)));
+        assert_eq!(input_among(&outs[..1], &ins), None);
     }
 
     #[test]
