@@ -261,7 +261,13 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
     let flat_in = check(&m.flat, "flat-field", &mut dims, &mut adc, &mut warnings)?;
     let adc_max = adc.unwrap_or(65535.0);
     let (width, height) = dims.unwrap_or((0, 0));
-    let n = width * height;
+    let stages = Stages {
+        dims,
+        width,
+        height,
+        opts,
+        progress,
+    };
     bias_in.sort_by(|a, b| a.exposure_s.total_cmp(&b.exposure_s));
     for w in bias_in.windows(2) {
         if (w[1].exposure_s - w[0].exposure_s).abs() <= 1e-3 * w[0].exposure_s {
@@ -276,52 +282,13 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
         }
     }
 
-    // Bias: FPN_t and read-noise maps, one streaming pass per stack.
-    let probes: Vec<usize> = if n > 0 {
-        [(1, 1), (1, 3), (3, 1), (3, 3), (2, 2)]
-            .iter()
-            .map(|&(a, b)| (b * height / 4) * width + a * width / 4)
-            .collect()
-    } else {
-        Vec::new()
-    };
-    let mut bias: Vec<BiasLevel> = Vec::new();
-    let mut best_probes: Vec<(usize, Vec<f32>)> = Vec::new();
-    for c in &bias_in {
-        let (_, st) = accumulate(&c.file, dims, 2, &probes, None, progress)?;
-        let mean = st.mean();
-        let std = st.std();
-        if st.probes.first().map_or(0, |p| p.1.len()) > best_probes.first().map_or(0, |p| p.1.len())
-        {
-            best_probes = st.probes.clone();
-        }
-        bias.push(BiasLevel {
-            file: c.file.clone(),
-            exposure_s: c.exposure_s,
-            frames: st.frames,
-            median_dn: emccd_profile::median(mean.iter().copied()).unwrap_or(0.0),
-            read_noise_median_dn: emccd_profile::median(std.iter().copied()).unwrap_or(0.0),
-            read_noise_rms_dn: (std.iter().map(|&v| (v as f64).powi(2)).sum::<f64>()
-                / std.len().max(1) as f64)
-                .sqrt(),
-            mean,
-            std,
-        });
-    }
-    let normality: Vec<NormalPlot> = best_probes
-        .iter()
-        .filter_map(|(i, v)| normal_plot(i % width.max(1), i / width.max(1), v))
-        .collect();
+    let BiasStage {
+        levels: mut bias,
+        normality,
+    } = stages.bias(&bias_in)?;
     if bias.is_empty() {
         missing.push("FPN and read-noise maps: the manifest has no [[bias]] stacks".into());
     }
-
-    // The model blooms the fixed pattern too (eq. 1: B[K(I + f·Np) + FPN_t]), so a bias mean is
-    // B[FPN_t]. Pass 1 fits the exposure curve to the bias means as measured, which is enough
-    // to subtract the pattern from blooming frames at other exposures; once x(t) is known the
-    // bias means are un-bloomed (FPN_t = B⁻¹[mean]) and the curve refitted. The profile's FPN is
-    // then consistent with its own x(t): preprocessing B⁻¹(D) − FPN_t equals B⁻¹(D − mean_t)
-    // exactly at every calibrated exposure.
     if (1..4).contains(&bias.len()) {
         missing.push(format!(
             "FPN exposure fit: needs bias stacks at ≥ 4 exposures, got {}; the profile holds the FPN as measured (constant in exposure)",
@@ -329,95 +296,239 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
         ));
     }
     let raw_fit = fit_fpn(&bias, width)?;
-    // Blooming, on averaged frames with the fixed pattern removed.
-    let mut bloom_means = Vec::new();
-    for c in &bloom_in {
-        let (_, st) = accumulate(&c.file, dims, 2, &[], None, progress)?;
-        bloom_means.push((c, st.mean(), st.frames));
-    }
-    let measure_all = |pattern: &dyn Fn(f64) -> Option<Vec<f32>>| -> Result<BloomingResult> {
-        let mut levels = Vec::new();
-        let mut fpn_sub = true;
-        for (c, mean, frames) in &bloom_means {
-            let mut img = mean.clone();
-            match pattern(c.exposure_s) {
-                Some(f) => img.iter_mut().zip(&f).for_each(|(v, f)| *v -= f),
-                None => fpn_sub = false,
-            }
-            let blooming::Measurement { v1, v2, v3, c1 } =
-                blooming::measure(&img, width, height, opts.window, &c.file)?;
-            let den = c1 - v2.mean;
-            let x = (v2.mean - v3.mean) / den;
-            let se2 = v2.std / ((v2.w * v2.h) as f64).sqrt();
-            let se3 = v3.std / ((v3.w * v3.h) as f64).sqrt();
-            let x_se = ((se2 * (1.0 + x) / den).powi(2) + (se3 / den).powi(2)).sqrt();
-            levels.push(BloomLevel {
-                file: c.file.clone(),
-                exposure_s: c.exposure_s,
-                frames: *frames,
-                v1,
-                v2,
-                v3,
-                c1,
-                x,
-                x_se,
-            });
-        }
-        levels.sort_by(|a, b| a.exposure_s.total_cmp(&b.exposure_s));
-        blooming::fit(levels, fpn_sub)
-    };
-    let raw_means: Vec<Vec<f32>> = bias.iter().map(|b| b.mean.clone()).collect();
-    let mut scratch = Vec::new();
     let blooming = if bloom_in.is_empty() {
         missing.push("blooming factor: the manifest has no [[blooming]] stacks (preprocessing will not remove blooming)".into());
         None
     } else {
-        let pass1 = measure_all(&|t| pattern_at(&bias, raw_fit.as_ref(), t, &mut Vec::new()))?;
-        if !pass1.fpn_subtracted {
-            warnings.push("blooming frames: no bias stacks, so no FPN was subtracted (x is exact only for a flat pattern)".into());
-        }
-        let needs_prediction = bloom_in.iter().any(|c| {
-            !bias
-                .iter()
-                .any(|b| (b.exposure_s - c.exposure_s).abs() <= 5e-3 * c.exposure_s)
-        });
-        if needs_prediction && raw_fit.is_some() {
-            // Pass 2: the pattern at exposures without a bias stack, predicted from the
-            // un-bloomed fit and bloomed with pass 1's law — B[FPN_t] is what the frames hold.
-            unbloom(&mut bias, &raw_means, &pass1.law(), width);
-            let fit1 = fit_fpn(&bias, width)?;
-            let law1 = pass1.law();
-            let pass2 = measure_all(&|t| {
-                let mut f = pattern_at(&bias, fit1.as_ref(), t, &mut scratch.clone())?;
-                emccd_profile::apply_blooming(&mut f, width, law1.factor(t));
-                Some(f)
-            })?;
-            Some(pass2)
-        } else {
-            Some(pass1)
-        }
+        Some(stages.blooming(&bloom_in, &mut bias, raw_fit.as_ref(), &mut warnings)?)
     };
-    scratch.clear();
-    if let Some(b) = &blooming {
-        unbloom(&mut bias, &raw_means, &b.law(), width);
-    }
-    let x_at = |t: f64| blooming.as_ref().map_or(0.0, |b| b.law().factor(t));
     let fpn = if blooming.is_some() {
         fit_fpn(&bias, width)?
     } else {
         raw_fit
     };
-
-    // Flats: median–variance on the central crop.
     let ptc = if flat_in.is_empty() {
         missing.push("photon-transfer slope: the manifest has no [[flat]] stacks".into());
         None
     } else {
-        let crop = ptc::central_crop(width, height, opts.crop);
+        let fixed = FixedPattern {
+            bias: &bias,
+            fpn: fpn.as_ref(),
+            blooming: blooming.as_ref(),
+        };
+        Some(stages.photon_transfer(&flat_in, adc_max, &fixed, &mut warnings)?)
+    };
+
+    let gain_series = match &m.gain_series {
+        None => None,
+        Some(gs) => Some(run_gain_series(gs, opts, progress)?),
+    };
+    let (width, height) = match (&gain_series, width) {
+        (Some(g), 0) => {
+            missing.retain(|m| !m.starts_with("photon-transfer slope"));
+            missing.push(format!(
+                "flat fields: none; the photon-transfer slope comes from the gain series at the setting nearest EM gain {} (s = (2 − 1/G)·G/c)",
+                m.em_gain
+            ));
+            g.sensor
+        }
+        _ => (width, height),
+    };
+
+    Ok(Calibration {
+        camera: m.camera.clone(),
+        em_gain: m.em_gain,
+        manifest: m.path.clone(),
+        width,
+        height,
+        adc_max_dn: adc_max,
+        bias,
+        fpn,
+        normality,
+        ptc,
+        blooming,
+        gain_series,
+        missing,
+        warnings,
+    })
+}
+
+/// What every stage of a calibration reads stacks with: the sensor's size, the options and
+/// the progress sink.
+struct Stages<'a> {
+    dims: Option<(usize, usize)>,
+    width: usize,
+    height: usize,
+    opts: &'a Options,
+    progress: &'a dyn Progress,
+}
+
+/// The bias stage's result: one level per exposure, and normal-probability plots of a few
+/// pixels' read noise.
+struct BiasStage {
+    levels: Vec<BiasLevel>,
+    normality: Vec<NormalPlot>,
+}
+
+/// The fixed pattern as far as it is known when the flats are measured.
+struct FixedPattern<'a> {
+    /// The bias levels, un-bloomed where blooming was measured.
+    bias: &'a [BiasLevel],
+    /// The pattern's exposure fit, if there is one.
+    fpn: Option<&'a FpnResult>,
+    /// The blooming fit, if there is one.
+    blooming: Option<&'a BloomingResult>,
+}
+
+impl Stages<'_> {
+    /// Bias: the FPN_t and read-noise maps, one streaming pass per stack.
+    fn bias(&self, inputs: &[Checked]) -> Result<BiasStage> {
+        let (width, height) = (self.width, self.height);
+        let probes: Vec<usize> = if width * height > 0 {
+            [(1, 1), (1, 3), (3, 1), (3, 3), (2, 2)]
+                .iter()
+                .map(|&(a, b)| (b * height / 4) * width + a * width / 4)
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let mut levels: Vec<BiasLevel> = Vec::new();
+        let mut best_probes: Vec<(usize, Vec<f32>)> = Vec::new();
+        for c in inputs {
+            let (_, st) = accumulate(&c.file, self.dims, 2, &probes, None, self.progress)?;
+            let mean = st.mean();
+            let std = st.std();
+            if st.probes.first().map_or(0, |p| p.1.len())
+                > best_probes.first().map_or(0, |p| p.1.len())
+            {
+                best_probes = st.probes.clone();
+            }
+            levels.push(BiasLevel {
+                file: c.file.clone(),
+                exposure_s: c.exposure_s,
+                frames: st.frames,
+                median_dn: emccd_profile::median(mean.iter().copied()).unwrap_or(0.0),
+                read_noise_median_dn: emccd_profile::median(std.iter().copied()).unwrap_or(0.0),
+                read_noise_rms_dn: (std.iter().map(|&v| (v as f64).powi(2)).sum::<f64>()
+                    / std.len().max(1) as f64)
+                    .sqrt(),
+                mean,
+                std,
+            });
+        }
+        let normality = best_probes
+            .iter()
+            .filter_map(|(i, v)| normal_plot(i % width.max(1), i / width.max(1), v))
+            .collect();
+        Ok(BiasStage { levels, normality })
+    }
+
+    /// Blooming, on averaged frames with the fixed pattern removed; afterwards the bias
+    /// levels hold the un-bloomed pattern.
+    ///
+    /// The model blooms the fixed pattern too (eq. 1: B[K(I + f·Np) + FPN_t]), so a bias mean
+    /// is B[FPN_t]. Pass 1 uses the exposure curve fitted to the bias means as measured
+    /// (`raw_fit`), which is enough to subtract the pattern from blooming frames at other
+    /// exposures; once x(t) is known the bias means are un-bloomed (FPN_t = B⁻¹[mean]) and the
+    /// caller refits the curve. The profile's FPN is then consistent with its own x(t):
+    /// preprocessing B⁻¹(D) − FPN_t equals B⁻¹(D − mean_t) exactly at every calibrated exposure.
+    fn blooming(
+        &self,
+        inputs: &[Checked],
+        bias: &mut [BiasLevel],
+        raw_fit: Option<&FpnResult>,
+        warnings: &mut Vec<String>,
+    ) -> Result<BloomingResult> {
+        let (width, height) = (self.width, self.height);
+        let mut means = Vec::new();
+        for c in inputs {
+            let (_, st) = accumulate(&c.file, self.dims, 2, &[], None, self.progress)?;
+            means.push((c, st.mean(), st.frames));
+        }
+        let measure_all = |pattern: &dyn Fn(f64) -> Option<Vec<f32>>| -> Result<BloomingResult> {
+            let mut levels = Vec::new();
+            let mut fpn_sub = true;
+            for (c, mean, frames) in &means {
+                let mut img = mean.clone();
+                match pattern(c.exposure_s) {
+                    Some(f) => img.iter_mut().zip(&f).for_each(|(v, f)| *v -= f),
+                    None => fpn_sub = false,
+                }
+                let blooming::Measurement { v1, v2, v3, c1 } =
+                    blooming::measure(&img, width, height, self.opts.window, &c.file)?;
+                let den = c1 - v2.mean;
+                let x = (v2.mean - v3.mean) / den;
+                let se2 = v2.std / ((v2.w * v2.h) as f64).sqrt();
+                let se3 = v3.std / ((v3.w * v3.h) as f64).sqrt();
+                let x_se = ((se2 * (1.0 + x) / den).powi(2) + (se3 / den).powi(2)).sqrt();
+                levels.push(BloomLevel {
+                    file: c.file.clone(),
+                    exposure_s: c.exposure_s,
+                    frames: *frames,
+                    v1,
+                    v2,
+                    v3,
+                    c1,
+                    x,
+                    x_se,
+                });
+            }
+            levels.sort_by(|a, b| a.exposure_s.total_cmp(&b.exposure_s));
+            blooming::fit(levels, fpn_sub)
+        };
+        let raw_means: Vec<Vec<f32>> = bias.iter().map(|b| b.mean.clone()).collect();
+        let pass1 = measure_all(&|t| pattern_at(bias, raw_fit, t, &mut Vec::new()))?;
+        if !pass1.fpn_subtracted {
+            warnings.push("blooming frames: no bias stacks, so no FPN was subtracted (x is exact only for a flat pattern)".into());
+        }
+        let needs_prediction = inputs.iter().any(|c| {
+            !bias
+                .iter()
+                .any(|b| (b.exposure_s - c.exposure_s).abs() <= 5e-3 * c.exposure_s)
+        });
+        let result = if needs_prediction && raw_fit.is_some() {
+            // Pass 2: the pattern at exposures without a bias stack, predicted from the
+            // un-bloomed fit and bloomed with pass 1's law — B[FPN_t] is what the frames hold.
+            unbloom(bias, &raw_means, &pass1.law(), width);
+            let fit1 = fit_fpn(bias, width)?;
+            let law1 = pass1.law();
+            let bias = &*bias;
+            measure_all(&|t| {
+                let mut f = pattern_at(bias, fit1.as_ref(), t, &mut Vec::new())?;
+                emccd_profile::apply_blooming(&mut f, width, law1.factor(t));
+                Some(f)
+            })?
+        } else {
+            pass1
+        };
+        unbloom(bias, &raw_means, &result.law(), width);
+        Ok(result)
+    }
+
+    /// Flats: median–variance of the photo-signal (blooming and the fixed pattern removed)
+    /// on the central crop, and the photon-transfer fit.
+    fn photon_transfer(
+        &self,
+        inputs: &[Checked],
+        adc_max: f64,
+        fixed: &FixedPattern,
+        warnings: &mut Vec<String>,
+    ) -> Result<PtcResult> {
+        let (width, height) = (self.width, self.height);
+        let n = width * height;
+        let x_at = |t: f64| fixed.blooming.map_or(0.0, |b| b.law().factor(t));
+        let crop = ptc::central_crop(width, height, self.opts.crop);
         let mut levels = Vec::new();
         let mut fpn_sub = true;
-        for c in &flat_in {
-            let (_, st) = accumulate(&c.file, dims, 2, &[], Some(adc_max as f32), progress)?;
+        for c in inputs {
+            let (_, st) = accumulate(
+                &c.file,
+                self.dims,
+                2,
+                &[],
+                Some(adc_max as f32),
+                self.progress,
+            )?;
             let raw = st.mean();
             let var = st.variance();
             let [x0, y0, cw, ch] = crop;
@@ -433,7 +544,7 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
             }
             let mut signal = raw;
             emccd_profile::remove_blooming(&mut signal, width, x_at(c.exposure_s));
-            match pattern_at(&bias, fpn.as_ref(), c.exposure_s, &mut warnings) {
+            match pattern_at(fixed.bias, fixed.fpn, c.exposure_s, warnings) {
                 Some(f) => signal.iter_mut().zip(&f).for_each(|(v, f)| *v -= f),
                 None => fpn_sub = false,
             }
@@ -472,47 +583,14 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
             });
         }
         let fit = ptc::fit(&mut levels)?;
-        Some(PtcResult {
+        Ok(PtcResult {
             levels,
             fit,
             crop,
             fpn_subtracted: fpn_sub,
-            blooming_removed: blooming.is_some(),
+            blooming_removed: fixed.blooming.is_some(),
         })
-    };
-
-    let gain_series = match &m.gain_series {
-        None => None,
-        Some(gs) => Some(run_gain_series(gs, opts, progress)?),
-    };
-    let (width, height) = match (&gain_series, width) {
-        (Some(g), 0) => {
-            missing.retain(|m| !m.starts_with("photon-transfer slope"));
-            missing.push(format!(
-                "flat fields: none; the photon-transfer slope comes from the gain series at the setting nearest EM gain {} (s = (2 − 1/G)·G/c)",
-                m.em_gain
-            ));
-            g.sensor
-        }
-        _ => (width, height),
-    };
-
-    Ok(Calibration {
-        camera: m.camera.clone(),
-        em_gain: m.em_gain,
-        manifest: m.path.clone(),
-        width,
-        height,
-        adc_max_dn: adc_max,
-        bias,
-        fpn,
-        normality,
-        ptc,
-        blooming,
-        gain_series,
-        missing,
-        warnings,
-    })
+    }
 }
 
 fn run_gain_series(
