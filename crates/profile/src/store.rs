@@ -153,7 +153,7 @@ impl CameraProfile {
         let mut meta = HashMap::new();
         meta.insert("format".to_string(), "emccd-profile-maps".to_string());
         meta.insert("exposures_s".to_string(), format!("{:?}", self.exposures_s));
-        let bytes = safetensors::serialize(tensors, Some(meta)).map_err(st_err)?;
+        let bytes = sorted_header(safetensors::serialize(tensors, Some(meta)).map_err(st_err)?);
         let toml = TomlProfile {
             maps_fnv1a64: Some(fnv1a64(&bytes)),
             ..self.to_toml_struct()
@@ -270,6 +270,48 @@ fn toml_text(t: &TomlProfile) -> String {
     )
 }
 
+/// `bytes` (a safetensors file) with its JSON header's keys in sorted order. safetensors
+/// writes the metadata map in hash order, which differs from run to run, so the same profile
+/// would be saved as different bytes under a different checksum; re-serialized sorted (the same
+/// compact JSON, so the same length) the file is a function of the profile alone.
+fn sorted_header(mut bytes: Vec<u8>) -> Vec<u8> {
+    let Some(n) = bytes
+        .get(..8)
+        .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")) as usize)
+    else {
+        return bytes;
+    };
+    let Some(header) = bytes.get(8..8 + n) else {
+        return bytes;
+    };
+    let Ok(sorted) = serde_json::from_slice::<serde_json::Value>(header)
+        .and_then(|v| serde_json::to_vec(&sort_keys(v)))
+    else {
+        return bytes;
+    };
+    if sorted.len() <= n {
+        // The header's padding (spaces to a multiple of 8 bytes) is kept.
+        bytes[8..8 + sorted.len()].copy_from_slice(&sorted);
+        bytes[8 + sorted.len()..8 + n].fill(b' ');
+    }
+    bytes
+}
+
+/// `v` with every object's keys in sorted order (serde_json keeps insertion order where a
+/// dependency enables its `preserve_order`, as zarrs does).
+fn sort_keys(v: serde_json::Value) -> serde_json::Value {
+    use serde_json::Value;
+    match v {
+        Value::Object(m) => {
+            let sorted: std::collections::BTreeMap<String, Value> =
+                m.into_iter().map(|(k, v)| (k, sort_keys(v))).collect();
+            Value::Object(sorted.into_iter().collect())
+        }
+        Value::Array(a) => Value::Array(a.into_iter().map(sort_keys).collect()),
+        other => other,
+    }
+}
+
 fn st_err(e: safetensors::SafeTensorError) -> Error {
     Error::Format(format!("safetensors: {e}"))
 }
@@ -291,6 +333,25 @@ mod tests {
         let q = crate::CameraProfile::load(dir.path()).unwrap();
         assert_eq!(p, q);
         assert_eq!(p.fingerprint(), q.fingerprint());
+    }
+
+    #[test]
+    fn a_profile_is_saved_as_the_same_bytes_every_time() {
+        let p = default_profile().crop(0, 0, 8, 8).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let first = dir.path().join("0");
+        p.save(&first).unwrap();
+        let want = std::fs::read(first.join(super::MAPS_FILE)).unwrap();
+        // The metadata map's hash order changes from one save to the next.
+        for k in 1..8 {
+            let d = dir.path().join(k.to_string());
+            p.save(&d).unwrap();
+            assert!(
+                std::fs::read(d.join(super::MAPS_FILE)).unwrap() == want,
+                "save {k}"
+            );
+        }
+        assert_eq!(crate::CameraProfile::load(&first).unwrap(), p);
     }
 
     #[test]
