@@ -179,6 +179,49 @@ pub fn content_hash(path: &Path) -> Result<u64> {
     }
 }
 
+/// `bytes` (a safetensors file) with its JSON header's keys in sorted order. safetensors
+/// writes the metadata map in hash order, which differs from run to run, so the same profile or
+/// model would be saved as different bytes under a different checksum; re-serialized sorted
+/// (the same compact JSON, so the same length) the file is a function of its content alone.
+/// Bytes that are not a safetensors file are returned as they are.
+pub fn safetensors_sorted(mut bytes: Vec<u8>) -> Vec<u8> {
+    let Some(n) = bytes
+        .get(..8)
+        .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")) as usize)
+    else {
+        return bytes;
+    };
+    let Some(header) = n.checked_add(8).and_then(|end| bytes.get(8..end)) else {
+        return bytes;
+    };
+    let Ok(sorted) = serde_json::from_slice::<serde_json::Value>(header)
+        .and_then(|v| serde_json::to_vec(&sort_keys(v)))
+    else {
+        return bytes;
+    };
+    if sorted.len() <= n {
+        // The header's padding (spaces to a multiple of 8 bytes) is kept.
+        bytes[8..8 + sorted.len()].copy_from_slice(&sorted);
+        bytes[8 + sorted.len()..8 + n].fill(b' ');
+    }
+    bytes
+}
+
+/// `v` with every object's keys in sorted order (serde_json keeps insertion order where a
+/// dependency enables its `preserve_order`, as zarrs does).
+fn sort_keys(v: serde_json::Value) -> serde_json::Value {
+    use serde_json::Value;
+    match v {
+        Value::Object(m) => {
+            let sorted: std::collections::BTreeMap<String, Value> =
+                m.into_iter().map(|(k, v)| (k, sort_keys(v))).collect();
+            Value::Object(sorted.into_iter().collect())
+        }
+        Value::Array(a) => Value::Array(a.into_iter().map(sort_keys).collect()),
+        other => other,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -238,6 +281,30 @@ mod tests {
         let ins = [d.join("s.tif"), d.join("a/x.tif"), d.join("./a/x.tif")];
         assert_eq!(input_among(&outs, &ins), Some((1, 1)));
         assert_eq!(input_among(&outs[..1], &ins), None);
+    }
+
+    #[test]
+    fn safetensors_headers_are_sorted_and_other_bytes_kept() {
+        let header = br#"{"b":{"dtype":"F32","shape":[1],"data_offsets":[0,4]},"__metadata__":{"z":"1","a":"2"}}"#;
+        let pad = (8 - header.len() % 8) % 8;
+        let mut file = ((header.len() + pad) as u64).to_le_bytes().to_vec();
+        file.extend_from_slice(header);
+        file.extend(std::iter::repeat_n(b' ', pad));
+        file.extend_from_slice(&1f32.to_le_bytes());
+        let sorted = safetensors_sorted(file.clone());
+        assert_eq!(sorted.len(), file.len());
+        let want = br#"{"__metadata__":{"a":"2","z":"1"},"b":{"data_offsets":[0,4],"dtype":"F32","shape":[1]}}"#;
+        assert_eq!(&sorted[8..8 + want.len()], want);
+        assert_eq!(&sorted[sorted.len() - 4..], &1f32.to_le_bytes());
+        // not safetensors, or a length past the end: unchanged, no panic
+        for junk in [
+            vec![],
+            vec![1, 2, 3],
+            u64::MAX.to_le_bytes().to_vec(),
+            b"12345678{".to_vec(),
+        ] {
+            assert_eq!(safetensors_sorted(junk.clone()), junk);
+        }
     }
 
     #[test]

@@ -52,7 +52,10 @@ use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
 pub use error::{Error, Result};
-pub use files::{content_hash, input_among, output_paths, refuse_overwrite, FileId, FileStamp};
+pub use files::{
+    content_hash, input_among, output_paths, refuse_overwrite, safetensors_sorted, FileId,
+    FileStamp,
+};
 pub use image::{image_files, Image};
 
 /// The sample type stored in a file (what `emccd info` reports).

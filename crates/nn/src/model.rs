@@ -372,6 +372,10 @@ impl Denoiser {
         self.net
             .save_into(&mut store)
             .map_err(|e| Error::Model(format!("{}: {e}", path.display())))?;
+        // The same model is the same bytes (safetensors writes its metadata in hash order).
+        let bytes = std::fs::read(tmp.path()).map_err(|e| Error::io(path, e))?;
+        std::fs::write(tmp.path(), emccd_io::safetensors_sorted(bytes))
+            .map_err(|e| Error::io(path, e))?;
         emccd_io::persist(tmp, path).map_err(|e| Error::Model(e.to_string()))
     }
 

@@ -35,6 +35,14 @@ fn model_files_round_trip_and_foreign_files_are_refused() {
     m.save(&p).unwrap();
     let back = Denoiser::load(&p, &dev).unwrap();
     assert_eq!(back.meta, m.meta);
+    // The same model is saved as the same bytes (the metadata map is written in hash order
+    // unless sorted; with four keys, seven saves in one order by chance is 1 in 24⁶).
+    let bytes = std::fs::read(&p).unwrap();
+    for k in 0..7 {
+        let q = dir.path().join(format!("m{k}.safetensors"));
+        m.save(&q).unwrap();
+        assert!(std::fs::read(&q).unwrap() == bytes, "save {k}");
+    }
     let x = common::scene_input(32, 32, &dev);
     let a: Vec<f32> = m
         .net

@@ -153,7 +153,9 @@ impl CameraProfile {
         let mut meta = HashMap::new();
         meta.insert("format".to_string(), "emccd-profile-maps".to_string());
         meta.insert("exposures_s".to_string(), format!("{:?}", self.exposures_s));
-        let bytes = sorted_header(safetensors::serialize(tensors, Some(meta)).map_err(st_err)?);
+        let bytes = emccd_io::safetensors_sorted(
+            safetensors::serialize(tensors, Some(meta)).map_err(st_err)?,
+        );
         let toml = TomlProfile {
             maps_fnv1a64: Some(fnv1a64(&bytes)),
             ..self.to_toml_struct()
@@ -268,48 +270,6 @@ fn toml_text(t: &TomlProfile) -> String {
         "# emccd camera profile. Per-pixel maps are in {MAPS_FILE} beside this file.\n\
          # Model (paper eq. 1): D = B[K(I + f·Np) + FPN_t] + Nr + Nq, with s = K·f².\n{body}"
     )
-}
-
-/// `bytes` (a safetensors file) with its JSON header's keys in sorted order. safetensors
-/// writes the metadata map in hash order, which differs from run to run, so the same profile
-/// would be saved as different bytes under a different checksum; re-serialized sorted (the same
-/// compact JSON, so the same length) the file is a function of the profile alone.
-fn sorted_header(mut bytes: Vec<u8>) -> Vec<u8> {
-    let Some(n) = bytes
-        .get(..8)
-        .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")) as usize)
-    else {
-        return bytes;
-    };
-    let Some(header) = bytes.get(8..8 + n) else {
-        return bytes;
-    };
-    let Ok(sorted) = serde_json::from_slice::<serde_json::Value>(header)
-        .and_then(|v| serde_json::to_vec(&sort_keys(v)))
-    else {
-        return bytes;
-    };
-    if sorted.len() <= n {
-        // The header's padding (spaces to a multiple of 8 bytes) is kept.
-        bytes[8..8 + sorted.len()].copy_from_slice(&sorted);
-        bytes[8 + sorted.len()..8 + n].fill(b' ');
-    }
-    bytes
-}
-
-/// `v` with every object's keys in sorted order (serde_json keeps insertion order where a
-/// dependency enables its `preserve_order`, as zarrs does).
-fn sort_keys(v: serde_json::Value) -> serde_json::Value {
-    use serde_json::Value;
-    match v {
-        Value::Object(m) => {
-            let sorted: std::collections::BTreeMap<String, Value> =
-                m.into_iter().map(|(k, v)| (k, sort_keys(v))).collect();
-            Value::Object(sorted.into_iter().collect())
-        }
-        Value::Array(a) => Value::Array(a.into_iter().map(sort_keys).collect()),
-        other => other,
-    }
 }
 
 fn st_err(e: safetensors::SafeTensorError) -> Error {
