@@ -32,6 +32,12 @@ fn bundled_profile_files_match_the_generator() {
     .unwrap();
     let generated = emccd_profile::default_profile();
     assert_eq!(shipped.to_toml_string(), generated.to_toml_string());
+    // Written as `profile init-default` writes it today (the header's keys sorted).
+    let maps = std::fs::read(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("profiles/default/maps.safetensors"),
+    )
+    .unwrap();
+    assert!(emccd_io::safetensors_sorted(maps.clone()) == maps);
     // The maps agree to float precision (libm may differ in the last bit across platforms).
     let close = |a: &[f32], b: &[f32]| {
         a.iter()
