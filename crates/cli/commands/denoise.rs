@@ -118,8 +118,6 @@ pub fn run(a: Args) -> Result<()> {
         ensemble: a.ensemble,
         units: a.units,
     };
-    // An impossible unit conversion is an error now, not at the first frame.
-    a.units.factor(&profile)?;
     if zarr {
         return run_zarr(&a, &fd, model_name.as_deref());
     }
@@ -198,7 +196,12 @@ fn run_zarr(a: &Args, fd: &FrameDenoiser, model_name: Option<&str>) -> Result<()
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default(),
-        provenance: emccd_nn::stack::provenance(fd, model_name, &inputs)?,
+        provenance: emccd_nn::stack::provenance(
+            fd,
+            model_name,
+            &inputs,
+            &format!("emccd {}", env!("CARGO_PKG_VERSION")),
+        )?,
         notes,
     };
     let (store, _created) = emccd_io::zarr::ZarrStackWriter::create_or_open(&a.out, &spec)?;

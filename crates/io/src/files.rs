@@ -199,6 +199,11 @@ pub fn safetensors_sorted(mut bytes: Vec<u8>) -> Vec<u8> {
     else {
         return bytes;
     };
+    // The same keys and values re-serialized compactly: never longer than what was there.
+    debug_assert!(
+        sorted.len() <= n,
+        "a sorted header longer than the original"
+    );
     if sorted.len() <= n {
         // The header's padding (spaces to a multiple of 8 bytes) is kept.
         bytes[8..8 + sorted.len()].copy_from_slice(&sorted);

@@ -432,6 +432,11 @@ impl ZarrStackWriter {
         })
     }
 
+    /// What the store was made for (frames, size, provenance).
+    pub fn spec(&self) -> &ZarrStackSpec {
+        &self.spec
+    }
+
     /// Whether frame `k` (from 0) is complete: its chunk stored and its marker written.
     pub fn is_done(&self, k: usize) -> bool {
         self.done.join(k.to_string()).is_file()

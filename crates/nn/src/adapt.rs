@@ -606,7 +606,7 @@ impl Recorded {
     ) -> Result<()> {
         let name = recording.path.display().to_string();
         self.start_recording(recording.exposure)
-            .map_err(|e| Error::Data(format!("{name}: {e}")))?;
+            .map_err(|e| e.at(&name))?;
         let mut buf = vec![0f32; recording.info.frame_len()];
         for k in 1.. {
             let read = recording
@@ -620,7 +620,7 @@ impl Recorded {
                 break;
             }
             self.add_raw(profile, &buf)
-                .map_err(|e| Error::Data(format!("{name}: frame {k}: {e}")))?;
+                .map_err(|e| e.at(format!("{name}: frame {k}")))?;
             on_frame();
         }
         Ok(())

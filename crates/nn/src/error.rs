@@ -17,14 +17,14 @@ pub enum Error {
         /// The error.
         source: std::io::Error,
     },
-    /// Training input is unusable.
+    /// Input data (training images, recorded frames) are unusable.
     #[error("{0}")]
     Data(String),
     /// A file (a recording, an output store) that cannot be read or written.
     #[error(transparent)]
     File(#[from] emccd_io::Error),
     /// A frame of a recording that cannot be read: `at` names the file and the frame.
-    #[error("{at}")]
+    #[error("{at}: {source}")]
     Frame {
         /// The file and the frame (from 1).
         at: String,
@@ -32,9 +32,26 @@ pub enum Error {
         #[source]
         source: emccd_io::Error,
     },
+    /// An error about one file or frame of several: `at` names it, `source` keeps its kind.
+    #[error("{at}: {source}")]
+    At {
+        /// The file, or the file and the frame (from 1).
+        at: String,
+        /// What went wrong there.
+        #[source]
+        source: Box<Error>,
+    },
 }
 
 impl Error {
+    /// This error, about `at` (a file, or a file and its frame).
+    pub fn at(self, at: impl Into<String>) -> Error {
+        Error::At {
+            at: at.into(),
+            source: Box::new(self),
+        }
+    }
+
     /// An I/O error on `path`.
     pub fn io(path: &Path, source: std::io::Error) -> Error {
         Error::Io {

@@ -14,11 +14,13 @@ use crate::{Error, Result};
 /// the store: each input by its real path, size and modification time (a file rewritten
 /// between two shards is another input) with its frame count and exposure, the profile, the
 /// method, the model by its bytes (not by how it was named: `model_name` is the argument it
-/// was loaded from) and the output's units and network settings.
+/// was loaded from) and the output's units and network settings; `software` names the program
+/// and its version.
 pub fn provenance(
     fd: &FrameDenoiser,
     model_name: Option<&str>,
     inputs: &[Recording],
+    software: &str,
 ) -> Result<Value> {
     let mut ids = Vec::with_capacity(inputs.len());
     for i in inputs {
@@ -34,7 +36,7 @@ pub fn provenance(
     };
     let net = fd.model.is_some();
     Ok(json!({
-        "software": format!("emccd {}", env!("CARGO_PKG_VERSION")),
+        "software": software,
         "inputs": ids,
         "profile_fingerprint": format!("{:016x}", fd.profile.fingerprint()),
         "method": fd.method.name(),
@@ -58,7 +60,9 @@ pub struct ShardRun {
 /// Denoises frames `range` (from 0) of the stack that `inputs` make in the order given into
 /// `store`, skipping frames already complete there, so that a killed run is resumed by running
 /// it again; the other frames are skipped over unread. `on_frame` is called after every frame
-/// stored. Errors name the input and its frame (from 1).
+/// stored. An error if the store was made for another number of frames or another frame size,
+/// or `range` reaches past the inputs' frames; errors about a frame name its input and its
+/// number there (from 1), and an input that ends before its header's frame count is one.
 pub fn denoise_shard(
     fd: &FrameDenoiser,
     inputs: Vec<Recording>,
@@ -66,6 +70,22 @@ pub fn denoise_shard(
     range: Range<usize>,
     on_frame: &mut dyn FnMut(),
 ) -> Result<ShardRun> {
+    let frames: usize = inputs.iter().map(|i| i.info.frames).sum();
+    let spec = store.spec();
+    let size = (fd.profile.width, fd.profile.height);
+    if spec.frames != frames || (spec.width, spec.height) != size {
+        return Err(Error::Data(format!(
+            "the store holds {} frames of {}×{}, the inputs {frames} of {}×{}",
+            spec.frames, spec.width, spec.height, size.0, size.1
+        )));
+    }
+    if range.end > frames {
+        return Err(Error::Data(format!(
+            "frames {}–{} asked of a stack of {frames}",
+            range.start + 1,
+            range.end
+        )));
+    }
     let mut buf = vec![0f32; fd.profile.len()];
     let mut run = ShardRun {
         written: 0,
@@ -77,8 +97,10 @@ pub fn denoise_shard(
         if k >= range.end {
             break;
         }
-        let at = |j: usize| format!("{}: frame {}", i.path.display(), j + 1);
-        for j in 0..i.info.frames {
+        let name = i.path.display().to_string();
+        let count = i.info.frames;
+        let at = |j: usize| format!("{name}: frame {}", j + 1);
+        for j in 0..count {
             if k >= range.end {
                 break;
             }
@@ -88,16 +110,19 @@ pub fn denoise_shard(
                     .read_frame(&mut buf)
                     .map_err(|source| Error::Frame { at: at(j), source })?;
                 if !read {
-                    return Err(Error::Data(format!("{}: the file ended before it", at(j))));
+                    return Err(Error::Data(format!(
+                        "the file ended before it (its header says {count} frames)"
+                    ))
+                    .at(at(j)));
                 }
-                let out = fd
-                    .run(&buf, i.exposure)
-                    .map_err(|e| Error::Data(format!("{}: {e}", at(j))))?;
+                let out = fd.run(&buf, i.exposure).map_err(|e| e.at(at(j)))?;
                 store.write_frame(k, &out)?;
                 run.written += 1;
                 on_frame();
             } else {
                 run.skipped += range.contains(&k) as usize;
+                // A file shorter than its header fails the shard that needs the missing frames
+                // (above); skipping past its end here is harmless to this one.
                 i.reader
                     .skip_frame()
                     .map_err(|source| Error::Frame { at: at(j), source })?;

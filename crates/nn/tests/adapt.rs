@@ -388,3 +388,78 @@ fn recordings_are_gathered_as_the_methods_need() {
         .to_string();
     assert!(e.contains("no recordings"), "{e}");
 }
+
+/// A recording file streamed into a gathering gives the frames `add_raw` would, calls back
+/// once per frame, and names the file (and frame) in its errors.
+#[test]
+fn a_recording_file_is_gathered_frame_by_frame() {
+    let cam = camera();
+    let exp = cam.exposure(EXPOSURE);
+    let ph = photons();
+    let dir = tempfile::tempdir().unwrap();
+    let write = |name: &str, exposure: f64| {
+        let path = dir.path().join(name);
+        let mut w =
+            emccd_io::StackWriter::create(&path, SIDE, SIDE, emccd_io::SampleFormat::U16, Some(3))
+                .unwrap();
+        w.set_metadata(&emccd_io::Metadata {
+            exposure_s: Some(exposure),
+            ..Default::default()
+        });
+        for k in 0..3 {
+            let mut r = vec![0f32; SIDE * SIDE];
+            exp.frame(&ph, 100 + k, &mut r);
+            w.write_frame(&r).unwrap();
+        }
+        w.finish().unwrap();
+        path
+    };
+    let open = |p: &std::path::Path| {
+        emccd_profile::Recording::open(p, &cam.profile, None, "--exposure-s", false).unwrap()
+    };
+    let a = write("a.tif", EXPOSURE);
+    let mut rec = Recorded::new(
+        AdaptMethod::Resynthesis,
+        &cam.profile,
+        Default::default(),
+        1 << 20,
+    );
+    let mut calls = 0;
+    rec.add_recording(&cam.profile, open(&a), &mut || calls += 1)
+        .unwrap();
+    assert_eq!((rec.frames(), calls), (3, 3));
+    let AdaptData::Scene(got) = rec.finish(&cam.profile).unwrap() else {
+        panic!("resynthesis trains on a scene estimate")
+    };
+    // The frames were written as u16: the same estimate as from the rounded raw frames.
+    let mut by_hand = Recorded::new(
+        AdaptMethod::Resynthesis,
+        &cam.profile,
+        Default::default(),
+        1 << 20,
+    );
+    by_hand.start_recording(EXPOSURE).unwrap();
+    for f in emccd_io::read_all(&a).unwrap().1 {
+        by_hand.add_raw(&cam.profile, &f).unwrap();
+    }
+    let AdaptData::Scene(want) = by_hand.finish(&cam.profile).unwrap() else {
+        panic!("resynthesis trains on a scene estimate")
+    };
+    assert_eq!(got.image.data, want.image.data);
+
+    // Noise2Noise adapts on one exposure: a second file at another is refused, named.
+    let b = write("b.tif", 2.0 * EXPOSURE);
+    let mut n2n = Recorded::new(
+        AdaptMethod::Noise2noise,
+        &cam.profile,
+        Default::default(),
+        1 << 20,
+    );
+    n2n.add_recording(&cam.profile, open(&a), &mut || ())
+        .unwrap();
+    let e = n2n
+        .add_recording(&cam.profile, open(&b), &mut || ())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("b.tif") && e.contains("one exposure"), "{e}");
+}

@@ -331,9 +331,11 @@ fn blend_averages_ivst_and_the_network() {
     }
 }
 
-/// A stack denoised into a Zarr store in shares: a share writes only its frames, a later run
-/// skips what is done and writes the rest, and the frames are what `FrameDenoiser::run` gives;
-/// the provenance hashes the model that runs (`blend` without a model: `lowlight`).
+/// A stack of two files denoised into a Zarr store in shares: a share across the files' boundary
+/// writes only its frames, a later run skips what is done and writes the rest, and the frames
+/// are what `FrameDenoiser::run` gives; a share past the end, a store of another size and a file
+/// shorter than its header are errors naming what is wrong; the provenance hashes the model
+/// that runs (`blend` without a model: `lowlight`).
 #[test]
 fn a_stack_is_denoised_in_shards_with_the_model_it_ran_in_its_provenance() {
     use emccd_io::zarr::{ZarrStackSpec, ZarrStackWriter};
@@ -341,28 +343,47 @@ fn a_stack_is_denoised_in_shards_with_the_model_it_ran_in_its_provenance() {
     use emccd_nn::stack::{denoise_shard, provenance, ShardRun};
     use emccd_profile::Recording;
 
-    let (w, h, n) = (48, 40, 5);
+    let (w, h) = (48, 40);
     let profile = emccd_profile::default_profile().crop(0, 0, w, h).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("raw.tif");
-    let mut wr =
-        emccd_io::StackWriter::create(&path, w, h, emccd_io::SampleFormat::U16, Some(n)).unwrap();
-    wr.set_metadata(&emccd_io::Metadata {
-        exposure_s: Some(0.01),
-        ..Default::default()
-    });
-    let raws: Vec<Vec<f32>> = (0..n)
+    let raws: Vec<Vec<f32>> = (0..5)
         .map(|k| {
             (0..w * h)
                 .map(|i| (500 + (i * 7919 + k * 104729) % 97 * 3) as f32)
                 .collect()
         })
         .collect();
-    for f in &raws {
-        wr.write_frame(f).unwrap();
+    // a.tif holds frames 0–1 of the stack, b.tif frames 2–4.
+    let files = [("a.tif", &raws[..2]), ("b.tif", &raws[2..])];
+    for (name, frames) in files {
+        let mut wr = emccd_io::StackWriter::create(
+            dir.path().join(name),
+            w,
+            h,
+            emccd_io::SampleFormat::U16,
+            Some(frames.len()),
+        )
+        .unwrap();
+        wr.set_metadata(&emccd_io::Metadata {
+            exposure_s: Some(0.01),
+            ..Default::default()
+        });
+        for f in frames {
+            wr.write_frame(f).unwrap();
+        }
+        wr.finish().unwrap();
     }
-    wr.finish().unwrap();
-    let open = || Recording::open(&path, &profile, None, "--exposure-s", false).unwrap();
+    let open = |name: &str| {
+        Recording::open(
+            &dir.path().join(name),
+            &profile,
+            None,
+            "--exposure-s",
+            false,
+        )
+        .unwrap()
+    };
+    let both = || vec![open("a.tif"), open("b.tif")];
 
     let r = resolve(None, None, load).unwrap();
     let blend = FrameDenoiser {
@@ -373,12 +394,16 @@ fn a_stack_is_denoised_in_shards_with_the_model_it_ran_in_its_provenance() {
         ensemble: 1,
         units: Units::Dn,
     };
-    let p = provenance(&blend, r.model_name.as_deref(), &[open()]).unwrap();
+    let p = provenance(&blend, r.model_name.as_deref(), &both(), "emccd test").unwrap();
     let lowlight = emccd_io::content_hash(&model_path("lowlight").unwrap()).unwrap();
     assert_eq!(p["model_hash"], format!("{lowlight:016x}"));
+    assert_eq!(p["method"], "blend");
     assert_eq!(
-        (p["method"].as_str(), p["inputs"][0]["frames"].as_u64()),
-        (Some("blend"), Some(5))
+        (
+            p["inputs"][0]["frames"].as_u64(),
+            p["inputs"][1]["frames"].as_u64()
+        ),
+        (Some(2), Some(3))
     );
 
     let fd = FrameDenoiser {
@@ -389,33 +414,41 @@ fn a_stack_is_denoised_in_shards_with_the_model_it_ran_in_its_provenance() {
     let spec = ZarrStackSpec {
         width: w,
         height: h,
-        frames: n,
+        frames: 5,
         name: "t".into(),
-        provenance: provenance(&fd, None, &[open()]).unwrap(),
+        provenance: provenance(&fd, None, &both(), "emccd test").unwrap(),
         notes: serde_json::Value::Null,
     };
     let out = dir.path().join("out.zarr");
     let (store, created) = ZarrStackWriter::create_or_open(&out, &spec).unwrap();
     assert!(created);
     let mut calls = 0;
-    let first = denoise_shard(&fd, vec![open()], &store, 1..3, &mut || calls += 1).unwrap();
+    let first = denoise_shard(&fd, both(), &store, 1..4, &mut || calls += 1).unwrap();
     assert_eq!(
         (first, calls),
         (
             ShardRun {
-                written: 2,
+                written: 3,
                 skipped: 0
             },
-            2
+            3
         )
     );
-    assert_eq!(store.done_count(), 2);
-    let rest = denoise_shard(&fd, vec![open()], &store, 0..n, &mut || ()).unwrap();
+    assert_eq!(store.done_count(), 3);
+    let e = denoise_shard(&fd, both(), &store, 3..6, &mut || ())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("frames 4–6 asked of a stack of 5"), "{e}");
+    let e = denoise_shard(&fd, vec![open("b.tif")], &store, 0..3, &mut || ())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("the store holds 5 frames"), "{e}");
+    let rest = denoise_shard(&fd, both(), &store, 0..5, &mut || ()).unwrap();
     assert_eq!(
         rest,
         ShardRun {
-            written: 3,
-            skipped: 2
+            written: 2,
+            skipped: 3
         }
     );
     drop(store);
@@ -423,4 +456,19 @@ fn a_stack_is_denoised_in_shards_with_the_model_it_ran_in_its_provenance() {
     for (k, (got, raw)) in frames.iter().zip(&raws).enumerate() {
         assert_eq!(got, &fd.run(raw, 0.01).unwrap(), "frame {k}");
     }
+
+    // b.tif ends after 3 frames although its header (here: its StackInfo) promises 4.
+    let mut short = open("b.tif");
+    short.info.frames = 4;
+    let spec = ZarrStackSpec { frames: 6, ..spec };
+    let (store, _) =
+        ZarrStackWriter::create_or_open(&dir.path().join("short.zarr"), &spec).unwrap();
+    let e = denoise_shard(&fd, vec![open("a.tif"), short], &store, 0..6, &mut || ())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("b.tif: frame 4: the file ended before it"),
+        "{e}"
+    );
+    assert_eq!(store.done_count(), 5);
 }

@@ -34,29 +34,36 @@ impl Recording {
     ) -> Result<Recording> {
         let reader = emccd_io::open(path)?;
         let info = reader.info().clone();
-        let name = path.display();
-        let mut warnings: Vec<String> = info
-            .metadata
-            .warnings
-            .iter()
-            .map(|w| format!("{name}: {w}"))
-            .collect();
-        let (exposure, source) = match (exposure_s, info.metadata.exposure_s) {
-            (Some(t), _) => (t, source),
-            (None, Some(t)) => (t, "the file header"),
-            (None, None) => {
+        let header = &info.metadata.warnings;
+        let checked = match (exposure_s, info.metadata.exposure_s) {
+            (Some(t), _) => Ok((t, source)),
+            (None, Some(t)) => Ok((t, "the file header")),
+            (None, None) => Err(Error::Parameter(format!(
+                "the header records no exposure; pass {source}"
+            ))),
+        }
+        .and_then(|(t, source)| {
+            let w = profile.check_frames(info.width, info.height, t, source, extrapolate)?;
+            Ok((t, w))
+        });
+        let (exposure, extrapolated) = match checked {
+            Ok(c) => c,
+            // What the reader noticed about the header often explains the failure.
+            Err(e) if !header.is_empty() => {
                 return Err(Error::Parameter(format!(
-                    "the header records no exposure; pass {source}"
+                    "{e} (the reader noted: {})",
+                    header.join("; ")
                 ))
                 .at(path))
             }
+            Err(e) => return Err(e.at(path)),
         };
-        if let Some(w) = profile
-            .check_frames(info.width, info.height, exposure, source, extrapolate)
-            .map_err(|e| e.at(path))?
-        {
-            warnings.push(format!("{name}: {w}"));
-        }
+        let name = path.display();
+        let warnings = header
+            .iter()
+            .map(|w| format!("{name}: {w}"))
+            .chain(extrapolated.map(|w| format!("{name}: {w}")))
+            .collect();
         Ok(Recording {
             path: path.to_path_buf(),
             reader,
