@@ -49,17 +49,11 @@ impl Arch {
     }
 
     /// The architecture named `name` (one of [`ARCHS`]) for a new network taking `inputs`: a
-    /// Uformer preset, or a U-Net of `base` channels over `levels` levels (`direct`: it outputs
-    /// its prediction alone instead of adding a residual to the input). Refuses what this build
-    /// has not: an unknown name, a refinement network (hybrid inputs) or a direct output on
-    /// anything but a U-Net denoiser.
-    pub fn for_training(
-        name: &str,
-        inputs: Inputs,
-        base: usize,
-        levels: usize,
-        direct: bool,
-    ) -> Result<Arch> {
+    /// Uformer preset, or a U-Net of `unet`'s size (`base`, `levels`, `direct`, `unshuffle`; its
+    /// channels and residual follow `inputs`). Refuses what this build has not: an unknown
+    /// name, a refinement network (hybrid inputs), a direct output or an unshuffled input on
+    /// anything but a U-Net, a direct refinement network, an unshuffle other than 1, 2 or 4.
+    pub fn for_training(name: &str, inputs: Inputs, unet: UNetConfig) -> Result<Arch> {
         let uformer = UformerConfig::by_name(name);
         if uformer.is_none() && name != "unet" {
             return Err(Error::Model(format!(
@@ -67,10 +61,16 @@ impl Arch {
                 ARCHS.join(", ")
             )));
         }
-        if direct && (inputs == Inputs::Hybrid || name != "unet") {
+        if unet.direct && (inputs == Inputs::Hybrid || name != "unet") {
             return Err(Error::Model(
                 "a direct output: only a U-Net denoiser (arch unet, noisy inputs) has one".into(),
             ));
+        }
+        if unet.unshuffle != 1 && (name != "unet" || ![2, 4].contains(&unet.unshuffle)) {
+            return Err(Error::Model(format!(
+                "unshuffle {}: a U-Net folds 2×2 or 4×4 blocks into channels (1: none); other architectures take no unshuffle",
+                unet.unshuffle
+            )));
         }
         if inputs == Inputs::Hybrid && name != "unet" {
             return Err(Error::Model(
@@ -80,11 +80,9 @@ impl Arch {
         Ok(match uformer {
             Some(c) => Arch::Uformer(c),
             None => Arch::UNet(UNetConfig {
-                base,
-                levels,
                 in_channels: inputs.channels(),
                 residual: inputs.residual(),
-                direct,
+                ..unet
             }),
         })
     }
@@ -100,7 +98,7 @@ impl Arch {
     /// Frame sides the network accepts are multiples of this (frames are padded to it).
     pub fn multiple(&self) -> usize {
         match self {
-            Arch::UNet(c) => 1 << c.levels,
+            Arch::UNet(c) => c.multiple(),
             Arch::Uformer(c) => c.multiple(),
         }
     }
@@ -245,6 +243,20 @@ pub enum Base {
 }
 
 impl Base {
+    /// The base of a training run: `chosen` (only a refinement network has one), else the
+    /// `init` model's, else one BM3D pass.
+    pub fn for_run(chosen: Option<Base>, inputs: Inputs, init: Option<&Path>) -> Result<Base> {
+        match (chosen, init) {
+            (Some(_), _) if inputs != Inputs::Hybrid => Err(Error::Model(
+                "--hybrid-base: only a refinement network (--inputs hybrid) has a base estimate"
+                    .into(),
+            )),
+            (Some(b), _) => Ok(b),
+            (None, Some(init)) => Ok(Denoiser::read_meta(init)?.base),
+            (None, None) => Ok(Base::Bm3d),
+        }
+    }
+
     /// The estimate of a preprocessed frame (DN above bias) with noise `p`.
     pub fn estimate(
         self,
@@ -439,11 +451,14 @@ fn meta_of(bytes: &[u8], path: &Path) -> Result<ModelMeta> {
 fn check_size(meta: &ModelMeta) -> std::result::Result<(), String> {
     if let Arch::UNet(c) = meta.arch {
         // Channels double at every level: bound the deepest level's width, not only the first.
-        if !(1..=512).contains(&c.base) || !(1..=8).contains(&c.levels) || c.base << c.levels > 4096
+        if !(1..=512).contains(&c.base)
+            || !(1..=8).contains(&c.levels)
+            || c.base << c.levels > 4096
+            || ![1, 2, 4].contains(&c.unshuffle)
         {
             return Err(format!(
-                "a U-Net of {} channels and {} levels is outside what emccd builds (1–512 channels, 1–8 levels, at most 4096 channels at the deepest level)",
-                c.base, c.levels
+                "a U-Net of {} channels, {} levels and unshuffle {} is outside what emccd builds (1–512 channels, 1–8 levels, at most 4096 channels at the deepest level, unshuffle 1, 2 or 4)",
+                c.base, c.levels, c.unshuffle
             ));
         }
     }
@@ -486,20 +501,35 @@ fn import_error(path: &Path, e: impl std::fmt::Display) -> Error {
 mod tests {
     use super::*;
 
+    fn sized(base: usize, levels: usize, direct: bool, unshuffle: usize) -> UNetConfig {
+        UNetConfig {
+            base,
+            levels,
+            direct,
+            unshuffle,
+            ..UNetConfig::DEFAULT
+        }
+    }
+
     #[test]
     fn architectures_for_training_are_the_builds_and_their_combinations() {
-        let unet = Arch::for_training("unet", Inputs::Hybrid, 16, 3, false).unwrap();
+        let unet = Arch::for_training("unet", Inputs::Hybrid, sized(16, 3, false, 1)).unwrap();
         assert_eq!(unet.name(), "unet");
         assert_eq!(unet.in_channels(), Inputs::Hybrid.channels());
-        let t = Arch::for_training("uformer-t", Inputs::Noisy, 16, 3, false).unwrap();
+        assert_eq!(unet.multiple(), 8);
+        let folded = Arch::for_training("unet", Inputs::Noisy, sized(16, 3, false, 2)).unwrap();
+        assert_eq!(folded.multiple(), 16);
+        let t = Arch::for_training("uformer-t", Inputs::Noisy, sized(16, 3, false, 1)).unwrap();
         assert_eq!(t.name(), "uformer-t");
-        for (name, inputs, direct, says) in [
-            ("resnet", Inputs::Noisy, false, "this build has"),
-            ("uformer-s", Inputs::Noisy, true, "direct output"),
-            ("unet", Inputs::Hybrid, true, "direct output"),
-            ("uformer-b", Inputs::Hybrid, false, "refinement network"),
+        for (name, inputs, direct, unshuffle, says) in [
+            ("resnet", Inputs::Noisy, false, 1, "this build has"),
+            ("uformer-s", Inputs::Noisy, true, 1, "direct output"),
+            ("unet", Inputs::Hybrid, true, 1, "direct output"),
+            ("uformer-b", Inputs::Hybrid, false, 1, "refinement network"),
+            ("uformer-t", Inputs::Noisy, false, 2, "unshuffle 2"),
+            ("unet", Inputs::Noisy, false, 3, "unshuffle 3"),
         ] {
-            let e = Arch::for_training(name, inputs, 16, 3, direct)
+            let e = Arch::for_training(name, inputs, sized(16, 3, direct, unshuffle))
                 .unwrap_err()
                 .to_string();
             assert!(e.contains(says), "{name}: {e}");

@@ -91,3 +91,88 @@ pub fn prepare_scaled(dn: &[f32], slope: f64, read_noise: &[f32], scale: f32) ->
         to_dn: scale * s,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A frame of `n` pixels: a smooth scene of `mean` slope units with every `every`-th
+    /// pixel raised by `spike` units (an EM spike or a hot pixel).
+    fn frame(n: usize, mean: f32, spike: f32, every: usize) -> Vec<f32> {
+        (0..n)
+            .map(|i| {
+                let scene = mean * (1.0 + 0.5 * ((i as f32) * 0.01).sin());
+                if i % every == 0 {
+                    scene + spike
+                } else {
+                    scene
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_input_is_the_same_for_every_camera_that_records_the_same_electrons() {
+        // Camera B has 7.5× camera A's DN per electron (slope, signal and read noise alike):
+        // the network must see the same numbers, and the output must come back in B's DN.
+        let x = frame(4096, 3.0, 0.0, 4097);
+        let (sa, sb) = (20.0f64, 150.0f64);
+        let dn_a: Vec<f32> = x.iter().map(|v| v * sa as f32).collect();
+        let dn_b: Vec<f32> = x.iter().map(|v| v * sb as f32).collect();
+        let (ra, rb) = (vec![3.0f32; 4096], vec![3.0f32 * 7.5; 4096]);
+        let (a, b) = (prepare(&dn_a, sa, &ra), prepare(&dn_b, sb, &rb));
+        for (u, v) in a.input.iter().zip(&b.input) {
+            assert!((u - v).abs() <= 1e-5 * u.abs().max(1.0), "{u} vs {v}");
+        }
+        assert!((b.to_dn / a.to_dn - 7.5).abs() < 1e-5);
+    }
+
+    #[test]
+    fn the_noise_channel_is_the_poisson_gaussian_std_in_the_frames_units() {
+        let dn = [-10.0f32, 0.0, 40.0, 400.0];
+        let rn = [5.0f32; 4];
+        let p = prepare_scaled(&dn, 20.0, &rn, 8.0);
+        for (i, &d) in dn.iter().enumerate() {
+            let (x, r) = (d / 20.0, 5.0f32 / 20.0);
+            assert!((p.input[i] - x / 8.0).abs() < 1e-6);
+            // Negative counts (read noise below bias) have the read noise alone.
+            let sd = (x.max(0.0) + r * r).sqrt() / 8.0;
+            assert!((p.input[4 + i] - sd).abs() < 1e-6);
+        }
+        assert_eq!(p.to_dn, 160.0);
+    }
+
+    #[test]
+    fn the_scale_ignores_rare_spikes_and_is_floored_at_low_light() {
+        // At a mean of about 1 photoelectron (0.5 slope units) the floor sets the scale:
+        // a dim frame is not blown up to its noise. Spikes on 0.4 % of the pixels (fewer
+        // than the 0.5 % above the 99.5th percentile) change nothing there.
+        assert_eq!(frame_scale(&frame(10_000, 0.5, 0.0, 10_001)), 4.0);
+        assert_eq!(frame_scale(&frame(10_000, 0.5, 50.0, 250)), 4.0);
+        // A bright frame's scale is its scene's 99.5th percentile (1.5 × 40 here), and
+        // hot pixels on 0.4 % of it move the scale by less than the scene's own spread.
+        let clean = frame_scale(&frame(10_000, 40.0, 0.0, 10_001));
+        assert!((clean - 60.0).abs() < 0.5, "{clean}");
+        let hot = frame_scale(&frame(10_000, 40.0, 1e6, 250));
+        assert!((hot - clean).abs() < 0.5, "{hot} vs {clean}");
+        // Non-finite values are ignored rather than poisoning the scale.
+        let mut nan = frame(10_000, 40.0, 0.0, 10_001);
+        nan[3] = f32::NAN;
+        nan[5] = f32::INFINITY;
+        assert!((frame_scale(&nan) - clean).abs() < 0.5);
+        assert_eq!(frame_scale(&[]), 1.0);
+    }
+
+    #[test]
+    fn a_hybrid_input_scales_like_its_estimate_not_its_noise() {
+        let est = frame(4096, 0.5, 0.0, 4097);
+        assert_eq!(signal_scale(&est), HYBRID_SCALE_FLOOR);
+        let bright = frame(4096, 40.0, 0.0, 4097);
+        let noisy_spikes = frame(4096, 40.0, 500.0, 50);
+        let s = signal_scale(&bright);
+        let p = prepare_hybrid(&noisy_spikes, &bright, 1.0, &vec![0.0; 4096], s);
+        assert_eq!(p.input.len(), 3 * 4096);
+        assert!((p.input[2 * 4096 + 1] - bright[1] / s).abs() < 1e-6);
+        assert_eq!(p.to_dn, s);
+    }
+}

@@ -17,6 +17,7 @@ fn hybrid_meta() -> ModelMeta {
             in_channels: 3,
             residual: Inputs::Hybrid.residual(),
             direct: false,
+            unshuffle: 1,
         }),
         inputs: Inputs::Hybrid,
         ..meta(4, 2)
@@ -82,6 +83,7 @@ fn a_hybrid_needs_three_channels_and_a_unet() {
             in_channels: 2,
             residual: 0,
             direct: false,
+            unshuffle: 1,
         }),
         ..hybrid_meta()
     };

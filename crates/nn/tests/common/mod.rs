@@ -19,6 +19,7 @@ pub fn meta(base: usize, levels: usize) -> ModelMeta {
             in_channels: 2,
             residual: 0,
             direct: false,
+            unshuffle: 1,
         }),
         inputs: Default::default(),
         base: Default::default(),
