@@ -77,7 +77,7 @@ fn main() -> Result<()> {
         ..Default::default()
     };
     let meta = ModelMeta {
-        profile_fingerprint: format!("{:016x}", profile.fingerprint()),
+        profile_fingerprint: profile.fingerprint_hex(),
         recipe: "examples/library.rs: 12 steps on synthetic scenes".into(),
         ..emccd_nn::Denoiser::read_meta(&init)?
     };

@@ -308,7 +308,7 @@ impl Profile {
     /// Content fingerprint (hex): what model files record as the profile they were trained for.
     #[getter]
     fn fingerprint(&self) -> String {
-        format!("{:016x}", self.inner.fingerprint())
+        self.inner.fingerprint_hex()
     }
     /// Everything `emccd profile show --json` prints (JSON text).
     fn summary_json(&self) -> PyResult<String> {
@@ -464,7 +464,7 @@ fn denoise<'py>(
         let registry::Resolved {
             method, model: net, ..
         } = registry::resolve(method, model.as_deref(), load_model)?;
-        let fp = format!("{:016x}", p.fingerprint());
+        let fp = p.fingerprint_hex();
         if let Some(wn) = net
             .as_ref()
             .and_then(|m| registry::profile_mismatch(m, &fp))

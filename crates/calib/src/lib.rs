@@ -44,6 +44,7 @@
 
 #![deny(missing_docs)]
 
+pub mod bench;
 pub mod blooming;
 mod error;
 pub mod fit;

@@ -34,6 +34,7 @@
 #![deny(missing_docs)]
 
 pub mod acquisition;
+pub mod bench;
 pub mod noise;
 pub mod rng;
 pub mod virtual_camera;

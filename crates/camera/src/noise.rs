@@ -54,6 +54,21 @@ impl NoiseModelKind {
             NoiseModelKind::Pgn => "pgn",
         }
     }
+
+    /// This noise model of the camera `p` (the paper's with the components `ablation` leaves
+    /// on; the PGN chain at `exposure_s`, whose dark current depends on it).
+    pub fn build(
+        self,
+        p: &CameraProfile,
+        ablation: Ablation,
+        exposure_s: f64,
+    ) -> Result<Box<dyn NoiseModel>, Error> {
+        Ok(match self {
+            NoiseModelKind::Ours => Box::new(OursModel::from_profile(p, ablation)?),
+            NoiseModelKind::Eld => Box::new(EldModel::from_profile(p)?),
+            NoiseModelKind::Pgn => Box::new(PgnModel::from_profile(p, exposure_s)?),
+        })
+    }
 }
 
 /// Components of the paper's model that can be switched off (its Table 2 ablation). FPN and

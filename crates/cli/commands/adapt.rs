@@ -145,10 +145,7 @@ pub fn run(a: Args) -> Result<()> {
         frames: data.frames(),
         mean_electrons: level,
     };
-    let paths = RunPaths {
-        out: a.out.clone(),
-        checkpoint: PathBuf::from(format!("{}.ckpt", a.out.display())),
-    };
+    let paths = RunPaths::beside(&a.out);
     let (pb, mut report) = step_progress(a.steps, cfg.checkpoint_every);
     let start = if scratch {
         Start::Scratch(init_meta)

@@ -4,7 +4,7 @@ use std::process::Command;
 use std::time::Instant;
 
 use anyhow::Result;
-use emccd_camera::{Ablation, NoiseModel, OursModel, PgnModel, VirtualCamera};
+use emccd_camera::VirtualCamera;
 
 /// Benchmarks. By default: synthesis throughput in Mpix/s on 512×512 frames of the default
 /// camera, and the same frames through the Python `emccd-detect` package
@@ -260,27 +260,16 @@ fn bm3d_bench(sigmas: &[f64], limit: Option<usize>, data: &std::path::Path) -> R
         "{:>6} {:>10} {:>10} {:>10} {:>12}",
         "σ", "noisy dB", "BM3D dB", "published", "s/image"
     );
+    let images = scenes
+        .iter()
+        .map(|sc| emccd_io::Image::read_scene(sc))
+        .collect::<std::result::Result<Vec<_>, _>>()?;
     for &sigma in sigmas {
-        let (mut pn, mut pd, mut secs) = (0.0, 0.0, 0.0);
-        for (i, sc) in scenes.iter().enumerate() {
-            let img = emccd_io::Image::read_scene(sc)?;
-            let clean: Vec<f32> = img.data.iter().map(|v| v * 255.0).collect();
-            let seed = 1000 * sigma as u64 + i as u64;
-            let t = emccd_eval::bm3d::gaussian_trial(&clean, img.width, img.height, sigma, seed);
-            pn += t.noisy_db;
-            pd += t.denoised_db;
-            secs += t.seconds;
-        }
-        let n = scenes.len().max(1) as f64;
-        let p =
-            emccd_eval::bm3d::published_bsd68_db(sigma).map_or("–".into(), |v| format!("{v:.2}"));
+        let r = emccd_eval::bm3d::bsd68_row(&images, sigma);
+        let p = r.published_db.map_or("–".into(), |v| format!("{v:.2}"));
         println!(
             "{:>6} {:>10.2} {:>10.2} {:>10} {:>12.2}",
-            sigma,
-            pn / n,
-            pd / n,
-            p,
-            secs / n
+            r.sigma, r.noisy_db, r.denoised_db, p, r.seconds
         );
     }
     Ok(())
@@ -293,27 +282,13 @@ fn denoise_bench(
     frames: usize,
     data: &std::path::Path,
 ) -> Result<()> {
-    use emccd_nn::registry::{load, Estimator};
-    let bm3d = Estimator::parse("bm3d", load)?;
-    let mut models = Vec::with_capacity(model_args.len());
-    for m in model_args {
-        let est = Estimator::parse(m, load)?;
-        if est.model().is_none() {
-            anyhow::bail!("--denoise {m}: not a model (a file, or `default`, `microscopy`, `lowlight`; `MODEL@8` for the self-ensemble)");
-        }
-        models.push(est);
-    }
+    let models = emccd_nn::bench::models(model_args)?;
     let profile = crate::common::load_profile(profile_arg)?;
-    let cam = VirtualCamera::new(profile.clone(), Default::default())?;
     let scenes = if scene_args.is_empty() {
         emccd_io::image_files(&[data_folder(data, "clean/microscopy/fmd-confocal-bpae")?])?
     } else {
         emccd_io::image_files(scene_args)?
     };
-    let e = cam.exposure(0.01);
-    let k = models.len();
-    let (mut pin, mut pbm, mut n, mut bm_secs) = (0.0, 0.0, 0usize, 0.0);
-    let (mut pout, mut secs, mut timed) = (vec![0.0; k], vec![0.0; k], vec![0usize; k]);
     println!(
         "camera: {} (slope {:.2} DN, read noise {:.2} DN), 10 ms",
         profile.camera,
@@ -324,74 +299,34 @@ fn denoise_bench(
         "{:<28} {:>8} {:>10} {:>10}",
         "scene", "photons", "input dB", "BM3D dB"
     );
-    for i in 0..k {
+    for i in 0..models.len() {
         print!(" {:>10}", format!("model {}", i + 1));
     }
     println!();
-    for (si, sc) in scenes.iter().enumerate() {
-        let emccd_io::Image {
-            width: w,
-            height: h,
-            data: img,
-        } = emccd_io::Image::read_scene(sc)?;
-        if (w, h) != (cam.width(), cam.height()) {
-            eprintln!(
-                "skipping {}: {w}×{h}, the camera is {}×{}",
-                sc.display(),
-                cam.width(),
-                cam.height()
-            );
-            continue;
-        }
-        for (li, &level) in [20.0f64, 200.0].iter().enumerate() {
-            let phot: Vec<f32> = img.iter().map(|&v| (v as f64 * level) as f32).collect();
-            let truth = e.ground_truth(&phot);
-            let mut raw = vec![0f32; w * h];
-            e.frame(&phot, 1000 + (si * 2 + li) as u64, &mut raw);
-            let peak = truth.iter().copied().fold(0f32, f32::max).max(1.0) as f64;
-            let pre = emccd_nn::pipeline::preprocess(&profile, &raw, 0.01)?;
-            // Every method's time includes the preprocessing it runs first.
-            let t = Instant::now();
-            let bm = bm3d.run(&profile, &raw, 0.01)?;
-            bm_secs += t.elapsed().as_secs_f64();
-            let (a, c) = (
-                emccd_eval::psnr(&pre, &truth, peak),
-                emccd_eval::psnr(&bm, &truth, peak),
-            );
+    let t = emccd_nn::bench::denoise(
+        &profile,
+        &scenes,
+        &models,
+        frames,
+        &mut |r| {
             print!(
                 "{:<28} {:>8} {:>10.2} {:>10.2}",
-                sc.file_name().unwrap_or_default().to_string_lossy(),
-                level,
-                a,
-                c
+                r.scene, r.photons, r.input_db, r.bm3d_db
             );
-            for (mi, est) in models.iter().enumerate() {
-                let t = Instant::now();
-                let den = est.run(&profile, &raw, 0.01)?;
-                if timed[mi] < frames.max(1) {
-                    secs[mi] += t.elapsed().as_secs_f64();
-                    timed[mi] += 1;
-                }
-                let b = emccd_eval::psnr(&den, &truth, peak);
+            for b in &r.model_db {
                 print!(" {b:>10.2}");
-                pout[mi] += b;
             }
             println!();
-            pin += a;
-            pbm += c;
-            n += 1;
-        }
-    }
-    let nn = n.max(1) as f64;
+        },
+        &mut |skip| eprintln!("{skip}"),
+    )?;
     println!();
     println!(
-        "mean PSNR over {n} pairs: input {:.2} dB, BM3D (GAT) {:.2} dB ({:.2} s per frame)",
-        pin / nn,
-        pbm / nn,
-        bm_secs / nn
+        "mean PSNR over {} pairs: input {:.2} dB, BM3D (GAT) {:.2} dB ({:.2} s per frame)",
+        t.pairs, t.input_db, t.bm3d_db, t.bm3d_s
     );
     for (i, est) in models.iter().enumerate() {
-        let m = est.model().expect("a model argument runs a network");
+        let m = est.model().expect("bench::models holds networks only");
         println!(
             "model {}: {} ({} params, {} steps, noise model {}): {:.2} dB ({:+.2} vs BM3D), {:.3} s per 512×512 frame",
             i + 1,
@@ -399,9 +334,9 @@ fn denoise_bench(
             burn::module::Module::num_params(&m.net),
             m.meta.steps,
             m.meta.noise_model.name(),
-            pout[i] / nn,
-            pout[i] / nn - pbm / nn,
-            secs[i] / timed[i].max(1) as f64
+            t.model_db[i],
+            t.model_db[i] - t.bm3d_db,
+            t.model_s[i]
         );
     }
     println!(
@@ -421,60 +356,35 @@ fn peak_rss_mib() -> Option<f64> {
 }
 
 fn calibration_bench(frames: usize) -> Result<()> {
-    use std::io::Read;
-    let (w, h) = (512usize, 512usize);
     let dir = tempfile::tempdir()?;
-    let path = dir.path().join("stack.tif");
-    let mut wr =
-        emccd_io::StackWriter::create(&path, w, h, emccd_io::SampleFormat::U16, Some(frames))?;
-    let mut f = vec![0f32; w * h];
-    for k in 0..frames {
-        for (i, v) in f.iter_mut().enumerate() {
-            *v = 500.0 + ((i * 7919 + k * 104729) % 23) as f32;
-        }
-        wr.write_frame(&f)?;
-    }
-    wr.finish()?;
-    let bytes = std::fs::metadata(&path)?.len() as f64;
-    let rss_before = peak_rss_mib().unwrap_or(f64::NAN);
-    // Reference: reading the same bytes from the page cache and doing nothing with them.
-    let t = Instant::now();
-    let mut file = std::fs::File::open(&path)?;
-    let mut buf = vec![0u8; 1 << 20];
-    let mut sink = 0u64;
-    loop {
-        let n = file.read(&mut buf)?;
-        if n == 0 {
-            break;
-        }
-        sink = sink.wrapping_add(buf[n - 1] as u64);
-    }
-    let t_ref = t.elapsed().as_secs_f64();
-    std::hint::black_box(sink);
-    let t = Instant::now();
-    let (_, st) = emccd_calib::stats::accumulate(&path, None, 2, &[], None, &emccd_calib::Silent)?;
-    let t_cal = t.elapsed().as_secs_f64();
-    std::hint::black_box(st.mean());
-    let threads = rayon::current_num_threads();
-    println!("calibration streaming: {frames} frames of {w}×{h} u16 ({:.0} MB TIFF, page cache), {threads} threads", bytes / 1e6);
+    let mut rss_before = f64::NAN;
+    let r = emccd_calib::bench::streaming(dir.path(), frames, &mut || {
+        rss_before = peak_rss_mib().unwrap_or(f64::NAN)
+    })?;
+    let (side, threads) = (emccd_calib::bench::SIDE, rayon::current_num_threads());
+    println!(
+        "calibration streaming: {} frames of {side}×{side} u16 ({:.0} MB TIFF, page cache), {threads} threads",
+        r.frames,
+        r.bytes / 1e6
+    );
     println!("{:<46} {:>9} {:>9}", "pass", "s", "GB/s");
     println!(
         "{:<46} {:>9.3} {:>9.2}",
         "reference: read the bytes, no decoding",
-        t_ref,
-        bytes / t_ref / 1e9
+        r.reference_s,
+        r.reference_gb_s()
     );
     println!(
         "{:<46} {:>9.3} {:>9.2}",
         "emccd: decode + per-pixel mean and variance",
-        t_cal,
-        bytes / t_cal / 1e9
+        r.decode_s,
+        r.decode_gb_s()
     );
     println!();
     println!(
         "ratio to the reference read: {:.2}  (target ≥ 1 GB/s: {})",
-        t_ref / t_cal,
-        if bytes / t_cal >= 1e9 {
+        r.reference_s / r.decode_s,
+        if r.decode_gb_s() >= 1.0 {
             "met"
         } else {
             "not met"
@@ -484,18 +394,9 @@ fn calibration_bench(frames: usize) -> Result<()> {
         "peak memory: {:.1} MiB (before reading the stack: {:.1} MiB; the stack itself is {:.0} MiB)",
         peak_rss_mib().unwrap_or(f64::NAN),
         rss_before,
-        bytes / (1 << 20) as f64
+        r.bytes / (1 << 20) as f64
     );
     Ok(())
-}
-
-fn time_frames(frames: usize, mut f: impl FnMut(u64)) -> f64 {
-    f(0);
-    let t = Instant::now();
-    for k in 0..frames {
-        f(k as u64 + 1);
-    }
-    t.elapsed().as_secs_f64() / frames as f64
 }
 
 /// emccd-detect's timing script (run with `python3 -c`, so the binary needs no tools/ folder).
@@ -503,7 +404,7 @@ const EMCCD_DETECT_SPEED: &str = include_str!("../../../tools/emccd_detect_speed
 
 pub fn run(a: Args) -> Result<()> {
     if let Some(frames) = a.calibration {
-        return calibration_bench(frames.max(2));
+        return calibration_bench(frames);
     }
     if !a.denoise.is_empty() {
         return denoise_bench(&a.denoise, &a.profile, &a.scenes, a.frames, &a.data);
@@ -519,21 +420,13 @@ pub fn run(a: Args) -> Result<()> {
     }
     let frames = a.frames.max(1);
     let cam = VirtualCamera::default_camera();
-    let n = cam.profile.len();
-    let mpix = n as f64 / 1e6;
+    let mpix = cam.profile.len() as f64 / 1e6;
     let threads = rayon::current_num_threads();
-    let k_qe = cam.k_dn() * cam.physics.qe;
-    let clean = vec![(a.electrons * k_qe) as f32; n];
-    let photons = vec![(a.electrons / cam.physics.qe) as f32; n];
-    let mut out = vec![0f32; n];
-
-    let ours = OursModel::from_profile(&cam.profile, Ablation::default())?;
-    let t_ours = time_frames(frames, |s| ours.synthesize(&clean, 512, &mut out, s));
-    let pgn = PgnModel::from_profile(&cam.profile, 0.01)?;
-    let t_pgn = time_frames(frames, |s| pgn.synthesize(&clean, 512, &mut out, s));
-    let e = cam.exposure(0.01);
-    let t_cam = time_frames(frames, |s| e.frame(&photons, s, &mut out));
-
+    let emccd_camera::bench::Synthesis {
+        ours_s: t_ours,
+        pgn_s: t_pgn,
+        camera_s: t_cam,
+    } = emccd_camera::bench::synthesis(&cam, a.electrons, frames)?;
     println!(
         "synthesis throughput, 512×512 frames, {} e⁻/pixel, {frames} frames, {threads} threads",
         a.electrons

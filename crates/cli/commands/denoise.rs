@@ -1,12 +1,11 @@
 //! `emccd denoise`: raw EMCCD recordings → denoised photo-signal.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use emccd_io::zarr::Shard;
 use emccd_nn::registry::{FrameDenoiser, Method, Resolved, Units};
 use emccd_nn::tile::Tiling;
-use emccd_profile::Recording;
 
 use crate::common::{load_profile, open_recording, progress};
 
@@ -93,7 +92,7 @@ pub fn run(a: Args) -> Result<()> {
         model,
         model_name,
     } = emccd_nn::registry::resolve(a.method, a.model.as_deref(), emccd_nn::registry::load)?;
-    let fp = format!("{:016x}", profile.fingerprint());
+    let fp = profile.fingerprint_hex();
     if let Some(w) = model
         .as_ref()
         .and_then(|m| emccd_nn::registry::profile_mismatch(m, &fp))
@@ -127,37 +126,11 @@ pub fn run(a: Args) -> Result<()> {
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     }
     for (input, out) in a.inputs.iter().zip(outs) {
-        let Recording {
-            mut reader,
-            info,
-            exposure,
-            ..
-        } = open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
-        let mut w = emccd_io::StackWriter::create(
-            &out,
-            info.width,
-            info.height,
-            emccd_io::SampleFormat::F32,
-            Some(info.frames),
-        )?;
-        let pb = progress(info.frames as u64, "frames");
-        let mut buf = vec![0f32; info.frame_len()];
-        while reader
-            .read_frame(&mut buf)
-            .with_context(|| input.display().to_string())?
-        {
-            let k = w.frames_written();
-            w.write_frame(&denoise_frame(&fd, input, k, &buf, exposure)?)?;
-            pb.inc(1);
-        }
-        w.finish()?;
+        let rec = open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
+        let pb = progress(rec.info.frames as u64, "frames");
+        let frames = emccd_nn::stack::denoise_file(&fd, rec, &out, &mut || pb.inc(1))?;
         pb.finish_and_clear();
-        eprintln!(
-            "{} → {} ({} frames)",
-            input.display(),
-            out.display(),
-            info.frames
-        );
+        eprintln!("{} → {} ({frames} frames)", input.display(), out.display());
     }
     Ok(())
 }
@@ -237,16 +210,4 @@ fn run_zarr(a: &Args, fd: &FrameDenoiser, model_name: Option<&str>) -> Result<()
         if done < frames { " (the other shards write the rest)" } else { "" }
     );
     Ok(())
-}
-
-/// One frame through the denoiser; errors name the input and the frame (from 1).
-fn denoise_frame(
-    fd: &FrameDenoiser,
-    input: &Path,
-    k: usize,
-    raw: &[f32],
-    exposure: f64,
-) -> Result<Vec<f32>> {
-    fd.run(raw, exposure)
-        .map_err(|e| anyhow::anyhow!("{}: frame {}: {e}", input.display(), k + 1))
 }

@@ -1,12 +1,14 @@
 //! `emccd evaluate`: PSNR and SSIM of denoisers on noisy/clean pairs from the virtual camera.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use emccd_eval::{PairFrames, PairsManifest, Score};
+use emccd_eval::evaluation::{evaluate, results_json, Method, PairsDir};
+use emccd_eval::virtual_pairs::Denoise;
 use emccd_nn::registry::Estimator;
+use emccd_profile::CameraProfile;
 
-use crate::common::{load_profile, progress};
+use crate::common::progress;
 
 /// Evaluate denoisers on the pairs `emccd simulate pairs` (or tools/unseen_camera.py) writes:
 /// raw noisy frames, ground truth in DN above bias, pairs.toml. Prints a Markdown table of PSNR,
@@ -43,110 +45,53 @@ pub struct Args {
     pub out: Option<PathBuf>,
 }
 
-struct Camera {
-    dir: PathBuf,
-    name: String,
-    file: PairsManifest,
-    profile: emccd_profile::CameraProfile,
-}
-
-/// A folder of pairs with the profile to denoise them with: `--profile`, else the one
-/// pairs.toml names, else the bundled default.
-fn load_camera(dir: &Path, profile: Option<&str>) -> Result<Camera> {
-    let file = PairsManifest::load(dir).map_err(anyhow::Error::msg)?;
-    let profile = match (profile, file.profile_arg(dir)) {
-        (Some(p), _) => load_profile(p)?,
-        (None, Some(p)) => load_profile(&p).with_context(|| {
-            format!(
-                "the profile {} names",
-                dir.join(PairsManifest::FILE).display()
-            )
-        })?,
-        (None, None) => load_profile("default")?,
-    };
-    Ok(Camera {
-        dir: dir.to_path_buf(),
-        name: file.camera_name(dir),
-        file,
-        profile,
-    })
-}
-
 pub fn run(a: Args) -> Result<()> {
     let cameras = a
         .pairs
         .iter()
-        .map(|d| load_camera(d, a.profile.as_deref()))
+        .map(|d| PairsDir::open(d, a.profile.as_deref()).map_err(anyhow::Error::msg))
         .collect::<Result<Vec<_>>>()?;
     let estimators = a
         .methods
         .iter()
         .map(|m| Estimator::parse(m, emccd_nn::registry::load))
         .collect::<Result<Vec<_>, _>>()?;
+    let runs: Vec<Box<Denoise>> = estimators
+        .iter()
+        .map(|est| {
+            Box::new(move |p: &CameraProfile, raw: &[f32], t: f64| {
+                est.run(p, raw, t)
+                    .map_err(|e| emccd_io::error_lines(&e).join(": "))
+            }) as Box<Denoise>
+        })
+        .collect();
+    let methods: Vec<Method> = estimators
+        .iter()
+        .zip(&runs)
+        .map(|(est, run)| Method {
+            name: est.name(),
+            run: run.as_ref(),
+        })
+        .collect();
     if let Some(o) = &a.out {
         std::fs::create_dir_all(o).with_context(|| format!("creating {}", o.display()))?;
     }
-    let total: usize = cameras.iter().map(|c| c.file.pair.len()).sum();
+    let total: usize = cameras.iter().map(|c| c.manifest.pair.len()).sum();
     let pb = progress((total * a.methods.len()) as u64, "evaluations");
-    let mut scores = Vec::new();
-    for cam in &cameras {
-        for p in &cam.file.pair {
-            let frames = p.read(&cam.dir).map_err(anyhow::Error::msg)?;
-            let PairFrames {
-                width: w,
-                height: h,
-                noisy: raw,
-                clean: truth,
-            } = &frames;
-            let (w, h) = (*w, *h);
-            let prof = if (w, h) == (cam.profile.width, cam.profile.height) {
-                cam.profile.clone()
-            } else {
-                cam.profile.crop(0, 0, w, h)?
-            };
-            let peak = emccd_eval::scores::truth_peak(truth);
-            let mut outputs: Vec<(String, Vec<f32>)> = Vec::new();
-            for est in &estimators {
-                let m = est.name();
-                let t = std::time::Instant::now();
-                let out = est.run(&prof, raw, p.exposure_s)?;
-                let seconds = t.elapsed().as_secs_f64();
-                scores.push(Score::measure(m, &cam.name, p, &frames, &out, seconds));
-                outputs.push((m.to_string(), out));
-                pb.inc(1);
-            }
-            if let Some(o) = &a.out {
-                let stem = if cameras.len() > 1 {
-                    format!(
-                        "{}-",
-                        cam.dir
-                            .parent()
-                            .and_then(|d| d.file_name())
-                            .or(cam.dir.file_name())
-                            .map(|s| s.to_string_lossy().into_owned())
-                            .unwrap_or_default()
-                    )
-                } else {
-                    String::new()
-                };
-                write_panel(o, &stem, p, w, h, &outputs, truth, peak)?;
-            }
-        }
-    }
+    let scores = evaluate(&cameras, &methods, a.out.as_deref(), &|| pb.inc(1))
+        .map_err(anyhow::Error::msg)?;
     pb.finish_and_clear();
     let camera_names: Vec<String> = cameras.iter().map(|c| c.name.clone()).collect();
     let table = emccd_eval::scores::summarize(&scores, &a.methods, &camera_names);
-    let v = serde_json::json!({
-        "psnr_data_range": "ground-truth peak per pair; psnr_paper_db: images / 65535, range 1 (the paper's convention)",
-        "lpips": "not computed: its network weights cannot be obtained offline",
-        "level_unit": table.unit.describe(),
-        "summary": table.rows,
-        "pairs": scores,
-    });
+    let v = results_json(&table, &scores);
     if let Some(o) = &a.out {
         emccd_io::write_atomic(
             o.join("results.json"),
             serde_json::to_string_pretty(&v)?.as_bytes(),
+        )?;
+        emccd_io::write_atomic(
+            o.join("results.csv"),
+            emccd_eval::scores::csv(&scores).as_bytes(),
         )?;
     }
     if a.json {
@@ -154,46 +99,5 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         print!("{}", table.markdown());
     }
-    if let Some(o) = &a.out {
-        emccd_io::write_atomic(
-            o.join("results.csv"),
-            emccd_eval::scores::csv(&scores).as_bytes(),
-        )?;
-    }
-    Ok(())
-}
-
-/// A 256² crop (the frame's centre) of input | each method | ground truth, side by side.
-#[allow(clippy::too_many_arguments)]
-fn write_panel(
-    dir: &Path,
-    prefix: &str,
-    p: &emccd_eval::Pair,
-    w: usize,
-    h: usize,
-    outs: &[(String, Vec<f32>)],
-    truth: &[f32],
-    peak: f64,
-) -> Result<()> {
-    let c = 256.min(w).min(h);
-    let panels: Vec<&[f32]> = outs
-        .iter()
-        .map(|o| o.1.as_slice())
-        .chain(std::iter::once(truth))
-        .collect();
-    let n = panels.len();
-    let img = emccd_eval::scores::side_by_side(&panels, w, ((w - c) / 2, (h - c) / 2), (c, c));
-    let stem = Path::new(&p.noisy)
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    emccd_io::write_png_preview(
-        dir.join(format!("{prefix}{stem}.png")),
-        n * c,
-        c,
-        &img,
-        0.0,
-        peak as f32,
-    )?;
     Ok(())
 }

@@ -69,69 +69,7 @@ pub fn run(c: Cmd) -> Result<()> {
                 println!("{}", serde_json::to_string_pretty(&s)?);
                 return Ok(());
             }
-            println!("{}  ({})", s.camera, s.provenance.source);
-            println!(
-                "  sensor            {} × {} px, EM gain {}",
-                s.width, s.height, s.em_gain
-            );
-            const NONE: &str = "not calibrated";
-            match (s.ptc_slope_dn, s.k_range_dn) {
-                (Some(slope), Some(k)) => {
-                    println!("  PTC slope s=K·f²  {slope:.3} DN");
-                    println!(
-                        "  noise factor f    {:.3} – {:.3}  (K = {:.3} – {:.3} DN/e⁻)",
-                        s.f_range[0], s.f_range[1], k[0], k[1]
-                    );
-                }
-                _ => println!("  PTC slope s=K·f²  {NONE} (no flat fields)"),
-            }
-            println!("  quantization q    {} DN", s.quantization_dn);
-            match (s.bias_dn, s.read_noise_dn) {
-                (Some(b), Some(r)) => {
-                    println!(
-                        "  bias (FPN median) {b:.2} DN at {} s",
-                        p.fpn.base_exposure_s
-                    );
-                    println!("  read noise        {r:.3} DN (median over pixels and exposures)");
-                    println!(
-                        "  FPN form          {:?}, shared θ = {:?}",
-                        s.fpn_form, s.fpn_shared_theta
-                    );
-                }
-                _ => println!("  bias, read noise  {NONE} (no bias frames)"),
-            }
-            match (s.blooming_a, s.blooming_b) {
-                (Some(a), Some(b)) => println!(
-                    "  blooming x(t)     {a:.4e} · t^{b:.4}   (x(10 ms) = {:.4})",
-                    p.blooming_factor(0.01)
-                ),
-                _ => println!(
-                    "  blooming x(t)     {NONE} (no blooming frames; preprocessing removes none)"
-                ),
-            }
-            let e = &s.exposures_s;
-            println!(
-                "  exposures         {} read-noise maps, {} s – {} s",
-                e.len(),
-                e.first().unwrap_or(&0.0),
-                e.last().unwrap_or(&0.0)
-            );
-            if let Some(eld) = &s.eld {
-                println!(
-                    "  ELD               K={} DN/e⁻, Tukey λ={} scale={} DN, row σ={} DN",
-                    eld.k_dn, eld.tukey_lambda, eld.tukey_scale_dn, eld.row_sigma_dn
-                );
-            }
-            if let Some(pgn) = &s.pgn {
-                println!(
-                    "  PGN               G={}, {:.3} e⁻/DN, CIC={} e⁻, dark={} e⁻/s, read σ={} DN",
-                    pgn.em_gain, pgn.e_per_dn, pgn.cic_e, pgn.dark_e_per_s, pgn.read_sigma_dn
-                );
-            }
-            println!("  fingerprint       {}", s.fingerprint);
-            if !s.provenance.notes.is_empty() {
-                println!("  notes             {}", s.provenance.notes);
-            }
+            print!("{}", p.summary_text());
             Ok(())
         }
         Cmd::Crop {

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
-use emccd_camera::{Ablation, EldModel, NoiseModel, NoiseModelKind, OursModel, PgnModel};
+use emccd_camera::{Ablation, NoiseModelKind};
 use emccd_io::{Metadata, SampleFormat, StackWriter};
 
 use crate::common::load_profile;
@@ -79,11 +79,7 @@ pub fn run(a: Args) -> Result<()> {
         );
     };
     let kind = a.model;
-    let model: Box<dyn NoiseModel> = match kind {
-        NoiseModelKind::Ours => Box::new(OursModel::from_profile(&prof, ab)?),
-        NoiseModelKind::Eld => Box::new(EldModel::from_profile(&prof)?),
-        NoiseModelKind::Pgn => Box::new(PgnModel::from_profile(&prof, a.exposure_s)?),
-    };
+    let model = kind.build(&prof, ab, a.exposure_s)?;
     let clean: Vec<f32> = img
         .iter()
         .map(|&v| (v as f64 * a.signal_dn) as f32)

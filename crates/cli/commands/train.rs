@@ -2,10 +2,10 @@
 
 use std::path::PathBuf;
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use emccd_camera::{Ablation, NoiseModelKind};
 use emccd_nn::train::{train, Loss, Run, RunPaths, TrainConfig, TrainImages};
-use emccd_nn::{Arch, Base, Inputs, ModelMeta};
+use emccd_nn::{Arch, Base, Inputs, ModelMeta, UNetConfig};
 
 use crate::common::load_profile;
 
@@ -40,6 +40,11 @@ pub struct Args {
     /// noisy frame (which, at a few photoelectrons, has to cancel every EM spike exactly).
     #[arg(long)]
     pub direct: bool,
+    /// U-Net: fold each N×N pixel block into channels before the first layer and unfold the
+    /// output (FFDNet's down-sampling; 2 costs about a quarter of the operations per pixel, so
+    /// about 3× the crops per CPU-hour, for a receptive field one level deeper). 1: none.
+    #[arg(long, default_value_t = 1, value_name = "1|2|4")]
+    pub unshuffle: usize,
     /// What the network is given: `noisy` (the frame and its noise level: a denoiser), or
     /// `hybrid` (also the BM3D + GAT estimate, which the network corrects; its output layer
     /// starts at zero, so training starts at BM3D's quality; U-Net only).
@@ -75,19 +80,19 @@ pub struct Args {
     /// Multiply the profile's read noise by a factor drawn log-uniformly from LO,HI for every
     /// pair (noise model `ours`), so the model learns many read-noise-to-gain ratios and serves
     /// other cameras too. 1,1: the profile's own read noise only.
-    #[arg(long, value_delimiter = ',', default_values_t = [1.0, 1.0], value_name = "LO,HI")]
-    pub read_noise_scale: Vec<f64>,
+    #[arg(long, default_value = "1,1", value_parser = lo_hi, value_name = "LO,HI")]
+    pub read_noise_scale: [f64; 2],
     /// Photo-electrons at a scene's brightest pixel, drawn log-uniformly from LO,HI.
-    #[arg(long, value_delimiter = ',', default_values_t = [3.0, 3000.0], value_name = "LO,HI")]
-    pub electrons: Vec<f64>,
+    #[arg(long, default_value = "3,3000", value_parser = lo_hi, value_name = "LO,HI")]
+    pub electrons: [f64; 2],
     /// Instead of --electrons: the scene's mean photo-electrons per pixel, drawn log-uniformly
     /// from LO,HI (e.g. 0.2,100 for the photon-starved range EMCCDs are used in).
-    #[arg(long, value_delimiter = ',', value_name = "LO,HI")]
-    pub mean_electrons: Option<Vec<f64>>,
+    #[arg(long, value_parser = lo_hi, value_name = "LO,HI")]
+    pub mean_electrons: Option<[f64; 2]>,
     /// Noise model pgn: clock-induced charge per pixel and frame (e⁻), drawn uniformly from
     /// LO,HI; default: the profile's.
-    #[arg(long, value_delimiter = ',', value_name = "LO,HI")]
-    pub cic: Option<Vec<f64>>,
+    #[arg(long, value_parser = lo_hi, value_name = "LO,HI")]
+    pub cic: Option<[f64; 2]>,
     /// Training loss.
     #[arg(long, value_enum, default_value = "charbonnier")]
     pub loss: Loss,
@@ -115,18 +120,14 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let arch = Arch::for_training(&a.arch, a.inputs, a.base, a.levels, a.direct)?;
-    let pairs = [
-        ("--read-noise-scale", Some(&a.read_noise_scale)),
-        ("--electrons", Some(&a.electrons)),
-        ("--mean-electrons", a.mean_electrons.as_ref()),
-        ("--cic", a.cic.as_ref()),
-    ];
-    for (name, v) in pairs.into_iter().filter_map(|(n, v)| v.map(|v| (n, v))) {
-        if v.len() != 2 {
-            bail!("{name} takes two comma-separated numbers, LO,HI");
-        }
-    }
+    let shape = UNetConfig {
+        base: a.base,
+        levels: a.levels,
+        direct: a.direct,
+        unshuffle: a.unshuffle,
+        ..UNetConfig::DEFAULT
+    };
+    let arch = Arch::for_training(&a.arch, a.inputs, shape)?;
     // Before any image is read: the model a run starts from is never its output.
     let init = a
         .init
@@ -136,20 +137,9 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(i) = &init {
         emccd_io::refuse_overwrite(&a.out, i, "the --init model")?;
     }
+    let base = Base::for_run(a.hybrid_base, a.inputs, init.as_deref())?;
     let profile = load_profile(&a.profile)?;
     let images = TrainImages::read(&a.clean, &a.val)?;
-    let noise = a.noise_model;
-    let inputs = a.inputs;
-    let base: Base = match (a.hybrid_base, &a.init) {
-        (Some(_), _) if inputs != Inputs::Hybrid => {
-            bail!("--hybrid-base: only a refinement network (--inputs hybrid) has a base estimate")
-        }
-        (Some(b), _) => b,
-        (None, Some(init)) => {
-            emccd_nn::Denoiser::read_meta(&emccd_nn::registry::model_path(init)?)?.base
-        }
-        (None, None) => Base::Bm3d,
-    };
     let cfg = TrainConfig {
         base,
         steps: a.steps,
@@ -158,35 +148,20 @@ pub fn run(a: Args) -> Result<()> {
         reuse: a.reuse,
         lr: a.lr,
         warmup: a.warmup.min(a.steps / 5),
-        noise,
+        noise: a.noise_model,
         ablate: a.ablate,
-        read_noise_scale: [a.read_noise_scale[0], a.read_noise_scale[1]],
-        electrons: [a.electrons[0], a.electrons[1]],
-        mean_electrons: a.mean_electrons.as_ref().map(|v| [v[0], v[1]]),
-        cic_e: a.cic.as_ref().map(|v| [v[0], v[1]]),
+        read_noise_scale: a.read_noise_scale,
+        electrons: a.electrons,
+        mean_electrons: a.mean_electrons,
+        cic_e: a.cic,
         loss: a.loss,
         seed: a.seed,
         val_every: a.checkpoint_every,
         checkpoint_every: a.checkpoint_every,
         ..TrainConfig::default()
     };
-    let meta = ModelMeta {
-        arch,
-        inputs,
-        base,
-        noise_model: noise,
-        ablate: a.ablate,
-        profile_fingerprint: format!("{:016x}", profile.fingerprint()),
-        steps: 0,
-        train: None, // recorded by the run
-        adapted: None,
-        recipe: cfg.recipe(&images),
-    };
-    let ckpt = PathBuf::from(format!("{}.ckpt", a.out.display()));
-    let paths = RunPaths {
-        out: a.out.clone(),
-        checkpoint: ckpt,
-    };
+    let meta = ModelMeta::for_run(arch, a.inputs, &cfg, &profile, &images);
+    let paths = RunPaths::beside(&a.out);
     let (pb, mut report) = crate::common::step_progress(a.steps, a.checkpoint_every);
     let model = train(
         images,
@@ -203,4 +178,16 @@ pub fn run(a: Args) -> Result<()> {
         burn::module::Module::num_params(&model.net)
     );
     Ok(())
+}
+
+/// `LO,HI`: two comma-separated numbers (a range to draw from).
+fn lo_hi(s: &str) -> std::result::Result<[f64; 2], String> {
+    let v: Vec<&str> = s.split(',').map(str::trim).collect();
+    match v[..] {
+        [lo, hi] => match (lo.parse(), hi.parse()) {
+            (Ok(lo), Ok(hi)) => Ok([lo, hi]),
+            _ => Err(format!("{s:?}: two numbers, LO,HI")),
+        },
+        _ => Err(format!("{s:?}: two comma-separated numbers, LO,HI")),
+    }
 }

@@ -17,6 +17,7 @@
 #![deny(missing_docs)]
 
 pub mod bm3d;
+pub mod evaluation;
 pub mod pairs;
 pub mod scores;
 pub mod virtual_pairs;

@@ -187,6 +187,58 @@ impl StackInfo {
             "warnings": m.warnings,
         })
     }
+
+    /// What `emccd info` prints for the stack at `path`: one line per field, `unknown` where the
+    /// header does not say; an exposure `denoise` would refuse is marked, and the reader's
+    /// warnings follow.
+    pub fn summary_text(&self, path: &Path) -> String {
+        use std::fmt::Write;
+        let m = &self.metadata;
+        let opt = |v: Option<f64>, unit: &str| {
+            v.map(|x| format!("{x}{unit}"))
+                .unwrap_or_else(|| "unknown".into())
+        };
+        // A header's exposure is shown as recorded; one that `denoise` would refuse is marked.
+        let bad = m.exposure_s.is_some_and(|t| !(t.is_finite() && t > 0.0));
+        let gain = match m.em_gain {
+            Some(g) if g == 0.0 => "0 (EM register off)".to_string(),
+            g => opt(g, ""),
+        };
+        let mut s = String::new();
+        // Writing to a String cannot fail.
+        let _ = writeln!(s, "{}", path.display());
+        let _ = writeln!(s, "  format       {:?}", self.format);
+        let _ = writeln!(s, "  size         {} × {} pixels", self.width, self.height);
+        let _ = writeln!(s, "  frames       {}", self.frames);
+        let _ = writeln!(s, "  pixel type   {:?}", self.pixel_type);
+        let _ = writeln!(
+            s,
+            "  exposure     {}{}",
+            opt(m.exposure_s, " s"),
+            if bad {
+                "  (not a positive number of seconds: give --exposure-s to denoise)"
+            } else {
+                ""
+            }
+        );
+        let _ = writeln!(s, "  EM gain      {gain}");
+        let _ = writeln!(s, "  temperature  {}", opt(m.temperature_c, " °C"));
+        let _ = writeln!(
+            s,
+            "  camera       {}",
+            m.camera_model.as_deref().unwrap_or("unknown")
+        );
+        if let Some((bx, by)) = m.binning {
+            let _ = writeln!(s, "  binning      {bx} × {by}");
+        }
+        if let Some(acc) = m.accumulations {
+            let _ = writeln!(s, "  accumulations {acc}");
+        }
+        for w in &m.warnings {
+            let _ = writeln!(s, "  warning: {w}");
+        }
+        s
+    }
 }
 
 /// An error and its causes as lines to show a person: the error, then each cause its wrapper

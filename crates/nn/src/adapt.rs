@@ -773,7 +773,7 @@ pub fn adapt(
     };
     let meta = ModelMeta {
         noise_model: cfg.noise,
-        profile_fingerprint: format!("{:016x}", profile.fingerprint()),
+        profile_fingerprint: profile.fingerprint_hex(),
         recipe: format!(
             "adapted ({}) from {} on {} frames of {} at {:.3} mean e⁻/pixel: {} steps, batch {} × {side}², lr {}, seed {}",
             provenance.method,

@@ -32,6 +32,7 @@
 #![deny(missing_docs)]
 
 pub mod adapt;
+pub mod bench;
 mod error;
 pub mod model;
 pub mod norm;

@@ -1,7 +1,9 @@
-//! Recordings denoised into one OME-Zarr stack that several processes (a SLURM array) fill at
-//! once, each its own share of the frames, resumable frame by frame.
+//! Recordings denoised frame by frame in bounded memory: one recording into a float32 TIFF
+//! stack ([`denoise_file`]), or several into one OME-Zarr stack that several processes (a SLURM
+//! array) fill at once, each its own share of the frames, resumable frame by frame.
 
 use std::ops::Range;
+use std::path::Path;
 
 use emccd_io::zarr::ZarrStackWriter;
 use emccd_profile::Recording;
@@ -38,7 +40,7 @@ pub fn provenance(
     Ok(json!({
         "software": software,
         "inputs": ids,
-        "profile_fingerprint": format!("{:016x}", fd.profile.fingerprint()),
+        "profile_fingerprint": fd.profile.fingerprint_hex(),
         "method": fd.method.name(),
         "model_hash": model_hash,
         "units": fd.units.describe(),
@@ -131,4 +133,45 @@ pub fn denoise_shard(
         }
     }
     Ok(run)
+}
+
+/// Denoises every frame of `input` into a float32 TIFF stack at `out` (written atomically:
+/// nothing is left there if a frame fails). `on_frame` is called after every frame written.
+/// Errors about a frame name the input and the frame's number (from 1); an input that ends
+/// before its header's frame count is one. Returns the frames written.
+pub fn denoise_file(
+    fd: &FrameDenoiser,
+    mut input: Recording,
+    out: &Path,
+    on_frame: &mut dyn FnMut(),
+) -> Result<usize> {
+    let info = &input.info;
+    let mut w = emccd_io::StackWriter::create(
+        out,
+        info.width,
+        info.height,
+        emccd_io::SampleFormat::F32,
+        Some(info.frames),
+    )?;
+    let name = input.path.display().to_string();
+    let at = |j: usize| format!("{name}: frame {}", j + 1);
+    let mut buf = vec![0f32; info.frame_len()];
+    for j in 0..info.frames {
+        let read = input
+            .reader
+            .read_frame(&mut buf)
+            .map_err(|source| Error::Frame { at: at(j), source })?;
+        if !read {
+            return Err(Error::Data(format!(
+                "the file ended before it (its header says {} frames)",
+                info.frames
+            ))
+            .at(at(j)));
+        }
+        let den = fd.run(&buf, input.exposure).map_err(|e| e.at(at(j)))?;
+        w.write_frame(&den)?;
+        on_frame();
+    }
+    w.finish()?;
+    Ok(info.frames)
 }

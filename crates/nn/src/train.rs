@@ -519,6 +519,42 @@ pub struct RunPaths {
     pub checkpoint: PathBuf,
 }
 
+impl RunPaths {
+    /// The model file `out` with its checkpoint beside it, `OUT.ckpt/` (where `--resume` of
+    /// `emccd train` and `emccd adapt` looks).
+    pub fn beside(out: &Path) -> RunPaths {
+        RunPaths {
+            out: out.to_path_buf(),
+            checkpoint: PathBuf::from(format!("{}.ckpt", out.display())),
+        }
+    }
+}
+
+impl ModelMeta {
+    /// The metadata of a new training run's model: `arch` taking `inputs` (refining `base`),
+    /// trained with `cfg` on `images` through `profile`. The run records its steps and `cfg`.
+    pub fn for_run(
+        arch: crate::Arch,
+        inputs: crate::Inputs,
+        cfg: &TrainConfig,
+        profile: &CameraProfile,
+        images: &TrainImages,
+    ) -> ModelMeta {
+        ModelMeta {
+            arch,
+            inputs,
+            base: cfg.base,
+            noise_model: cfg.noise,
+            ablate: cfg.ablate,
+            profile_fingerprint: profile.fingerprint_hex(),
+            steps: 0,
+            train: None,
+            adapted: None,
+            recipe: cfg.recipe(images),
+        }
+    }
+}
+
 #[derive(Serialize, Deserialize)]
 struct CkptState {
     step: u64,

@@ -167,7 +167,7 @@ fn adaptation_improves_held_out_frames_and_records_its_provenance() {
     assert_eq!(meta.steps, 40);
     assert_eq!(
         meta.profile_fingerprint,
-        format!("{:016x}", cam.profile.fingerprint())
+        cam.profile.fingerprint_hex()
     );
     let tc = meta.train.unwrap();
     let [lo, hi] = tc.mean_electrons.unwrap();

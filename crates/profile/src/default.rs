@@ -178,7 +178,7 @@ mod tests {
     #[test]
     fn default_profile_is_pinned() {
         assert_eq!(
-            format!("{:016x}", default_profile().fingerprint()),
+            default_profile().fingerprint_hex(),
             "ecdca5badda28228"
         );
     }

@@ -453,8 +453,92 @@ impl CameraProfile {
             eld: self.eld.clone(),
             pgn: self.pgn.clone(),
             provenance: self.provenance.clone(),
-            fingerprint: format!("{:016x}", self.fingerprint()),
+            fingerprint: self.fingerprint_hex(),
         }
+    }
+
+    /// What `emccd profile show` prints: the summary's numbers, one per line, with what is not
+    /// calibrated said so.
+    pub fn summary_text(&self) -> String {
+        use std::fmt::Write;
+        let s = self.summary();
+        let mut out = String::new();
+        // Writing to a String cannot fail.
+        macro_rules! w {
+            ($($t:tt)*) => {{
+                let _ = writeln!(out, $($t)*);
+            }};
+        }
+        w!("{}  ({})", s.camera, s.provenance.source);
+        w!(
+            "  sensor            {} × {} px, EM gain {}",
+            s.width, s.height, s.em_gain
+        );
+        const NONE: &str = "not calibrated";
+        match (s.ptc_slope_dn, s.k_range_dn) {
+            (Some(slope), Some(k)) => {
+                w!("  PTC slope s=K·f²  {slope:.3} DN");
+                w!(
+                    "  noise factor f    {:.3} – {:.3}  (K = {:.3} – {:.3} DN/e⁻)",
+                    s.f_range[0], s.f_range[1], k[0], k[1]
+                );
+            }
+            _ => w!("  PTC slope s=K·f²  {NONE} (no flat fields)"),
+        }
+        w!("  quantization q    {} DN", s.quantization_dn);
+        match (s.bias_dn, s.read_noise_dn) {
+            (Some(b), Some(r)) => {
+                w!(
+                    "  bias (FPN median) {b:.2} DN at {} s",
+                    self.fpn.base_exposure_s
+                );
+                w!("  read noise        {r:.3} DN (median over pixels and exposures)");
+                w!(
+                    "  FPN form          {:?}, shared θ = {:?}",
+                    s.fpn_form, s.fpn_shared_theta
+                );
+            }
+            _ => w!("  bias, read noise  {NONE} (no bias frames)"),
+        }
+        match (s.blooming_a, s.blooming_b) {
+            (Some(a), Some(b)) => w!(
+                "  blooming x(t)     {a:.4e} · t^{b:.4}   (x(10 ms) = {:.4})",
+                self.blooming_factor(0.01)
+            ),
+            _ => w!(
+                "  blooming x(t)     {NONE} (no blooming frames; preprocessing removes none)"
+            ),
+        }
+        let e = &s.exposures_s;
+        w!(
+            "  exposures         {} read-noise maps, {} s – {} s",
+            e.len(),
+            e.first().unwrap_or(&0.0),
+            e.last().unwrap_or(&0.0)
+        );
+        if let Some(eld) = &s.eld {
+            w!(
+                "  ELD               K={} DN/e⁻, Tukey λ={} scale={} DN, row σ={} DN",
+                eld.k_dn, eld.tukey_lambda, eld.tukey_scale_dn, eld.row_sigma_dn
+            );
+        }
+        if let Some(pgn) = &s.pgn {
+            w!(
+                "  PGN               G={}, {:.3} e⁻/DN, CIC={} e⁻, dark={} e⁻/s, read σ={} DN",
+                pgn.em_gain, pgn.e_per_dn, pgn.cic_e, pgn.dark_e_per_s, pgn.read_sigma_dn
+            );
+        }
+        w!("  fingerprint       {}", s.fingerprint);
+        if !s.provenance.notes.is_empty() {
+            w!("  notes             {}", s.provenance.notes);
+        }
+        out
+    }
+
+    /// [`CameraProfile::fingerprint`] as the 16 hex digits that model files, stores and reports
+    /// record.
+    pub fn fingerprint_hex(&self) -> String {
+        format!("{:016x}", self.fingerprint())
     }
 
     /// A 64-bit FNV-1a hash of every parameter and map, so a model can record which profile it was

@@ -1,0 +1,90 @@
+//! The calibration streaming benchmark of `emccd bench --calibration`: how fast a stack is
+//! decoded and reduced to per-pixel mean and variance, beside a plain read of the same bytes.
+
+use std::io::Read;
+use std::path::Path;
+use std::time::Instant;
+
+use crate::{Error, Result};
+
+/// Frame side of the benchmark's stack.
+pub const SIDE: usize = 512;
+
+/// What [`streaming`] measured.
+#[derive(Clone, Copy, Debug)]
+pub struct Streaming {
+    /// Frames in the stack.
+    pub frames: usize,
+    /// Bytes of the TIFF file.
+    pub bytes: f64,
+    /// Seconds to read the bytes and do nothing with them (the reference).
+    pub reference_s: f64,
+    /// Seconds to decode them and accumulate per-pixel mean and variance.
+    pub decode_s: f64,
+}
+
+impl Streaming {
+    /// Decoding throughput, GB/s.
+    pub fn decode_gb_s(&self) -> f64 {
+        self.bytes / self.decode_s / 1e9
+    }
+
+    /// The reference read's throughput, GB/s.
+    pub fn reference_gb_s(&self) -> f64 {
+        self.bytes / self.reference_s / 1e9
+    }
+}
+
+/// Writes a stack of `frames` 512×512 16-bit frames to `dir/stack.tif` (a fixed pattern, no
+/// randomness), reads it once as plain bytes and once through the calibration's streaming
+/// statistics (both from the page cache), and removes it. `before` is called after the
+/// stack is written and before it is read (peak memory is measured there).
+pub fn streaming(dir: &Path, frames: usize, before: &mut dyn FnMut()) -> Result<Streaming> {
+    let frames = frames.max(2);
+    let path = dir.join("stack.tif");
+    let io = |e| Error::io(&path, e);
+    let mut wr = emccd_io::StackWriter::create(
+        &path,
+        SIDE,
+        SIDE,
+        emccd_io::SampleFormat::U16,
+        Some(frames),
+    )
+    .map_err(io)?;
+    let mut f = vec![0f32; SIDE * SIDE];
+    for k in 0..frames {
+        for (i, v) in f.iter_mut().enumerate() {
+            *v = 500.0 + ((i * 7919 + k * 104729) % 23) as f32;
+        }
+        wr.write_frame(&f).map_err(io)?;
+    }
+    wr.finish().map_err(io)?;
+    let os = |e: std::io::Error| Error::input(&path, e.to_string());
+    let bytes = std::fs::metadata(&path).map_err(os)?.len() as f64;
+    before();
+    // Reference: reading the same bytes from the page cache and doing nothing with them.
+    let t = Instant::now();
+    let mut file = std::fs::File::open(&path).map_err(os)?;
+    let mut buf = vec![0u8; 1 << 20];
+    let mut sink = 0u64;
+    loop {
+        let n = file.read(&mut buf).map_err(os)?;
+        if n == 0 {
+            break;
+        }
+        sink = sink.wrapping_add(buf[n - 1] as u64);
+    }
+    let reference_s = t.elapsed().as_secs_f64();
+    std::hint::black_box(sink);
+    let t = Instant::now();
+    let (_, st) = crate::stats::accumulate(&path, None, 2, &[], None, &crate::Silent)?;
+    let decode_s = t.elapsed().as_secs_f64();
+    std::hint::black_box(st.mean());
+    let _ = std::fs::remove_file(&path);
+    Ok(Streaming {
+        frames,
+        bytes,
+        reference_s,
+        decode_s,
+    })
+}

@@ -1,0 +1,48 @@
+//! The synthesis throughput benchmark of `emccd bench`: seconds per frame of the paper's
+//! training noise (eq. 5), the Poisson–Gamma–Normal model and the whole virtual camera.
+
+use std::time::Instant;
+
+use crate::{Ablation, Error, NoiseModel, OursModel, PgnModel, VirtualCamera};
+
+/// Seconds per frame of each synthesis, after one warm-up frame.
+#[derive(Clone, Copy, Debug)]
+pub struct Synthesis {
+    /// Eq. 5 (training pairs).
+    pub ours_s: f64,
+    /// The Poisson–Gamma–Normal model.
+    pub pgn_s: f64,
+    /// The virtual camera: eq. 1 with blooming, FPN and the ADC.
+    pub camera_s: f64,
+}
+
+fn per_frame(frames: usize, mut f: impl FnMut(u64)) -> f64 {
+    f(0);
+    let t = Instant::now();
+    for k in 0..frames {
+        f(k as u64 + 1);
+    }
+    t.elapsed().as_secs_f64() / frames as f64
+}
+
+/// Times `frames` (at least one) uniform frames of `cam` at `electrons` mean photoelectrons
+/// per pixel, 10 ms, through each synthesis.
+pub fn synthesis(cam: &VirtualCamera, electrons: f64, frames: usize) -> Result<Synthesis, Error> {
+    let frames = frames.max(1);
+    let n = cam.profile.len();
+    let w = cam.width();
+    let clean = vec![(electrons * cam.k_dn() * cam.physics.qe) as f32; n];
+    let photons = vec![(electrons / cam.physics.qe) as f32; n];
+    let mut out = vec![0f32; n];
+    let ours = OursModel::from_profile(&cam.profile, Ablation::default())?;
+    let ours_s = per_frame(frames, |s| ours.synthesize(&clean, w, &mut out, s));
+    let pgn = PgnModel::from_profile(&cam.profile, 0.01)?;
+    let pgn_s = per_frame(frames, |s| pgn.synthesize(&clean, w, &mut out, s));
+    let e = cam.exposure(0.01);
+    let camera_s = per_frame(frames, |s| e.frame(&photons, s, &mut out));
+    Ok(Synthesis {
+        ours_s,
+        pgn_s,
+        camera_s,
+    })
+}

@@ -1,0 +1,172 @@
+//! Scoring denoisers on folders of test pairs (what `emccd evaluate` runs): every method on
+//! every pair of every camera, the per-pair [`Score`]s, the results document, and the panels a
+//! person looks at (input | each method | ground truth).
+
+use std::path::{Path, PathBuf};
+
+use emccd_profile::CameraProfile;
+
+use crate::virtual_pairs::Denoise;
+use crate::{PairFrames, PairsManifest, Score, Summaries};
+
+/// A folder of pairs (one camera) with the profile its frames are denoised through.
+pub struct PairsDir {
+    /// The folder holding `pairs.toml`.
+    pub dir: PathBuf,
+    /// The camera's name in tables ([`PairsManifest::camera_name`]).
+    pub name: String,
+    /// The manifest.
+    pub manifest: PairsManifest,
+    /// The profile: the one given, else the one `pairs.toml` names, else the bundled default.
+    pub profile: CameraProfile,
+}
+
+impl PairsDir {
+    /// Opens `dir` with the profile `profile` names (`--profile`: a directory or `default`),
+    /// else the one its `pairs.toml` names, else the bundled default.
+    pub fn open(dir: &Path, profile: Option<&str>) -> Result<PairsDir, String> {
+        let manifest = PairsManifest::load(dir)?;
+        let load = |arg: &str, whose: String| {
+            CameraProfile::load_arg(arg).map_err(|e| {
+                format!(
+                    "loading {whose}: {}",
+                    emccd_io::error_lines(&e).join(": ")
+                )
+            })
+        };
+        let profile = match (profile, manifest.profile_arg(dir)) {
+            (Some(p), _) => load(p, format!("profile {p}"))?,
+            (None, Some(p)) => load(
+                &p,
+                format!(
+                    "the profile {} names",
+                    dir.join(PairsManifest::FILE).display()
+                ),
+            )?,
+            (None, None) => load("default", "the bundled default profile".into())?,
+        };
+        Ok(PairsDir {
+            dir: dir.to_path_buf(),
+            name: manifest.camera_name(dir),
+            manifest,
+            profile,
+        })
+    }
+
+    /// The prefix of this camera's panel files when several cameras share a folder: the name
+    /// of the folder above the pairs (`lowlight-a/pairs` → `lowlight-a-`).
+    fn panel_prefix(&self) -> String {
+        let d = &self.dir;
+        format!(
+            "{}-",
+            d.parent()
+                .and_then(|d| d.file_name())
+                .or(d.file_name())
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default()
+        )
+    }
+}
+
+/// A method to score: its name in tables and the denoiser that runs it.
+pub struct Method<'a> {
+    /// Name (as given on the command line).
+    pub name: &'a str,
+    /// The denoiser: profile, raw frame and exposure in, photo-signal in DN above bias out.
+    pub run: &'a Denoise<'a>,
+}
+
+/// Runs every method on every pair of `cameras` and scores it against the ground truth (which
+/// is used only to score); `panels`: also write a panel per pair there. `tick` is called after
+/// each method on each pair (progress).
+pub fn evaluate(
+    cameras: &[PairsDir],
+    methods: &[Method],
+    panels: Option<&Path>,
+    tick: &dyn Fn(),
+) -> Result<Vec<Score>, String> {
+    let mut scores = Vec::new();
+    for cam in cameras {
+        for p in &cam.manifest.pair {
+            let frames = p.read(&cam.dir)?;
+            let PairFrames {
+                width: w,
+                height: h,
+                noisy: raw,
+                ..
+            } = &frames;
+            let prof = if (*w, *h) == (cam.profile.width, cam.profile.height) {
+                cam.profile.clone()
+            } else {
+                cam.profile
+                    .crop(0, 0, *w, *h)
+                    .map_err(|e| format!("{}: {e}", p.noisy))?
+            };
+            let mut outputs: Vec<Vec<f32>> = Vec::with_capacity(methods.len());
+            for m in methods {
+                let t = std::time::Instant::now();
+                let out = (m.run)(&prof, raw, p.exposure_s)
+                    .map_err(|e| format!("{} on {}: {e}", m.name, p.noisy))?;
+                let seconds = t.elapsed().as_secs_f64();
+                scores.push(Score::measure(m.name, &cam.name, p, &frames, &out, seconds));
+                outputs.push(out);
+                tick();
+            }
+            if let Some(dir) = panels {
+                let prefix = if cameras.len() > 1 {
+                    cam.panel_prefix()
+                } else {
+                    String::new()
+                };
+                write_panel(dir, &prefix, p, &frames, &outputs)?;
+            }
+        }
+    }
+    Ok(scores)
+}
+
+/// The results document (`results.json`, `evaluate --json`): conventions, the summary table
+/// and every pair's scores.
+pub fn results_json(table: &Summaries, scores: &[Score]) -> serde_json::Value {
+    serde_json::json!({
+        "psnr_data_range": "ground-truth peak per pair; psnr_paper_db: images / 65535, range 1 (the paper's convention)",
+        "lpips": "not computed: its network weights cannot be obtained offline",
+        "level_unit": table.unit.describe(),
+        "summary": table.rows,
+        "pairs": scores,
+    })
+}
+
+/// A 256² crop (the frame's centre) of input | each method | ground truth, side by side, as
+/// `DIR/PREFIX<noisy file stem>.png`, scaled from 0 to the truth's peak.
+fn write_panel(
+    dir: &Path,
+    prefix: &str,
+    p: &crate::Pair,
+    frames: &PairFrames,
+    outs: &[Vec<f32>],
+) -> Result<(), String> {
+    let (w, h, truth) = (frames.width, frames.height, &frames.clean);
+    let c = 256.min(w).min(h);
+    let panels: Vec<&[f32]> = outs
+        .iter()
+        .map(Vec::as_slice)
+        .chain(std::iter::once(truth.as_slice()))
+        .collect();
+    let n = panels.len();
+    let img = crate::scores::side_by_side(&panels, w, ((w - c) / 2, (h - c) / 2), (c, c));
+    let stem = Path::new(&p.noisy)
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let path = dir.join(format!("{prefix}{stem}.png"));
+    emccd_io::write_png_preview(
+        &path,
+        n * c,
+        c,
+        &img,
+        0.0,
+        crate::scores::truth_peak(truth) as f32,
+    )
+    .map_err(|e| emccd_io::error_lines(&e).join(": "))
+}
