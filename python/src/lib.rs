@@ -440,16 +440,10 @@ fn denoise<'py>(
         .map_err(err)?;
     let units: registry::Units = units.parse().map_err(err)?;
     units.factor(p).map_err(err)?;
-    if tile < 64 {
-        return Err(err(anyhow::anyhow!(
-            "tile {tile}: a tile is at least 64 px"
-        )));
-    }
-    if ![1, 2, 4, 8].contains(&ensemble) {
-        return Err(err(anyhow::anyhow!(
-            "ensemble {ensemble}: the self-ensemble is 1, 2, 4 or 8 orientations"
-        )));
-    }
+    emccd_nn::tile::Tiling::check_tile(tile)
+        .map_err(|e| err(anyhow::anyhow!("tile {tile}: {e}")))?;
+    registry::ensemble_size(&ensemble.to_string())
+        .map_err(|e| err(anyhow::anyhow!("ensemble {ensemble}: {e}")))?;
     let a = frames.as_array();
     let (f, h, w) = a.dim();
     let raw: Vec<f32> = a.iter().copied().collect();
@@ -464,10 +458,9 @@ fn denoise<'py>(
         let registry::Resolved {
             method, model: net, ..
         } = registry::resolve(method, model.as_deref(), load_model)?;
-        let fp = p.fingerprint_hex();
         if let Some(wn) = net
             .as_ref()
-            .and_then(|m| registry::profile_mismatch(m, &fp))
+            .and_then(|m| registry::profile_mismatch(m, p))
         {
             warnings.push(wn);
         }
@@ -543,12 +536,7 @@ fn simulate_pairs<'py>(
                     p.height
                 );
             }
-            let p = if (w, h) == (p.width, p.height) {
-                p
-            } else {
-                p.crop(0, 0, w, h)?
-            };
-            let cam = VirtualCamera::new(p, PhysicalParams::default())?;
+            let cam = VirtualCamera::new(p.top_left(w, h)?.into_owned(), PhysicalParams::default())?;
             let mean = img.iter().map(|&v| v as f64).sum::<f64>() / img.len() as f64;
             let photons = match (photons, mean_electrons) {
                 (Some(p), None) => p,

@@ -75,10 +75,8 @@ pub struct Args {
 }
 
 fn parse_tile(s: &str) -> std::result::Result<usize, String> {
-    match s.parse::<usize>() {
-        Ok(t) if t >= 64 => Ok(t),
-        _ => Err("a tile is at least 64 px".into()),
-    }
+    let t = s.parse::<usize>().unwrap_or(0);
+    Tiling::check_tile(t).map_err(|e| e.to_string())
 }
 
 fn parse_ensemble(s: &str) -> std::result::Result<usize, String> {
@@ -92,10 +90,9 @@ pub fn run(a: Args) -> Result<()> {
         model,
         model_name,
     } = emccd_nn::registry::resolve(a.method, a.model.as_deref(), emccd_nn::registry::load)?;
-    let fp = profile.fingerprint_hex();
     if let Some(w) = model
         .as_ref()
-        .and_then(|m| emccd_nn::registry::profile_mismatch(m, &fp))
+        .and_then(|m| emccd_nn::registry::profile_mismatch(m, &profile))
     {
         eprintln!("warning: {w}");
     }

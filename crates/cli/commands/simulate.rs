@@ -11,6 +11,9 @@ use emccd_profile::CameraProfile;
 
 use crate::common::{load_profile, parse_size, progress};
 
+/// The name acquisitions and pairs of the virtual camera record as their camera's.
+const CAMERA: &str = "virtual-897";
+
 /// Options shared by both simulations: the camera's truth.
 #[derive(clap::Args, Debug, Clone)]
 pub struct CameraOpts {
@@ -199,7 +202,7 @@ fn calibration(out: &Path, plan: &CalibrationPlan, opts: &CameraOpts) -> Result<
         &cam,
         opts.seed,
         out,
-        "virtual-897",
+        CAMERA,
         "`emccd simulate calibration`",
         || pb.inc(1),
     )?;
@@ -247,7 +250,7 @@ fn pairs(
         levels,
         frames,
         seed: opts.seed,
-        camera_name: "virtual-897",
+        camera_name: CAMERA,
         profile: &opts.profile,
     };
     let pb = progress((scenes.len() * levels.len()) as u64, "pairs");

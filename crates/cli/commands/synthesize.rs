@@ -66,18 +66,9 @@ pub fn run(a: Args) -> Result<()> {
         data: img,
     } = emccd_io::Image::read_scene(&a.input)
         .with_context(|| format!("reading {}", a.input.display()))?;
-    let prof = if (w, h) == (p.width, p.height) {
-        p
-    } else if w <= p.width && h <= p.height {
-        p.crop(0, 0, w, h)?
-    } else {
-        bail!(
-            "{}: {w}×{h} is larger than the profile's {}×{} sensor",
-            a.input.display(),
-            p.width,
-            p.height
-        );
-    };
+    let prof = p
+        .top_left(w, h)
+        .with_context(|| format!("{}: a {w}×{h} scene", a.input.display()))?;
     let kind = a.model;
     let model = kind.build(&prof, ab, a.exposure_s)?;
     let clean: Vec<f32> = img

@@ -95,13 +95,10 @@ pub fn evaluate(
                 noisy: raw,
                 ..
             } = &frames;
-            let prof = if (*w, *h) == (cam.profile.width, cam.profile.height) {
-                cam.profile.clone()
-            } else {
-                cam.profile
-                    .crop(0, 0, *w, *h)
-                    .map_err(|e| format!("{}: {e}", p.noisy))?
-            };
+            let prof = cam
+                .profile
+                .top_left(*w, *h)
+                .map_err(|e| format!("{}: {e}", p.noisy))?;
             let mut outputs: Vec<Vec<f32>> = Vec::with_capacity(methods.len());
             for m in methods {
                 let t = std::time::Instant::now();

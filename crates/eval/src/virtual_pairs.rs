@@ -208,8 +208,8 @@ fn write_all(
             let raw_first = first.clone();
             // Preview and input PSNR use the preprocessed frame (true FPN and blooming removed).
             emccd_profile::preprocess(&mut first, w, e.blooming_x, &e.fpn);
-            let peak = truth.iter().copied().fold(0f32, f32::max).max(1.0);
-            let p_in = crate::psnr(&first, truth, peak as f64);
+            let peak = crate::scores::truth_peak(truth);
+            let p_in = crate::psnr(&first, truth, peak);
             let mut panels: Vec<&[f32]> = vec![&first];
             let mut denoised = None;
             let den;
@@ -220,13 +220,13 @@ fn write_all(
                     .map_err(io)?;
                 dw.write_frame(&den).map_err(io)?;
                 dw.finish().map_err(io)?;
-                denoised = Some((rel, db2(crate::psnr(&den, truth, peak as f64))));
+                denoised = Some((rel, db2(crate::psnr(&den, truth, peak))));
                 panels.push(&den);
             }
             panels.push(truth);
             let np = panels.len();
             let side = crate::scores::side_by_side(&panels, w, (0, 0), (w, h));
-            emccd_io::write_png_preview(out.join(&preview_rel), np * w, h, &side, 0.0, peak)
+            emccd_io::write_png_preview(out.join(&preview_rel), np * w, h, &side, 0.0, peak as f32)
                 .map_err(io)?;
             let (denoised, psnr_denoised_db) = denoised.unzip();
             manifest.pair.push(Pair {

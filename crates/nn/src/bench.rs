@@ -104,7 +104,7 @@ pub fn denoise(
             let truth = e.ground_truth(&phot);
             let mut raw = vec![0f32; w * h];
             e.frame(&phot, 1000 + (si * 2 + li) as u64, &mut raw);
-            let peak = truth.iter().copied().fold(0f32, f32::max).max(1.0) as f64;
+            let peak = emccd_eval::scores::truth_peak(&truth);
             let pre = crate::pipeline::preprocess(profile, &raw, 0.01)?;
             let clock = Instant::now();
             let bm = bm3d.run(profile, &raw, 0.01)?;

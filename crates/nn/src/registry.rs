@@ -301,8 +301,9 @@ pub fn resolve(
 }
 
 /// The warning a request deserves when its model was trained for another camera profile
-/// (fingerprint `profile_fp`), if it was.
-pub fn profile_mismatch(model: &Denoiser, profile_fp: &str) -> Option<String> {
+/// (its fingerprint differs from `profile`'s), if it was.
+pub fn profile_mismatch(model: &Denoiser, profile: &CameraProfile) -> Option<String> {
+    let profile_fp = profile.fingerprint_hex();
     (model.meta.profile_fingerprint != profile_fp).then(|| {
         format!(
             "the model was trained for profile {} and is applied through profile {profile_fp}; the network input is camera-independent, but fine-tuning on this camera (`emccd train --init`) may gain a little",

@@ -16,6 +16,23 @@ pub struct Tiling {
     pub overlap: usize,
 }
 
+impl Tiling {
+    /// The smallest tile side: a smaller one leaves the network too little context.
+    pub const MIN_TILE: usize = 64;
+
+    /// `tile` if it is a usable tile side (at least [`Tiling::MIN_TILE`]).
+    pub fn check_tile(tile: usize) -> crate::Result<usize> {
+        if tile >= Tiling::MIN_TILE {
+            Ok(tile)
+        } else {
+            Err(crate::Error::Model(format!(
+                "a tile is at least {} px",
+                Tiling::MIN_TILE
+            )))
+        }
+    }
+}
+
 impl Default for Tiling {
     fn default() -> Tiling {
         Tiling {

@@ -559,6 +559,17 @@ impl CameraProfile {
         h.finish()
     }
 
+    /// The profile of a `w`×`h` frame recorded with the sensor's top-left corner (a scene or
+    /// test frame smaller than the sensor): this profile itself when the frame is the whole
+    /// sensor, else its [`CameraProfile::crop`]; an error for a larger or empty frame.
+    pub fn top_left(&self, w: usize, h: usize) -> Result<std::borrow::Cow<'_, CameraProfile>> {
+        if (w, h) == (self.width, self.height) {
+            Ok(std::borrow::Cow::Borrowed(self))
+        } else {
+            self.crop(0, 0, w, h).map(std::borrow::Cow::Owned)
+        }
+    }
+
     /// The sub-array `x0..x0+w`, `y0..y0+h` (for simulating or calibrating a region of interest).
     pub fn crop(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<CameraProfile> {
         let fits = |o: usize, n: usize, of: usize| o.checked_add(n).is_some_and(|e| e <= of);
