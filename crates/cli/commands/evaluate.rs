@@ -30,7 +30,8 @@ pub struct Args {
     #[arg(long)]
     pub profile: Option<String>,
     /// Methods: `input`, `bm3d` (one BM3D + GAT pass), `ivst` (iterative BM3D), `blend` (`ivst`
-    /// and the `lowlight` network averaged, the default of `denoise`), `ivst:λ/b,λ/b,…` (iterative BM3D with these passes: the data's weight and the
+    /// and the `lowlight` network averaged, the default of `denoise`; `blend@8` with the
+    /// network's self-ensemble, `blend:MODEL` with another network), `ivst:λ/b,λ/b,…` (iterative BM3D with these passes: the data's weight and the
     /// bin side, e.g. `ivst:1/3,0.7/2,0.4/1`), `hybrid` (the bundled BM3D-refining network), or
     /// a model file (`default`, `microscopy`, `lowlight` = the bundled networks; a hybrid model file runs as
     /// the hybrid method); repeatable. `MODEL@8` averages the model over 8 flips/transposes

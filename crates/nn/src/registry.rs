@@ -425,7 +425,8 @@ impl<'a> ModelSpec<'a> {
 
 /// A method under comparison, by the name `emccd evaluate --method` takes: `input` (the
 /// preprocessed frame, no denoising), `bm3d`, `ivst`, `ivst:λ/b,…` (iterative BM3D with these
-/// passes, for comparing schedules), `blend`, or a model (a bundled name or a file, `@K` for a
+/// passes, for comparing schedules), `blend` (`blend@K` with the network's K-orientation
+/// self-ensemble, `blend:MODEL[@K]` with another network), or a model (a bundled name or a file, `@K` for a
 /// K-orientation self-ensemble; a hybrid model runs as [`Method::Hybrid`]). Models are loaded
 /// once, when the name is parsed; every run goes through the same code as `emccd denoise`.
 pub struct Estimator {
@@ -466,11 +467,36 @@ impl Estimator {
                     .parse()
                     .map_err(|e: String| Error::Model(format!("--method {name}: {e}")))?,
             )
-        } else if name == "blend" {
+        } else if let Some(rest) = name
+            .strip_prefix("blend")
+            .filter(|r| r.is_empty() || r.starts_with([':', '@']))
+        {
+            // `blend`, `blend@K` (the network's K-orientation self-ensemble) or
+            // `blend:MODEL[@K]` (another network averaged with ivst).
+            let (model_name, ensemble) = match rest.strip_prefix(':') {
+                Some(m) => {
+                    let spec = ModelSpec::parse(m)?;
+                    (spec.model, spec.ensemble)
+                }
+                None => match rest.strip_prefix('@') {
+                    Some(k) => (
+                        "lowlight",
+                        ensemble_size(k)
+                            .map_err(|e| Error::Model(format!("{name}: after `@`, {e}")))?,
+                    ),
+                    None => ("lowlight", 1),
+                },
+            };
+            let model = load(model_name)?;
+            if model.meta.inputs == Inputs::Hybrid {
+                return Err(Error::Model(format!(
+                    "--method {name}: {model_name} is a refinement network; blend averages ivst with a denoiser"
+                )));
+            }
             Kind::Denoise {
                 method: Method::Blend,
-                model: Some(load("lowlight")?),
-                ensemble: 1,
+                model: Some(model),
+                ensemble,
             }
         } else {
             let spec = ModelSpec::parse(name)?;
@@ -551,6 +577,23 @@ mod tests {
         );
         let e = ModelSpec::parse("default@3").unwrap_err().to_string();
         assert!(e.contains("default@3") && e.contains("1, 2, 4 or 8"), "{e}");
+    }
+
+    #[test]
+    fn blend_takes_a_self_ensemble_and_another_network() {
+        // The loader says which model each spelling asks for.
+        let asks = |name: &str| -> String {
+            let e = Estimator::parse(name, |m: &str| -> Result<Denoiser> {
+                Err(Error::Model(format!("asked for {m}")))
+            });
+            e.err().map(|e| e.to_string()).unwrap_or_default()
+        };
+        assert_eq!(asks("blend"), "asked for lowlight");
+        assert_eq!(asks("blend@8"), "asked for lowlight");
+        assert_eq!(asks("blend:out/m.safetensors@4"), "asked for out/m.safetensors");
+        assert!(asks("blend@3").contains("1, 2, 4 or 8"), "{}", asks("blend@3"));
+        // Not a blend: a model file whose name starts with "blend".
+        assert_eq!(asks("blended.safetensors"), "asked for blended.safetensors");
     }
 
     #[test]

@@ -50,6 +50,20 @@ pub fn provenance(
     }))
 }
 
+/// The recording's next frame into `buf`; `at` names it in errors (a read error, or a file
+/// that ends before its header's frame count).
+fn read_frame(rec: &mut Recording, buf: &mut [f32], at: String) -> Result<()> {
+    match rec.reader.read_frame(buf) {
+        Ok(true) => Ok(()),
+        Ok(false) => Err(Error::Data(format!(
+            "the file ended before it (its header says {} frames)",
+            rec.info.frames
+        ))
+        .at(at)),
+        Err(source) => Err(Error::Frame { at, source }),
+    }
+}
+
 /// What one process did to its share of a stack ([`denoise_shard`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ShardRun {
@@ -107,16 +121,7 @@ pub fn denoise_shard(
                 break;
             }
             if range.contains(&k) && !store.is_done(k) {
-                let read = i
-                    .reader
-                    .read_frame(&mut buf)
-                    .map_err(|source| Error::Frame { at: at(j), source })?;
-                if !read {
-                    return Err(Error::Data(format!(
-                        "the file ended before it (its header says {count} frames)"
-                    ))
-                    .at(at(j)));
-                }
+                read_frame(&mut i, &mut buf, at(j))?;
                 let out = fd.run(&buf, i.exposure).map_err(|e| e.at(at(j)))?;
                 store.write_frame(k, &out)?;
                 run.written += 1;
@@ -145,33 +150,23 @@ pub fn denoise_file(
     out: &Path,
     on_frame: &mut dyn FnMut(),
 ) -> Result<usize> {
-    let info = &input.info;
+    let (width, height, frames) = (input.info.width, input.info.height, input.info.frames);
     let mut w = emccd_io::StackWriter::create(
         out,
-        info.width,
-        info.height,
+        width,
+        height,
         emccd_io::SampleFormat::F32,
-        Some(info.frames),
+        Some(frames),
     )?;
     let name = input.path.display().to_string();
     let at = |j: usize| format!("{name}: frame {}", j + 1);
-    let mut buf = vec![0f32; info.frame_len()];
-    for j in 0..info.frames {
-        let read = input
-            .reader
-            .read_frame(&mut buf)
-            .map_err(|source| Error::Frame { at: at(j), source })?;
-        if !read {
-            return Err(Error::Data(format!(
-                "the file ended before it (its header says {} frames)",
-                info.frames
-            ))
-            .at(at(j)));
-        }
+    let mut buf = vec![0f32; width * height];
+    for j in 0..frames {
+        read_frame(&mut input, &mut buf, at(j))?;
         let den = fd.run(&buf, input.exposure).map_err(|e| e.at(at(j)))?;
         w.write_frame(&den)?;
         on_frame();
     }
     w.finish()?;
-    Ok(info.frames)
+    Ok(frames)
 }
