@@ -4,7 +4,8 @@
 # seed 2411) with one change per run, each from scratch (f: d with the input pixel-unshuffled,
 # about 3x the steps per CPU-minute, so 3000 steps for d's 1000 steps' time; g: d with the
 # paper's noise model instead of the Poisson-Gamma-Normal chain, its validation crops too, so
-# compare g on the validation camera only); runs already finished are skipped,
+# compare g on the validation camera only; h: d with the per-frame scale taken from 4x4 block
+# means); runs already finished are skipped,
 # an interrupted one continues (--resume). Then the curves and the validation camera:
 #
 #   bash tools/levers.sh D OUT       # D: the training images (kodak/, bsd68/, fmd/ as in
@@ -28,7 +29,8 @@ for r in "a:$L2 --lr 5e-4" \
          "d:--loss charbonnier --steps 1000 --checkpoint-every 100 --lr 1e-3" \
          "e:--loss l2 --lr 1e-3 --base 32 --steps 300 --checkpoint-every 30" \
          "f:--loss charbonnier --steps 3000 --checkpoint-every 100 --lr 1e-3 --unshuffle 2" \
-         "g:--loss charbonnier --steps 1000 --checkpoint-every 100 --lr 1e-3 --noise-model ours"; do
+         "g:--loss charbonnier --steps 1000 --checkpoint-every 100 --lr 1e-3 --noise-model ours" \
+         "h:--loss charbonnier --steps 1000 --checkpoint-every 100 --lr 1e-3 --scale binned"; do
     n=${r%%:*}
     x=${r#*:}
     [ -f "$O/$n.safetensors" ] && continue

@@ -442,7 +442,7 @@ fn denoise<'py>(
     units.factor(p).map_err(err)?;
     emccd_nn::tile::Tiling::check_tile(tile)
         .map_err(|e| err(anyhow::anyhow!("tile {tile}: {e}")))?;
-    registry::ensemble_size(&ensemble.to_string())
+    registry::check_ensemble(ensemble)
         .map_err(|e| err(anyhow::anyhow!("ensemble {ensemble}: {e}")))?;
     let a = frames.as_array();
     let (f, h, w) = a.dim();
@@ -536,7 +536,12 @@ fn simulate_pairs<'py>(
                     p.height
                 );
             }
-            let cam = VirtualCamera::new(p.top_left(w, h)?.into_owned(), PhysicalParams::default())?;
+            // The profile moved in is kept whole when the scene is the sensor's size.
+            let cropped = match p.top_left(w, h)? {
+                std::borrow::Cow::Owned(c) => Some(c),
+                std::borrow::Cow::Borrowed(_) => None,
+            };
+            let cam = VirtualCamera::new(cropped.unwrap_or(p), PhysicalParams::default())?;
             let mean = img.iter().map(|&v| v as f64).sum::<f64>() / img.len() as f64;
             let photons = match (photons, mean_electrons) {
                 (Some(p), None) => p,

@@ -35,7 +35,7 @@ impl Streaming {
     }
 }
 
-/// Writes a stack of `frames` 512×512 16-bit frames to `dir/stack.tif` (a fixed pattern, no
+/// Writes a stack of `frames` (at least 2) 512×512 16-bit frames to `dir/stack.tif` (a fixed pattern, no
 /// randomness), reads it once as plain bytes and once through the calibration's streaming
 /// statistics (both from the page cache), and removes it. `before` is called after the
 /// stack is written and before it is read (peak memory is measured there).
@@ -59,7 +59,7 @@ pub fn streaming(dir: &Path, frames: usize, before: &mut dyn FnMut()) -> Result<
         wr.write_frame(&f).map_err(io)?;
     }
     wr.finish().map_err(io)?;
-    let os = |e: std::io::Error| Error::input(&path, e.to_string());
+    let os = |e: std::io::Error| Error::io(&path, emccd_io::Error::from(e));
     let bytes = std::fs::metadata(&path).map_err(os)?.len() as f64;
     before();
     // Reference: reading the same bytes from the page cache and doing nothing with them.

@@ -331,7 +331,7 @@ fn denoise_bench(
             "model {}: {} ({} params, {} steps, noise model {}): {:.2} dB ({:+.2} vs BM3D), {:.3} s per 512×512 frame",
             i + 1,
             est.name(),
-            burn::module::Module::num_params(&m.net),
+            m.num_params(),
             m.meta.steps,
             m.meta.noise_model.name(),
             t.model_db[i],

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use emccd_eval::evaluation::{evaluate, results_json, Method, PairsDir};
+use emccd_eval::evaluation::{evaluate, results_json, Contender, PairsDir};
 use emccd_eval::virtual_pairs::Denoise;
 use emccd_nn::registry::Estimator;
 use emccd_profile::CameraProfile;
@@ -66,10 +66,10 @@ pub fn run(a: Args) -> Result<()> {
             }) as Box<Denoise>
         })
         .collect();
-    let methods: Vec<Method> = estimators
+    let methods: Vec<Contender> = estimators
         .iter()
         .zip(&runs)
-        .map(|(est, run)| Method {
+        .map(|(est, run)| Contender {
             name: est.name(),
             run: run.as_ref(),
         })

@@ -64,12 +64,11 @@ pub fn run(c: Cmd) -> Result<()> {
     match c {
         Cmd::Show { profile, json } => {
             let p = load_profile(&profile)?;
-            let s = p.summary();
             if json {
-                println!("{}", serde_json::to_string_pretty(&s)?);
-                return Ok(());
+                println!("{}", serde_json::to_string_pretty(&p.summary())?);
+            } else {
+                print!("{}", p.summary_text());
             }
-            print!("{}", p.summary_text());
             Ok(())
         }
         Cmd::Crop {
@@ -92,10 +91,10 @@ pub fn run(c: Cmd) -> Result<()> {
             c.save(&out)
                 .with_context(|| format!("writing {}", out.display()))?;
             eprintln!(
-                "wrote the {w}×{h} region at ({x}, {y}) of {} to {} (fingerprint {:016x})",
+                "wrote the {w}×{h} region at ({x}, {y}) of {} to {} (fingerprint {})",
                 p.camera,
                 out.display(),
-                c.fingerprint()
+                c.fingerprint_hex()
             );
             Ok(())
         }
@@ -111,10 +110,10 @@ pub fn run(c: Cmd) -> Result<()> {
             p.save(&dir)
                 .with_context(|| format!("writing {}", dir.display()))?;
             eprintln!(
-                "wrote {} to {} (fingerprint {:016x})",
+                "wrote {} to {} (fingerprint {})",
                 p.camera,
                 dir.display(),
-                p.fingerprint()
+                p.fingerprint_hex()
             );
             Ok(())
         }

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use emccd_camera::{Ablation, NoiseModelKind};
 use emccd_nn::train::{train, Loss, Run, RunPaths, TrainConfig, TrainImages};
-use emccd_nn::{Arch, Base, Inputs, ModelMeta, UNetConfig};
+use emccd_nn::{Arch, Base, Inputs, ModelMeta, Scale, UNetConfig};
 
 use crate::common::load_profile;
 
@@ -45,6 +45,12 @@ pub struct Args {
     /// about 3× the crops per CPU-hour, for a receptive field one level deeper). 1: none.
     #[arg(long, default_value_t = 1, value_name = "1|2|4")]
     pub unshuffle: usize,
+    /// How a denoiser's input is scaled per frame: `percentile` (the noisy frame's 99.5th
+    /// percentile, what the bundled networks use) or `binned` (the same of 4×4 block means,
+    /// which follows the scene rather than the noise). Recorded in the model. Default: the
+    /// --init model's, else percentile.
+    #[arg(long, value_enum)]
+    pub scale: Option<Scale>,
     /// What the network is given: `noisy` (the frame and its noise level: a denoiser), or
     /// `hybrid` (also the BM3D + GAT estimate, which the network corrects; its output layer
     /// starts at zero, so training starts at BM3D's quality; U-Net only).
@@ -138,6 +144,11 @@ pub fn run(a: Args) -> Result<()> {
         emccd_io::refuse_overwrite(&a.out, i, "the --init model")?;
     }
     let base = Base::for_run(a.hybrid_base, a.inputs, init.as_deref())?;
+    let scale = match (a.scale, &init) {
+        (Some(s), _) => s,
+        (None, Some(i)) => emccd_nn::Denoiser::read_meta(i)?.scale,
+        (None, None) => Scale::default(),
+    };
     let profile = load_profile(&a.profile)?;
     let images = TrainImages::read(&a.clean, &a.val)?;
     let cfg = TrainConfig {
@@ -155,6 +166,7 @@ pub fn run(a: Args) -> Result<()> {
         mean_electrons: a.mean_electrons,
         cic_e: a.cic,
         loss: a.loss,
+        scale,
         seed: a.seed,
         val_every: a.checkpoint_every,
         checkpoint_every: a.checkpoint_every,
@@ -175,7 +187,7 @@ pub fn run(a: Args) -> Result<()> {
         "model written to {} ({} steps, {} parameters)",
         a.out.display(),
         model.meta.steps,
-        burn::module::Module::num_params(&model.net)
+        model.num_params()
     );
     Ok(())
 }

@@ -39,7 +39,7 @@ impl PairsDir {
             (None, Some(p)) => load(
                 &p,
                 format!(
-                    "the profile {} names",
+                    "profile {p}, which {} names",
                     dir.join(PairsManifest::FILE).display()
                 ),
             )?,
@@ -68,23 +68,26 @@ impl PairsDir {
     }
 }
 
-/// A method to score: its name in tables and the denoiser that runs it.
-pub struct Method<'a> {
-    /// Name (as given on the command line).
+/// A method under comparison: its name in tables and the denoiser that runs it.
+pub struct Contender<'a> {
+    /// Name (as `evaluate --method` was given it).
     pub name: &'a str,
     /// The denoiser: profile, raw frame and exposure in, photo-signal in DN above bias out.
     pub run: &'a Denoise<'a>,
 }
 
 /// Runs every method on every pair of `cameras` and scores it against the ground truth (which
-/// is used only to score); `panels`: also write a panel per pair there. `tick` is called after
-/// each method on each pair (progress).
+/// is used only to score); `panels`: also write a panel per pair into that folder (made if
+/// missing). `tick` is called after each method on each pair (progress).
 pub fn evaluate(
     cameras: &[PairsDir],
-    methods: &[Method],
+    methods: &[Contender],
     panels: Option<&Path>,
     tick: &dyn Fn(),
 ) -> Result<Vec<Score>, String> {
+    if let Some(dir) = panels {
+        std::fs::create_dir_all(dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
+    }
     let mut scores = Vec::new();
     for cam in cameras {
         for p in &cam.manifest.pair {

@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
-use crate::norm::{frame_scale, prepare_scaled};
+use crate::norm::{prepare_scaled, Scale};
 use crate::train::{
     orient, sub_image, train_from, Image, Loss, Run, RunPaths, Source, StepReport, TrainConfig,
 };
@@ -226,6 +226,7 @@ impl RecordedPairs {
         set: FrameSet,
         profile: &CameraProfile,
         method: AdaptMethod,
+        rule: Scale,
     ) -> Result<RecordedPairs> {
         if method == AdaptMethod::Resynthesis || set.len() < method.min_frames() {
             return Err(Error::Data(format!(
@@ -253,7 +254,7 @@ impl RecordedPairs {
         let scales = set
             .frames
             .iter()
-            .map(|f| frame_scale(&f.iter().map(|v| v / s).collect::<Vec<f32>>()))
+            .map(|f| rule.of(&f.iter().map(|v| v / s).collect::<Vec<f32>>(), set.width))
             .collect();
         let mut exposures: Vec<f64> = Vec::new();
         let mut map_of = Vec::with_capacity(set.len());
@@ -722,7 +723,7 @@ pub fn adapt(
         (m, AdaptData::Frames(set)) => {
             let (level, size) = (set.mean_electrons(profile)?, (set.width, set.height));
             (
-                Source::Recorded(RecordedPairs::new(set, profile, m)?),
+                Source::Recorded(RecordedPairs::new(set, profile, m, start_meta.scale)?),
                 level,
                 size,
             )
@@ -766,6 +767,8 @@ pub fn adapt(
         read_noise_scale: [1.0, 1.0],
         noise: cfg.noise,
         ablate: start_meta.ablate,
+        // The network keeps the input scaling it was trained with.
+        scale: start_meta.scale,
         seed: cfg.seed,
         val_every: cfg.checkpoint_every,
         checkpoint_every: cfg.checkpoint_every,

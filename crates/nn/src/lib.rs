@@ -46,6 +46,7 @@ pub mod unet;
 
 pub use error::{Error, Result};
 pub use model::{Arch, Base, Denoiser, Inputs, ModelMeta, Net};
+pub use norm::Scale;
 pub use registry::{FrameDenoiser, Method, Units};
 pub use uformer::{Uformer, UformerConfig};
 pub use unet::{UNet, UNetConfig};

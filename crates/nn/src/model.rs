@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use emccd_camera::{Ablation, NoiseModelKind};
 
+use crate::norm::Scale;
 use crate::uformer::{Uformer, UformerConfig};
 use crate::unet::{UNet, UNetConfig};
 use crate::{Error, Result};
@@ -310,6 +311,9 @@ pub struct ModelMeta {
     pub noise_model: NoiseModelKind,
     /// Ablated components (on disk: their names, `[]` for the full model).
     pub ablate: Ablation,
+    /// How the network's input is scaled per frame (files without the key: the percentile).
+    #[serde(default, skip_serializing_if = "Scale::is_default")]
+    pub scale: Scale,
     /// Fingerprint (hex) of the profile used in training.
     pub profile_fingerprint: String,
     /// Optimizer steps taken.
@@ -344,6 +348,11 @@ pub struct Denoiser {
 }
 
 impl Denoiser {
+    /// The network's trainable parameters.
+    pub fn num_params(&self) -> usize {
+        burn::module::Module::num_params(&self.net)
+    }
+
     /// A freshly initialized model.
     pub fn new(meta: ModelMeta, device: &Device) -> Result<Denoiser> {
         check_size(&meta).map_err(|e| Error::Model(format!("model configuration: {e}")))?;
@@ -509,6 +518,25 @@ mod tests {
             unshuffle,
             ..UNetConfig::DEFAULT
         }
+    }
+
+    #[test]
+    fn a_run_s_base_is_chosen_or_inherited_and_only_a_refinement_network_has_one() {
+        assert_eq!(Base::for_run(None, Inputs::Noisy, None).unwrap(), Base::Bm3d);
+        assert_eq!(
+            Base::for_run(Some(Base::Ivst), Inputs::Hybrid, None).unwrap(),
+            Base::Ivst
+        );
+        let e = Base::for_run(Some(Base::Ivst), Inputs::Noisy, None)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--inputs hybrid"), "{e}");
+        // The bundled hybrid network refines one BM3D pass: a run from it inherits that.
+        let hybrid = crate::registry::model_path("hybrid").unwrap();
+        assert_eq!(
+            Base::for_run(None, Inputs::Hybrid, Some(&hybrid)).unwrap(),
+            Denoiser::read_meta(&hybrid).unwrap().base
+        );
     }
 
     #[test]

@@ -9,6 +9,8 @@
 //! noisy frame's upper percentiles are set by single-electron EM-register spikes, not by the
 //! scene, while the estimate's follow the scene's brightness.
 
+use serde::{Deserialize, Serialize};
+
 /// Inputs for the network and how to undo the scaling.
 #[derive(Clone, Debug)]
 pub struct Prepared {
@@ -21,7 +23,55 @@ pub struct Prepared {
 /// The per-frame scale: the 99.5th percentile of the slope-normalized frame, floored so that
 /// an almost empty frame is not blown up.
 pub fn frame_scale(x_norm: &[f32]) -> f32 {
-    percentile(x_norm, 0.995).map_or(1.0, |p| p.max(4.0))
+    percentile(x_norm, 0.995).map_or(1.0, |p| p.max(FLOOR))
+}
+
+/// Smallest per-frame scale, in slope units (about eight photoelectrons).
+const FLOOR: f32 = 4.0;
+
+/// Side of the blocks [`Scale::Binned`] averages.
+pub const BIN: usize = 4;
+
+/// How a denoiser's per-frame scale is taken from the noisy frame (recorded in its model file:
+/// training and inference must agree).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum Scale {
+    /// The frame's 99.5th percentile ([`frame_scale`]; model files without the key).
+    #[default]
+    Percentile,
+    /// The 99.5th percentile of the frame averaged over [`BIN`]×[`BIN`] blocks: the average
+    /// of 16 pixels follows the scene where single pixels follow the noise (at 4 e⁻ the noisy
+    /// frame's percentile is 1.4–2× the clean frame's).
+    Binned,
+}
+
+impl Scale {
+    /// Whether this is the rule of model files that do not record one.
+    pub fn is_default(&self) -> bool {
+        *self == Scale::Percentile
+    }
+
+    /// The scale of a slope-normalized frame `width` pixels wide, floored like
+    /// [`frame_scale`]. A frame narrower or lower than a block falls back to the percentile.
+    pub fn of(self, x_norm: &[f32], width: usize) -> f32 {
+        let height = x_norm.len() / width.max(1);
+        if self == Scale::Percentile || width < BIN || height < BIN {
+            return frame_scale(x_norm);
+        }
+        let (bw, bh) = (width / BIN, height / BIN);
+        let means: Vec<f32> = (0..bw * bh)
+            .map(|b| {
+                let (bx, by) = (b % bw * BIN, b / bw * BIN);
+                let sum: f32 = (0..BIN * BIN)
+                    .map(|k| x_norm[(by + k / BIN) * width + bx + k % BIN])
+                    .sum();
+                sum / (BIN * BIN) as f32
+            })
+            .collect();
+        frame_scale(&means)
+    }
 }
 
 /// Percentile of a slope-normalized frame (`q` in [0, 1]); non-finite values are ignored.
@@ -68,11 +118,12 @@ pub fn prepare_hybrid(
     }
 }
 
-/// Prepares a preprocessed frame `dn` (DN above bias) with the slope `s` and read-noise std map.
-pub fn prepare(dn: &[f32], slope: f64, read_noise: &[f32]) -> Prepared {
+/// Prepares a preprocessed frame `dn` (DN above bias, `width` pixels wide) with the slope `s`
+/// and read-noise std map, scaled by `rule`.
+pub fn prepare(dn: &[f32], width: usize, slope: f64, read_noise: &[f32], rule: Scale) -> Prepared {
     let s = slope as f32;
     let x: Vec<f32> = dn.iter().map(|v| v / s).collect();
-    prepare_scaled(dn, slope, read_noise, frame_scale(&x))
+    prepare_scaled(dn, slope, read_noise, rule.of(&x, width))
 }
 
 /// [`prepare`] with the per-frame scale given (training crops take their whole frame's).
@@ -120,7 +171,10 @@ mod tests {
         let dn_a: Vec<f32> = x.iter().map(|v| v * sa as f32).collect();
         let dn_b: Vec<f32> = x.iter().map(|v| v * sb as f32).collect();
         let (ra, rb) = (vec![3.0f32; 4096], vec![3.0f32 * 7.5; 4096]);
-        let (a, b) = (prepare(&dn_a, sa, &ra), prepare(&dn_b, sb, &rb));
+        let (a, b) = (
+            prepare(&dn_a, 64, sa, &ra, Scale::Percentile),
+            prepare(&dn_b, 64, sb, &rb, Scale::Percentile),
+        );
         for (u, v) in a.input.iter().zip(&b.input) {
             assert!((u - v).abs() <= 1e-5 * u.abs().max(1.0), "{u} vs {v}");
         }
@@ -161,6 +215,26 @@ mod tests {
         nan[5] = f32::INFINITY;
         assert!((frame_scale(&nan) - clean).abs() < 0.5);
         assert_eq!(frame_scale(&[]), 1.0);
+    }
+
+    #[test]
+    fn the_binned_scale_follows_the_scene_where_the_percentile_follows_spikes() {
+        // A 64×64 scene with 2 % of its pixels raised by a spike: the percentile lands on the
+        // spikes, the 4×4 block means move by a sixteenth of a spike.
+        let (w, n) = (64, 64 * 64);
+        let clean = frame(n, 40.0, 0.0, n + 1);
+        let spiky = frame(n, 40.0, 200.0, 50);
+        let (pc, ps) = (frame_scale(&clean), frame_scale(&spiky));
+        assert!(ps > 1.5 * pc, "{ps} vs {pc}");
+        // A block mean holds at most one spike (they are 50 px apart) at 1/16 of its height:
+        // the binned scale can rise by 200/16 = 12.5 units at most, the percentile rose by 200.
+        let (bc, bs) = (Scale::Binned.of(&clean, w), Scale::Binned.of(&spiky, w));
+        assert!(bs >= bc && bs - bc <= 200.0 / 16.0 + 0.5, "{bs} vs {bc}");
+        // Floored like the percentile, and the same rule for frames too small to bin.
+        assert_eq!(Scale::Binned.of(&frame(n, 0.5, 0.0, n + 1), w), 4.0);
+        let tiny = frame(6, 40.0, 0.0, 7);
+        assert_eq!(Scale::Binned.of(&tiny, 3), frame_scale(&tiny));
+        assert_eq!(Scale::Percentile.of(&spiky, w), ps);
     }
 
     #[test]

@@ -169,7 +169,7 @@ impl Pipeline<'_> {
         let rn = p.read_noise_near(exposure_s);
         let inputs = self.model.meta.inputs;
         let prep = match inputs {
-            Inputs::Noisy => prepare(dn, slope, rn),
+            Inputs::Noisy => prepare(dn, p.width, slope, rn, self.model.meta.scale),
             Inputs::Hybrid => {
                 let est = classical_estimate(p, dn, exposure_s, self.model.meta.base)?;
                 let scale =

@@ -386,13 +386,20 @@ impl FrameDenoiser<'_> {
 /// The self-ensemble sizes allowed: up to the eight flips and transposes of a frame.
 const ENSEMBLES: [usize; 4] = [1, 2, 4, 8];
 
-/// A self-ensemble size (orientations a network is averaged over): 1, 2, 4 or 8.
+/// A self-ensemble size (orientations a network is averaged over) as a flag gives it: 1, 2, 4
+/// or 8.
 pub fn ensemble_size(k: &str) -> Result<usize> {
-    match k.parse::<usize>() {
-        Ok(k) if ENSEMBLES.contains(&k) => Ok(k),
-        _ => Err(Error::Model(
+    check_ensemble(k.parse::<usize>().unwrap_or(0))
+}
+
+/// `k` if it is a self-ensemble size (1, 2, 4 or 8 orientations).
+pub fn check_ensemble(k: usize) -> Result<usize> {
+    if ENSEMBLES.contains(&k) {
+        Ok(k)
+    } else {
+        Err(Error::Model(
             "the self-ensemble is 1, 2, 4 or 8 orientations".into(),
-        )),
+        ))
     }
 }
 

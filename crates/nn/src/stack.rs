@@ -1,5 +1,5 @@
-//! Recordings denoised frame by frame in bounded memory: one recording into a float32 TIFF
-//! stack ([`denoise_file`]), or several into one OME-Zarr stack that several processes (a SLURM
+//! Recordings denoised frame by frame in bounded memory: one recording into a float32 stack
+//! in the format its file name says (TIFF, BigTIFF or FITS; [`denoise_file`]), or several into one OME-Zarr stack that several processes (a SLURM
 //! array) fill at once, each its own share of the frames, resumable frame by frame.
 
 use std::ops::Range;
@@ -140,7 +140,8 @@ pub fn denoise_shard(
     Ok(run)
 }
 
-/// Denoises every frame of `input` into a float32 TIFF stack at `out` (written atomically:
+/// Denoises every frame of `input` into a float32 stack at `out`, in the format its extension
+/// names (TIFF, BigTIFF or FITS; written atomically:
 /// nothing is left there if a frame fails). `on_frame` is called after every frame written.
 /// Errors about a frame name the input and the frame's number (from 1); an input that ends
 /// before its header's frame count is one. Returns the frames written.

@@ -260,7 +260,15 @@ pub fn run_ensemble(
 
 #[cfg(test)]
 mod tests {
-    use super::dihedral;
+    use super::{dihedral, Tiling};
+
+    #[test]
+    fn a_tile_is_at_least_the_smallest_side() {
+        assert_eq!(Tiling::check_tile(64).unwrap(), 64);
+        assert_eq!(Tiling::check_tile(512).unwrap(), 512);
+        let e = Tiling::check_tile(63).unwrap_err().to_string();
+        assert!(e.contains("at least 64 px"), "{e}");
+    }
 
     #[test]
     fn dihedral_transforms_are_permutations() {

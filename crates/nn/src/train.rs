@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::adapt::RecordedPairs;
 use crate::model::{Denoiser, Inputs, ModelMeta, Net};
-use crate::norm::{frame_scale, prepare_hybrid, prepare_scaled, signal_scale};
+use crate::norm::{prepare_hybrid, prepare_scaled, signal_scale, Scale};
 use crate::{Error, Result};
 
 /// A clean training image, values in [0, 1].
@@ -69,6 +69,9 @@ pub struct TrainConfig {
     /// Loss.
     #[serde(default)]
     pub loss: Loss,
+    /// How a denoiser's input is scaled per frame (recorded in the model it trains).
+    #[serde(default, skip_serializing_if = "Scale::is_default")]
+    pub scale: Scale,
     /// The profile's read noise is multiplied by a factor drawn log-uniformly from this range
     /// (model `ours`): training on many read-noise-to-gain ratios is what lets one model serve
     /// cameras other than the training profile. `[1, 1]`: the profile's own.
@@ -108,6 +111,7 @@ impl Default for TrainConfig {
             mean_electrons: None,
             cic_e: None,
             loss: Loss::Charbonnier,
+            scale: Scale::Percentile,
             read_noise_scale: [1.0, 1.0],
             reuse: 1,
             base: crate::Base::Bm3d,
@@ -327,7 +331,9 @@ fn synth_sample(
         }
     }
     let scale = match inputs {
-        Inputs::Noisy => frame_scale(&noisy.iter().map(|v| v / slope as f32).collect::<Vec<f32>>()),
+        Inputs::Noisy => cfg
+            .scale
+            .of(&noisy.iter().map(|v| v / slope as f32).collect::<Vec<f32>>(), w),
         Inputs::Hybrid => {
             signal_scale(&clean.iter().map(|v| v / slope as f32).collect::<Vec<f32>>())
         }
@@ -531,8 +537,9 @@ impl RunPaths {
 }
 
 impl ModelMeta {
-    /// The metadata of a new training run's model: `arch` taking `inputs` (refining `base`),
-    /// trained with `cfg` on `images` through `profile`. The run records its steps and `cfg`.
+    /// The metadata of a new training run's model: `arch` taking `inputs` (a refinement network
+    /// refines `cfg.base`), trained with `cfg` on `images` through `profile`. The run records
+    /// its steps and `cfg`.
     pub fn for_run(
         arch: crate::Arch,
         inputs: crate::Inputs,
@@ -546,6 +553,7 @@ impl ModelMeta {
             base: cfg.base,
             noise_model: cfg.noise,
             ablate: cfg.ablate,
+            scale: cfg.scale,
             profile_fingerprint: profile.fingerprint_hex(),
             steps: 0,
             train: None,

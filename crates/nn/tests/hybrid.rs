@@ -106,7 +106,7 @@ fn inputs_are_the_same_for_the_same_electrons_on_any_camera() {
         let est = dn.clone();
         let x: Vec<f32> = est.iter().map(|v| v / slope).collect();
         (
-            prepare(&dn, slope as f64, &rn).input,
+            prepare(&dn, 40, slope as f64, &rn, Default::default()).input,
             prepare_hybrid(&dn, &est, slope as f64, &rn, signal_scale(&x)).input,
         )
     };

@@ -472,3 +472,42 @@ fn a_stack_is_denoised_in_shards_with_the_model_it_ran_in_its_provenance() {
     );
     assert_eq!(store.done_count(), 5);
 }
+
+#[test]
+fn the_denoise_bench_scores_every_scene_at_both_levels_and_skips_other_sizes() {
+    let dir = tempfile::tempdir().unwrap();
+    let profile = emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap();
+    let scene = |name: &str, w: usize, h: usize| {
+        let path = dir.path().join(name);
+        let data: Vec<f32> = (0..w * h)
+            .map(|i| 0.2 + 0.6 * ((i % w) as f32 / w as f32))
+            .collect();
+        emccd_io::write_png_preview(&path, w, h, &data, 0.0, 1.0).unwrap();
+        path
+    };
+    let scenes = [scene("a.png", 64, 64), scene("b.png", 32, 64)];
+    let models = emccd_nn::bench::models(&["default".to_string()]).unwrap();
+    let (mut rows, mut skipped) = (Vec::new(), Vec::new());
+    let t = emccd_nn::bench::denoise(
+        &profile,
+        &scenes,
+        &models,
+        1,
+        &mut |r| rows.push(r.clone()),
+        &mut |s| skipped.push(s),
+    )
+    .unwrap();
+    assert_eq!(t.pairs, emccd_nn::bench::PHOTONS.len());
+    assert_eq!(rows.len(), t.pairs);
+    assert!(rows.iter().all(|r| r.scene == "a.png" && r.model_db.len() == 1));
+    assert!(skipped.len() == 1 && skipped[0].contains("b.png"), "{skipped:?}");
+    // Denoising helps, and the totals are the rows' means.
+    for r in &rows {
+        assert!(r.bm3d_db > r.input_db && r.model_db[0] > r.input_db, "{r:?}");
+    }
+    let mean = rows.iter().map(|r| r.bm3d_db).sum::<f64>() / rows.len() as f64;
+    assert!((t.bm3d_db - mean).abs() < 1e-9);
+    assert!(t.model_s[0] > 0.0 && t.bm3d_s > 0.0);
+    // Anything that runs no network is refused as a bench model.
+    assert!(emccd_nn::bench::models(&["bm3d".to_string()]).is_err());
+}

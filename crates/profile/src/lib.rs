@@ -695,6 +695,34 @@ mod tests {
     use super::median;
 
     #[test]
+    fn a_frame_smaller_than_the_sensor_gets_the_top_left_profile() {
+        let p = crate::default_profile().crop(0, 0, 16, 12).unwrap();
+        assert!(matches!(
+            p.top_left(16, 12).unwrap(),
+            std::borrow::Cow::Borrowed(_)
+        ));
+        let c = p.top_left(8, 4).unwrap();
+        assert_eq!((c.width, c.height), (8, 4));
+        assert_eq!(c.maps.fpn_base[8 + 3], p.maps.fpn_base[16 + 3]);
+        for (w, h) in [(17, 12), (16, 13), (0, 4)] {
+            assert!(p.top_left(w, h).is_err(), "{w}×{h}");
+        }
+    }
+
+    #[test]
+    fn the_text_summary_says_what_is_calibrated_and_what_is_not() {
+        let p = crate::default_profile().crop(0, 0, 16, 12).unwrap();
+        let t = p.summary_text();
+        assert!(t.starts_with(&p.camera), "{t}");
+        assert!(t.contains("16 × 12 px"), "{t}");
+        assert!(t.contains(&format!("fingerprint       {}", p.fingerprint_hex())), "{t}");
+        assert_eq!(p.fingerprint_hex().len(), 16);
+        let mut bare = p.clone();
+        bare.blooming = None;
+        assert!(bare.summary_text().contains("blooming x(t)     not calibrated"));
+    }
+
+    #[test]
     fn median_of_odd_even_nan_and_empty_sets() {
         assert_eq!(median([3.0f32, 1.0, 2.0]), Some(2.0));
         assert_eq!(median([4.0f64, 1.0, 3.0, 2.0]), Some(2.5));

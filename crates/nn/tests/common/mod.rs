@@ -22,6 +22,7 @@ pub fn meta(base: usize, levels: usize) -> ModelMeta {
             unshuffle: 1,
         }),
         inputs: Default::default(),
+        scale: Default::default(),
         base: Default::default(),
         noise_model: emccd_camera::NoiseModelKind::Ours,
         ablate: Default::default(),
