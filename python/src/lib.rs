@@ -394,16 +394,7 @@ fn calibrate(
     let cb = Callback::new(progress, emccd_calib::total_frames(&m));
     let r = py.detach(|| -> anyhow::Result<CameraProfile> {
         let cal = emccd_calib::calibrate(&m, &emccd_calib::Options::default(), &cb)?;
-        let profile = cal.profile()?;
-        if let Some(dir) = &report {
-            emccd_calib::report::write(&cal, dir)
-                .map_err(anyhow::Error::from)
-                .map_err(|e| e.context(format!("writing the report to {}", dir.display())))?;
-        }
-        profile.save(&out).map_err(|e| {
-            anyhow::Error::from(e).context(format!("writing the profile to {}", out.display()))
-        })?;
-        Ok(profile)
+        Ok(cal.save(&out, report.as_deref())?)
     });
     if let Some(e) = cb.take_error() {
         return Err(e);
@@ -541,7 +532,7 @@ fn simulate_pairs<'py>(
                 std::borrow::Cow::Owned(c) => Some(c),
                 std::borrow::Cow::Borrowed(_) => None,
             };
-            let cam = VirtualCamera::new(cropped.unwrap_or(p), PhysicalParams::default())?;
+            let cam = VirtualCamera::new(cropped.unwrap_or(p), PhysicalParams::seeded(seed))?;
             let mean = img.iter().map(|&v| v as f64).sum::<f64>() / img.len() as f64;
             let photons = match (photons, mean_electrons) {
                 (Some(p), None) => p,

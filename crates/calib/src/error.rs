@@ -25,6 +25,15 @@ pub enum Error {
     /// A fit could not be made from the data given.
     #[error("{0}")]
     Fit(String),
+    /// An output (the profile, the report) could not be written.
+    #[error("writing {what}")]
+    Write {
+        /// What, and where.
+        what: String,
+        /// Why.
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
 }
 
 impl Error {

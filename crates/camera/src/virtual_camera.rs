@@ -34,6 +34,19 @@ pub struct PhysicalParams {
     pub seed: u64,
 }
 
+impl PhysicalParams {
+    /// The default physics with the hot pixels of a run seeded `run_seed` (what `emccd
+    /// simulate --seed` and Python's `simulate_pairs(seed=…)` build): the same seed, the same
+    /// camera, whichever front end asks. The hot-pixel seed is derived from the run's so that
+    /// it differs from the noise streams the run draws with it.
+    pub fn seeded(run_seed: u64) -> PhysicalParams {
+        PhysicalParams {
+            seed: run_seed ^ 0x5eed,
+            ..PhysicalParams::default()
+        }
+    }
+}
+
 impl Default for PhysicalParams {
     fn default() -> Self {
         PhysicalParams {

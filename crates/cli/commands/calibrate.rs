@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use emccd_calib::{Manifest, Options, Progress};
 
 use crate::common::progress;
@@ -65,14 +65,7 @@ pub fn run(a: Args) -> Result<()> {
     for w in &cal.warnings {
         eprintln!("warning: {w}");
     }
-    let profile = cal.profile()?;
-    if let Some(dir) = &a.report {
-        emccd_calib::report::write(&cal, dir)
-            .with_context(|| format!("writing the report to {}", dir.display()))?;
-    }
-    profile
-        .save(&a.out)
-        .with_context(|| format!("writing the profile to {}", a.out.display()))?;
+    cal.save(&a.out, a.report.as_deref())?;
     print!("{}", cal.summary());
     eprintln!("profile written to {}", a.out.display());
     if let Some(dir) = &a.report {

@@ -61,7 +61,7 @@ impl CameraOpts {
             cic_e: self.cic,
             hot_fraction: self.hot_fraction,
             hot_dark_e_per_s: self.hot_dark,
-            seed: self.seed ^ 0x5eed,
+            ..PhysicalParams::seeded(self.seed)
         };
         Ok(VirtualCamera::new(self.profile()?, phys)?)
     }
