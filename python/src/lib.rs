@@ -527,12 +527,12 @@ fn simulate_pairs<'py>(
                     p.height
                 );
             }
-            // The profile moved in is kept whole when the scene is the sensor's size.
-            let cropped = match p.top_left(w, h)? {
-                std::borrow::Cow::Owned(c) => Some(c),
-                std::borrow::Cow::Borrowed(_) => None,
+            let p = if (w, h) == (p.width, p.height) {
+                p
+            } else {
+                p.crop(0, 0, w, h)?
             };
-            let cam = VirtualCamera::new(cropped.unwrap_or(p), PhysicalParams::seeded(seed))?;
+            let cam = VirtualCamera::new(p, PhysicalParams::seeded(seed))?;
             let mean = img.iter().map(|&v| v as f64).sum::<f64>() / img.len() as f64;
             let photons = match (photons, mean_electrons) {
                 (Some(p), None) => p,

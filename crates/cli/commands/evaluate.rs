@@ -2,9 +2,8 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use emccd_eval::evaluation::{evaluate, results_json, Contender, PairsDir};
-use emccd_eval::virtual_pairs::Denoise;
 use emccd_nn::registry::Estimator;
 use emccd_profile::CameraProfile;
 
@@ -57,26 +56,16 @@ pub fn run(a: Args) -> Result<()> {
         .iter()
         .map(|m| Estimator::parse(m, emccd_nn::registry::load))
         .collect::<Result<Vec<_>, _>>()?;
-    let runs: Vec<Box<Denoise>> = estimators
-        .iter()
-        .map(|est| {
-            Box::new(move |p: &CameraProfile, raw: &[f32], t: f64| {
-                est.run(p, raw, t)
-                    .map_err(|e| emccd_io::error_lines(&e).join(": "))
-            }) as Box<Denoise>
-        })
-        .collect();
     let methods: Vec<Contender> = estimators
         .iter()
-        .zip(&runs)
-        .map(|(est, run)| Contender {
+        .map(|est| Contender {
             name: est.name(),
-            run: run.as_ref(),
+            run: Box::new(move |p: &CameraProfile, raw: &[f32], t: f64| {
+                est.run(p, raw, t)
+                    .map_err(|e| emccd_io::error_lines(&e).join(": "))
+            }),
         })
         .collect();
-    if let Some(o) = &a.out {
-        std::fs::create_dir_all(o).with_context(|| format!("creating {}", o.display()))?;
-    }
     let total: usize = cameras.iter().map(|c| c.manifest.pair.len()).sum();
     let pb = progress((total * a.methods.len()) as u64, "evaluations");
     let scores = evaluate(&cameras, &methods, a.out.as_deref(), &|| pb.inc(1))

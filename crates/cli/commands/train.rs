@@ -143,12 +143,15 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(i) = &init {
         emccd_io::refuse_overwrite(&a.out, i, "the --init model")?;
     }
-    let base = Base::for_run(a.hybrid_base, a.inputs, init.as_deref())?;
-    let scale = match (a.scale, &init) {
-        (Some(s), _) => s,
-        (None, Some(i)) => emccd_nn::Denoiser::read_meta(i)?.scale,
-        (None, None) => Scale::default(),
-    };
+    let init_meta = init
+        .as_deref()
+        .map(emccd_nn::Denoiser::read_meta)
+        .transpose()?;
+    let base = Base::for_run(a.hybrid_base, a.inputs, init_meta.as_ref())?;
+    let scale = a
+        .scale
+        .or(init_meta.as_ref().map(|m| m.scale))
+        .unwrap_or_default();
     let profile = load_profile(&a.profile)?;
     let images = TrainImages::read(&a.clean, &a.val)?;
     let cfg = TrainConfig {

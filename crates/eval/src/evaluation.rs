@@ -73,7 +73,7 @@ pub struct Contender<'a> {
     /// Name (as `evaluate --method` was given it).
     pub name: &'a str,
     /// The denoiser: profile, raw frame and exposure in, photo-signal in DN above bias out.
-    pub run: &'a Denoise<'a>,
+    pub run: Box<Denoise<'a>>,
 }
 
 /// Runs every method on every pair of `cameras` and scores it against the ground truth (which

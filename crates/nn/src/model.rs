@@ -246,14 +246,14 @@ pub enum Base {
 impl Base {
     /// The base of a training run: `chosen` (only a refinement network has one), else the
     /// `init` model's, else one BM3D pass.
-    pub fn for_run(chosen: Option<Base>, inputs: Inputs, init: Option<&Path>) -> Result<Base> {
+    pub fn for_run(chosen: Option<Base>, inputs: Inputs, init: Option<&ModelMeta>) -> Result<Base> {
         match (chosen, init) {
             (Some(_), _) if inputs != Inputs::Hybrid => Err(Error::Model(
                 "--hybrid-base: only a refinement network (--inputs hybrid) has a base estimate"
                     .into(),
             )),
             (Some(b), _) => Ok(b),
-            (None, Some(init)) => Ok(Denoiser::read_meta(init)?.base),
+            (None, Some(init)) => Ok(init.base),
             (None, None) => Ok(Base::Bm3d),
         }
     }
@@ -532,10 +532,10 @@ mod tests {
             .to_string();
         assert!(e.contains("--inputs hybrid"), "{e}");
         // The bundled hybrid network refines one BM3D pass: a run from it inherits that.
-        let hybrid = crate::registry::model_path("hybrid").unwrap();
+        let hybrid = Denoiser::read_meta(&crate::registry::model_path("hybrid").unwrap()).unwrap();
         assert_eq!(
             Base::for_run(None, Inputs::Hybrid, Some(&hybrid)).unwrap(),
-            Denoiser::read_meta(&hybrid).unwrap().base
+            hybrid.base
         );
     }
 

@@ -485,14 +485,8 @@ impl Estimator {
                     let spec = ModelSpec::parse(m)?;
                     (spec.model, spec.ensemble)
                 }
-                None => match rest.strip_prefix('@') {
-                    Some(k) => (
-                        "lowlight",
-                        ensemble_size(k)
-                            .map_err(|e| Error::Model(format!("{name}: after `@`, {e}")))?,
-                    ),
-                    None => ("lowlight", 1),
-                },
+                // `blend[@K]` splits as a model spec would; its network is `lowlight`.
+                None => ("lowlight", ModelSpec::parse(name)?.ensemble),
             };
             let model = load(model_name)?;
             if model.meta.inputs == Inputs::Hybrid {

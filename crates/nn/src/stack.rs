@@ -51,16 +51,16 @@ pub fn provenance(
 }
 
 /// The recording's next frame into `buf`; `at` names it in errors (a read error, or a file
-/// that ends before its header's frame count).
-fn read_frame(rec: &mut Recording, buf: &mut [f32], at: String) -> Result<()> {
+/// that ends before its header's frame count), made only when there is one.
+fn read_frame(rec: &mut Recording, buf: &mut [f32], at: impl Fn() -> String) -> Result<()> {
     match rec.reader.read_frame(buf) {
         Ok(true) => Ok(()),
         Ok(false) => Err(Error::Data(format!(
             "the file ended before it (its header says {} frames)",
             rec.info.frames
         ))
-        .at(at)),
-        Err(source) => Err(Error::Frame { at, source }),
+        .at(at())),
+        Err(source) => Err(Error::Frame { at: at(), source }),
     }
 }
 
@@ -121,7 +121,7 @@ pub fn denoise_shard(
                 break;
             }
             if range.contains(&k) && !store.is_done(k) {
-                read_frame(&mut i, &mut buf, at(j))?;
+                read_frame(&mut i, &mut buf, || at(j))?;
                 let out = fd.run(&buf, i.exposure).map_err(|e| e.at(at(j)))?;
                 store.write_frame(k, &out)?;
                 run.written += 1;
@@ -163,7 +163,7 @@ pub fn denoise_file(
     let at = |j: usize| format!("{name}: frame {}", j + 1);
     let mut buf = vec![0f32; width * height];
     for j in 0..frames {
-        read_frame(&mut input, &mut buf, at(j))?;
+        read_frame(&mut input, &mut buf, || at(j))?;
         let den = fd.run(&buf, input.exposure).map_err(|e| e.at(at(j)))?;
         w.write_frame(&den)?;
         on_frame();
