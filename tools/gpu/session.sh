@@ -10,6 +10,10 @@
 #   bash tools/gpu/session.sh finish SECONDS  # wait for the runs (at most SECONDS), collect to $OUT
 #   bash tools/gpu/session.sh levers SECONDS  # set-up, then one U-Net run per lever at once, each
 #                                             # the low-light recipe with one change; then `finish`
+#   bash tools/gpu/session.sh long SECONDS END # set-up, then the runs of RUNS at once: a probe of
+#                                             # PROBE_S s times them, and each is launched with the
+#                                             # steps that end it about END s after this call began
+#                                             # (its cosine schedule then ends too); then `wait`, `finish`
 #
 # The work tree carries (ignored, see .git/info/exclude): .gl/ (the Vulkan loader and glvnd debs
 # of the device README's recipe, all of them: NVIDIA's Vulkan ICD is libGLX_nvidia.so.0, which
@@ -18,6 +22,8 @@
 # images: Kodak 1–24, BSD68, FMD confocal fields 1–4). The whole tree must stay under 64 MiB;
 # move models/ you do not need out of it for the call.
 #
+# Env (long): RUNS ("name:extra args;…", each with CHARB, the low-light recipe with the
+# Charbonnier loss, and the training images; .gpu/models/ holds the bundled models they start from).
 # Env (levers): LEVERS ("name:extra args;…"), LEVER_STEPS (steps of every run, default 1500).
 # Env: PROBE_S (probe seconds, default 100), UF_SIZES (Uformer sizes to time, default "t s b").
 set -uo pipefail
@@ -61,6 +67,8 @@ TRAIN_DATA() {
 }
 # The low-light recipe (the hybrid's, for a pure network): exact EMCCD chain, mean 0.3–30 e⁻.
 RECIPE="--noise-model pgn --mean-electrons 0.3,30 --cic 0,0.05 --read-noise-scale 0.3,6 --loss l2"
+# The same with the loss that moved the network (lever d in the README): what `lowlight` was trained on.
+CHARB="--noise-model pgn --mean-electrons 0.3,30 --cic 0,0.05 --read-noise-scale 0.3,6 --loss charbonnier"
 UNET="--arch unet --batch 16 --lr 5e-4 --warmup 500 --seed 2411"
 UFORMER="--arch uformer-t --batch 8 --lr 2e-4 --warmup 500 --seed 2412"
 
@@ -101,6 +109,19 @@ collect() {
             cp "$R/$n.safetensors" "$OUT/$n.safetensors"
         else
             cp "$R/$n.safetensors.ckpt/model.safetensors" "$OUT/$n-$tag.safetensors" 2>/dev/null
+        fi
+    done
+    for l in "$R"/run-*.train.log; do
+        [ -f "$l" ] || continue
+        n=$(basename "$l" .train.log)
+        local m=$R/$n.safetensors
+        [ -f "$m" ] || m=$R/$n.safetensors.ckpt/model.safetensors
+        [ -f "$m" ] || continue
+        # Files come back up to 16 MiB: larger ones in parts (`cat` joins them).
+        if [ "$(stat -c %s "$m")" -gt 16000000 ]; then
+            split -b 15M -d "$m" "$OUT/$n-$tag.safetensors.part"
+        else
+            cp "$m" "$OUT/$n-$tag.safetensors"
         fi
     done
     local uf=$R/uformer.safetensors
@@ -175,6 +196,37 @@ levers)
         extra=${r#*:}
         log "lever $name: $RECIPE $UNET $extra --steps ${LEVER_STEPS:-1500}"
         setsid nohup bash -c "'$B' train $RECIPE $UNET $extra $(TRAIN_DATA) --steps ${LEVER_STEPS:-1500} --checkpoint-every 250 -o '$R/lever-$name.safetensors' 2>&1 | { while IFS= read -r l; do echo \"\$(date +%s) \$l\"; done; } > '$R/lever-$name.train.log'" >/dev/null 2>&1 &
+        echo $! >>"$R/pids"
+    done
+    sleep 20
+    while running && [ $(($(date +%s) - T0)) -lt $((secs - 25)) ]; do sleep 15; done
+    tail -n 2 "$R"/*.train.log
+    collect a
+    ;;
+long)
+    vulkan_env
+    rm -f "$R/pids"
+    python3 -c "import lzma, shutil, sys; shutil.copyfileobj(lzma.open('.gpu/emccd.xz'), open(sys.argv[1], 'wb'))" "$B" && chmod +x "$B"
+    nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee -a "$R/session.log"
+    "$B" --version | tee -a "$R/session.log"
+    export EMCCD_MODELS=$PWD/.gpu/models
+    IFS=';' read -ra runs <<<"${RUNS:?RUNS}"
+    # Probe: all runs at once, as they will run.
+    for r in "${runs[@]}"; do
+        name=${r%%:*}
+        timeout "${PROBE_S:-75}" "$B" train $CHARB ${r#*:} $(TRAIN_DATA) --steps 100000 --checkpoint-every "${PROBE_EVERY:-25}" \
+            -o "$R/probe-$name.safetensors" 2>&1 | stamp >"$R/probe-$name.log" &
+    done
+    wait
+    left=$((end - ($(date +%s) - T0)))
+    for r in "${runs[@]}"; do
+        name=${r%%:*}
+        rt=$(rate "$R/probe-$name.log")
+        n=$(awk -v r="$rt" -v t=$left 'BEGIN { printf "%d", r * t * 0.92 }')
+        tail -n 2 "$R/probe-$name.log" | tee -a "$R/session.log"
+        log "run $name: $rt steps/s in the probe; launching $CHARB ${r#*:} --steps $n (about $left s)"
+        [ "${n:-0}" -gt 100 ] || continue
+        setsid nohup bash -c "'$B' train $CHARB ${r#*:} $(TRAIN_DATA) --steps $n --checkpoint-every 250 -o '$R/run-$name.safetensors' 2>&1 | { while IFS= read -r l; do echo \"\$(date +%s) \$l\"; done; } > '$R/run-$name.train.log'" >/dev/null 2>&1 &
         echo $! >>"$R/pids"
     done
     sleep 20
