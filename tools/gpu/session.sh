@@ -234,6 +234,21 @@ long)
     tail -n 2 "$R"/*.train.log
     collect a
     ;;
+chain)
+    # CHAIN="name:extra args", CHAIN_STEPS: launched once the runs in flight have ended (e.g. a
+    # continuation that starts from one of them: --init $R/run-NAME.safetensors).
+    vulkan_env
+    export EMCCD_MODELS=$PWD/.gpu/models
+    while running && [ $(($(date +%s) - T0)) -lt $((secs - 60)) ]; do sleep 5; done
+    tail -n 2 "$R"/*.train.log
+    name=${CHAIN%%:*}
+    log "chain $name: $CHARB ${CHAIN#*:} --steps $CHAIN_STEPS"
+    setsid nohup bash -c "'$B' train $CHARB ${CHAIN#*:} $(TRAIN_DATA) --steps $CHAIN_STEPS --checkpoint-every 250 -o '$R/run-$name.safetensors' 2>&1 | { while IFS= read -r l; do echo \"\$(date +%s) \$l\"; done; } > '$R/run-$name.train.log'" >/dev/null 2>&1 &
+    echo $! >"$R/pids"
+    while [ $(($(date +%s) - T0)) -lt $((secs - 25)) ]; do sleep 15; done
+    tail -n 3 "$R"/*.train.log
+    collect b
+    ;;
 wait)
     while [ $(($(date +%s) - T0)) -lt $((secs - 25)) ]; do sleep 15; done
     tail -n 3 "$R"/*.train.log
