@@ -446,15 +446,11 @@ fn denoise<'py>(
         if let Some(wn) = p.check_frames(w, h, exposure_s, "exposure_s", extrapolate)? {
             warnings.push(wn);
         }
+        let r = registry::resolve(method, model.as_deref(), load_model)?;
+        warnings.extend(r.profile_warning(p));
         let registry::Resolved {
             method, model: net, ..
-        } = registry::resolve(method, model.as_deref(), load_model)?;
-        if let Some(wn) = net
-            .as_ref()
-            .and_then(|m| registry::profile_mismatch(m, p))
-        {
-            warnings.push(wn);
-        }
+        } = r;
         let fd = FrameDenoiser {
             profile: p,
             method,

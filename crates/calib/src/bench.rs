@@ -43,14 +43,9 @@ pub fn streaming(dir: &Path, frames: usize, before: &mut dyn FnMut()) -> Result<
     let frames = frames.max(2);
     let path = dir.join("stack.tif");
     let io = |e| Error::io(&path, e);
-    let mut wr = emccd_io::StackWriter::create(
-        &path,
-        SIDE,
-        SIDE,
-        emccd_io::SampleFormat::U16,
-        Some(frames),
-    )
-    .map_err(io)?;
+    let mut wr =
+        emccd_io::StackWriter::create(&path, SIDE, SIDE, emccd_io::SampleFormat::U16, Some(frames))
+            .map_err(io)?;
     let mut f = vec![0f32; SIDE * SIDE];
     for k in 0..frames {
         for (i, v) in f.iter_mut().enumerate() {

@@ -312,6 +312,47 @@ impl PairLevel {
         }
     }
 
+    /// The levels of a pairs run: each of `photons` at `exposure_s`, or, where `ratios` is not
+    /// empty, [`PairLevel::from_ratio`] of each against the reference exposure and photons.
+    /// Every number must be positive and finite; an error names the setting as a flag would
+    /// (`photons`, `exposure-s`, `exposure-ratio`, `reference-exposure-s`, `reference-photons`).
+    pub fn levels(
+        photons: &[f64],
+        exposure_s: f64,
+        ratios: &[f64],
+        reference_exposure_s: f64,
+        reference_photons: f64,
+    ) -> Result<Vec<PairLevel>, Error> {
+        for (name, v) in [
+            ("photons", photons),
+            ("exposure-s", &[exposure_s][..]),
+            ("exposure-ratio", ratios),
+            ("reference-exposure-s", &[reference_exposure_s][..]),
+            ("reference-photons", &[reference_photons][..]),
+        ] {
+            if let Some(x) = v.iter().find(|x| !(x.is_finite() && **x > 0.0)) {
+                return Err(Error::Parameter(format!(
+                    "{name}: every value must be a positive number, got {x}"
+                )));
+            }
+        }
+        Ok(if ratios.is_empty() {
+            photons
+                .iter()
+                .map(|&photons| PairLevel {
+                    exposure_s,
+                    photons,
+                    ratio: None,
+                })
+                .collect()
+        } else {
+            ratios
+                .iter()
+                .map(|&r| PairLevel::from_ratio(reference_exposure_s, reference_photons, r))
+                .collect()
+        })
+    }
+
     /// The name of a scene's pair at this level (`stem_p20`, or `stem_r100` by ratio).
     pub fn pair_name(&self, stem: &str) -> String {
         match self.ratio {
@@ -371,6 +412,33 @@ impl TestPair<'_> {
 mod tests {
     use super::*;
     use crate::PhysicalParams;
+
+    #[test]
+    fn pair_levels_by_photons_or_by_ratio() {
+        let l = PairLevel::levels(&[20.0, 200.0], 0.01, &[], 1.6, 16000.0).unwrap();
+        assert_eq!(l.len(), 2);
+        assert_eq!(
+            (l[1].exposure_s, l[1].photons, l[1].ratio),
+            (0.01, 200.0, None)
+        );
+        assert_eq!(l[0].pair_name("s"), "s_p20");
+        // Ratios replace the photons: the paper's protocol against the reference exposure.
+        let r = PairLevel::levels(&[20.0], 0.01, &[100.0], 1.6, 16000.0).unwrap();
+        assert_eq!(r.len(), 1);
+        assert!((r[0].exposure_s - 0.016).abs() < 1e-12 && (r[0].photons - 160.0).abs() < 1e-9);
+        assert_eq!(r[0].pair_name("s"), "s_r100");
+        // A bad number is refused by the name of its setting.
+        for (args, name) in [
+            ((vec![0.0], 0.01, vec![]), "photons"),
+            ((vec![20.0], f64::NAN, vec![]), "exposure-s"),
+            ((vec![20.0], 0.01, vec![-1.0]), "exposure-ratio"),
+        ] {
+            let e = PairLevel::levels(&args.0, args.1, &args.2, 1.6, 16000.0).unwrap_err();
+            assert!(e.to_string().starts_with(&format!("{name}: ")), "{e}");
+        }
+        let e = PairLevel::levels(&[20.0], 0.01, &[], 1.6, f64::INFINITY).unwrap_err();
+        assert!(e.to_string().starts_with("reference-photons: "), "{e}");
+    }
 
     #[test]
     fn stacks_of_the_plan() {

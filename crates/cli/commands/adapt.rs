@@ -90,8 +90,12 @@ pub fn run(a: Args) -> Result<()> {
     }
     emccd_io::refuse_overwrite(&a.out, &init, "the --init model")?;
     let init_meta = emccd_nn::Denoiser::read_meta(&init)?;
-    // The self-supervised methods keep frames in memory: up to 256 MiB of them.
-    let mut rec = Recorded::new(a.method, &profile, init_meta.ablate, 256 << 20);
+    let mut rec = Recorded::new(
+        a.method,
+        &profile,
+        init_meta.ablate,
+        Recorded::MEMORY_BUDGET,
+    );
     for input in &a.inputs {
         let recording = open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
         let pb = progress(recording.info.frames as u64, "reading");
@@ -116,35 +120,14 @@ pub fn run(a: Args) -> Result<()> {
     let cfg = AdaptConfig {
         method: a.method,
         steps: a.steps,
-        lr: a.lr.unwrap_or(if scratch {
-            1e-3
-        } else {
-            AdaptConfig::default().lr
-        }),
+        lr: a.lr.unwrap_or(AdaptConfig::default_lr(scratch)),
         noise: a.noise_model,
         seed: a.seed,
         crop: a.crop,
         batch: a.batch,
         ..AdaptConfig::default()
     };
-    let provenance = Adaptation {
-        method: a.method.name().into(),
-        from: if scratch {
-            format!("scratch ({}'s architecture)", a.init)
-        } else {
-            a.init.clone()
-        },
-        files: a
-            .inputs
-            .iter()
-            .map(|p| {
-                p.file_name()
-                    .map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into())
-            })
-            .collect(),
-        frames: data.frames(),
-        mean_electrons: level,
-    };
+    let provenance = Adaptation::new(a.method, &a.init, scratch, &a.inputs, data.frames(), level);
     let paths = RunPaths::beside(&a.out);
     let (pb, mut report) = step_progress(a.steps, cfg.checkpoint_every);
     let start = if scratch {

@@ -110,51 +110,19 @@ fn measure_child(args: &[&std::ffi::OsStr]) -> Result<ChildRun> {
 
 fn archive_bench(gb: f64, dir: &std::path::Path, net_frames: usize) -> Result<()> {
     use std::ffi::OsStr;
-    let (w, h) = (512usize, 512usize);
-    let frame_bytes = (w * h * 2) as f64;
+    // 512×512 u16 frames (emccd_camera::bench::archive_stack).
+    let frame_bytes = (512 * 512 * 2) as f64;
     let long = ((gb * 1e9) / frame_bytes).ceil().max(1.0) as usize;
     let tmp = tempfile::Builder::new()
         .prefix(".emccd-archive-bench.")
         .tempdir_in(dir)?;
     let d = tmp.path();
-    // Sixteen distinct raw frames of the virtual camera at about 4 e⁻ per pixel, repeated: the
-    // readers and writers see a real camera's values without 8 GB of simulation.
-    let cam = VirtualCamera::default_camera();
-    let n = cam.profile.len();
-    let e = cam.exposure(0.01);
-    let photons: Vec<f32> = (0..n)
-        .map(|i| (4.0 + 3.0 * ((i % w) as f32 / 23.0).sin()) / cam.physics.qe as f32)
-        .collect();
-    let raws: Vec<Vec<f32>> = (0..16)
-        .map(|s| {
-            let mut out = vec![0f32; n];
-            e.frame(&photons, s, &mut out);
-            out
-        })
-        .collect();
     let write = |name: &str, frames: usize| -> Result<(std::path::PathBuf, f64)> {
         let path = d.join(name);
-        let t = Instant::now();
-        let mut wr = emccd_io::StackWriter::create_as(
-            &path,
-            emccd_io::Format::BigTiff,
-            w,
-            h,
-            emccd_io::SampleFormat::U16,
-            Some(frames),
-        )?;
-        wr.set_metadata(&emccd_io::Metadata {
-            exposure_s: Some(0.01),
-            ..Default::default()
-        });
         let pb = crate::common::progress(frames as u64, "writing");
-        for k in 0..frames {
-            wr.write_frame(&raws[k % raws.len()])?;
-            pb.inc(1);
-        }
-        wr.finish()?;
+        let t = emccd_camera::bench::archive_stack(&path, frames, &mut || pb.inc(1))?;
         pb.finish_and_clear();
-        Ok((path, t.elapsed().as_secs_f64()))
+        Ok((path, t))
     };
     // The short stack is as long as the network's share, so both stacks run the same work and
     // differ only in length.

@@ -85,17 +85,15 @@ fn parse_ensemble(s: &str) -> std::result::Result<usize, String> {
 
 pub fn run(a: Args) -> Result<()> {
     let profile = load_profile(&a.profile)?;
+    let r = emccd_nn::registry::resolve(a.method, a.model.as_deref(), emccd_nn::registry::load)?;
+    if let Some(w) = r.profile_warning(&profile) {
+        eprintln!("warning: {w}");
+    }
     let Resolved {
         method,
         model,
         model_name,
-    } = emccd_nn::registry::resolve(a.method, a.model.as_deref(), emccd_nn::registry::load)?;
-    if let Some(w) = model
-        .as_ref()
-        .and_then(|m| emccd_nn::registry::profile_mismatch(m, &profile))
-    {
-        eprintln!("warning: {w}");
-    }
+    } = r;
     profile
         .require_complete()
         .with_context(|| format!("profile {}: it cannot denoise", a.profile))?;
@@ -148,32 +146,15 @@ fn run_zarr(a: &Args, fd: &FrameDenoiser, model_name: Option<&str>) -> Result<()
             a.extrapolate,
         )?);
     }
-    let frames: usize = inputs.iter().map(|i| i.info.frames).sum();
-    if frames == 0 {
-        bail!("the inputs hold no frame");
-    }
-    let notes = serde_json::json!({
-        "inputs": a.inputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
-        "profile": a.profile,
-        "model": model_name,
-    });
-    let spec = emccd_io::zarr::ZarrStackSpec {
-        width: fd.profile.width,
-        height: fd.profile.height,
-        frames,
-        name: a
-            .out
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default(),
-        provenance: emccd_nn::stack::provenance(
-            fd,
-            model_name,
-            &inputs,
-            &format!("emccd {}", env!("CARGO_PKG_VERSION")),
-        )?,
-        notes,
-    };
+    let spec = emccd_nn::stack::zarr_spec(
+        fd,
+        model_name,
+        &inputs,
+        &a.profile,
+        &a.out,
+        &format!("emccd {}", env!("CARGO_PKG_VERSION")),
+    )?;
+    let frames = spec.frames;
     let (store, _created) = emccd_io::zarr::ZarrStackWriter::create_or_open(&a.out, &spec)?;
     let shard = a.shard.unwrap_or(Shard::ALL);
     let range = shard.range(frames);

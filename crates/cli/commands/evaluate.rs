@@ -5,7 +5,6 @@ use std::path::PathBuf;
 use anyhow::Result;
 use emccd_eval::evaluation::{evaluate, results_json, Contender, PairsDir};
 use emccd_nn::registry::Estimator;
-use emccd_profile::CameraProfile;
 
 use crate::common::progress;
 
@@ -56,16 +55,7 @@ pub fn run(a: Args) -> Result<()> {
         .iter()
         .map(|m| Estimator::parse(m, emccd_nn::registry::load))
         .collect::<Result<Vec<_>, _>>()?;
-    let methods: Vec<Contender> = estimators
-        .iter()
-        .map(|est| Contender {
-            name: est.name(),
-            run: Box::new(move |p: &CameraProfile, raw: &[f32], t: f64| {
-                est.run(p, raw, t)
-                    .map_err(|e| emccd_io::error_lines(&e).join(": "))
-            }),
-        })
-        .collect();
+    let methods: Vec<Contender> = estimators.iter().map(Estimator::contender).collect();
     let total: usize = cameras.iter().map(|c| c.manifest.pair.len()).sum();
     let pb = progress((total * a.methods.len()) as u64, "evaluations");
     let scores = evaluate(&cameras, &methods, a.out.as_deref(), &|| pb.inc(1))

@@ -5,9 +5,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use emccd_camera::acquisition::{CalibrationPlan, PairLevel};
 use emccd_camera::{PhysicalParams, VirtualCamera};
-use emccd_eval::virtual_pairs::{write_pairs, Denoise, PairsPlan};
-use emccd_nn::pipeline::Pipeline;
-use emccd_profile::CameraProfile;
+use emccd_eval::virtual_pairs::{write_pairs, PairsPlan};
+use emccd_nn::registry::Estimator;
 
 use crate::common::{load_profile, parse_size, progress};
 
@@ -116,7 +115,9 @@ pub enum Cmd {
         /// Noisy frames per pair (written as one stack).
         #[arg(long, default_value_t = 1)]
         frames: usize,
-        /// Also denoise each pair's first frame with this model (a file, or the bundled `default` or `microscopy`):
+        /// Also denoise each pair's first frame with this model (a file, or a bundled name:
+        /// `default`, `microscopy`, `lowlight`, `hybrid`; `MODEL@K` for a K-orientation
+        /// self-ensemble) or method (`bm3d`, `ivst`, `blend`, as `evaluate --method` takes them):
         /// writes denoised/*.tif, a noisy | denoised | truth preview and the PSNR after.
         #[arg(long, value_name = "MODEL")]
         denoise: Option<String>,
@@ -160,36 +161,17 @@ pub fn run(c: Cmd) -> Result<()> {
             out,
             camera,
         } => {
-            check_positive("photons", &photons)?;
-            check_positive("exposure-s", &[exposure_s])?;
-            check_positive("exposure-ratio", &exposure_ratio)?;
-            check_positive("reference-exposure-s", &[reference_exposure_s])?;
-            check_positive("reference-photons", &[reference_photons])?;
-            let levels: Vec<PairLevel> = if exposure_ratio.is_empty() {
-                photons
-                    .iter()
-                    .map(|&p| PairLevel {
-                        exposure_s,
-                        photons: p,
-                        ratio: None,
-                    })
-                    .collect()
-            } else {
-                exposure_ratio
-                    .iter()
-                    .map(|&r| PairLevel::from_ratio(reference_exposure_s, reference_photons, r))
-                    .collect()
-            };
+            let levels = PairLevel::levels(
+                &photons,
+                exposure_s,
+                &exposure_ratio,
+                reference_exposure_s,
+                reference_photons,
+            )
+            .map_err(|e| anyhow::anyhow!("--{e}"))?;
             pairs(&clean, &levels, frames, denoise.as_deref(), &out, &camera)
         }
     }
-}
-
-fn check_positive(name: &str, v: &[f64]) -> Result<()> {
-    if let Some(x) = v.iter().find(|x| !(x.is_finite() && **x > 0.0)) {
-        bail!("--{name}: every value must be a positive number, got {x}");
-    }
-    Ok(())
 }
 
 fn calibration(out: &Path, plan: &CalibrationPlan, opts: &CameraOpts) -> Result<()> {
@@ -232,19 +214,15 @@ fn pairs(
     out: &Path,
     opts: &CameraOpts,
 ) -> Result<()> {
-    let model = denoise.map(emccd_nn::registry::load).transpose()?;
+    let est = denoise
+        .map(|m| Estimator::parse(m, emccd_nn::registry::load))
+        .transpose()?;
     if frames == 0 {
         bail!("--frames must be at least 1");
     }
     let scenes = emccd_io::image_files(clean)?;
     let camera = opts.camera()?;
-    let run_model = model.as_ref().map(|m| {
-        move |profile: &CameraProfile, raw: &[f32], exposure_s: f64| {
-            Pipeline::new(m, profile)
-                .denoise_raw(raw, exposure_s)
-                .map_err(|e| e.to_string())
-        }
-    });
+    let contender = est.as_ref().map(Estimator::contender);
     let plan = PairsPlan {
         scenes: &scenes,
         levels,
@@ -258,7 +236,7 @@ fn pairs(
         out,
         &plan,
         &camera,
-        run_model.as_ref().map(|f| f as &Denoise),
+        contender.as_ref().map(|c| &*c.run),
         || pb.inc(1),
     )
     .map_err(anyhow::Error::msg)?;
@@ -279,7 +257,7 @@ fn pairs(
             d
         );
     }
-    let what = if model.is_some() {
+    let what = if est.is_some() {
         "preprocessed noisy | denoised | ground truth"
     } else {
         "preprocessed noisy | ground truth"

@@ -27,12 +27,8 @@ impl PairsDir {
     pub fn open(dir: &Path, profile: Option<&str>) -> Result<PairsDir, String> {
         let manifest = PairsManifest::load(dir)?;
         let load = |arg: &str, whose: String| {
-            CameraProfile::load_arg(arg).map_err(|e| {
-                format!(
-                    "loading {whose}: {}",
-                    emccd_io::error_lines(&e).join(": ")
-                )
-            })
+            CameraProfile::load_arg(arg)
+                .map_err(|e| format!("loading {whose}: {}", emccd_io::error_lines(&e).join(": ")))
         };
         let profile = match (profile, manifest.profile_arg(dir)) {
             (Some(p), _) => load(p, format!("profile {p}"))?,

@@ -43,6 +43,39 @@ pub struct Adaptation {
     pub mean_electrons: f64,
 }
 
+impl Adaptation {
+    /// The record of adapting `from` (a bundled name or a file; `scratch`: only its
+    /// architecture was kept) by `method` on the recordings `files` (their file names are
+    /// kept), `frames` of them at `mean_electrons` photoelectrons per pixel.
+    pub fn new(
+        method: AdaptMethod,
+        from: &str,
+        scratch: bool,
+        files: &[impl AsRef<Path>],
+        frames: usize,
+        mean_electrons: f64,
+    ) -> Adaptation {
+        Adaptation {
+            method: method.name().into(),
+            from: if scratch {
+                format!("scratch ({from}'s architecture)")
+            } else {
+                from.to_string()
+            },
+            files: files
+                .iter()
+                .map(|p| {
+                    let p = p.as_ref();
+                    p.file_name()
+                        .map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into())
+                })
+                .collect(),
+            frames,
+            mean_electrons,
+        }
+    }
+}
+
 /// An error unless `frame` has the recording's `width × height` pixels.
 fn check_size(frame: &[f32], width: usize, height: usize) -> Result<()> {
     if frame.len() == width * height {
@@ -445,6 +478,23 @@ pub struct AdaptConfig {
     pub checkpoint_every: u64,
 }
 
+impl AdaptConfig {
+    /// The peak learning rate of a network trained from scratch on the recording (the
+    /// self-supervised baseline): a new network needs the rate a training run starts with, not
+    /// a fine-tune's.
+    pub const SCRATCH_LR: f64 = 1e-3;
+
+    /// The default peak rate of a run that starts from a model (`scratch` false) or from its
+    /// architecture alone.
+    pub fn default_lr(scratch: bool) -> f64 {
+        if scratch {
+            Self::SCRATCH_LR
+        } else {
+            AdaptConfig::default().lr
+        }
+    }
+}
+
 impl Default for AdaptConfig {
     /// 400 steps at a peak rate of 5·10⁻⁴: on held-out frames of emccd-detect's camera B and the
     /// virtual camera (neither used to choose it) +0.5–0.7 dB over the bundled `lowlight`, where
@@ -541,6 +591,10 @@ enum Kept {
 }
 
 impl Recorded {
+    /// The frames the self-supervised methods keep in memory by default: 256 MiB of them
+    /// (1024 frames of 256², 256 of 512²).
+    pub const MEMORY_BUDGET: usize = 256 << 20;
+
     /// An empty gathering for `method` and a model made with `ablate`, keeping at most
     /// `max_bytes` of frames for the self-supervised methods.
     pub fn new(

@@ -522,7 +522,10 @@ mod tests {
 
     #[test]
     fn a_run_s_base_is_chosen_or_inherited_and_only_a_refinement_network_has_one() {
-        assert_eq!(Base::for_run(None, Inputs::Noisy, None).unwrap(), Base::Bm3d);
+        assert_eq!(
+            Base::for_run(None, Inputs::Noisy, None).unwrap(),
+            Base::Bm3d
+        );
         assert_eq!(
             Base::for_run(Some(Base::Ivst), Inputs::Hybrid, None).unwrap(),
             Base::Ivst

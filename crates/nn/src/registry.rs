@@ -237,6 +237,16 @@ pub struct Resolved {
     pub model_name: Option<String>,
 }
 
+impl Resolved {
+    /// The warning for running its model on frames of `profile`'s camera when the model was
+    /// trained for another ([`profile_mismatch`]); none for a classical method.
+    pub fn profile_warning(&self, profile: &CameraProfile) -> Option<String> {
+        self.model
+            .as_ref()
+            .and_then(|m| profile_mismatch(m, profile))
+    }
+}
+
 /// The method and model a request runs: `method` and `model` as given (either may be absent),
 /// with `load` turning a model argument into a model ([`load`], or a loader that also knows
 /// models embedded in a program). The model a method takes by default is `hybrid` for
@@ -531,6 +541,19 @@ impl Estimator {
         }
     }
 
+    /// It as a contender of [`emccd_eval::evaluation::evaluate`] (also the denoiser that
+    /// `emccd_eval::virtual_pairs::write_pairs` takes): the one adapter from this crate's
+    /// estimators to the evaluation's denoisers, with an error as the text of its causes.
+    pub fn contender(&self) -> emccd_eval::evaluation::Contender<'_> {
+        emccd_eval::evaluation::Contender {
+            name: self.name(),
+            run: Box::new(move |p: &CameraProfile, raw: &[f32], t: f64| {
+                self.run(p, raw, t)
+                    .map_err(|e| emccd_io::error_lines(&e).join(": "))
+            }),
+        }
+    }
+
     /// Its estimate of one raw frame (DN, the profile's size) taken with `exposure_s`, in DN
     /// above bias.
     pub fn run(&self, profile: &CameraProfile, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
@@ -591,8 +614,15 @@ mod tests {
         };
         assert_eq!(asks("blend"), "asked for lowlight");
         assert_eq!(asks("blend@8"), "asked for lowlight");
-        assert_eq!(asks("blend:out/m.safetensors@4"), "asked for out/m.safetensors");
-        assert!(asks("blend@3").contains("1, 2, 4 or 8"), "{}", asks("blend@3"));
+        assert_eq!(
+            asks("blend:out/m.safetensors@4"),
+            "asked for out/m.safetensors"
+        );
+        assert!(
+            asks("blend@3").contains("1, 2, 4 or 8"),
+            "{}",
+            asks("blend@3")
+        );
         // Not a blend: a model file whose name starts with "blend".
         assert_eq!(asks("blended.safetensors"), "asked for blended.safetensors");
     }

@@ -64,6 +64,39 @@ fn read_frame(rec: &mut Recording, buf: &mut [f32], at: impl Fn() -> String) -> 
     }
 }
 
+/// The description of the OME-Zarr store that `inputs` (one stack, in this order) denoised by
+/// `fd` make at `out`: its size, its name (the file stem), the [`provenance`] every writing
+/// process compares, and what a person reads (the inputs and profile as typed, the model's
+/// name). An error if the inputs hold no frame.
+pub fn zarr_spec(
+    fd: &FrameDenoiser,
+    model_name: Option<&str>,
+    inputs: &[Recording],
+    profile_arg: &str,
+    out: &Path,
+    software: &str,
+) -> Result<emccd_io::zarr::ZarrStackSpec> {
+    let frames: usize = inputs.iter().map(|i| i.info.frames).sum();
+    if frames == 0 {
+        return Err(Error::Data("the inputs hold no frame".into()));
+    }
+    Ok(emccd_io::zarr::ZarrStackSpec {
+        width: fd.profile.width,
+        height: fd.profile.height,
+        frames,
+        name: out
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        provenance: provenance(fd, model_name, inputs, software)?,
+        notes: json!({
+            "inputs": inputs.iter().map(|i| i.path.display().to_string()).collect::<Vec<_>>(),
+            "profile": profile_arg,
+            "model": model_name,
+        }),
+    })
+}
+
 /// What one process did to its share of a stack ([`denoise_shard`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ShardRun {

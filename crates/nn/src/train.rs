@@ -331,9 +331,10 @@ fn synth_sample(
         }
     }
     let scale = match inputs {
-        Inputs::Noisy => cfg
-            .scale
-            .of(&noisy.iter().map(|v| v / slope as f32).collect::<Vec<f32>>(), w),
+        Inputs::Noisy => cfg.scale.of(
+            &noisy.iter().map(|v| v / slope as f32).collect::<Vec<f32>>(),
+            w,
+        ),
         Inputs::Hybrid => {
             signal_scale(&clean.iter().map(|v| v / slope as f32).collect::<Vec<f32>>())
         }

@@ -165,10 +165,7 @@ fn adaptation_improves_held_out_frames_and_records_its_provenance() {
     let meta = Denoiser::read_meta(&paths.out).unwrap();
     assert_eq!(meta.adapted.as_ref(), Some(&provenance));
     assert_eq!(meta.steps, 40);
-    assert_eq!(
-        meta.profile_fingerprint,
-        cam.profile.fingerprint_hex()
-    );
+    assert_eq!(meta.profile_fingerprint, cam.profile.fingerprint_hex());
     let tc = meta.train.unwrap();
     let [lo, hi] = tc.mean_electrons.unwrap();
     assert!(lo < est.mean_electrons && est.mean_electrons < hi);

@@ -499,11 +499,19 @@ fn the_denoise_bench_scores_every_scene_at_both_levels_and_skips_other_sizes() {
     .unwrap();
     assert_eq!(t.pairs, emccd_nn::bench::PHOTONS.len());
     assert_eq!(rows.len(), t.pairs);
-    assert!(rows.iter().all(|r| r.scene == "a.png" && r.model_db.len() == 1));
-    assert!(skipped.len() == 1 && skipped[0].contains("b.png"), "{skipped:?}");
+    assert!(rows
+        .iter()
+        .all(|r| r.scene == "a.png" && r.model_db.len() == 1));
+    assert!(
+        skipped.len() == 1 && skipped[0].contains("b.png"),
+        "{skipped:?}"
+    );
     // Denoising helps, and the totals are the rows' means.
     for r in &rows {
-        assert!(r.bm3d_db > r.input_db && r.model_db[0] > r.input_db, "{r:?}");
+        assert!(
+            r.bm3d_db > r.input_db && r.model_db[0] > r.input_db,
+            "{r:?}"
+        );
     }
     let mean = rows.iter().map(|r| r.bm3d_db).sum::<f64>() / rows.len() as f64;
     assert!((t.bm3d_db - mean).abs() < 1e-9);

@@ -177,10 +177,7 @@ mod tests {
     /// fingerprint). A change to the generator, its seed or the random streams shows up here.
     #[test]
     fn default_profile_is_pinned() {
-        assert_eq!(
-            default_profile().fingerprint_hex(),
-            "ecdca5badda28228"
-        );
+        assert_eq!(default_profile().fingerprint_hex(), "ecdca5badda28228");
     }
 
     #[test]

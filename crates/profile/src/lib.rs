@@ -472,7 +472,9 @@ impl CameraProfile {
         w!("{}  ({})", s.camera, s.provenance.source);
         w!(
             "  sensor            {} × {} px, EM gain {}",
-            s.width, s.height, s.em_gain
+            s.width,
+            s.height,
+            s.em_gain
         );
         const NONE: &str = "not calibrated";
         match (s.ptc_slope_dn, s.k_range_dn) {
@@ -480,7 +482,10 @@ impl CameraProfile {
                 w!("  PTC slope s=K·f²  {slope:.3} DN");
                 w!(
                     "  noise factor f    {:.3} – {:.3}  (K = {:.3} – {:.3} DN/e⁻)",
-                    s.f_range[0], s.f_range[1], k[0], k[1]
+                    s.f_range[0],
+                    s.f_range[1],
+                    k[0],
+                    k[1]
                 );
             }
             _ => w!("  PTC slope s=K·f²  {NONE} (no flat fields)"),
@@ -495,7 +500,8 @@ impl CameraProfile {
                 w!("  read noise        {r:.3} DN (median over pixels and exposures)");
                 w!(
                     "  FPN form          {:?}, shared θ = {:?}",
-                    s.fpn_form, s.fpn_shared_theta
+                    s.fpn_form,
+                    s.fpn_shared_theta
                 );
             }
             _ => w!("  bias, read noise  {NONE} (no bias frames)"),
@@ -505,9 +511,7 @@ impl CameraProfile {
                 "  blooming x(t)     {a:.4e} · t^{b:.4}   (x(10 ms) = {:.4})",
                 self.blooming_factor(0.01)
             ),
-            _ => w!(
-                "  blooming x(t)     {NONE} (no blooming frames; preprocessing removes none)"
-            ),
+            _ => w!("  blooming x(t)     {NONE} (no blooming frames; preprocessing removes none)"),
         }
         let e = &s.exposures_s;
         w!(
@@ -519,13 +523,20 @@ impl CameraProfile {
         if let Some(eld) = &s.eld {
             w!(
                 "  ELD               K={} DN/e⁻, Tukey λ={} scale={} DN, row σ={} DN",
-                eld.k_dn, eld.tukey_lambda, eld.tukey_scale_dn, eld.row_sigma_dn
+                eld.k_dn,
+                eld.tukey_lambda,
+                eld.tukey_scale_dn,
+                eld.row_sigma_dn
             );
         }
         if let Some(pgn) = &s.pgn {
             w!(
                 "  PGN               G={}, {:.3} e⁻/DN, CIC={} e⁻, dark={} e⁻/s, read σ={} DN",
-                pgn.em_gain, pgn.e_per_dn, pgn.cic_e, pgn.dark_e_per_s, pgn.read_sigma_dn
+                pgn.em_gain,
+                pgn.e_per_dn,
+                pgn.cic_e,
+                pgn.dark_e_per_s,
+                pgn.read_sigma_dn
             );
         }
         w!("  fingerprint       {}", s.fingerprint);
@@ -715,11 +726,16 @@ mod tests {
         let t = p.summary_text();
         assert!(t.starts_with(&p.camera), "{t}");
         assert!(t.contains("16 × 12 px"), "{t}");
-        assert!(t.contains(&format!("fingerprint       {}", p.fingerprint_hex())), "{t}");
+        assert!(
+            t.contains(&format!("fingerprint       {}", p.fingerprint_hex())),
+            "{t}"
+        );
         assert_eq!(p.fingerprint_hex().len(), 16);
         let mut bare = p.clone();
         bare.blooming = None;
-        assert!(bare.summary_text().contains("blooming x(t)     not calibrated"));
+        assert!(bare
+            .summary_text()
+            .contains("blooming x(t)     not calibrated"));
     }
 
     #[test]
