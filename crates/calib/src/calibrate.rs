@@ -26,6 +26,18 @@ pub struct Options {
     pub gain_pixels: usize,
 }
 
+impl Options {
+    /// The options with each raised to its smallest meaningful value (a crop and a window of
+    /// 2 px, one gain-series pixel): what [`calibrate`] runs with.
+    pub fn floored(&self) -> Options {
+        Options {
+            crop: self.crop.max(2),
+            window: self.window.max(2),
+            gain_pixels: self.gain_pixels.max(1),
+        }
+    }
+}
+
 impl Default for Options {
     fn default() -> Options {
         Options {
@@ -249,9 +261,10 @@ fn read_map(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
     Ok((info.width, info.height, buf))
 }
 
-/// Runs the whole calibration. Nothing is written; see [`Calibration::profile`] and
-/// [`crate::report::write`].
+/// Runs the whole calibration with `opts` ([`Options::floored`]). Nothing is written; see
+/// [`Calibration::profile`] and [`crate::report::write`].
 pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Result<Calibration> {
+    let opts = &opts.floored();
     let mut warnings = Vec::new();
     let mut missing = Vec::new();
     let mut dims = None;
@@ -603,7 +616,7 @@ fn run_gain_series(
     let (w, h) = (r.info().width, r.info().height);
     drop(r);
     // A central block of at most `gain_pixels` pixels.
-    let side = ((opts.gain_pixels.max(1) as f64).sqrt() as usize).max(1);
+    let side = ((opts.gain_pixels as f64).sqrt() as usize).max(1);
     let (bw, bh) = (side.min(w), side.min(h));
     let (x0, y0) = ((w - bw) / 2, (h - bh) / 2);
     let pixels: Vec<(usize, usize)> = (y0..y0 + bh)

@@ -220,6 +220,15 @@ impl CalibrationPlan {
         Ok(manifest)
     }
 
+    /// Writes the truth of this acquisition made by `cam` beside it in `dir`: `truth.toml`
+    /// ([`CalibrationPlan::truth_toml`]) and the camera's own profile in `truth/`, what a
+    /// calibration of the recorded stacks is checked against.
+    pub fn write_truth(&self, cam: &VirtualCamera, dir: &Path) -> Result<(), Error> {
+        cam.profile.save(dir.join("truth")).map_err(Error::Truth)?;
+        emccd_io::write_atomic(dir.join("truth.toml"), self.truth_toml(cam)?.as_bytes())?;
+        Ok(())
+    }
+
     /// The truth of this acquisition made by `cam`, as `truth.toml` holds it (the maps are in
     /// the truth profile beside it, `truth/`).
     pub fn truth_toml(&self, cam: &VirtualCamera) -> Result<String, Error> {
@@ -517,6 +526,12 @@ mod tests {
         cam.exposure(0.01)
             .frame(&stack.photons, frame_seed(stack.seed, 2), &mut want);
         assert_eq!(got, want);
+        // The truth beside it: the camera's own profile and its numbers.
+        plan.write_truth(&cam, dir.path()).unwrap();
+        let truth = emccd_profile::CameraProfile::load(dir.path().join("truth")).unwrap();
+        assert_eq!(truth.fingerprint_hex(), cam.profile.fingerprint_hex());
+        let text = std::fs::read_to_string(dir.path().join("truth.toml")).unwrap();
+        assert_eq!(text, plan.truth_toml(&cam).unwrap());
     }
 
     #[test]

@@ -53,4 +53,7 @@ pub enum Error {
     /// A recording could not be written.
     #[error(transparent)]
     Write(#[from] emccd_io::Error),
+    /// The truth profile could not be written.
+    #[error("writing the truth profile: {0}")]
+    Truth(#[source] emccd_profile::Error),
 }

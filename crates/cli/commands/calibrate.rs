@@ -54,9 +54,9 @@ impl Progress for Bar {
 pub fn run(a: Args) -> Result<()> {
     let m = Manifest::load(&a.manifest)?;
     let opts = Options {
-        crop: a.crop.max(2),
-        window: a.window.max(2),
-        gain_pixels: a.gain_pixels.max(1),
+        crop: a.crop,
+        window: a.window,
+        gain_pixels: a.gain_pixels,
     };
     let bar = Bar(progress(emccd_calib::total_frames(&m), "frames"));
     let cal = emccd_calib::calibrate(&m, &opts, &bar);

@@ -189,10 +189,7 @@ fn calibration(out: &Path, plan: &CalibrationPlan, opts: &CameraOpts) -> Result<
         || pb.inc(1),
     )?;
     pb.finish_and_clear();
-    cam.profile
-        .save(out.join("truth"))
-        .context("writing the truth profile")?;
-    emccd_io::write_atomic(out.join("truth.toml"), plan.truth_toml(&cam)?.as_bytes())?;
+    plan.write_truth(&cam, out)?;
     eprintln!(
         "wrote {} bias, {} flat and {} blooming stacks of {} frames ({}×{}) to {}",
         plan.bias_exposures_s.len(),
