@@ -15,14 +15,18 @@ use crate::ptc::{self, FlatLevel, LevelStatus, PtcResult};
 use crate::stats::{accumulate, Progress};
 use crate::{Error, Result};
 
-/// Tunables, with the paper's values as defaults.
+/// Tunables, with the paper's values as defaults (also `emccd calibrate`'s flags).
 #[derive(Clone, Debug)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct Options {
-    /// Side of the central crop for the median–variance regression (paper: 256).
+    /// Side of the central crop for the median–variance regression, px (the paper's 256).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = Options::default().crop))]
     pub crop: usize,
-    /// Side of the blooming search window (paper: 32).
+    /// Side of the sliding window of the blooming search, px (the paper's 32).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = Options::default().window))]
     pub window: usize,
-    /// Most pixels fitted in a gain series (a central block).
+    /// Most pixels (a central block) fitted in a gain series.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = Options::default().gain_pixels))]
     pub gain_pixels: usize,
 }
 

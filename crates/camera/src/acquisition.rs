@@ -12,18 +12,24 @@ use emccd_io::{Metadata, SampleFormat, StackWriter};
 
 use crate::{Error, Exposure, VirtualCamera};
 
-/// What to record.
+/// What to record (also `emccd simulate calibration`'s flags).
 #[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct CalibrationPlan {
     /// Frames per stack (at least 2: temporal statistics need two).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = CalibrationPlan::default().frames))]
     pub frames: usize,
-    /// Exposures of the dark stacks, s.
+    /// Bias (dark) exposures in seconds (comma-separated).
+    #[cfg_attr(feature = "clap", arg(long = "bias-exposures", value_name = "SECONDS", value_delimiter = ',', default_values_t = CalibrationPlan::default().bias_exposures_s))]
     pub bias_exposures_s: Vec<f64>,
-    /// Flat-field photo-signal levels, DN above bias, at [`CalibrationPlan::flat_exposure_s`].
+    /// Flat-field signal levels in DN above bias (comma-separated), at 10 ms.
+    #[cfg_attr(feature = "clap", arg(long = "flat-levels", value_name = "DN", value_delimiter = ',', default_values_t = CalibrationPlan::default().flat_levels_dn))]
     pub flat_levels_dn: Vec<f64>,
     /// Exposure of the flat fields, s.
+    #[cfg_attr(feature = "clap", arg(skip = CalibrationPlan::default().flat_exposure_s))]
     pub flat_exposure_s: f64,
-    /// Exposures of the blooming stacks, s.
+    /// Blooming-frame exposures in seconds (comma-separated).
+    #[cfg_attr(feature = "clap", arg(long = "blooming-exposures", value_name = "SECONDS", value_delimiter = ',', default_values_t = CalibrationPlan::default().blooming_exposures_s))]
     pub blooming_exposures_s: Vec<f64>,
 }
 

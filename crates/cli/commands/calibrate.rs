@@ -33,15 +33,8 @@ pub struct Args {
     /// Also write an HTML report (index.html, self-contained) and results.json here.
     #[arg(long)]
     pub report: Option<PathBuf>,
-    /// Side of the central crop for the median–variance regression, px.
-    #[arg(long, default_value_t = 256)]
-    pub crop: usize,
-    /// Side of the sliding window of the blooming search, px.
-    #[arg(long, default_value_t = 32)]
-    pub window: usize,
-    /// Most pixels (a central block) fitted in a gain series.
-    #[arg(long, default_value_t = 16)]
-    pub gain_pixels: usize,
+    #[command(flatten)]
+    pub options: Options,
 }
 
 struct Bar(indicatif::ProgressBar);
@@ -53,13 +46,8 @@ impl Progress for Bar {
 
 pub fn run(a: Args) -> Result<()> {
     let m = Manifest::load(&a.manifest)?;
-    let opts = Options {
-        crop: a.crop,
-        window: a.window,
-        gain_pixels: a.gain_pixels,
-    };
     let bar = Bar(progress(emccd_calib::total_frames(&m), "frames"));
-    let cal = emccd_calib::calibrate(&m, &opts, &bar);
+    let cal = emccd_calib::calibrate(&m, &a.options, &bar);
     bar.0.finish_and_clear();
     let cal = cal?;
     for w in &cal.warnings {

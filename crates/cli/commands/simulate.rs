@@ -75,18 +75,8 @@ pub enum Cmd {
         /// Output directory.
         #[arg(short, long)]
         out: PathBuf,
-        /// Frames per stack.
-        #[arg(long, default_value_t = CalibrationPlan::default().frames)]
-        frames: usize,
-        /// Bias exposures in seconds (comma-separated).
-        #[arg(long, value_delimiter = ',', default_values_t = CalibrationPlan::default().bias_exposures_s)]
-        bias_exposures: Vec<f64>,
-        /// Flat-field signal levels in DN above bias (comma-separated), at 10 ms.
-        #[arg(long, value_delimiter = ',', default_values_t = CalibrationPlan::default().flat_levels_dn)]
-        flat_levels: Vec<f64>,
-        /// Blooming-frame exposures in seconds (comma-separated).
-        #[arg(long, value_delimiter = ',', default_values_t = CalibrationPlan::default().blooming_exposures_s)]
-        blooming_exposures: Vec<f64>,
+        #[command(flatten)]
+        plan: CalibrationPlan,
         #[command(flatten)]
         camera: CameraOpts,
     },
@@ -131,24 +121,7 @@ pub enum Cmd {
 
 pub fn run(c: Cmd) -> Result<()> {
     match c {
-        Cmd::Calibration {
-            out,
-            frames,
-            bias_exposures,
-            flat_levels,
-            blooming_exposures,
-            camera,
-        } => calibration(
-            &out,
-            &CalibrationPlan {
-                frames,
-                bias_exposures_s: bias_exposures,
-                flat_levels_dn: flat_levels,
-                blooming_exposures_s: blooming_exposures,
-                ..CalibrationPlan::default()
-            },
-            &camera,
-        ),
+        Cmd::Calibration { out, plan, camera } => calibration(&out, &plan, &camera),
         Cmd::Pairs {
             clean,
             photons,
