@@ -14,7 +14,7 @@ use serde::Serialize;
 
 use crate::fit::{levenberg_marquardt, median_mad};
 use crate::{Error, Result};
-use emccd_profile::FpnForm;
+use emccd_profile::{logistic, FpnForm};
 
 /// Mean absolute prediction error of both forms at one calibrated exposure.
 #[derive(Clone, Debug, Serialize)]
@@ -487,7 +487,9 @@ pub fn fit(
     })
 }
 
-/// Predicted FPN at exposure `t` from a fit: per-pixel or shared form.
+/// Predicted FPN at exposure `t` from a fit: per-pixel or shared form, evaluated as the
+/// profile evaluates its curves ([`emccd_profile::logistic`]; the models above carry gradients
+/// for fitting).
 pub fn predict(r: &FpnResult, base: &[f32], form: FpnForm, exposure_s: f64) -> Vec<f32> {
     let n = base.len();
     let u = exposure_s.ln();
@@ -501,13 +503,13 @@ pub fn predict(r: &FpnResult, base: &[f32], form: FpnForm, exposure_s: f64) -> V
                 if th[0].is_nan() {
                     base[p]
                 } else {
-                    pixel_model(u, &th).0.exp() as f32
+                    logistic(u, th).exp() as f32
                 }
             })
             .collect(),
         _ => {
-            let th = [r.shared_theta[1], r.shared_theta[2], r.shared_theta[3]];
-            let k = shared_model(u, u0, &th).0.exp();
+            let th = r.shared_theta;
+            let k = (logistic(u, th) - logistic(u0, th)).exp();
             base.iter().map(|&b| (b as f64 * k) as f32).collect()
         }
     }

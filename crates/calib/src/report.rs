@@ -183,7 +183,8 @@ fn fpn_curve_plot(c: &Calibration) -> String {
         let ts: Vec<f64> = (0..=120)
             .map(|i| x0 * (x1 / x0).powf(i as f64 / 120.0))
             .collect();
-        let sig = |u: f64, t: [f64; 4]| t[0] + t[1] / (1.0 + (-t[2] * (u - t[3])).exp());
+        // The curves as the profile evaluates them (one evaluator: emccd_profile::logistic).
+        let sig = emccd_profile::logistic;
         let u0 = f.exposures_s[0].ln();
         let shared: Vec<(f64, f64)> = ts
             .iter()

@@ -148,10 +148,7 @@ pub fn run(a: Args) -> Result<()> {
         .map(emccd_nn::Denoiser::read_meta)
         .transpose()?;
     let base = Base::for_run(a.hybrid_base, a.inputs, init_meta.as_ref())?;
-    let scale = a
-        .scale
-        .or(init_meta.as_ref().map(|m| m.scale))
-        .unwrap_or_default();
+    let scale = Scale::for_run(a.scale, init_meta.as_ref());
     let profile = load_profile(&a.profile)?;
     let images = TrainImages::read(&a.clean, &a.val)?;
     let cfg = TrainConfig {
@@ -161,7 +158,7 @@ pub fn run(a: Args) -> Result<()> {
         crop: a.crop,
         reuse: a.reuse,
         lr: a.lr,
-        warmup: a.warmup.min(a.steps / 5),
+        warmup: a.warmup,
         noise: a.noise_model,
         ablate: a.ablate,
         read_noise_scale: a.read_noise_scale,

@@ -54,7 +54,7 @@ pub struct TrainConfig {
     pub lr: f64,
     /// AdamW weight decay.
     pub weight_decay: f64,
-    /// Linear warm-up steps.
+    /// Linear warm-up steps, at most a fifth of the run ([`TrainConfig::warmup_steps`]).
     pub warmup: u64,
     /// Photo-electrons at a scene's full scale, drawn log-uniformly from this range.
     pub electrons: [f64; 2],
@@ -207,7 +207,7 @@ impl TrainConfig {
             self.reuse,
             self.lr,
             self.weight_decay,
-            self.warmup,
+            self.warmup_steps(),
             self.loss,
             match self.mean_electrons {
                 Some(r) => format!("mean electrons {r:?}"),
@@ -219,9 +219,16 @@ impl TrainConfig {
         )
     }
 
-    /// Learning rate at `step`: linear warm-up, then cosine decay to 1 % of the peak.
+    /// The warm-up a run takes: `warmup`, but at most a fifth of the steps (a short run, a
+    /// test or a quick fine-tune, still spends most of its steps at the peak rate), at least 1.
+    pub fn warmup_steps(&self) -> u64 {
+        self.warmup.min(self.steps / 5).max(1)
+    }
+
+    /// Learning rate at `step`: linear warm-up ([`TrainConfig::warmup_steps`]), then cosine
+    /// decay to 1 % of the peak.
     pub fn lr_at(&self, step: u64) -> f64 {
-        let w = self.warmup.max(1);
+        let w = self.warmup_steps();
         if step < w {
             return self.lr * (step + 1) as f64 / w as f64;
         }
@@ -994,6 +1001,23 @@ pub(crate) fn train_from(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn warm_up_is_at_most_a_fifth_of_the_run() {
+        let cfg = |warmup, steps| TrainConfig {
+            warmup,
+            steps,
+            ..TrainConfig::default()
+        };
+        assert_eq!(cfg(500, 20000).warmup_steps(), 500);
+        assert_eq!(cfg(500, 100).warmup_steps(), 20);
+        assert_eq!(cfg(0, 3).warmup_steps(), 1);
+        // The peak rate is reached at the end of the warm-up, and the run ends at 1 % of it.
+        let c = cfg(500, 100);
+        assert!((c.lr_at(19) - c.lr).abs() < 1e-15);
+        assert!(c.lr_at(0) < c.lr / 10.0);
+        assert!((c.lr_at(100) - 0.01 * c.lr).abs() < 1e-12);
+    }
 
     #[test]
     fn every_tenth_image_is_held_out_unless_validation_images_are_given() {
