@@ -39,7 +39,9 @@ pub mod noise;
 pub mod rng;
 pub mod virtual_camera;
 
-pub use noise::{Ablation, EldModel, Moments, NoiseModel, NoiseModelKind, OursModel, PgnModel};
+pub use noise::{
+    Ablation, EldModel, Moments, NoiseModel, NoiseModelKind, OursModel, PgnModel, SceneNoise,
+};
 pub use virtual_camera::{Exposure, PhysicalParams, VirtualCamera};
 
 /// Errors from building a model with invalid parameters, or from writing what the camera

@@ -631,7 +631,79 @@ impl NoiseModel for PgnModel {
 
 #[cfg(test)]
 mod tests {
-    use super::Ablation;
+    use super::*;
+
+    #[test]
+    fn scene_noise_writes_seeded_frames_and_refuses_bad_settings() {
+        let noise = SceneNoise {
+            kind: NoiseModelKind::Pgn,
+            signal_dn: 200.0,
+            exposure_s: 0.01,
+            ablate: Ablation::default(),
+            frames: 2,
+            seed: 7,
+        };
+        let profile = emccd_profile::default_profile();
+        let scene = emccd_io::Image {
+            width: 24,
+            height: 16,
+            data: (0..24 * 16).map(|i| (i % 24) as f32 / 24.0).collect(),
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("n.tif");
+        noise.write(&profile, &scene, &out).unwrap();
+        let mut r = emccd_io::open(&out).unwrap();
+        let info = r.info().clone();
+        assert_eq!((info.width, info.height, info.frames), (24, 16, 2));
+        let mut frames = vec![vec![0f32; 24 * 16]; 2];
+        for f in &mut frames {
+            assert!(r.read_frame(f).unwrap());
+        }
+        // Frame k is the model's frame with seed + k, on the profile's top-left corner.
+        let p = profile.top_left(24, 16).unwrap();
+        let model = NoiseModelKind::Pgn
+            .build(&p, Ablation::default(), 0.01)
+            .unwrap();
+        let clean: Vec<f32> = scene
+            .data
+            .iter()
+            .map(|&v| (v as f64 * 200.0) as f32)
+            .collect();
+        let mut want = vec![0f32; 24 * 16];
+        model.synthesize(&clean, 24, &mut want, 8);
+        assert_eq!(frames[1], want);
+        // Each bad setting is named as its flag, and nothing is written.
+        for (bad, name) in [
+            (
+                SceneNoise {
+                    signal_dn: 1e30,
+                    ..noise
+                },
+                "signal-dn",
+            ),
+            (
+                SceneNoise {
+                    exposure_s: -1.0,
+                    ..noise
+                },
+                "exposure-s",
+            ),
+            (SceneNoise { frames: 0, ..noise }, "frames"),
+            (
+                SceneNoise {
+                    ablate: "fpn".parse().unwrap(),
+                    ..noise
+                },
+                "ablate",
+            ),
+        ] {
+            let e = bad
+                .write(&profile, &scene, &dir.path().join("bad.tif"))
+                .unwrap_err();
+            assert!(e.to_string().starts_with(name), "{e}");
+        }
+        assert!(!dir.path().join("bad.tif").exists());
+    }
 
     #[test]
     fn ablations_parse_from_names_and_lists() {
@@ -661,5 +733,89 @@ mod tests {
             e.contains("\"gain\"") && e.contains("multiplicative, readout"),
             "{e}"
         );
+    }
+}
+
+/// Noisy frames of one clean scene under a noise model: what `emccd synthesize` writes (the
+/// noise of training pairs, to look at or to feed another tool).
+#[derive(Clone, Copy, Debug)]
+pub struct SceneNoise {
+    /// The noise model.
+    pub kind: NoiseModelKind,
+    /// The scene's full scale (1.0 in the image), DN above bias; at most 10⁶.
+    pub signal_dn: f64,
+    /// Exposure, s (the fixed pattern and dark signal the models add depend on it).
+    pub exposure_s: f64,
+    /// Components switched off; only synthesis components (not the `fpn` and `blooming`
+    /// corrections of a network's preprocessing).
+    pub ablate: Ablation,
+    /// Frames, each with its own noise (seeds `seed`, `seed + 1`, …).
+    pub frames: usize,
+    /// Seed of the first frame.
+    pub seed: u64,
+}
+
+impl SceneNoise {
+    /// An error naming the setting as a flag would (`signal-dn`, `exposure-s`, `frames`,
+    /// `ablate`) unless every setting is usable.
+    pub fn check(&self) -> Result<(), Error> {
+        // A signal past 10⁶ DN is beyond any 16- to 20-bit ADC, and at 10³⁰ the f32 arithmetic
+        // wraps into garbage that looks like data.
+        if !(self.signal_dn > 0.0 && self.signal_dn <= 1e6) {
+            return Err(Error::Parameter(format!(
+                "signal-dn {}: the signal must be a positive number of DN, at most 10⁶",
+                self.signal_dn
+            )));
+        }
+        emccd_profile::check_exposure(self.exposure_s)
+            .map_err(|e| Error::Parameter(format!("exposure-s: {e}")))?;
+        if self.frames == 0 {
+            return Err(Error::Parameter("frames must be at least 1".into()));
+        }
+        if !(self.ablate.fpn && self.ablate.blooming) {
+            return Err(Error::Parameter("ablate: fpn and blooming are corrections of a network's preprocessing (`train --ablate`), not parts of the synthesized noise".into()));
+        }
+        Ok(())
+    }
+
+    /// Writes [`SceneNoise::frames`] noisy frames of `scene` (values in [0, 1]) as a float32
+    /// stack at `out` (TIFF or FITS by its extension, atomically), under the noise of the
+    /// top-left region of `profile` the scene's size.
+    pub fn write(
+        &self,
+        profile: &CameraProfile,
+        scene: &emccd_io::Image,
+        out: &std::path::Path,
+    ) -> Result<(), Error> {
+        self.check()?;
+        let (w, h) = (scene.width, scene.height);
+        let prof = profile
+            .top_left(w, h)
+            .map_err(|e| Error::Parameter(format!("a {w}×{h} scene: {e}")))?;
+        let model = self.kind.build(&prof, self.ablate, self.exposure_s)?;
+        let clean: Vec<f32> = scene
+            .data
+            .iter()
+            .map(|&v| (v as f64 * self.signal_dn) as f32)
+            .collect();
+        let mut wr = emccd_io::StackWriter::create(
+            out,
+            w,
+            h,
+            emccd_io::SampleFormat::F32,
+            Some(self.frames),
+        )?;
+        wr.set_metadata(&emccd_io::Metadata {
+            exposure_s: Some(self.exposure_s),
+            em_gain: Some(prof.em_gain),
+            ..Default::default()
+        });
+        let mut frame = vec![0f32; w * h];
+        for k in 0..self.frames {
+            model.synthesize(&clean, w, &mut frame, self.seed.wrapping_add(k as u64));
+            wr.write_frame(&frame)?;
+        }
+        wr.finish()?;
+        Ok(())
     }
 }
