@@ -1,24 +1,15 @@
-//! The crates' layering, as the README's Layout table states it: each library depends only on
-//! the emccd crates listed here (its `[dependencies]` and `[dev-dependencies]`), so a back-edge —
-//! a lower layer reaching up — fails this test instead of growing unnoticed.
+//! The crates' layering is what the README's Layout section states: its "Layering" paragraph
+//! names, for each library, the emccd crates it uses, and each library's `[dependencies]` and
+//! `[dev-dependencies]` must be exactly those. A back-edge (a lower layer reaching up) or a
+//! README that no longer says what the manifests do fails this test.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 
-/// crate folder → the emccd crates it may use.
-const ALLOWED: [(&str, &[&str]); 6] = [
-    ("io", &[]),
-    ("profile", &["emccd-io"]),
-    ("camera", &["emccd-calib", "emccd-io", "emccd-profile"]),
-    ("eval", &["emccd-camera", "emccd-io", "emccd-profile"]),
-    ("calib", &["emccd-io", "emccd-profile"]),
-    (
-        "nn",
-        &["emccd-camera", "emccd-eval", "emccd-io", "emccd-profile"],
-    ),
-];
+const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 
+/// The emccd crates a library's manifest names.
 fn emccd_deps(krate: &str) -> BTreeSet<String> {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+    let path = std::path::Path::new(ROOT)
         .join("crates")
         .join(krate)
         .join("Cargo.toml");
@@ -29,25 +20,63 @@ fn emccd_deps(krate: &str) -> BTreeSet<String> {
         .filter_map(|k| doc.get(*k).and_then(|t| t.as_table()))
         .flat_map(|t| t.keys().cloned())
         .filter(|k| k.starts_with("emccd-"))
+        .map(|k| k.trim_start_matches("emccd-").to_string())
         .collect()
 }
 
+/// The README's layering: crate folder → the crate folders it uses, read from the paragraph
+/// "Layering (…): `emccd-io` uses no emccd crate; `emccd-profile` → io; …; the `emccd` binary …".
+fn readme_layering() -> BTreeMap<String, BTreeSet<String>> {
+    let readme = std::fs::read_to_string(format!("{ROOT}/README.md")).unwrap();
+    let start = readme
+        .find("Layering (")
+        .expect("README: the Layering paragraph");
+    let para: String = readme[start..]
+        .split("\n\n")
+        .next()
+        .unwrap()
+        .split_whitespace()
+        .collect::<Vec<_>>()
+        .join(" ");
+    let body = &para[para.find("):").expect("Layering (…):") + 2..];
+    let mut layers = BTreeMap::new();
+    for part in body.split(';').map(str::trim) {
+        if part.starts_with("the `emccd` binary") {
+            break;
+        }
+        let name = part
+            .strip_prefix("`emccd-")
+            .and_then(|r| r.split_once('`'))
+            .map(|(n, _)| n.to_string())
+            .unwrap_or_else(|| panic!("README layering: {part:?} does not start with a crate"));
+        let uses: BTreeSet<String> = match part.split_once('→') {
+            Some((_, list)) => list
+                .split(',')
+                .map(|s| s.trim().trim_end_matches('.').to_string())
+                .collect(),
+            None if part.ends_with("uses no emccd crate") => BTreeSet::new(),
+            None => panic!("README layering: {part:?} has no → list"),
+        };
+        layers.insert(name, uses);
+    }
+    layers
+}
+
 #[test]
-fn libraries_depend_only_downward() {
-    let dirs: BTreeSet<String> = std::fs::read_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/crates"))
+fn libraries_depend_on_what_the_readme_says() {
+    let dirs: BTreeSet<String> = std::fs::read_dir(format!("{ROOT}/crates"))
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .filter(|n| n != "cli")
         .collect();
-    let listed: BTreeSet<String> = ALLOWED.iter().map(|(k, _)| k.to_string()).collect();
-    assert_eq!(dirs, listed, "a library crate is missing from the layering");
-    for (krate, allowed) in ALLOWED {
-        let allowed: BTreeSet<String> = allowed.iter().map(|s| s.to_string()).collect();
-        let deps = emccd_deps(krate);
-        let extra: Vec<&String> = deps.difference(&allowed).collect();
-        assert!(
-            extra.is_empty(),
-            "emccd-{krate} depends on {extra:?}, outside its layer (README, Layout)"
+    let layers = readme_layering();
+    let listed: BTreeSet<String> = layers.keys().cloned().collect();
+    assert_eq!(dirs, listed, "the README's layering lists every library crate");
+    for (krate, uses) in &layers {
+        assert_eq!(
+            &emccd_deps(krate),
+            uses,
+            "emccd-{krate}: its Cargo.toml and the README's Layering paragraph differ"
         );
     }
 }
