@@ -71,7 +71,10 @@ fn libraries_depend_on_what_the_readme_says() {
         .collect();
     let layers = readme_layering();
     let listed: BTreeSet<String> = layers.keys().cloned().collect();
-    assert_eq!(dirs, listed, "the README's layering lists every library crate");
+    assert_eq!(
+        dirs, listed,
+        "the README's layering lists every library crate"
+    );
     for (krate, uses) in &layers {
         assert_eq!(
             &emccd_deps(krate),

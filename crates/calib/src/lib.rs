@@ -50,7 +50,9 @@ mod error;
 pub mod fit;
 pub mod fpn;
 pub mod gain_series;
-pub mod manifest;
+/// The calibration manifest (its home is `emccd_profile::manifest`, which the acquisition that
+/// writes it shares).
+pub use emccd_profile::manifest;
 pub mod normality;
 pub mod ptc;
 pub mod report;

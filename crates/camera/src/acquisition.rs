@@ -7,8 +7,8 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use emccd_calib::manifest::{Entry, Manifest};
 use emccd_io::{Metadata, SampleFormat, StackWriter};
+use emccd_profile::manifest::{Entry, Manifest};
 
 use crate::{Error, Exposure, VirtualCamera};
 

@@ -32,6 +32,7 @@ mod blooming;
 mod default;
 mod error;
 mod fpn;
+pub mod manifest;
 mod recording;
 mod store;
 

@@ -23,7 +23,8 @@
 //! ```
 //!
 //! Paths are relative to the manifest. Every file is checked before any number is computed.
-//! `emccd simulate calibration` writes this same type ([`Manifest::to_toml`]).
+//! `emccd-calib` reads it; `emccd simulate calibration` (`emccd_camera`'s acquisition) writes
+//! this same type ([`Manifest::to_toml`]). It lives beside the profile, which both depend on.
 
 use std::path::{Path, PathBuf};
 
@@ -109,19 +110,14 @@ impl Manifest {
     /// Reads a manifest and resolves its paths; checks that every named file exists.
     pub fn load(path: impl AsRef<Path>) -> Result<Manifest> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|e| Error::Manifest {
-            path: path.into(),
-            message: format!("cannot read: {e}"),
-        })?;
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| Error::Format(format!("cannot read: {e}")).at(path))?;
         Manifest::parse(&text, path)
     }
 
     /// Parses manifest text as if read from `path`.
     pub fn parse(text: &str, path: &Path) -> Result<Manifest> {
-        let bad = |message: String| Error::Manifest {
-            path: path.into(),
-            message,
-        };
+        let bad = |message: String| Error::Format(message).at(path);
         let mut m: Manifest = toml::from_str(text).map_err(|e| bad(e.to_string()))?;
         m.path = path.to_path_buf();
         let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
@@ -195,10 +191,9 @@ impl Manifest {
         }
         for p in m.files() {
             if !p.is_file() {
-                return Err(Error::input(
-                    &p,
-                    format!("named in {} but not found", path.display()),
-                ));
+                return Err(
+                    Error::Format(format!("named in {} but not found", path.display())).at(&p),
+                );
             }
         }
         Ok(m)
