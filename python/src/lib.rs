@@ -529,10 +529,9 @@ fn simulate_pairs<'py>(
                 p.crop(0, 0, w, h)?
             };
             let cam = VirtualCamera::new(p, PhysicalParams::seeded(seed))?;
-            let mean = img.iter().map(|&v| v as f64).sum::<f64>() / img.len() as f64;
             let photons = match (photons, mean_electrons) {
                 (Some(p), None) => p,
-                (None, Some(e)) => e / (cam.physics.qe * mean),
+                (None, Some(e)) => cam.peak_photons(&img, e),
                 _ => anyhow::bail!("give one of photons (at the brightest pixel) or mean_electrons (per pixel)"),
             };
             // Zero photons is a dark (bias) frame: shutter closed, the camera's own signal only.

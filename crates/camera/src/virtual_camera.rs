@@ -167,6 +167,14 @@ impl VirtualCamera {
         self.em_gain / self.e_per_dn
     }
 
+    /// The photons at a scene's full scale (1.0) that give it `mean_electrons`
+    /// photoelectrons per pixel on average (`scene` in [0, 1]; the quantum efficiency counts).
+    /// Not finite for an all-zero scene.
+    pub fn peak_photons(&self, scene: &[f32], mean_electrons: f64) -> f64 {
+        let mean = scene.iter().map(|&v| v as f64).sum::<f64>() / scene.len() as f64;
+        mean_electrons / (self.physics.qe * mean)
+    }
+
     /// Precomputes the exposure-dependent truth.
     pub fn exposure(&self, exposure_s: f64) -> Exposure<'_> {
         let mut fpn = vec![0f32; self.profile.len()];
@@ -276,6 +284,20 @@ impl Exposure<'_> {
 mod tests {
     use super::*;
     use emccd_profile::preprocess;
+
+    #[test]
+    fn peak_photons_give_the_mean_photoelectrons_asked_for() {
+        let cam = small_camera();
+        let scene: Vec<f32> = (0..100).map(|i| i as f32 / 99.0).collect();
+        let peak = cam.peak_photons(&scene, 4.0);
+        let mean_e: f64 = scene
+            .iter()
+            .map(|&v| v as f64 * peak * cam.physics.qe)
+            .sum::<f64>()
+            / scene.len() as f64;
+        assert!((mean_e - 4.0).abs() < 1e-9, "{mean_e}");
+        assert!(!cam.peak_photons(&[0.0; 4], 1.0).is_finite());
+    }
 
     fn small_camera() -> VirtualCamera {
         let p = emccd_profile::default_profile()
