@@ -195,8 +195,13 @@ impl std::str::FromStr for Ablation {
 
 /// A noise model: clean photo-signal in, noisy frame out.
 pub trait NoiseModel: Send + Sync {
-    /// Short name (`ours`, `eld`, `pgn`).
-    fn name(&self) -> &'static str;
+    /// Which model this is.
+    fn kind(&self) -> NoiseModelKind;
+
+    /// Short name (`ours`, `eld`, `pgn`): its kind's.
+    fn name(&self) -> &'static str {
+        self.kind().name()
+    }
 
     /// Writes a noisy version of `clean` (row-major, `width` columns, DN above bias) into `out`.
     /// The same `seed` gives the same frame on any number of threads.
@@ -308,8 +313,8 @@ impl OursModel {
 }
 
 impl NoiseModel for OursModel {
-    fn name(&self) -> &'static str {
-        "ours"
+    fn kind(&self) -> NoiseModelKind {
+        NoiseModelKind::Ours
     }
 
     fn synthesize(&self, clean: &[f32], width: usize, out: &mut [f32], seed: u64) {
@@ -454,8 +459,8 @@ impl EldModel {
 }
 
 impl NoiseModel for EldModel {
-    fn name(&self) -> &'static str {
-        "eld"
+    fn kind(&self) -> NoiseModelKind {
+        NoiseModelKind::Eld
     }
 
     fn synthesize(&self, clean: &[f32], width: usize, out: &mut [f32], seed: u64) {
@@ -587,8 +592,8 @@ pub fn em_register<R: Rng + ?Sized>(rng: &mut R, n: f64, gain: f64) -> f64 {
 }
 
 impl NoiseModel for PgnModel {
-    fn name(&self) -> &'static str {
-        "pgn"
+    fn kind(&self) -> NoiseModelKind {
+        NoiseModelKind::Pgn
     }
 
     fn synthesize(&self, clean: &[f32], width: usize, out: &mut [f32], seed: u64) {
