@@ -49,6 +49,26 @@ vulkan_env() {
     fi
 }
 
+# The set-up of a phase that starts runs: the Vulkan loader, the binary unpacked, the machine
+# and the binary's version in the session log, no runs in flight.
+setup() {
+    vulkan_env
+    rm -f "$R/pids"
+    python3 -c "import lzma, shutil, sys; shutil.copyfileobj(lzma.open('.gpu/emccd.xz'), open(sys.argv[1], 'wb'))" "$B" && chmod +x "$B"
+    nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee -a "$R/session.log"
+    "$B" --version | tee -a "$R/session.log"
+}
+
+# launch NAME ARGS…: `emccd train ARGS` into $R/NAME.safetensors in its own process session
+# (it outlives the call), its log lines stamped with the time in $R/NAME.train.log; its pid
+# joins $R/pids.
+launch() {
+    local name=$1
+    shift
+    setsid nohup bash -c "'$B' train $* --checkpoint-every 250 -o '$R/$name.safetensors' 2>&1 | { while IFS= read -r l; do echo \"\$(date +%s) \$l\"; done; } > '$R/$name.train.log'" >/dev/null 2>&1 &
+    echo $! >>"$R/pids"
+}
+
 # Lines of a training log with the seconds since launch in front.
 stamp() { while IFS= read -r l; do echo "$(date +%s.%N | cut -c1-14) $l"; done; }
 
@@ -132,11 +152,7 @@ collect() {
 
 case $phase in
 start)
-    vulkan_env
-    rm -f "$R/pids"
-    python3 -c "import lzma, shutil, sys; shutil.copyfileobj(lzma.open('.gpu/emccd.xz'), open(sys.argv[1], 'wb'))" "$B" && chmod +x "$B"
-    nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee -a "$R/session.log"
-    "$B" --version | tee -a "$R/session.log"
+    setup
     # Correctness on the GPU: the same pairs as on the CPU, the same PSNR expected.
     "$B" simulate pairs --clean "$D"/fmd/field4-avg50.png --photons 20 --denoise models/default-unet.safetensors -o "$R/demo" 2>&1 | tail -4 | tee -a "$R/session.log"
     # Training-speed probes, both runs at once as they will run.
@@ -173,12 +189,10 @@ EOF
     nf=$(awk -v r="$rf" -v t=$TRAIN_SECONDS 'BEGIN { printf "%d", r * t * 0.9 }')
     log "launching: unet $nu steps, uformer-t $nf steps, to end in about $TRAIN_SECONDS s"
     if [ "${nu:-0}" -gt "${MIN_STEPS:-1000}" ]; then
-        setsid nohup bash -c "'$B' train $RECIPE $UNET $(TRAIN_DATA) --steps $nu --checkpoint-every 250 -o '$R/unet.safetensors' 2>&1 | { while IFS= read -r l; do echo \"\$(date +%s) \$l\"; done; } > '$R/unet.train.log'" >/dev/null 2>&1 &
-        echo $! >>"$R/pids"
+        launch unet $RECIPE $UNET $(TRAIN_DATA) --steps $nu
     fi
     if [ "${nf:-0}" -gt "${MIN_STEPS:-500}" ]; then
-        setsid nohup bash -c "'$B' train $RECIPE $UFORMER $(TRAIN_DATA) --steps $nf --checkpoint-every 250 -o '$R/uformer.safetensors' 2>&1 | { while IFS= read -r l; do echo \"\$(date +%s) \$l\"; done; } > '$R/uformer.train.log'" >/dev/null 2>&1 &
-        echo $! >>"$R/pids"
+        launch uformer $RECIPE $UFORMER $(TRAIN_DATA) --steps $nf
     fi
     sleep 20
     while running && [ $(($(date +%s) - T0)) -lt $((secs - 25)) ]; do sleep 15; done
@@ -186,17 +200,13 @@ EOF
     collect a
     ;;
 levers)
-    vulkan_env
-    rm -f "$R/pids"
-    python3 -c "import lzma, shutil, sys; shutil.copyfileobj(lzma.open('.gpu/emccd.xz'), open(sys.argv[1], 'wb'))" "$B" && chmod +x "$B"
-    nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee -a "$R/session.log"
+    setup
     IFS=';' read -ra runs <<<"${LEVERS:?LEVERS}"
     for r in "${runs[@]}"; do
         name=${r%%:*}
         extra=${r#*:}
         log "lever $name: $RECIPE $UNET $extra --steps ${LEVER_STEPS:-1500}"
-        setsid nohup bash -c "'$B' train $RECIPE $UNET $extra $(TRAIN_DATA) --steps ${LEVER_STEPS:-1500} --checkpoint-every 250 -o '$R/lever-$name.safetensors' 2>&1 | { while IFS= read -r l; do echo \"\$(date +%s) \$l\"; done; } > '$R/lever-$name.train.log'" >/dev/null 2>&1 &
-        echo $! >>"$R/pids"
+        launch "lever-$name" $RECIPE $UNET $extra $(TRAIN_DATA) --steps ${LEVER_STEPS:-1500}
     done
     sleep 20
     while running && [ $(($(date +%s) - T0)) -lt $((secs - 25)) ]; do sleep 15; done
@@ -204,11 +214,7 @@ levers)
     collect a
     ;;
 long)
-    vulkan_env
-    rm -f "$R/pids"
-    python3 -c "import lzma, shutil, sys; shutil.copyfileobj(lzma.open('.gpu/emccd.xz'), open(sys.argv[1], 'wb'))" "$B" && chmod +x "$B"
-    nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee -a "$R/session.log"
-    "$B" --version | tee -a "$R/session.log"
+    setup
     export EMCCD_MODELS=$PWD/.gpu/models
     IFS=';' read -ra runs <<<"${RUNS:?RUNS}"
     # Probe: all runs at once, as they will run.
@@ -226,8 +232,7 @@ long)
         tail -n 2 "$R/probe-$name.log" | tee -a "$R/session.log"
         log "run $name: $rt steps/s in the probe; launching $CHARB ${r#*:} --steps $n (about $left s)"
         [ "${n:-0}" -gt 100 ] || continue
-        setsid nohup bash -c "'$B' train $CHARB ${r#*:} $(TRAIN_DATA) --steps $n --checkpoint-every 250 -o '$R/run-$name.safetensors' 2>&1 | { while IFS= read -r l; do echo \"\$(date +%s) \$l\"; done; } > '$R/run-$name.train.log'" >/dev/null 2>&1 &
-        echo $! >>"$R/pids"
+        launch "run-$name" $CHARB ${r#*:} $(TRAIN_DATA) --steps $n
     done
     sleep 20
     while running && [ $(($(date +%s) - T0)) -lt $((secs - 25)) ]; do sleep 15; done
@@ -243,8 +248,8 @@ chain)
     tail -n 2 "$R"/*.train.log
     name=${CHAIN%%:*}
     log "chain $name: $CHARB ${CHAIN#*:} --steps $CHAIN_STEPS"
-    setsid nohup bash -c "'$B' train $CHARB ${CHAIN#*:} $(TRAIN_DATA) --steps $CHAIN_STEPS --checkpoint-every 250 -o '$R/run-$name.safetensors' 2>&1 | { while IFS= read -r l; do echo \"\$(date +%s) \$l\"; done; } > '$R/run-$name.train.log'" >/dev/null 2>&1 &
-    echo $! >"$R/pids"
+    rm -f "$R/pids"
+    launch "run-$name" $CHARB ${CHAIN#*:} $(TRAIN_DATA) --steps $CHAIN_STEPS
     while [ $(($(date +%s) - T0)) -lt $((secs - 25)) ]; do sleep 15; done
     tail -n 3 "$R"/*.train.log
     collect b

@@ -14,14 +14,6 @@ pub enum Error {
         /// What is wrong with it.
         message: String,
     },
-    /// The manifest is malformed or names something impossible.
-    #[error("{}: {message}", path.display())]
-    Manifest {
-        /// The manifest file.
-        path: PathBuf,
-        /// What is wrong.
-        message: String,
-    },
     /// A fit could not be made from the data given.
     #[error("{0}")]
     Fit(String),

@@ -22,7 +22,8 @@ pub struct CalibrationPlan {
     /// Bias (dark) exposures in seconds (comma-separated).
     #[cfg_attr(feature = "clap", arg(long = "bias-exposures", value_name = "SECONDS", value_delimiter = ',', default_values_t = CalibrationPlan::default().bias_exposures_s))]
     pub bias_exposures_s: Vec<f64>,
-    /// Flat-field signal levels in DN above bias (comma-separated), at 10 ms.
+    /// Flat-field signal levels in DN above bias (comma-separated), at the flat-field
+    /// exposure (10 ms by default).
     #[cfg_attr(feature = "clap", arg(long = "flat-levels", value_name = "DN", value_delimiter = ',', default_values_t = CalibrationPlan::default().flat_levels_dn))]
     pub flat_levels_dn: Vec<f64>,
     /// Exposure of the flat fields, s.
