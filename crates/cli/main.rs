@@ -152,4 +152,41 @@ mod tests {
         }
         assert!(Cli::try_parse_from(["emccd", "simulate", "calibration", "--crop", "64"]).is_err());
     }
+
+    /// The flags of library configs default to the configs' own defaults: one definition.
+    #[test]
+    fn flag_defaults_are_the_library_defaults() {
+        let cli = Cli::try_parse_from(["emccd", "train", "--clean", "d", "-o", "m"]).unwrap();
+        let Command::Train(a) = cli.command else {
+            panic!("not train")
+        };
+        assert_eq!(a.cfg, emccd_nn::train::TrainConfig::default());
+        assert_eq!(a.shape, emccd_nn::UNetConfig::DEFAULT);
+        let cli = Cli::try_parse_from(["emccd", "train", "--clean", "d", "-o", "m", "--no-augment", "--cic", "0,0.05"]).unwrap();
+        let Command::Train(a) = cli.command else {
+            panic!("not train")
+        };
+        assert!(!a.cfg.augment);
+        assert_eq!(a.cfg.cic_e, Some([0.0, 0.05]));
+        let cli = Cli::try_parse_from(["emccd", "synthesize", "a.png", "-o", "n.tif"]).unwrap();
+        let Command::Synthesize(a) = cli.command else {
+            panic!("not synthesize")
+        };
+        assert_eq!(a.noise, emccd_camera::SceneNoise::default());
+        let cli = Cli::try_parse_from(["emccd", "simulate", "pairs", "--clean", "a.png", "-o", "p"]).unwrap();
+        let Command::Simulate(commands::simulate::Cmd::Pairs { camera, .. }) = cli.command else {
+            panic!("not simulate pairs")
+        };
+        assert_eq!(camera.physics, emccd_camera::PhysicalParams::default());
+        let cli = Cli::try_parse_from(["emccd", "adapt", "r.tif", "--profile", "p", "-o", "a"]).unwrap();
+        let Command::Adapt(a) = cli.command else {
+            panic!("not adapt")
+        };
+        assert_eq!(a.cfg, emccd_nn::adapt::AdaptConfig::default());
+        let cli = Cli::try_parse_from(["emccd", "denoise", "a.tif", "-o", "b.tif"]).unwrap();
+        let Command::Denoise(a) = cli.command else {
+            panic!("not denoise")
+        };
+        assert_eq!(a.tiling, emccd_nn::tile::Tiling::default());
+    }
 }

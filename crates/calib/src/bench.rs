@@ -21,6 +21,9 @@ pub struct Streaming {
     pub reference_s: f64,
     /// Seconds to decode them and accumulate per-pixel mean and variance.
     pub decode_s: f64,
+    /// This process's peak resident memory before the stack was read and after, MiB (NaN
+    /// where the system does not report it): streaming keeps the difference small.
+    pub peak_mib: [f64; 2],
 }
 
 impl Streaming {
@@ -37,9 +40,8 @@ impl Streaming {
 
 /// Writes a stack of `frames` (at least 2) 512×512 16-bit frames to `dir/stack.tif` (a fixed pattern, no
 /// randomness), reads it once as plain bytes and once through the calibration's streaming
-/// statistics (both from the page cache), and removes it. `before` is called after the
-/// stack is written and before it is read (peak memory is measured there).
-pub fn streaming(dir: &Path, frames: usize, before: &mut dyn FnMut()) -> Result<Streaming> {
+/// statistics (both from the page cache), and removes it.
+pub fn streaming(dir: &Path, frames: usize) -> Result<Streaming> {
     let frames = frames.max(2);
     let path = dir.join("stack.tif");
     let io = |e| Error::io(&path, e);
@@ -56,7 +58,7 @@ pub fn streaming(dir: &Path, frames: usize, before: &mut dyn FnMut()) -> Result<
     wr.finish().map_err(io)?;
     let os = |e: std::io::Error| Error::io(&path, emccd_io::Error::from(e));
     let bytes = std::fs::metadata(&path).map_err(os)?.len() as f64;
-    before();
+    let peak_before = peak_rss_mib();
     // Reference: reading the same bytes from the page cache and doing nothing with them.
     let t = Instant::now();
     let mut file = std::fs::File::open(&path).map_err(os)?;
@@ -81,5 +83,16 @@ pub fn streaming(dir: &Path, frames: usize, before: &mut dyn FnMut()) -> Result<
         bytes,
         reference_s,
         decode_s,
+        peak_mib: [peak_before, peak_rss_mib()],
     })
+}
+
+/// Peak resident memory of this process so far (Linux's `VmHWM`), MiB; NaN elsewhere.
+fn peak_rss_mib() -> f64 {
+    let kib = || -> Option<f64> {
+        let s = std::fs::read_to_string("/proc/self/status").ok()?;
+        let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+        line.split_whitespace().nth(1)?.parse().ok()
+    };
+    kib().map_or(f64::NAN, |k| k / 1024.0)
 }

@@ -89,3 +89,28 @@ pub fn archive_stack(path: &Path, frames: usize, tick: &mut dyn FnMut()) -> Resu
     wr.finish()?;
     Ok(t.elapsed().as_secs_f64())
 }
+
+/// emccd-detect's timing script (run with `python3 -c`, so the binary needs no script beside
+/// it): the same physics as the default virtual camera through `EMCCDDetect.sim_sub_frame`.
+const EMCCD_DETECT_SPEED: &str = include_str!("emccd_detect_speed.py");
+
+/// Seconds per 512×512 frame of NASA JPL's emccd-detect (Python) at `electrons` mean
+/// photoelectrons per pixel, over `frames` frames after a warm-up; the reason where it cannot
+/// run (no `python3`, emccd-detect not installed: `pip install emccd-detect`).
+pub fn emccd_detect(frames: usize, electrons: f64) -> Result<f64, String> {
+    let o = std::process::Command::new("python3")
+        .arg("-c")
+        .arg(EMCCD_DETECT_SPEED)
+        .arg(frames.max(1).to_string())
+        .arg(electrons.to_string())
+        .output()
+        .map_err(|e| format!("python3 not runnable ({e})"))?;
+    if !o.status.success() {
+        let err = String::from_utf8_lossy(&o.stderr);
+        return Err(err.lines().last().unwrap_or("python3 failed").to_string());
+    }
+    let out = String::from_utf8_lossy(&o.stdout);
+    out.trim()
+        .parse()
+        .map_err(|_| format!("emccd-detect's timing printed {:?}, not seconds", out.trim()))
+}

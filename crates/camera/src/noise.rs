@@ -742,22 +742,45 @@ mod tests {
 }
 
 /// Noisy frames of one clean scene under a noise model: what `emccd synthesize` writes (the
-/// noise of training pairs, to look at or to feed another tool).
-#[derive(Clone, Copy, Debug)]
+/// noise of training pairs, to look at or to feed another tool). With the `clap` feature, its
+/// flags.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct SceneNoise {
     /// The noise model.
+    #[cfg_attr(feature = "clap", arg(long = "model", value_enum, default_value_t = SceneNoise::default().kind))]
     pub kind: NoiseModelKind,
-    /// The scene's full scale (1.0 in the image), DN above bias; at most 10⁶.
+    /// The clean signal at the image's full scale (its 1.0), DN above bias; at most 10⁶.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = SceneNoise::default().signal_dn))]
     pub signal_dn: f64,
     /// Exposure, s (the fixed pattern and dark signal the models add depend on it).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = SceneNoise::default().exposure_s))]
     pub exposure_s: f64,
-    /// Components switched off; only synthesis components (not the `fpn` and `blooming`
-    /// corrections of a network's preprocessing).
+    /// Components to switch off (comma-separated): multiplicative, readout, quantization; only
+    /// synthesis components (not the fpn and blooming corrections of a network's
+    /// preprocessing).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = SceneNoise::default().ablate))]
     pub ablate: Ablation,
-    /// Frames, each with its own noise (seeds `seed`, `seed + 1`, …).
+    /// Noisy frames, each with its own noise (seeds `seed`, `seed + 1`, …).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = SceneNoise::default().frames))]
     pub frames: usize,
     /// Seed of the first frame.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = SceneNoise::default().seed))]
     pub seed: u64,
+}
+
+impl Default for SceneNoise {
+    /// One frame of the paper's model (`ours`) at 200 DN full scale, 10 ms.
+    fn default() -> SceneNoise {
+        SceneNoise {
+            kind: NoiseModelKind::Ours,
+            signal_dn: 200.0,
+            exposure_s: 0.01,
+            ablate: Ablation::default(),
+            frames: 1,
+            seed: 1,
+        }
+    }
 }
 
 impl SceneNoise {

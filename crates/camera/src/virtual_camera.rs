@@ -17,20 +17,28 @@ use crate::rng::stream;
 use crate::Error;
 use emccd_profile::column_means;
 
-/// Physical parameters that a profile does not hold.
+/// Physical parameters that a profile does not hold (with the `clap` feature, `emccd
+/// simulate`'s physics flags; the hot-pixel seed is derived from the run's, [`PhysicalParams::seeded`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct PhysicalParams {
     /// Quantum efficiency (photoelectrons per photon).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = PhysicalParams::default().qe))]
     pub qe: f64,
-    /// Dark current of ordinary pixels, e⁻/pixel/s.
+    /// Dark current of ordinary pixels, e⁻ per pixel per second.
+    #[cfg_attr(feature = "clap", arg(long = "dark", default_value_t = PhysicalParams::default().dark_e_per_s))]
     pub dark_e_per_s: f64,
-    /// Clock-induced charge, e⁻/pixel/frame.
+    /// Clock-induced charge, e⁻ per pixel per frame.
+    #[cfg_attr(feature = "clap", arg(long = "cic", default_value_t = PhysicalParams::default().cic_e))]
     pub cic_e: f64,
-    /// Fraction of pixels that are hot.
+    /// Fraction of pixels that are hot (dark current `--hot-dark`).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = PhysicalParams::default().hot_fraction))]
     pub hot_fraction: f64,
-    /// Dark current of hot pixels, e⁻/pixel/s.
+    /// Dark current of hot pixels, e⁻ per pixel per second.
+    #[cfg_attr(feature = "clap", arg(long = "hot-dark", default_value_t = PhysicalParams::default().hot_dark_e_per_s))]
     pub hot_dark_e_per_s: f64,
     /// Seed for the hot-pixel positions.
+    #[cfg_attr(feature = "clap", arg(skip = PhysicalParams::default().seed))]
     pub seed: u64,
 }
 

@@ -3,9 +3,8 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use emccd_camera::NoiseModelKind;
 use emccd_nn::adapt::{
-    adapt, AdaptConfig, AdaptData, AdaptMethod, AdaptRun, Adaptation, Recorded, Start,
+    adapt, AdaptConfig, AdaptData, AdaptRun, Adaptation, Recorded, Start,
 };
 use emccd_nn::train::RunPaths;
 
@@ -47,29 +46,11 @@ pub struct Args {
     /// initialized from --seed.
     #[arg(long)]
     pub from_scratch: bool,
-    /// Where the training pairs come from.
-    #[arg(long, value_enum, default_value = "resynthesis")]
-    pub method: AdaptMethod,
-    /// Fine-tuning steps (about 1 s each for 4 × 128² crops on 2 cores; the default takes
-    /// about 8 minutes).
-    #[arg(long, default_value_t = AdaptConfig::default().steps)]
-    pub steps: u64,
+    #[command(flatten)]
+    pub cfg: AdaptConfig,
     /// Peak learning rate [default: 5e-4 fine-tuning, 1e-3 from scratch].
     #[arg(long)]
     pub lr: Option<f64>,
-    /// Largest training crop side (px; smaller frames use their own size, half of it with
-    /// --method neighbors).
-    #[arg(long, default_value_t = AdaptConfig::default().crop)]
-    pub crop: usize,
-    /// Crops per step.
-    #[arg(long, default_value_t = AdaptConfig::default().batch)]
-    pub batch: usize,
-    /// Noise model of the synthesized pairs (`ours`: the profile's exact EMCCD chain).
-    #[arg(long, value_enum, default_value = "ours")]
-    pub noise_model: NoiseModelKind,
-    /// Seed.
-    #[arg(long, default_value_t = AdaptConfig::default().seed)]
-    pub seed: u64,
     /// Continue the run whose checkpoint is in OUT.ckpt/.
     #[arg(long)]
     pub resume: bool,
@@ -91,7 +72,7 @@ pub fn run(a: Args) -> Result<()> {
     emccd_io::refuse_overwrite(&a.out, &init, "the --init model")?;
     let init_meta = emccd_nn::Denoiser::read_meta(&init)?;
     let mut rec = Recorded::new(
-        a.method,
+        a.cfg.method,
         &profile,
         init_meta.ablate,
         Recorded::MEMORY_BUDGET,
@@ -118,18 +99,12 @@ pub fn run(a: Args) -> Result<()> {
         ),
     }
     let cfg = AdaptConfig {
-        method: a.method,
-        steps: a.steps,
         lr: a.lr.unwrap_or(AdaptConfig::default_lr(scratch)),
-        noise: a.noise_model,
-        seed: a.seed,
-        crop: a.crop,
-        batch: a.batch,
-        ..AdaptConfig::default()
+        ..a.cfg
     };
-    let provenance = Adaptation::new(a.method, &a.init, scratch, &a.inputs, data.frames(), level);
+    let provenance = Adaptation::new(cfg.method, &a.init, scratch, &a.inputs, data.frames(), level);
     let paths = RunPaths::beside(&a.out);
-    let (pb, mut report) = step_progress(a.steps, cfg.checkpoint_every);
+    let (pb, mut report) = step_progress(cfg.steps, cfg.checkpoint_every);
     let start = if scratch {
         Start::Scratch(init_meta)
     } else {

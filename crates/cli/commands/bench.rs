@@ -1,8 +1,5 @@
 //! `emccd bench`: synthesis throughput on 512² frames, against emccd-detect where installed.
 
-use std::process::Command;
-use std::time::Instant;
-
 use anyhow::Result;
 use emccd_camera::VirtualCamera;
 
@@ -64,137 +61,52 @@ pub struct Args {
     pub net_frames: usize,
 }
 
-/// Wall time and peak resident memory of a child process.
-struct ChildRun {
-    seconds: f64,
-    peak_rss_mib: f64,
-}
-
-/// Runs this binary with `args` (stdout and stderr discarded unless it fails) and measures it.
-fn measure_child(args: &[&std::ffi::OsStr]) -> Result<ChildRun> {
-    use std::process::Stdio;
-    let t = Instant::now();
-    // Its messages go to a file, not a pipe: a pipe nobody reads while we wait could fill.
-    let mut log = tempfile::tempfile()?;
-    let child = Command::new(std::env::current_exe()?)
-        .args(args)
-        .stdout(Stdio::null())
-        .stderr(Stdio::from(log.try_clone()?))
-        .spawn()?;
-    let pid = child.id() as libc::pid_t;
-    let mut status = 0;
-    // SAFETY: an all-zero rusage is valid, and wait4 fills it for our own child.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    let r = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
-    let seconds = t.elapsed().as_secs_f64();
-    if r != pid {
-        anyhow::bail!(
-            "waiting for {:?}: {}",
-            args,
-            std::io::Error::last_os_error()
-        );
-    }
-    if !(libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0) {
-        use std::io::{Read, Seek};
-        let mut err = String::new();
-        log.rewind()?;
-        let _ = log.read_to_string(&mut err);
-        anyhow::bail!("emccd {:?} failed: {err}", args);
-    }
-    Ok(ChildRun {
-        seconds,
-        // ru_maxrss is in KiB on Linux.
-        peak_rss_mib: usage.ru_maxrss as f64 / 1024.0,
-    })
-}
-
 fn archive_bench(gb: f64, dir: &std::path::Path, net_frames: usize) -> Result<()> {
-    use std::ffi::OsStr;
-    // 512×512 u16 frames (emccd_camera::bench::archive_stack).
-    let frame_bytes = (512 * 512 * 2) as f64;
-    let long = ((gb * 1e9) / frame_bytes).ceil().max(1.0) as usize;
-    let tmp = tempfile::Builder::new()
-        .prefix(".emccd-archive-bench.")
-        .tempdir_in(dir)?;
-    let d = tmp.path();
-    let write = |name: &str, frames: usize| -> Result<(std::path::PathBuf, f64)> {
-        let path = d.join(name);
-        let pb = crate::common::progress(frames as u64, "writing");
-        let t = emccd_camera::bench::archive_stack(&path, frames, &mut || pb.inc(1))?;
-        pb.finish_and_clear();
-        Ok((path, t))
+    use emccd_nn::bench::{Archive, ArchiveEvent};
+    let bench = Archive {
+        exe: std::env::current_exe()?,
+        gb,
+        dir: dir.to_path_buf(),
+        net_frames,
     };
-    // The short stack is as long as the network's share, so both stacks run the same work and
-    // differ only in length.
-    let short = net_frames.max(1);
-    let (short_path, _) = write("short.btf", short)?;
-    let (long_path, t_write) = write("long.btf", long)?;
-    let size = std::fs::metadata(&long_path)?.len() as f64;
-    println!(
-        "archive streaming: BigTIFF stacks of 512×512 u16 frames: {short} frames ({:.0} MB) and {long} frames ({:.2} GB, written in {t_write:.0} s, {:.0} MB/s)",
-        short as f64 * frame_bytes / 1e6,
-        size / 1e9,
-        size / 1e6 / t_write
-    );
-    println!(
-        "{:<36} {:>7} {:>9} {:>9} {:>9} {:>9}",
-        "command", "stack", "frames", "s", "frames/s", "peak MiB"
-    );
-    for (label, path, frames) in [("short", &short_path, short), ("long", &long_path, long)] {
-        let stack = path.as_os_str();
-        let out = d.join("out.zarr");
-        let net = d.join("net.zarr");
-        // Shard 0 of ⌊F / net_frames⌋ holds at least net_frames frames (all of a shorter stack).
-        let shards = (frames / net_frames.max(1)).max(1);
-        let first = frames / shards;
-        let shard = format!("0/{shards}");
-        let runs: [(&str, Vec<&OsStr>, usize); 3] = [
-            ("info", vec![OsStr::new("info"), stack], frames),
-            (
-                "denoise --method none → .zarr",
-                vec![
-                    OsStr::new("denoise"),
-                    stack,
-                    OsStr::new("--method"),
-                    OsStr::new("none"),
-                    OsStr::new("-o"),
-                    out.as_os_str(),
-                ],
-                frames,
-            ),
-            (
-                "denoise --method net (first frames)",
-                vec![
-                    OsStr::new("denoise"),
-                    stack,
-                    OsStr::new("--method"),
-                    OsStr::new("net"),
-                    OsStr::new("-o"),
-                    net.as_os_str(),
-                    OsStr::new("--shard"),
-                    OsStr::new(&shard),
-                ],
-                first,
-            ),
-        ];
-        for (what, args, n) in runs {
-            let r = measure_child(&args)?;
-            println!(
-                "{:<36} {:>7} {:>9} {:>9.1} {:>9.1} {:>9.1}",
-                what,
-                label,
-                n,
-                r.seconds,
-                n as f64 / r.seconds,
-                r.peak_rss_mib
-            );
-            for o in [&out, &net] {
-                if o.exists() {
-                    std::fs::remove_dir_all(o)?;
-                }
+    let mut pb = None;
+    bench.run(&mut |e| match e {
+        ArchiveEvent::Writing(frames) => {
+            pb = Some(crate::common::progress(frames as u64, "writing"));
+        }
+        ArchiveEvent::Frame => {
+            if let Some(pb) = &pb {
+                pb.inc(1);
             }
         }
-    }
+        ArchiveEvent::Stacks(s) => {
+            if let Some(pb) = pb.take() {
+                pb.finish_and_clear();
+            }
+            println!(
+                "archive streaming: BigTIFF stacks of 512×512 u16 frames: {} frames ({:.0} MB) and {} frames ({:.2} GB, written in {:.0} s, {:.0} MB/s)",
+                s.short_frames,
+                s.short_mb(),
+                s.long_frames,
+                s.long_bytes / 1e9,
+                s.write_s,
+                s.long_bytes / 1e6 / s.write_s
+            );
+            println!(
+                "{:<36} {:>7} {:>9} {:>9} {:>9} {:>9}",
+                "command", "stack", "frames", "s", "frames/s", "peak MiB"
+            );
+        }
+        ArchiveEvent::Row(r) => println!(
+            "{:<36} {:>7} {:>9} {:>9.1} {:>9.1} {:>9.1}",
+            r.command,
+            r.stack,
+            r.frames,
+            r.seconds,
+            r.frames as f64 / r.seconds,
+            r.peak_rss_mib
+        ),
+    })?;
     println!(
         "({} CPU threads; the stacks and outputs were in {} and are removed)",
         rayon::current_num_threads(),
@@ -315,20 +227,9 @@ fn denoise_bench(
     Ok(())
 }
 
-/// Peak resident memory of this process (Linux), MiB.
-fn peak_rss_mib() -> Option<f64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb / 1024.0)
-}
-
 fn calibration_bench(frames: usize) -> Result<()> {
     let dir = tempfile::tempdir()?;
-    let mut rss_before = f64::NAN;
-    let r = emccd_calib::bench::streaming(dir.path(), frames, &mut || {
-        rss_before = peak_rss_mib().unwrap_or(f64::NAN)
-    })?;
+    let r = emccd_calib::bench::streaming(dir.path(), frames)?;
     let (side, threads) = (emccd_calib::bench::SIDE, rayon::current_num_threads());
     println!(
         "calibration streaming: {} frames of {side}×{side} u16 ({:.0} MB TIFF, page cache), {threads} threads",
@@ -360,15 +261,12 @@ fn calibration_bench(frames: usize) -> Result<()> {
     );
     println!(
         "peak memory: {:.1} MiB (before reading the stack: {:.1} MiB; the stack itself is {:.0} MiB)",
-        peak_rss_mib().unwrap_or(f64::NAN),
-        rss_before,
+        r.peak_mib[1],
+        r.peak_mib[0],
         r.bytes / (1 << 20) as f64
     );
     Ok(())
 }
-
-/// emccd-detect's timing script (run with `python3 -c`, so the binary needs no tools/ folder).
-const EMCCD_DETECT_SPEED: &str = include_str!("../../../tools/emccd_detect_speed.py");
 
 pub fn run(a: Args) -> Result<()> {
     if let Some(frames) = a.calibration {
@@ -381,9 +279,6 @@ pub fn run(a: Args) -> Result<()> {
         return bm3d_bench(&a.bm3d, a.images, &a.data);
     }
     if let Some(gb) = a.archive {
-        if !(gb > 0.0 && gb.is_finite()) {
-            anyhow::bail!("--archive {gb}: the stack's size is a positive number of GB");
-        }
         return archive_bench(gb, &a.archive_dir, a.net_frames);
     }
     let frames = a.frames.max(1);
@@ -407,28 +302,13 @@ pub fn run(a: Args) -> Result<()> {
     if a.no_python {
         return Ok(());
     }
-    let py = Command::new("python3")
-        .arg("-c")
-        .arg(EMCCD_DETECT_SPEED)
-        .arg(frames.min(10).to_string())
-        .arg(a.electrons.to_string())
-        .output();
-    match py {
-        Ok(o) if o.status.success() => {
-            let t_py: f64 = String::from_utf8_lossy(&o.stdout)
-                .trim()
-                .parse()
-                .unwrap_or(f64::NAN);
+    match emccd_camera::bench::emccd_detect(frames.min(10), a.electrons) {
+        Ok(t_py) => {
             row("emccd-detect sim_sub_frame (Python)", t_py);
             println!();
             println!("ratio vs emccd-detect: ours {:.1}×, virtual camera {:.1}×  (same physics: PGN + read noise + ADC)", t_py / t_ours, t_py / t_cam);
         }
-        Ok(o) => {
-            let err = String::from_utf8_lossy(&o.stderr);
-            let last = err.lines().last().unwrap_or("").to_string();
-            println!("\nemccd-detect comparison skipped: {last}  (pip install emccd-detect)");
-        }
-        Err(e) => println!("\nemccd-detect comparison skipped: python3 not runnable ({e})"),
+        Err(why) => println!("\nemccd-detect comparison skipped: {why}  (pip install emccd-detect)"),
     }
     Ok(())
 }

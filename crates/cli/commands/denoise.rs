@@ -54,12 +54,8 @@ pub struct Args {
     /// Output units.
     #[arg(long, value_enum, default_value = "dn")]
     pub units: Units,
-    /// Tile side for large frames, px, at least 64 (a 512×512 frame runs in one piece).
-    #[arg(long, default_value_t = 512, value_parser = parse_tile)]
-    pub tile: usize,
-    /// Overlap between tiles, px (at most half a tile; more is reduced to that).
-    #[arg(long, default_value_t = 32)]
-    pub overlap: usize,
+    #[command(flatten)]
+    pub tiling: Tiling,
     /// Average the network over this many flips/transposes of each frame (1, 2, 4 or 8):
     /// a geometric self-ensemble, slightly higher PSNR for proportionally more time.
     #[arg(long, default_value_t = 1, value_parser = parse_ensemble)]
@@ -72,11 +68,6 @@ pub struct Args {
     /// are one stack in the order given.
     #[arg(long, allow_hyphen_values = true)]
     pub shard: Option<Shard>,
-}
-
-fn parse_tile(s: &str) -> std::result::Result<usize, String> {
-    let t = s.parse::<usize>().unwrap_or(0);
-    Tiling::check_tile(t).map_err(|e| e.to_string())
 }
 
 fn parse_ensemble(s: &str) -> std::result::Result<usize, String> {
@@ -105,10 +96,7 @@ pub fn run(a: Args) -> Result<()> {
         profile: &profile,
         method,
         model: model.as_ref(),
-        tiling: Tiling {
-            tile: a.tile,
-            overlap: a.overlap,
-        },
+        tiling: a.tiling,
         ensemble: a.ensemble,
         units: a.units,
     };

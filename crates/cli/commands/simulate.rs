@@ -22,21 +22,8 @@ pub struct CameraOpts {
     /// Simulate only the top-left WIDTHxHEIGHT region of the sensor (e.g. 128x128).
     #[arg(long, value_parser = parse_size)]
     pub crop: Option<(usize, usize)>,
-    /// Quantum efficiency.
-    #[arg(long, default_value_t = PhysicalParams::default().qe)]
-    pub qe: f64,
-    /// Clock-induced charge, e⁻ per pixel per frame.
-    #[arg(long, default_value_t = PhysicalParams::default().cic_e)]
-    pub cic: f64,
-    /// Dark current, e⁻ per pixel per second.
-    #[arg(long, default_value_t = PhysicalParams::default().dark_e_per_s)]
-    pub dark: f64,
-    /// Fraction of hot pixels (dark current `--hot-dark`).
-    #[arg(long, default_value_t = PhysicalParams::default().hot_fraction)]
-    pub hot_fraction: f64,
-    /// Dark current of hot pixels, e⁻ per pixel per second.
-    #[arg(long, default_value_t = PhysicalParams::default().hot_dark_e_per_s)]
-    pub hot_dark: f64,
+    #[command(flatten)]
+    pub physics: PhysicalParams,
     /// Random seed (same seed, same files).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -55,12 +42,8 @@ impl CameraOpts {
     /// The camera: the truth profile with the physics flags.
     fn camera(&self) -> Result<VirtualCamera> {
         let phys = PhysicalParams {
-            qe: self.qe,
-            dark_e_per_s: self.dark,
-            cic_e: self.cic,
-            hot_fraction: self.hot_fraction,
-            hot_dark_e_per_s: self.hot_dark,
-            ..PhysicalParams::seeded(self.seed)
+            seed: PhysicalParams::seeded(self.seed).seed,
+            ..self.physics.clone()
         };
         Ok(VirtualCamera::new(self.profile()?, phys)?)
     }

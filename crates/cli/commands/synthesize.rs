@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use emccd_camera::{Ablation, NoiseModelKind, SceneNoise};
+use emccd_camera::SceneNoise;
 
 use crate::common::load_profile;
 
@@ -19,35 +19,12 @@ pub struct Args {
     /// Camera profile directory or `default`.
     #[arg(long, default_value = "default")]
     pub profile: String,
-    /// Noise model.
-    #[arg(long, value_enum, default_value = "ours")]
-    pub model: NoiseModelKind,
-    /// Clean signal at the image's full-scale value, DN above bias.
-    #[arg(long, default_value_t = 200.0)]
-    pub signal_dn: f64,
-    /// Exposure (s), for the PGN model's dark current.
-    #[arg(long, default_value_t = 0.01)]
-    pub exposure_s: f64,
-    /// Components of `ours` to switch off (comma-separated): multiplicative, readout, quantization.
-    #[arg(long, default_value = "")]
-    pub ablate: Ablation,
-    /// Number of noisy frames (each with its own seed).
-    #[arg(long, default_value_t = 1)]
-    pub frames: usize,
-    /// Random seed.
-    #[arg(long, default_value_t = 1)]
-    pub seed: u64,
+    #[command(flatten)]
+    pub noise: SceneNoise,
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let noise = SceneNoise {
-        kind: a.model,
-        signal_dn: a.signal_dn,
-        exposure_s: a.exposure_s,
-        ablate: a.ablate,
-        frames: a.frames,
-        seed: a.seed,
-    };
+    let noise = a.noise;
     noise.check().map_err(|e| anyhow::anyhow!("--{e}"))?;
     let profile = load_profile(&a.profile)?;
     emccd_io::refuse_overwrite(&a.out, &a.input, "the input image")?;
@@ -58,8 +35,8 @@ pub fn run(a: Args) -> Result<()> {
         .with_context(|| format!("synthesizing noise on {}", a.input.display()))?;
     eprintln!(
         "wrote {} {:?}-model frame(s) of {}×{} to {}",
-        a.frames,
-        a.model,
+        noise.frames,
+        noise.kind,
         scene.width,
         scene.height,
         a.out.display()

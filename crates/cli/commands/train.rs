@@ -3,8 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use emccd_camera::{Ablation, NoiseModelKind};
-use emccd_nn::train::{train, Loss, Run, RunPaths, TrainConfig, TrainImages};
+use emccd_nn::train::{train, Run, RunPaths, TrainConfig, TrainImages};
 use emccd_nn::{Arch, Base, Inputs, ModelMeta, Scale, UNetConfig};
 
 use crate::common::load_profile;
@@ -30,21 +29,8 @@ pub struct Args {
     /// multiples of 128 px). With --init the initial model's architecture is kept.
     #[arg(long, default_value = "unet", value_parser = clap::builder::PossibleValuesParser::new(emccd_nn::model::ARCHS))]
     pub arch: String,
-    /// U-Net channels at full resolution.
-    #[arg(long, default_value_t = 16)]
-    pub base: usize,
-    /// U-Net levels.
-    #[arg(long, default_value_t = 4)]
-    pub levels: usize,
-    /// U-Net denoiser: output the clean frame directly instead of a correction added to the
-    /// noisy frame (which, at a few photoelectrons, has to cancel every EM spike exactly).
-    #[arg(long)]
-    pub direct: bool,
-    /// U-Net: fold each N×N pixel block into channels before the first layer and unfold the
-    /// output (FFDNet's down-sampling; 2 costs about a quarter of the operations per pixel, so
-    /// about 3× the crops per CPU-hour, for a receptive field one level deeper). 1: none.
-    #[arg(long, default_value_t = 1, value_name = "1|2|4")]
-    pub unshuffle: usize,
+    #[command(flatten)]
+    pub shape: UNetConfig,
     /// How a denoiser's input is scaled per frame: `percentile` (the noisy frame's 99.5th
     /// percentile, what the bundled networks use) or `binned` (the same of 4×4 block means,
     /// which follows the scene rather than the noise). Recorded in the model. Default: the
@@ -62,58 +48,8 @@ pub struct Args {
     /// base, else bm3d. Another base than the --init model's restarts its output layer at zero.
     #[arg(long, value_enum)]
     pub hybrid_base: Option<Base>,
-    /// Noise model of the synthesized pairs.
-    #[arg(long, value_enum, default_value = "ours")]
-    pub noise_model: NoiseModelKind,
-    /// Components to switch off: multiplicative, readout, quantization (synthesis); fpn, blooming
-    /// (recorded in the model: its denoising pipeline then skips that correction).
-    #[arg(long, default_value = "")]
-    pub ablate: Ablation,
-    /// Optimizer steps.
-    #[arg(long, default_value_t = 20000)]
-    pub steps: u64,
-    /// Crops per step.
-    #[arg(long, default_value_t = 4)]
-    pub batch: usize,
-    /// Crop side, px.
-    #[arg(long, default_value_t = 128)]
-    pub crop: usize,
-    /// Use each synthesized pair about this many times (in different batches, re-oriented):
-    /// synthesis then costs batch/reuse pairs per step. Worth it for --inputs hybrid, where every
-    /// pair needs a BM3D run (≈ 0.4 s per 128² crop on one core).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
-    pub reuse: u32,
-    /// Multiply the profile's read noise by a factor drawn log-uniformly from LO,HI for every
-    /// pair (noise model `ours`), so the model learns many read-noise-to-gain ratios and serves
-    /// other cameras too. 1,1: the profile's own read noise only.
-    #[arg(long, default_value = "1,1", value_parser = lo_hi, value_name = "LO,HI")]
-    pub read_noise_scale: [f64; 2],
-    /// Photo-electrons at a scene's brightest pixel, drawn log-uniformly from LO,HI.
-    #[arg(long, default_value = "3,3000", value_parser = lo_hi, value_name = "LO,HI")]
-    pub electrons: [f64; 2],
-    /// Instead of --electrons: the scene's mean photo-electrons per pixel, drawn log-uniformly
-    /// from LO,HI (e.g. 0.2,100 for the photon-starved range EMCCDs are used in).
-    #[arg(long, value_parser = lo_hi, value_name = "LO,HI")]
-    pub mean_electrons: Option<[f64; 2]>,
-    /// Noise model pgn: clock-induced charge per pixel and frame (e⁻), drawn uniformly from
-    /// LO,HI; default: the profile's.
-    #[arg(long, value_parser = lo_hi, value_name = "LO,HI")]
-    pub cic: Option<[f64; 2]>,
-    /// Training loss.
-    #[arg(long, value_enum, default_value = "charbonnier")]
-    pub loss: Loss,
-    /// Peak learning rate.
-    #[arg(long, default_value_t = 2e-4)]
-    pub lr: f64,
-    /// Warm-up steps.
-    #[arg(long, default_value_t = 500)]
-    pub warmup: u64,
-    /// Validate (and checkpoint) every this many steps.
-    #[arg(long, default_value_t = 250)]
-    pub checkpoint_every: u64,
-    /// Seed.
-    #[arg(long, default_value_t = 897)]
-    pub seed: u64,
+    #[command(flatten)]
+    pub cfg: TrainConfig,
     /// Fine-tune from this model (a file, or a bundled model: `default`, `microscopy`, `lowlight`).
     #[arg(long)]
     pub init: Option<String>,
@@ -126,14 +62,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let shape = UNetConfig {
-        base: a.base,
-        levels: a.levels,
-        direct: a.direct,
-        unshuffle: a.unshuffle,
-        ..UNetConfig::DEFAULT
-    };
-    let arch = Arch::for_training(&a.arch, a.inputs, shape)?;
+    let arch = Arch::for_training(&a.arch, a.inputs, a.shape)?;
     // Before any image is read: the model a run starts from is never its output.
     let init = a
         .init
@@ -147,34 +76,17 @@ pub fn run(a: Args) -> Result<()> {
         .as_deref()
         .map(emccd_nn::Denoiser::read_meta)
         .transpose()?;
-    let base = Base::for_run(a.hybrid_base, a.inputs, init_meta.as_ref())?;
-    let scale = Scale::for_run(a.scale, init_meta.as_ref());
+    let cfg = TrainConfig {
+        base: Base::for_run(a.hybrid_base, a.inputs, init_meta.as_ref())?,
+        scale: Scale::for_run(a.scale, init_meta.as_ref()),
+        val_every: a.cfg.checkpoint_every,
+        ..a.cfg
+    };
     let profile = load_profile(&a.profile)?;
     let images = TrainImages::read(&a.clean, &a.val)?;
-    let cfg = TrainConfig {
-        base,
-        steps: a.steps,
-        batch: a.batch,
-        crop: a.crop,
-        reuse: a.reuse,
-        lr: a.lr,
-        warmup: a.warmup,
-        noise: a.noise_model,
-        ablate: a.ablate,
-        read_noise_scale: a.read_noise_scale,
-        electrons: a.electrons,
-        mean_electrons: a.mean_electrons,
-        cic_e: a.cic,
-        loss: a.loss,
-        scale,
-        seed: a.seed,
-        val_every: a.checkpoint_every,
-        checkpoint_every: a.checkpoint_every,
-        ..TrainConfig::default()
-    };
     let meta = ModelMeta::for_run(arch, a.inputs, &cfg, &profile, &images);
     let paths = RunPaths::beside(&a.out);
-    let (pb, mut report) = crate::common::step_progress(a.steps, a.checkpoint_every);
+    let (pb, mut report) = crate::common::step_progress(cfg.steps, cfg.checkpoint_every);
     let model = train(
         images,
         Run::new(&profile, cfg, meta, &paths)
@@ -190,16 +102,4 @@ pub fn run(a: Args) -> Result<()> {
         model.num_params()
     );
     Ok(())
-}
-
-/// `LO,HI`: two comma-separated numbers (a range to draw from).
-fn lo_hi(s: &str) -> std::result::Result<[f64; 2], String> {
-    let v: Vec<&str> = s.split(',').map(str::trim).collect();
-    match v[..] {
-        [lo, hi] => match (lo.parse(), hi.parse()) {
-            (Ok(lo), Ok(hi)) => Ok([lo, hi]),
-            _ => Err(format!("{s:?}: two numbers, LO,HI")),
-        },
-        _ => Err(format!("{s:?}: two comma-separated numbers, LO,HI")),
-    }
 }

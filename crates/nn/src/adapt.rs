@@ -327,8 +327,8 @@ impl RecordedPairs {
         crop.min(self.width / k).min(self.height / k) / multiple * multiple
     }
 
-    /// Pair number `seed`: input [2, c, c] and target [c, c], 8-way augmented.
-    pub(crate) fn sample(&self, c: usize, seed: u64) -> (Vec<f32>, Vec<f32>) {
+    /// Pair number `seed`: input [2, c, c] and target [c, c], 8-way augmented if `augment`.
+    pub(crate) fn sample(&self, c: usize, augment: bool, seed: u64) -> (Vec<f32>, Vec<f32>) {
         let mut rng = Pcg64::seed_from_u64(seed);
         let (w, h) = (self.width, self.height);
         let i = rng.random_range(0..self.frames.len());
@@ -367,7 +367,7 @@ impl RecordedPairs {
                 )
             }
         };
-        let mode = rng.random_range(0..8u8);
+        let mode = crate::train::draw_orientation(&mut rng, augment);
         let p = prepare_scaled(
             &orient(&inp, c, mode),
             self.slope,
@@ -455,26 +455,44 @@ pub fn scene_estimate(
     })
 }
 
-/// How an adaptation runs.
+/// How an adaptation runs (with the `clap` feature, `emccd adapt`'s recipe flags; the
+/// learning rate's default depends on the start, [`AdaptConfig::default_lr`]).
 #[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct AdaptConfig {
     /// Where the training pairs come from.
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = AdaptConfig::default().method))]
     pub method: AdaptMethod,
-    /// Optimizer steps.
+    /// Fine-tuning steps (about 1 s each for 4 × 128² crops on 2 cores; the default takes
+    /// about 8 minutes).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = AdaptConfig::default().steps))]
     pub steps: u64,
     /// Peak learning rate (a fine-tune: lower than training from scratch).
+    #[cfg_attr(feature = "clap", arg(skip = AdaptConfig::default().lr))]
     pub lr: f64,
     /// Crops per step.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = AdaptConfig::default().batch))]
     pub batch: usize,
-    /// Largest crop side (smaller frames use their own size, rounded to the network's multiple).
+    /// Largest training crop side, px (smaller frames use their own size, rounded to the
+    /// network's multiple; half of it with --method neighbors).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = AdaptConfig::default().crop))]
     pub crop: usize,
-    /// Resynthesized pairs span the recording's mean light level ÷ and × this factor.
+    /// Resynthesized pairs span the recording's mean light level divided and multiplied by
+    /// this factor (1: exactly its level).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = AdaptConfig::default().spread))]
     pub spread: f64,
-    /// Noise model of the resynthesized pairs (`ours`: the calibrated exact chain).
+    /// Off (`--no-augment`): train on crops in the recording's own orientation only; on (the
+    /// default), each crop in one of the 8 flips/transposes.
+    #[cfg_attr(feature = "clap", arg(long = "no-augment", action = clap::ArgAction::SetFalse))]
+    pub augment: bool,
+    /// Noise model of the synthesized pairs (`ours`: the profile's exact EMCCD chain).
+    #[cfg_attr(feature = "clap", arg(long = "noise-model", value_name = "NOISE_MODEL", value_enum, default_value_t = AdaptConfig::default().noise))]
     pub noise: NoiseModelKind,
     /// Seed.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = AdaptConfig::default().seed))]
     pub seed: u64,
     /// Checkpoint every this many steps.
+    #[cfg_attr(feature = "clap", arg(skip = AdaptConfig::default().checkpoint_every))]
     pub checkpoint_every: u64,
 }
 
@@ -507,6 +525,7 @@ impl Default for AdaptConfig {
             batch: 4,
             crop: 128,
             spread: 1.5,
+            augment: true,
             noise: NoiseModelKind::Ours,
             seed: 2411,
             checkpoint_every: 50,
@@ -819,6 +838,7 @@ pub fn adapt(
             _ => Loss::L2,
         },
         read_noise_scale: [1.0, 1.0],
+        augment: cfg.augment,
         noise: cfg.noise,
         ablate: start_meta.ablate,
         // The network keeps the input scaling it was trained with.

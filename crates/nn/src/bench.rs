@@ -147,3 +147,194 @@ pub fn denoise(
     }
     Ok(t)
 }
+
+/// The archive benchmark of `emccd bench --archive`: a long and a short BigTIFF raw stack of
+/// the virtual camera, streamed by `emccd info`, `emccd denoise --method none` (to OME-Zarr) and
+/// a network denoise of the first frames, each run as a child process of `exe` so its wall time
+/// and peak memory are its own (peak memory only grows within one process).
+#[derive(Clone, Debug)]
+pub struct Archive {
+    /// The `emccd` binary measured.
+    pub exe: PathBuf,
+    /// Size of the long stack, GB.
+    pub gb: f64,
+    /// Where the stacks and outputs are written (and removed afterwards).
+    pub dir: PathBuf,
+    /// Frames of the network denoise: the short stack's length, and the first frames of each.
+    pub net_frames: usize,
+}
+
+/// Bytes of one of the archive benchmark's 512×512 u16 frames.
+const ARCHIVE_FRAME_BYTES: f64 = (512 * 512 * 2) as f64;
+
+/// The two stacks of an [`Archive`] run.
+#[derive(Clone, Copy, Debug)]
+pub struct ArchiveStacks {
+    /// Frames of the short stack.
+    pub short_frames: usize,
+    /// Frames of the long stack.
+    pub long_frames: usize,
+    /// Bytes of the long stack's file.
+    pub long_bytes: f64,
+    /// Seconds writing the long stack took.
+    pub write_s: f64,
+}
+
+impl ArchiveStacks {
+    /// Megabytes of the short stack's frames.
+    pub fn short_mb(&self) -> f64 {
+        self.short_frames as f64 * ARCHIVE_FRAME_BYTES / 1e6
+    }
+}
+
+/// One command of an [`Archive`] run, measured.
+#[derive(Clone, Debug)]
+pub struct ArchiveRow {
+    /// What ran.
+    pub command: &'static str,
+    /// On which stack: `short` or `long`.
+    pub stack: &'static str,
+    /// Frames it processed.
+    pub frames: usize,
+    /// Wall time, s.
+    pub seconds: f64,
+    /// Peak resident memory, MiB (`wait4`'s `ru_maxrss`).
+    pub peak_rss_mib: f64,
+}
+
+/// What an [`Archive`] run reports as it goes.
+#[derive(Debug)]
+pub enum ArchiveEvent<'a> {
+    /// Writing a stack of this many frames begins.
+    Writing(usize),
+    /// One more frame of it written.
+    Frame,
+    /// Both stacks are written.
+    Stacks(&'a ArchiveStacks),
+    /// One command measured.
+    Row(&'a ArchiveRow),
+}
+
+impl Archive {
+    /// Runs the benchmark, reporting through `on`; the temporary folder is removed at the end
+    /// (and on error).
+    pub fn run(&self, on: &mut dyn FnMut(ArchiveEvent)) -> Result<()> {
+        use std::ffi::OsStr;
+        if !(self.gb > 0.0 && self.gb.is_finite()) {
+            return Err(Error::Data(format!(
+                "--archive {}: the stack's size is a positive number of GB",
+                self.gb
+            )));
+        }
+        let long = ((self.gb * 1e9) / ARCHIVE_FRAME_BYTES).ceil().max(1.0) as usize;
+        let tmp = tempfile::Builder::new()
+            .prefix(".emccd-archive-bench.")
+            .tempdir_in(&self.dir)
+            .map_err(|e| Error::io(&self.dir, e))?;
+        let d = tmp.path();
+        let mut write = |name: &str, frames: usize| -> Result<(PathBuf, f64)> {
+            let path = d.join(name);
+            on(ArchiveEvent::Writing(frames));
+            let t = emccd_camera::bench::archive_stack(&path, frames, &mut || {
+                on(ArchiveEvent::Frame)
+            })?;
+            Ok((path, t))
+        };
+        // The short stack is as long as the network's share, so both stacks run the same work
+        // and differ only in length.
+        let short = self.net_frames.max(1);
+        let (short_path, _) = write("short.btf", short)?;
+        let (long_path, write_s) = write("long.btf", long)?;
+        let stacks = ArchiveStacks {
+            short_frames: short,
+            long_frames: long,
+            long_bytes: std::fs::metadata(&long_path)
+                .map_err(|e| Error::io(&long_path, e))?
+                .len() as f64,
+            write_s,
+        };
+        on(ArchiveEvent::Stacks(&stacks));
+        for (label, path, frames) in [("short", &short_path, short), ("long", &long_path, long)] {
+            let stack = path.as_os_str();
+            let out = d.join("out.zarr");
+            let net = d.join("net.zarr");
+            // Shard 0 of ⌊F / net_frames⌋ holds at least net_frames frames (all of a shorter
+            // stack).
+            let shards = (frames / self.net_frames.max(1)).max(1);
+            let shard = format!("0/{shards}");
+            let o = OsStr::new;
+            let runs: [(&'static str, Vec<&OsStr>, usize); 3] = [
+                ("info", vec![o("info"), stack], frames),
+                (
+                    "denoise --method none → .zarr",
+                    vec![o("denoise"), stack, o("--method"), o("none"), o("-o"), out.as_os_str()],
+                    frames,
+                ),
+                (
+                    "denoise --method net (first frames)",
+                    vec![
+                        o("denoise"),
+                        stack,
+                        o("--method"),
+                        o("net"),
+                        o("-o"),
+                        net.as_os_str(),
+                        o("--shard"),
+                        o(&shard),
+                    ],
+                    frames / shards,
+                ),
+            ];
+            for (command, args, n) in runs {
+                let (seconds, peak_rss_mib) = measure_child(&self.exe, &args)?;
+                on(ArchiveEvent::Row(&ArchiveRow {
+                    command,
+                    stack: label,
+                    frames: n,
+                    seconds,
+                    peak_rss_mib,
+                }));
+                for p in [&out, &net] {
+                    if p.exists() {
+                        std::fs::remove_dir_all(p).map_err(|e| Error::io(p, e))?;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Runs `exe args` (stdout discarded, stderr kept for a failure's message) and returns its wall
+/// time (s) and peak resident memory (MiB).
+fn measure_child(exe: &std::path::Path, args: &[&std::ffi::OsStr]) -> Result<(f64, f64)> {
+    use std::io::{Read, Seek};
+    use std::process::{Command, Stdio};
+    let t = Instant::now();
+    // Its messages go to a file, not a pipe: a pipe nobody reads while we wait could fill.
+    let io = |e| Error::io(exe, e);
+    let mut log = tempfile::tempfile().map_err(io)?;
+    let child = Command::new(exe)
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::from(log.try_clone().map_err(io)?))
+        .spawn()
+        .map_err(io)?;
+    let pid = child.id() as libc::pid_t;
+    let mut status = 0;
+    // SAFETY: an all-zero rusage is valid, and wait4 fills it for our own child.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    let r = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
+    let seconds = t.elapsed().as_secs_f64();
+    if r != pid {
+        return Err(Error::io(exe, std::io::Error::last_os_error()));
+    }
+    if !(libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0) {
+        let mut err = String::new();
+        log.rewind().map_err(io)?;
+        let _ = log.read_to_string(&mut err);
+        return Err(Error::Bench(format!("emccd {args:?} failed: {err}")));
+    }
+    // ru_maxrss is in KiB on Linux.
+    Ok((seconds, usage.ru_maxrss as f64 / 1024.0))
+}

@@ -32,6 +32,9 @@ pub enum Error {
         #[source]
         source: emccd_io::Error,
     },
+    /// A benchmark's child process failed (its command and what it printed).
+    #[error("{0}")]
+    Bench(String),
     /// An error about one file or frame of several: `at` names it, `source` keeps its kind.
     #[error("{at}: {source}")]
     At {

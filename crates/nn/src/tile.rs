@@ -7,13 +7,23 @@ use burn::prelude::*;
 
 use crate::model::Net;
 
-/// Tiling parameters.
-#[derive(Clone, Copy, Debug)]
+/// Tiling parameters (with the `clap` feature, `emccd denoise`'s tiling flags).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct Tiling {
-    /// Tile side, px (a multiple of the network's multiple).
+    /// Tile side for large frames, px, at least 64 (a 512×512 frame runs in one piece).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = Tiling::default().tile, value_parser = parse_tile))]
     pub tile: usize,
-    /// Overlap between neighbouring tiles, px.
+    /// Overlap between tiles, px (at most half a tile; more is reduced to that).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = Tiling::default().overlap))]
     pub overlap: usize,
+}
+
+/// A tile side as a flag gives it, checked ([`Tiling::check_tile`]).
+#[cfg(feature = "clap")]
+fn parse_tile(s: &str) -> std::result::Result<usize, String> {
+    let t = s.parse::<usize>().unwrap_or(0);
+    Tiling::check_tile(t).map_err(|e| e.to_string())
 }
 
 impl Tiling {

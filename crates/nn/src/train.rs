@@ -41,61 +41,102 @@ pub enum Loss {
     L2,
 }
 
-/// The recipe (recorded in the model file it produces, [`crate::ModelMeta::train`]).
+/// The recipe (recorded in the model file it produces, [`crate::ModelMeta::train`]). With the
+/// `clap` feature it is also `emccd train`'s flags (their defaults are [`TrainConfig::default`]'s,
+/// tested); what a run resolves from its `--init` model (`scale`, `base`) is set by the caller.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct TrainConfig {
     /// Optimizer steps.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().steps))]
     pub steps: u64,
     /// Crops per step.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().batch))]
     pub batch: usize,
     /// Crop side, px.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().crop))]
     pub crop: usize,
     /// Peak learning rate.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().lr))]
     pub lr: f64,
     /// AdamW weight decay.
+    #[cfg_attr(feature = "clap", arg(skip = TrainConfig::default().weight_decay))]
     pub weight_decay: f64,
     /// Linear warm-up steps, at most a fifth of the run ([`TrainConfig::warmup_steps`]).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().warmup))]
     pub warmup: u64,
-    /// Photo-electrons at a scene's full scale, drawn log-uniformly from this range.
+    /// Photo-electrons at a scene's brightest pixel, drawn log-uniformly from LO,HI.
+    #[cfg_attr(feature = "clap", arg(long, default_value = "3,3000", value_parser = parse_range, value_name = "LO,HI"))]
     pub electrons: [f64; 2],
-    /// Instead of `electrons`: the scene's *mean* photo-electrons per pixel, drawn log-uniformly
-    /// from this range (how EMCCD light levels are quoted, and what the low-light suite uses).
+    /// Instead of --electrons: the scene's *mean* photo-electrons per pixel, drawn
+    /// log-uniformly from LO,HI (how EMCCD light levels are quoted; e.g. 0.2,100 for the
+    /// photon-starved range EMCCDs are used in, what the low-light suite measures).
     #[serde(default)]
+    #[cfg_attr(feature = "clap", arg(long, value_parser = parse_range, value_name = "LO,HI"))]
     pub mean_electrons: Option<[f64; 2]>,
-    /// Model `pgn`: clock-induced charge per pixel and frame (e⁻), drawn uniformly from this
-    /// range; `None`: the profile's.
+    /// Noise model pgn: clock-induced charge per pixel and frame (e⁻), drawn uniformly from
+    /// LO,HI; default: the profile's.
     #[serde(default)]
+    #[cfg_attr(feature = "clap", arg(long = "cic", value_parser = parse_range, value_name = "LO,HI"))]
     pub cic_e: Option<[f64; 2]>,
-    /// Loss.
+    /// Training loss.
     #[serde(default)]
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = TrainConfig::default().loss))]
     pub loss: Loss,
     /// How a denoiser's input is scaled per frame (recorded in the model it trains).
     #[serde(default, skip_serializing_if = "Scale::is_default")]
+    #[cfg_attr(feature = "clap", arg(skip = TrainConfig::default().scale))]
     pub scale: Scale,
-    /// The profile's read noise is multiplied by a factor drawn log-uniformly from this range
-    /// (model `ours`): training on many read-noise-to-gain ratios is what lets one model serve
-    /// cameras other than the training profile. `[1, 1]`: the profile's own.
+    /// Multiply the profile's read noise by a factor drawn log-uniformly from LO,HI for every
+    /// pair (noise model ours), so the model learns many read-noise-to-gain ratios and serves
+    /// cameras other than the training profile. 1,1: the profile's own read noise only.
     #[serde(default = "unit_range")]
+    #[cfg_attr(feature = "clap", arg(long, default_value = "1,1", value_parser = parse_range, value_name = "LO,HI"))]
     pub read_noise_scale: [f64; 2],
-    /// Each synthesized pair is drawn about this many times (in different batches, with fresh
-    /// flips and rotations) before it leaves the pool, so that synthesis — BM3D on every crop,
-    /// for a hybrid network — costs `batch / reuse` pairs per step instead of `batch`. 1: every
-    /// pair is fresh.
+    /// Use each synthesized pair about this many times (in different batches, with fresh flips
+    /// and rotations) before it leaves the pool, so that synthesis costs batch/reuse pairs per
+    /// step. Worth it for a refinement network (`--inputs hybrid`), where every pair needs a
+    /// BM3D run (about 0.4 s per 128² crop on one core). 1: every pair is fresh.
     #[serde(default = "one")]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().reuse, value_parser = clap::value_parser!(u32).range(1..=64)))]
     pub reuse: u32,
+    /// On (the default), each crop in one of the 8 flips/transposes, drawn at random (more
+    /// views of few images); off (`--no-augment`), every crop keeps its image's orientation.
+    #[serde(default = "yes")]
+    #[cfg_attr(feature = "clap", arg(long = "no-augment", action = clap::ArgAction::SetFalse))]
+    pub augment: bool,
     /// The estimate a refinement network is trained to correct.
     #[serde(default)]
+    #[cfg_attr(feature = "clap", arg(skip = TrainConfig::default().base))]
     pub base: crate::Base,
-    /// Noise model.
+    /// Noise model of the synthesized pairs.
+    #[cfg_attr(feature = "clap", arg(long = "noise-model", value_name = "NOISE_MODEL", value_enum, default_value_t = TrainConfig::default().noise))]
     pub noise: NoiseModelKind,
-    /// Synthesis components switched off (`multiplicative`, `readout`, `quantization`).
+    /// Components to switch off: multiplicative, readout, quantization (synthesis); fpn,
+    /// blooming (recorded in the model: its denoising pipeline then skips that correction).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().ablate))]
     pub ablate: Ablation,
     /// Seed of everything random.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().seed))]
     pub seed: u64,
     /// Validate every this many steps.
+    #[cfg_attr(feature = "clap", arg(skip = TrainConfig::default().val_every))]
     pub val_every: u64,
-    /// Checkpoint every this many steps.
+    /// Validate and checkpoint every this many steps.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().checkpoint_every))]
     pub checkpoint_every: u64,
+}
+
+/// `LO,HI`: two comma-separated numbers (a range to draw from).
+pub fn parse_range(s: &str) -> std::result::Result<[f64; 2], String> {
+    let v: Vec<&str> = s.split(',').map(str::trim).collect();
+    match v[..] {
+        [lo, hi] => match (lo.parse(), hi.parse()) {
+            (Ok(lo), Ok(hi)) => Ok([lo, hi]),
+            _ => Err(format!("{s:?}: two numbers, LO,HI")),
+        },
+        _ => Err(format!("{s:?}: two comma-separated numbers, LO,HI")),
+    }
 }
 
 impl Default for TrainConfig {
@@ -114,6 +155,7 @@ impl Default for TrainConfig {
             scale: Scale::Percentile,
             read_noise_scale: [1.0, 1.0],
             reuse: 1,
+            augment: true,
             base: crate::Base::Bm3d,
             noise: NoiseModelKind::Ours,
             ablate: Ablation::default(),
@@ -147,6 +189,21 @@ fn unit_range() -> [f64; 2] {
 
 fn one() -> u32 {
     1
+}
+
+fn yes() -> bool {
+    true
+}
+
+/// A crop's orientation for [`orient`]: drawn whether or not `augment` is on, so the rest of a
+/// run's random sequence does not depend on it; 0 (as recorded) without augmentation.
+pub(crate) fn draw_orientation(rng: &mut Pcg64, augment: bool) -> u8 {
+    let mode = rng.random_range(0..8u8);
+    if augment {
+        mode
+    } else {
+        0
+    }
 }
 
 /// Clean images for a run: what it trains on and what it validates on.
@@ -267,7 +324,7 @@ fn synth_sample(
     let (w, h) = (img.width, img.height);
     let x0 = rng.random_range(0..=w - c);
     let y0 = rng.random_range(0..=h - c);
-    let mode = rng.random_range(0..8u8);
+    let mode = draw_orientation(&mut rng, cfg.augment);
     let slope = profile.slope()?;
     let k_mean = profile.dn_per_electron()?;
     // Electrons per unit of the clean image (whose values lie in [0, 1]).
@@ -465,7 +522,7 @@ impl Pool {
         let mut target = Vec::with_capacity(cfg.batch * c * c);
         for _ in 0..cfg.batch {
             let (i, t) = &self.pairs[&(lo + rng.random_range(0..w))];
-            let mode = rng.random_range(0..8u8);
+            let mode = draw_orientation(&mut rng, cfg.augment);
             for plane in i.chunks_exact(c * c) {
                 input.extend(orient(plane, c, mode));
             }
@@ -724,7 +781,7 @@ pub(crate) enum Source {
 fn recorded_batch(pairs: &RecordedPairs, cfg: &TrainConfig, seed: u64) -> Batch {
     let samples: Vec<(Vec<f32>, Vec<f32>)> = (0..cfg.batch as u64)
         .into_par_iter()
-        .map(|b| pairs.sample(cfg.crop, pair_seed(seed, b)))
+        .map(|b| pairs.sample(cfg.crop, cfg.augment, pair_seed(seed, b)))
         .collect();
     let (input, target): (Vec<Vec<f32>>, Vec<Vec<f32>>) = samples.into_iter().unzip();
     Batch {

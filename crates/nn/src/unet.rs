@@ -10,29 +10,37 @@ use burn::nn::{Initializer, LeakyRelu, LeakyReluConfig, PaddingConfig2d};
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
-/// Size of a U-Net.
+/// Size of a U-Net (with the `clap` feature, `emccd train`'s U-Net flags; defaults
+/// [`UNetConfig::DEFAULT`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct UNetConfig {
-    /// Channels at full resolution (doubled at every level down).
+    /// U-Net channels at full resolution (doubled at every level down).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = UNetConfig::DEFAULT.base))]
     pub base: usize,
-    /// Levels of down-sampling; frames are padded to a multiple of 2^levels.
+    /// U-Net levels of down-sampling; frames are padded to a multiple of 2^levels.
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = UNetConfig::DEFAULT.levels))]
     pub levels: usize,
     /// Input channels (the noisy frame and its noise-level map; a refinement network also
     /// gets the estimate it refines).
+    #[cfg_attr(feature = "clap", arg(skip = UNetConfig::DEFAULT.in_channels))]
     pub in_channels: usize,
     /// The input channel the output is added to (the global residual): 0, the noisy frame, for
     /// a denoiser; the estimate's channel for a refinement network, whose output layer then
     /// starts at zero so that an untrained network returns the estimate unchanged.
     #[serde(default)]
+    #[cfg_attr(feature = "clap", arg(skip = UNetConfig::DEFAULT.residual))]
     pub residual: usize,
-    /// No global residual: the output is the clean frame itself rather than a correction to
-    /// the residual channel. At a few photoelectrons the noisy frame is mostly single-electron
-    /// EM spikes, which a correction has to cancel exactly; a direct output need not.
+    /// U-Net denoiser: output the clean frame directly instead of a correction added to the
+    /// noisy frame (which, at a few photoelectrons, has to cancel every EM spike exactly).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    #[cfg_attr(feature = "clap", arg(long))]
     pub direct: bool,
-    /// Side of the pixel blocks folded into channels before the first layer (1: none; 2: each
-    /// 2×2 block becomes 4× the channels at half the resolution) and unfolded after the last.
+    /// U-Net: fold each N×N pixel block into channels before the first layer and unfold the
+    /// output (FFDNet's down-sampling; 2 costs about a quarter of the operations per pixel, so
+    /// about 3× the crops per CPU-hour, for a receptive field one level deeper). 1: none.
     #[serde(default = "one", skip_serializing_if = "is_one")]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = UNetConfig::DEFAULT.unshuffle, value_name = "1|2|4"))]
     pub unshuffle: usize,
 }
 

@@ -1,6 +1,6 @@
 """Seconds per 512x512 frame of emccd-detect's EMCCDDetect.sim_sub_frame, with the physics of
 emccd's default virtual camera: `emccd bench` runs this (embedded at build time) beside its own
-synthesis. Usage: python3 tools/emccd_detect_speed.py FRAMES ELECTRONS_PER_PIXEL"""
+synthesis. Usage: python3 emccd_detect_speed.py FRAMES ELECTRONS_PER_PIXEL"""
 import sys, time, warnings
 warnings.filterwarnings("ignore")
 import numpy as np
