@@ -25,7 +25,7 @@ const SIZE: usize = 64;
 fn main() -> Result<()> {
     let dir = tempfile::tempdir()?;
     // 1. The camera: the bundled iXon 897 profile is the truth.
-    let truth = CameraProfile::load_arg("default")?.crop(0, 0, SIZE, SIZE)?;
+    let truth = CameraProfile::load_arg("default")?.crop(emccd_profile::Roi::corner(SIZE, SIZE))?;
     let cam = VirtualCamera::new(truth.clone(), PhysicalParams::default())?;
 
     // 2. A calibration acquisition: dark stacks at four exposures, flats at six light levels

@@ -342,7 +342,7 @@ fn bm3d_denoises_tiny_frames() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     emccd_profile::default_profile()
-        .crop(0, 0, 8, 6)
+        .crop(emccd_profile::Roi::corner(8, 6))
         .unwrap()
         .save(d.join("tiny"))
         .unwrap();
@@ -626,7 +626,7 @@ fn adapt_refuses_mismatched_recordings_and_writes_nothing() {
     }
     w.finish().unwrap();
     emccd_profile::default_profile()
-        .crop(0, 0, 64, 64)
+        .crop(emccd_profile::Roi::corner(64, 64))
         .unwrap()
         .save(d.join("p64"))
         .unwrap();

@@ -313,3 +313,52 @@ fn synthesize_each_model() {
         assert_ne!(f[0], f[1]);
     }
 }
+
+/// `bench --archive`, tiny: both stacks go through the three commands as child processes, every
+/// row is reported, and nothing is left behind.
+#[test]
+fn archive_bench_measures_each_command_and_cleans_up() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = ok(&emccd(
+        &[
+            "bench",
+            "--archive",
+            "0.002",
+            "--net-frames",
+            "1",
+            "--archive-dir",
+            ".",
+        ],
+        dir.path(),
+    ));
+    let rows: Vec<&str> = out
+        .lines()
+        .filter(|l| l.starts_with("info") || l.starts_with("denoise"))
+        .collect();
+    assert_eq!(rows.len(), 6, "{out}");
+    for r in &rows {
+        // command, stack, frames, seconds, frames/s, peak MiB: the last three are numbers.
+        let v: Vec<f64> = r
+            .split_whitespace()
+            .rev()
+            .take(3)
+            .map(|x| x.parse().unwrap())
+            .collect();
+        // (peak MiB, frames/s, seconds): a short command's seconds may print as 0.0.
+        assert!(
+            v[0] > 0.0 && v[1] > 0.0 && v[1].is_finite() && v[2] >= 0.0,
+            "{r}"
+        );
+    }
+    assert!(
+        out.contains("(first frames)") && out.contains("long"),
+        "{out}"
+    );
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    // A size that is not a positive number of GB is refused.
+    let e = emccd(
+        &["bench", "--archive", "0", "--archive-dir", "."],
+        dir.path(),
+    );
+    assert!(!e.status.success());
+}

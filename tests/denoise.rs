@@ -251,7 +251,9 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
 fn the_default_method_is_the_blend_of_ivst_and_lowlight() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let p = emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap();
+    let p = emccd_profile::default_profile()
+        .crop(emccd_profile::Roi::corner(64, 64))
+        .unwrap();
     p.save(d.join("prof")).unwrap();
     // About 0.5 photoelectrons per pixel (K = s/2 DN each) on the bias, as a camera records it.
     let slope = p.slope().unwrap();

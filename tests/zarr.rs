@@ -15,7 +15,9 @@ const N: usize = 64;
 /// A 64×64 region of the default camera and a 12-frame raw stack of it in two files (5 + 7
 /// frames), values as the camera records them.
 fn setup(d: &Path) {
-    let p = emccd_profile::default_profile().crop(0, 0, N, N).unwrap();
+    let p = emccd_profile::default_profile()
+        .crop(emccd_profile::Roi::corner(N, N))
+        .unwrap();
     p.save(d.join("prof")).unwrap();
     let slope = p.slope().unwrap() as f32;
     let mut fpn = vec![0f32; p.len()];

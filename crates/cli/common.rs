@@ -1,4 +1,4 @@
-//! Helpers shared by subcommands: the bundled default profile, progress bars, parsing.
+//! Helpers shared by subcommands: loading profiles and recordings, progress bars.
 
 use std::path::Path;
 
@@ -84,23 +84,4 @@ pub fn open_recording(
         eprintln!("warning: {w}");
     }
     Ok(r)
-}
-
-/// Parses `WxH` (e.g. `128x96`).
-pub fn parse_size(s: &str) -> Result<(usize, usize), String> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("expected WIDTHxHEIGHT, got '{s}'"))?;
-    let w: usize = w
-        .trim()
-        .parse()
-        .map_err(|_| format!("bad width in '{s}'"))?;
-    let h: usize = h
-        .trim()
-        .parse()
-        .map_err(|_| format!("bad height in '{s}'"))?;
-    if w == 0 || h == 0 {
-        return Err(format!("size must be positive, got '{s}'"));
-    }
-    Ok((w, h))
 }

@@ -143,6 +143,9 @@ mod tests {
             "synthesize a.png -o n.tif --model pgn --signal-dn 500",
             "bench --frames 3",
             "adapt rec.tif --profile p --init microscopy -o a.safetensors",
+            "adapt rec.tif --profile p --spread 2 --no-augment --lr 1e-4 -o a.safetensors",
+            "profile crop default out --roi 8,8,64x32",
+            "simulate pairs --clean a.png --crop 16,16,64x64 -o p",
             "train --clean dir --steps 10 -o m.safetensors",
             "denoise a.tif b.sif -o outdir --exposure-s 0.01",
             "evaluate pairs --method input --method bm3d --json --out ev",
@@ -162,7 +165,18 @@ mod tests {
         };
         assert_eq!(a.cfg, emccd_nn::train::TrainConfig::default());
         assert_eq!(a.shape, emccd_nn::UNetConfig::DEFAULT);
-        let cli = Cli::try_parse_from(["emccd", "train", "--clean", "d", "-o", "m", "--no-augment", "--cic", "0,0.05"]).unwrap();
+        let cli = Cli::try_parse_from([
+            "emccd",
+            "train",
+            "--clean",
+            "d",
+            "-o",
+            "m",
+            "--no-augment",
+            "--cic",
+            "0,0.05",
+        ])
+        .unwrap();
         let Command::Train(a) = cli.command else {
             panic!("not train")
         };
@@ -173,12 +187,15 @@ mod tests {
             panic!("not synthesize")
         };
         assert_eq!(a.noise, emccd_camera::SceneNoise::default());
-        let cli = Cli::try_parse_from(["emccd", "simulate", "pairs", "--clean", "a.png", "-o", "p"]).unwrap();
+        let cli =
+            Cli::try_parse_from(["emccd", "simulate", "pairs", "--clean", "a.png", "-o", "p"])
+                .unwrap();
         let Command::Simulate(commands::simulate::Cmd::Pairs { camera, .. }) = cli.command else {
             panic!("not simulate pairs")
         };
         assert_eq!(camera.physics, emccd_camera::PhysicalParams::default());
-        let cli = Cli::try_parse_from(["emccd", "adapt", "r.tif", "--profile", "p", "-o", "a"]).unwrap();
+        let cli =
+            Cli::try_parse_from(["emccd", "adapt", "r.tif", "--profile", "p", "-o", "a"]).unwrap();
         let Command::Adapt(a) = cli.command else {
             panic!("not adapt")
         };

@@ -256,7 +256,15 @@ impl Profile {
     /// The same profile for a sub-array readout: x, y, width, height in pixels.
     fn crop(&self, x: usize, y: usize, width: usize, height: usize) -> PyResult<Profile> {
         Ok(Profile {
-            inner: self.inner.crop(x, y, width, height).map_err(err)?,
+            inner: self
+                .inner
+                .crop(emccd_profile::Roi {
+                    x,
+                    y,
+                    width,
+                    height,
+                })
+                .map_err(err)?,
         })
     }
 
@@ -526,7 +534,7 @@ fn simulate_pairs<'py>(
             let p = if (w, h) == (p.width, p.height) {
                 p
             } else {
-                p.crop(0, 0, w, h)?
+                p.crop(emccd_profile::Roi::corner(w, h))?
             };
             let cam = VirtualCamera::new(p, PhysicalParams::seeded(seed))?;
             let photons = match (photons, mean_electrons) {

@@ -8,10 +8,10 @@ fn the_streaming_bench_reads_what_it_wrote_and_removes_it() {
     assert_eq!(r.frames, 2);
     assert!(r.bytes >= (2 * 512 * 512 * 2) as f64);
     assert!(r.decode_s > 0.0 && r.reference_s > 0.0);
-    // Peak memory never falls; on Linux it is reported and at least the 1 MiB read buffer.
+    // On Linux both are reported (a process's peak is never zero), and a peak never falls.
     let [before, after] = r.peak_mib;
     if cfg!(target_os = "linux") {
-        assert!(before > 1.0 && after >= before, "{before} → {after} MiB");
+        assert!(before > 0.0 && after >= before, "{before} → {after} MiB");
     }
     assert!(r.decode_gb_s().is_finite() && r.reference_gb_s().is_finite());
     assert!(!dir.path().join("stack.tif").exists());

@@ -458,7 +458,9 @@ mod tests {
 
     #[test]
     fn stacks_of_the_plan() {
-        let p = emccd_profile::default_profile().crop(0, 0, 8, 6).unwrap();
+        let p = emccd_profile::default_profile()
+            .crop(emccd_profile::Roi::corner(8, 6))
+            .unwrap();
         let cam = VirtualCamera::new(p, PhysicalParams::default()).unwrap();
         let plan = CalibrationPlan {
             frames: 2,
@@ -501,7 +503,9 @@ mod tests {
 
     #[test]
     fn a_recorded_acquisition_reads_back_through_its_manifest() {
-        let p = emccd_profile::default_profile().crop(0, 0, 8, 6).unwrap();
+        let p = emccd_profile::default_profile()
+            .crop(emccd_profile::Roi::corner(8, 6))
+            .unwrap();
         let cam = VirtualCamera::new(p, PhysicalParams::default()).unwrap();
         let plan = CalibrationPlan {
             frames: 3,
@@ -543,7 +547,9 @@ mod tests {
 
     #[test]
     fn a_test_pair_is_the_same_however_many_frames_are_drawn() {
-        let p = emccd_profile::default_profile().crop(0, 0, 16, 16).unwrap();
+        let p = emccd_profile::default_profile()
+            .crop(emccd_profile::Roi::corner(16, 16))
+            .unwrap();
         let cam = VirtualCamera::new(p, Default::default()).unwrap();
         let scene: Vec<f32> = (0..256).map(|i| (i % 16) as f32 / 15.0).collect();
         let level = PairLevel::from_ratio(1.6, 16000.0, 100.0);

@@ -1,6 +1,7 @@
 //! The synthesis throughput benchmark of `emccd bench`: seconds per frame of the paper's
-//! training noise (eq. 5), the Poisson–Gamma–Normal model and the whole virtual camera; and
-//! the raw stacks its archive benchmark streams.
+//! training noise (eq. 5), the Poisson–Gamma–Normal model and the whole virtual camera, and of
+//! NASA JPL's emccd-detect beside them ([`emccd_detect`]); and the raw stacks its archive
+//! benchmark streams.
 
 use std::path::Path;
 use std::time::Instant;
@@ -49,13 +50,16 @@ pub fn synthesis(cam: &VirtualCamera, electrons: f64, frames: usize) -> Result<S
     })
 }
 
+/// Side of the archive benchmark's frames, px.
+pub const ARCHIVE_SIDE: usize = 512;
+
 /// Writes a BigTIFF stack of `frames` 512×512 u16 raw frames of the default virtual camera at
 /// about 4 e⁻ per pixel (10 ms, the exposure in its metadata) to `path` for the archive
 /// benchmark; `tick` is called after each frame. Sixteen distinct frames are repeated: the
 /// readers and writers see a real camera's values without gigabytes of simulation. Returns
 /// the seconds the writing took.
 pub fn archive_stack(path: &Path, frames: usize, tick: &mut dyn FnMut()) -> Result<f64, Error> {
-    const SIDE: usize = 512;
+    const SIDE: usize = ARCHIVE_SIDE;
     let cam = VirtualCamera::default_camera();
     let n = cam.profile.len();
     let e = cam.exposure(0.01);
@@ -110,7 +114,10 @@ pub fn emccd_detect(frames: usize, electrons: f64) -> Result<f64, String> {
         return Err(err.lines().last().unwrap_or("python3 failed").to_string());
     }
     let out = String::from_utf8_lossy(&o.stdout);
-    out.trim()
-        .parse()
-        .map_err(|_| format!("emccd-detect's timing printed {:?}, not seconds", out.trim()))
+    out.trim().parse().map_err(|_| {
+        format!(
+            "emccd-detect's timing printed {:?}, not seconds",
+            out.trim()
+        )
+    })
 }

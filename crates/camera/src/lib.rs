@@ -19,7 +19,7 @@
 //! ```
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! use emccd_camera::{PhysicalParams, VirtualCamera};
-//! let profile = emccd_profile::default_profile().crop(0, 0, 32, 32)?;
+//! let profile = emccd_profile::default_profile().crop(emccd_profile::Roi::corner(32, 32))?;
 //! let cam = VirtualCamera::new(profile, PhysicalParams::default())?;
 //! let scene: Vec<f32> = (0..32 * 32).map(|i| (i % 32) as f32 / 31.0).collect();
 //! let pair = cam.test_pair(&scene, 20.0, 0.01, 7);

@@ -748,7 +748,7 @@ mod tests {
 #[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct SceneNoise {
     /// The noise model.
-    #[cfg_attr(feature = "clap", arg(long = "model", value_enum, default_value_t = SceneNoise::default().kind))]
+    #[cfg_attr(feature = "clap", arg(long = "model", value_name = "MODEL", value_enum, default_value_t = SceneNoise::default().kind))]
     pub kind: NoiseModelKind,
     /// The clean signal at the image's full scale (its 1.0), DN above bias; at most 10⁶.
     #[cfg_attr(feature = "clap", arg(long, default_value_t = SceneNoise::default().signal_dn))]
@@ -761,7 +761,7 @@ pub struct SceneNoise {
     /// preprocessing).
     #[cfg_attr(feature = "clap", arg(long, default_value_t = SceneNoise::default().ablate))]
     pub ablate: Ablation,
-    /// Noisy frames, each with its own noise (seeds `seed`, `seed + 1`, …).
+    /// Noisy frames, each with its own noise (seeded from the seed, the seed + 1, …).
     #[cfg_attr(feature = "clap", arg(long, default_value_t = SceneNoise::default().frames))]
     pub frames: usize,
     /// Seed of the first frame.

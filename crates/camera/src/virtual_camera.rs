@@ -26,16 +26,16 @@ pub struct PhysicalParams {
     #[cfg_attr(feature = "clap", arg(long, default_value_t = PhysicalParams::default().qe))]
     pub qe: f64,
     /// Dark current of ordinary pixels, e⁻ per pixel per second.
-    #[cfg_attr(feature = "clap", arg(long = "dark", default_value_t = PhysicalParams::default().dark_e_per_s))]
+    #[cfg_attr(feature = "clap", arg(long = "dark", value_name = "DARK", default_value_t = PhysicalParams::default().dark_e_per_s))]
     pub dark_e_per_s: f64,
     /// Clock-induced charge, e⁻ per pixel per frame.
-    #[cfg_attr(feature = "clap", arg(long = "cic", default_value_t = PhysicalParams::default().cic_e))]
+    #[cfg_attr(feature = "clap", arg(long = "cic", value_name = "CIC", default_value_t = PhysicalParams::default().cic_e))]
     pub cic_e: f64,
-    /// Fraction of pixels that are hot (dark current `--hot-dark`).
+    /// Fraction of pixels that are hot (with the hot-pixel dark current).
     #[cfg_attr(feature = "clap", arg(long, default_value_t = PhysicalParams::default().hot_fraction))]
     pub hot_fraction: f64,
     /// Dark current of hot pixels, e⁻ per pixel per second.
-    #[cfg_attr(feature = "clap", arg(long = "hot-dark", default_value_t = PhysicalParams::default().hot_dark_e_per_s))]
+    #[cfg_attr(feature = "clap", arg(long = "hot-dark", value_name = "HOT_DARK", default_value_t = PhysicalParams::default().hot_dark_e_per_s))]
     pub hot_dark_e_per_s: f64,
     /// Seed for the hot-pixel positions.
     #[cfg_attr(feature = "clap", arg(skip = PhysicalParams::default().seed))]
@@ -149,7 +149,7 @@ impl VirtualCamera {
     pub fn crop(&self, width: usize, height: usize) -> Result<VirtualCamera, Error> {
         let profile = self
             .profile
-            .crop(0, 0, width, height)
+            .crop(emccd_profile::Roi::corner(width, height))
             .map_err(|e| Error::Parameter(e.to_string()))?;
         VirtualCamera::new(profile, self.physics.clone())
     }
@@ -309,7 +309,12 @@ mod tests {
 
     fn small_camera() -> VirtualCamera {
         let p = emccd_profile::default_profile()
-            .crop(100, 200, 64, 48)
+            .crop(emccd_profile::Roi {
+                x: 100,
+                y: 200,
+                width: 64,
+                height: 48,
+            })
             .unwrap();
         VirtualCamera::new(
             p,

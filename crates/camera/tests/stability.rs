@@ -43,7 +43,9 @@ fn assert_pinned(label: &str, got: &[f32], want: &[f32]) {
 #[test]
 fn noise_models_are_pinned() {
     // The bundled profile's top-left corner: its maps at the frame's size.
-    let p = default_profile().crop(0, 0, W, H).unwrap();
+    let p = default_profile()
+        .crop(emccd_profile::Roi::corner(W, H))
+        .unwrap();
     let ours = OursModel::from_profile(&p, Ablation::default()).unwrap();
     assert_pinned("ours", &first(&ours, 7), &OURS);
     let eld = EldModel::from_profile(&p).unwrap();
@@ -94,7 +96,9 @@ const CAMERA: [f32; 7] = [161.0, 158.0, 581.0, 447.0, 189.0, 536.0, 105701760.0]
 #[test]
 fn the_synthesis_bench_times_every_synthesis() {
     let cam = emccd_camera::VirtualCamera::new(
-        emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap(),
+        emccd_profile::default_profile()
+            .crop(emccd_profile::Roi::corner(64, 64))
+            .unwrap(),
         Default::default(),
     )
     .unwrap();

@@ -3,9 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use emccd_nn::adapt::{
-    adapt, AdaptConfig, AdaptData, AdaptRun, Adaptation, Recorded, Start,
-};
+use emccd_nn::adapt::{adapt, AdaptConfig, AdaptData, AdaptRun, Adaptation, Recorded, Start};
 use emccd_nn::train::RunPaths;
 
 use crate::common::{load_profile, open_recording, progress, step_progress};
@@ -65,6 +63,11 @@ pub fn run(a: Args) -> Result<()> {
         .require_complete()
         .with_context(|| format!("profile {}: it cannot preprocess frames", a.profile))?;
     let scratch = a.from_scratch;
+    let cfg = AdaptConfig {
+        lr: a.lr.unwrap_or(AdaptConfig::default_lr(scratch)),
+        ..a.cfg
+    };
+    cfg.check()?;
     let init = emccd_nn::registry::model_path(&a.init)?;
     for input in &a.inputs {
         emccd_io::refuse_overwrite(&a.out, input, "an input")?;
@@ -72,7 +75,7 @@ pub fn run(a: Args) -> Result<()> {
     emccd_io::refuse_overwrite(&a.out, &init, "the --init model")?;
     let init_meta = emccd_nn::Denoiser::read_meta(&init)?;
     let mut rec = Recorded::new(
-        a.cfg.method,
+        cfg.method,
         &profile,
         init_meta.ablate,
         Recorded::MEMORY_BUDGET,
@@ -98,11 +101,14 @@ pub fn run(a: Args) -> Result<()> {
             data.frames()
         ),
     }
-    let cfg = AdaptConfig {
-        lr: a.lr.unwrap_or(AdaptConfig::default_lr(scratch)),
-        ..a.cfg
-    };
-    let provenance = Adaptation::new(cfg.method, &a.init, scratch, &a.inputs, data.frames(), level);
+    let provenance = Adaptation::new(
+        cfg.method,
+        &a.init,
+        scratch,
+        &a.inputs,
+        data.frames(),
+        level,
+    );
     let paths = RunPaths::beside(&a.out);
     let (pb, mut report) = step_progress(cfg.steps, cfg.checkpoint_every);
     let start = if scratch {

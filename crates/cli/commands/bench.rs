@@ -61,6 +61,12 @@ pub struct Args {
     pub net_frames: usize,
 }
 
+#[cfg(not(unix))]
+fn archive_bench(_: f64, _: &std::path::Path, _: usize) -> Result<()> {
+    anyhow::bail!("--archive measures child processes with wait4(2): Unix only")
+}
+
+#[cfg(unix)]
 fn archive_bench(gb: f64, dir: &std::path::Path, net_frames: usize) -> Result<()> {
     use emccd_nn::bench::{Archive, ArchiveEvent};
     let bench = Archive {
@@ -72,7 +78,9 @@ fn archive_bench(gb: f64, dir: &std::path::Path, net_frames: usize) -> Result<()
     let mut pb = None;
     bench.run(&mut |e| match e {
         ArchiveEvent::Writing(frames) => {
-            pb = Some(crate::common::progress(frames as u64, "writing"));
+            if let Some(done) = pb.replace(crate::common::progress(frames as u64, "writing")) {
+                done.finish_and_clear();
+            }
         }
         ArchiveEvent::Frame => {
             if let Some(pb) = &pb {
@@ -83,8 +91,9 @@ fn archive_bench(gb: f64, dir: &std::path::Path, net_frames: usize) -> Result<()
             if let Some(pb) = pb.take() {
                 pb.finish_and_clear();
             }
+            let side = emccd_camera::bench::ARCHIVE_SIDE;
             println!(
-                "archive streaming: BigTIFF stacks of 512×512 u16 frames: {} frames ({:.0} MB) and {} frames ({:.2} GB, written in {:.0} s, {:.0} MB/s)",
+                "archive streaming: BigTIFF stacks of {side}×{side} u16 frames: {} frames ({:.0} MB) and {} frames ({:.2} GB, written in {:.0} s, {:.0} MB/s)",
                 s.short_frames,
                 s.short_mb(),
                 s.long_frames,
@@ -308,7 +317,9 @@ pub fn run(a: Args) -> Result<()> {
             println!();
             println!("ratio vs emccd-detect: ours {:.1}×, virtual camera {:.1}×  (same physics: PGN + read noise + ADC)", t_py / t_ours, t_py / t_cam);
         }
-        Err(why) => println!("\nemccd-detect comparison skipped: {why}  (pip install emccd-detect)"),
+        Err(why) => {
+            println!("\nemccd-detect comparison skipped: {why}  (pip install emccd-detect)")
+        }
     }
     Ok(())
 }

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use emccd_io::zarr::Shard;
 use emccd_nn::registry::{FrameDenoiser, Method, Resolved, Units};
+use emccd_nn::stack::{denoise_to_zarr, ZarrOutput};
 use emccd_nn::tile::Tiling;
 
 use crate::common::{load_profile, open_recording, progress};
@@ -119,60 +120,55 @@ pub fn run(a: Args) -> Result<()> {
 }
 
 /// Denoises the inputs, one logical stack in the order given, into one OME-Zarr store: this
-/// process's shard of the frames, skipping frames already complete (an earlier run, or another
-/// shard), so a killed run is resumed by running it again.
+/// process's shard of the frames, skipping frames already complete.
 fn run_zarr(a: &Args, fd: &FrameDenoiser, model_name: Option<&str>) -> Result<()> {
-    for i in &a.inputs {
-        emccd_io::refuse_overwrite(&a.out, i, &format!("the input {}", i.display()))?;
-    }
-    let mut inputs = Vec::with_capacity(a.inputs.len());
-    for path in &a.inputs {
-        inputs.push(open_recording(
-            path,
-            fd.profile,
-            a.exposure_s,
-            a.extrapolate,
-        )?);
-    }
-    let spec = emccd_nn::stack::zarr_spec(
-        fd,
-        model_name,
-        &inputs,
-        &a.profile,
-        &a.out,
-        &format!("emccd {}", env!("CARGO_PKG_VERSION")),
-    )?;
-    let frames = spec.frames;
-    let (store, _created) = emccd_io::zarr::ZarrStackWriter::create_or_open(&a.out, &spec)?;
     let shard = a.shard.unwrap_or(Shard::ALL);
-    let range = shard.range(frames);
+    let out = ZarrOutput {
+        path: &a.out,
+        shard,
+        profile_arg: &a.profile,
+        model_name,
+        software: &format!("emccd {}", env!("CARGO_PKG_VERSION")),
+    };
+    // Before any input is opened: the store is never one of them.
+    out.check_inputs(a.inputs.iter().map(PathBuf::as_path))?;
+    let inputs = a
+        .inputs
+        .iter()
+        .map(|p| open_recording(p, fd.profile, a.exposure_s, a.extrapolate))
+        .collect::<Result<Vec<_>>>()?;
+    let pb = progress(0, "frames");
+    let r = denoise_to_zarr(
+        fd,
+        inputs,
+        &out,
+        &mut |n| pb.set_length(n as u64),
+        &mut || pb.inc(1),
+    );
+    // Cleared whatever happened: a failed run leaves no bar on the screen.
+    pb.finish_and_clear();
+    let r = r?;
+    let (frames, done) = (r.frames, r.done);
     let share = if shard.count > 1 {
         format!("shard {}/{}: ", shard.index, shard.count)
     } else {
         String::new()
     };
-    if range.is_empty() {
+    if r.range.is_empty() {
         eprintln!(
             "{share}no frames: {} shards for {frames} frames leave this one empty",
             shard.count
         );
         return Ok(());
     }
-    let pb = progress(
-        range.clone().filter(|&k| !store.is_done(k)).count() as u64,
-        "frames",
-    );
-    let run = emccd_nn::stack::denoise_shard(fd, inputs, &store, range.clone(), &mut || pb.inc(1))?;
-    pb.finish_and_clear();
-    let done = store.done_count();
     eprintln!(
         "{share}{} → {}: frames {}–{} ({} denoised now, {} were already done); {done} of {frames} frames of the store complete{}",
         if a.inputs.len() == 1 { a.inputs[0].display().to_string() } else { format!("{} inputs", a.inputs.len()) },
         a.out.display(),
-        range.start + 1,
-        range.end,
-        run.written,
-        run.skipped,
+        r.range.start + 1,
+        r.range.end,
+        r.run.written,
+        r.run.skipped,
         if done < frames { " (the other shards write the rest)" } else { "" }
     );
     Ok(())

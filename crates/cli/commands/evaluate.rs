@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use emccd_eval::evaluation::{evaluate, results_json, Contender, PairsDir};
+use emccd_eval::evaluation::{evaluate, Contender, PairsDir};
 use emccd_nn::registry::Estimator;
 
 use crate::common::progress;
@@ -58,26 +58,13 @@ pub fn run(a: Args) -> Result<()> {
     let methods: Vec<Contender> = estimators.iter().map(Estimator::contender).collect();
     let total: usize = cameras.iter().map(|c| c.manifest.pair.len()).sum();
     let pb = progress((total * a.methods.len()) as u64, "evaluations");
-    let scores = evaluate(&cameras, &methods, a.out.as_deref(), &|| pb.inc(1))
+    let ev = evaluate(&cameras, &methods, a.out.as_deref(), &|| pb.inc(1))
         .map_err(anyhow::Error::msg)?;
     pb.finish_and_clear();
-    let camera_names: Vec<String> = cameras.iter().map(|c| c.name.clone()).collect();
-    let table = emccd_eval::scores::summarize(&scores, &a.methods, &camera_names);
-    let v = results_json(&table, &scores);
-    if let Some(o) = &a.out {
-        emccd_io::write_atomic(
-            o.join("results.json"),
-            serde_json::to_string_pretty(&v)?.as_bytes(),
-        )?;
-        emccd_io::write_atomic(
-            o.join("results.csv"),
-            emccd_eval::scores::csv(&scores).as_bytes(),
-        )?;
-    }
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&v)?);
+        println!("{}", serde_json::to_string_pretty(&ev.json())?);
     } else {
-        print!("{}", table.markdown());
+        print!("{}", ev.table.markdown());
     }
     Ok(())
 }

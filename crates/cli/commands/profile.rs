@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
+use emccd_profile::Roi;
 
 use crate::common::load_profile;
 
@@ -38,26 +39,11 @@ pub enum Cmd {
         profile: String,
         /// Output directory.
         out: PathBuf,
-        /// The region: X,Y,WxH — its top-left pixel (from 0) and its size, e.g. `128,128,256x256`.
-        #[arg(long, value_parser = parse_roi)]
-        roi: (usize, usize, usize, usize),
+        /// The region: X,Y,WxH — its top-left pixel (from 0) and its size, e.g. `128,128,256x256`
+        /// (WxH alone: at the top-left corner).
+        #[arg(long)]
+        roi: Roi,
     },
-}
-
-fn parse_roi(s: &str) -> std::result::Result<(usize, usize, usize, usize), String> {
-    let bad = || {
-        format!("'{s}': a region is X,Y,WxH (top-left pixel from 0, then the size), e.g. 128,128,256x256")
-    };
-    let mut it = s.splitn(3, ',');
-    let (x, y, size) = (it.next(), it.next(), it.next());
-    let (Some(x), Some(y), Some(size)) = (x, y, size) else {
-        return Err(bad());
-    };
-    let (w, h) = crate::common::parse_size(size.trim()).map_err(|_| bad())?;
-    match (x.trim().parse(), y.trim().parse()) {
-        (Ok(x), Ok(y)) => Ok((x, y, w, h)),
-        _ => Err(bad()),
-    }
 }
 
 pub fn run(c: Cmd) -> Result<()> {
@@ -71,11 +57,7 @@ pub fn run(c: Cmd) -> Result<()> {
             }
             Ok(())
         }
-        Cmd::Crop {
-            profile,
-            out,
-            roi: (x, y, w, h),
-        } => {
+        Cmd::Crop { profile, out, roi } => {
             let p = load_profile(&profile)?;
             // `default` is the bundled profile, never a folder here.
             if profile != "default" {
@@ -85,13 +67,15 @@ pub fn run(c: Cmd) -> Result<()> {
                     "the input profile",
                 )?;
             }
-            let c = p
-                .crop(x, y, w, h)
-                .with_context(|| format!("profile {profile}"))?;
+            let c = p.crop(roi).with_context(|| format!("profile {profile}"))?;
             c.save(&out)
                 .with_context(|| format!("writing {}", out.display()))?;
             eprintln!(
-                "wrote the {w}×{h} region at ({x}, {y}) of {} to {} (fingerprint {})",
+                "wrote the {}×{} region at ({}, {}) of {} to {} (fingerprint {})",
+                roi.width,
+                roi.height,
+                roi.x,
+                roi.y,
                 p.camera,
                 out.display(),
                 c.fingerprint_hex()

@@ -8,7 +8,8 @@ use emccd_camera::{PhysicalParams, VirtualCamera};
 use emccd_eval::virtual_pairs::{write_pairs, PairsPlan};
 use emccd_nn::registry::Estimator;
 
-use crate::common::{load_profile, parse_size, progress};
+use crate::common::{load_profile, progress};
+use emccd_profile::Roi;
 
 /// The name acquisitions and pairs of the virtual camera record as their camera's.
 const CAMERA: &str = "virtual-897";
@@ -19,9 +20,10 @@ pub struct CameraOpts {
     /// Truth profile: a profile directory or `default` (the bundled iXon Ultra 897 model).
     #[arg(long, default_value = "default")]
     pub profile: String,
-    /// Simulate only the top-left WIDTHxHEIGHT region of the sensor (e.g. 128x128).
-    #[arg(long, value_parser = parse_size)]
-    pub crop: Option<(usize, usize)>,
+    /// Simulate only this region of the sensor: WIDTHxHEIGHT at its top-left corner (e.g.
+    /// 128x128), or X,Y,WIDTHxHEIGHT; a size past the sensor's edge is cut at it.
+    #[arg(long, value_name = "[X,Y,]WxH")]
+    pub crop: Option<Roi>,
     #[command(flatten)]
     pub physics: PhysicalParams,
     /// Random seed (same seed, same files).
@@ -34,7 +36,13 @@ impl CameraOpts {
     fn profile(&self) -> Result<emccd_profile::CameraProfile> {
         let p = load_profile(&self.profile)?;
         Ok(match self.crop {
-            Some((w, h)) => p.crop(0, 0, w.min(p.width), h.min(p.height))?,
+            // Cut at the sensor's edge; a region starting past it is refused as given.
+            Some(r) if r.x < p.width && r.y < p.height => p.crop(Roi {
+                width: r.width.min(p.width - r.x),
+                height: r.height.min(p.height - r.y),
+                ..r
+            })?,
+            Some(r) => p.crop(r)?,
             None => p,
         })
     }

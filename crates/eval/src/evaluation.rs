@@ -72,16 +72,40 @@ pub struct Contender<'a> {
     pub run: Box<Denoise<'a>>,
 }
 
+/// What [`evaluate`] measured: every pair's scores and their summary table.
+#[derive(Clone, Debug)]
+pub struct Evaluation {
+    /// Per method, pair and camera.
+    pub scores: Vec<Score>,
+    /// Per method: overall, per light level and per camera.
+    pub table: Summaries,
+}
+
+impl Evaluation {
+    /// The results document (`results.json`, `evaluate --json`): conventions, the summary
+    /// table and every pair's scores.
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "psnr_data_range": "ground-truth peak per pair; psnr_paper_db: images / 65535, range 1 (the paper's convention)",
+            "lpips": "not computed: its network weights cannot be obtained offline",
+            "level_unit": self.table.unit.describe(),
+            "summary": self.table.rows,
+            "pairs": self.scores,
+        })
+    }
+}
+
 /// Runs every method on every pair of `cameras` and scores it against the ground truth (which
-/// is used only to score); `panels`: also write a panel per pair into that folder (made if
-/// missing). `tick` is called after each method on each pair (progress).
+/// is used only to score). `out`: also write there (made if missing) a panel per pair, and
+/// `results.json` ([`Evaluation::json`]) and `results.csv` (every pair's scores) at the end.
+/// `tick` is called after each method on each pair (progress).
 pub fn evaluate(
     cameras: &[PairsDir],
     methods: &[Contender],
-    panels: Option<&Path>,
+    out: Option<&Path>,
     tick: &dyn Fn(),
-) -> Result<Vec<Score>, String> {
-    if let Some(dir) = panels {
+) -> Result<Evaluation, String> {
+    if let Some(dir) = out {
         std::fs::create_dir_all(dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
     }
     let mut scores = Vec::new();
@@ -101,14 +125,16 @@ pub fn evaluate(
             let mut outputs: Vec<Vec<f32>> = Vec::with_capacity(methods.len());
             for m in methods {
                 let t = std::time::Instant::now();
-                let out = (m.run)(&prof, raw, p.exposure_s)
+                let denoised = (m.run)(&prof, raw, p.exposure_s)
                     .map_err(|e| format!("{} on {}: {e}", m.name, p.noisy))?;
                 let seconds = t.elapsed().as_secs_f64();
-                scores.push(Score::measure(m.name, &cam.name, p, &frames, &out, seconds));
-                outputs.push(out);
+                scores.push(Score::measure(
+                    m.name, &cam.name, p, &frames, &denoised, seconds,
+                ));
+                outputs.push(denoised);
                 tick();
             }
-            if let Some(dir) = panels {
+            if let Some(dir) = out {
                 let prefix = if cameras.len() > 1 {
                     cam.panel_prefix()
                 } else {
@@ -118,19 +144,22 @@ pub fn evaluate(
             }
         }
     }
-    Ok(scores)
-}
-
-/// The results document (`results.json`, `evaluate --json`): conventions, the summary table
-/// and every pair's scores.
-pub fn results_json(table: &Summaries, scores: &[Score]) -> serde_json::Value {
-    serde_json::json!({
-        "psnr_data_range": "ground-truth peak per pair; psnr_paper_db: images / 65535, range 1 (the paper's convention)",
-        "lpips": "not computed: its network weights cannot be obtained offline",
-        "level_unit": table.unit.describe(),
-        "summary": table.rows,
-        "pairs": scores,
-    })
+    let names: Vec<String> = methods.iter().map(|m| m.name.to_string()).collect();
+    let cams: Vec<String> = cameras.iter().map(|c| c.name.clone()).collect();
+    let ev = Evaluation {
+        table: crate::scores::summarize(&scores, &names, &cams),
+        scores,
+    };
+    if let Some(dir) = out {
+        let write = |name: &str, bytes: &[u8]| {
+            emccd_io::write_atomic(dir.join(name), bytes)
+                .map_err(|e| emccd_io::error_lines(&e).join(": "))
+        };
+        let json = serde_json::to_string_pretty(&ev.json()).map_err(|e| e.to_string())?;
+        write("results.json", json.as_bytes())?;
+        write("results.csv", crate::scores::csv(&ev.scores).as_bytes())?;
+    }
+    Ok(ev)
 }
 
 /// A 256² crop (the frame's centre) of input | each method | ground truth, side by side, as

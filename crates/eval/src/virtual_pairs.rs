@@ -275,7 +275,9 @@ mod tests {
     fn writes_pairs_that_read_back_and_refuses_clashing_names() {
         let dir = tempfile::tempdir().unwrap();
         let cam = VirtualCamera::new(
-            emccd_profile::default_profile().crop(0, 0, 16, 8).unwrap(),
+            emccd_profile::default_profile()
+                .crop(emccd_profile::Roi::corner(16, 8))
+                .unwrap(),
             Default::default(),
         )
         .unwrap();

@@ -481,9 +481,9 @@ pub struct AdaptConfig {
     /// this factor (1: exactly its level).
     #[cfg_attr(feature = "clap", arg(long, default_value_t = AdaptConfig::default().spread))]
     pub spread: f64,
-    /// Off (`--no-augment`): train on crops in the recording's own orientation only; on (the
-    /// default), each crop in one of the 8 flips/transposes.
-    #[cfg_attr(feature = "clap", arg(long = "no-augment", action = clap::ArgAction::SetFalse))]
+    /// Each crop in one of the 8 flips/transposes, drawn at random; off, every crop in the
+    /// recording's own orientation.
+    #[cfg_attr(feature = "clap", arg(long = "no-augment", action = clap::ArgAction::SetFalse, help = "Train on crops in the recording's own orientation only (by default each crop is in one of the 8 flips/transposes)"))]
     pub augment: bool,
     /// Noise model of the synthesized pairs (`ours`: the profile's exact EMCCD chain).
     #[cfg_attr(feature = "clap", arg(long = "noise-model", value_name = "NOISE_MODEL", value_enum, default_value_t = AdaptConfig::default().noise))]
@@ -501,6 +501,24 @@ impl AdaptConfig {
     /// self-supervised baseline): a new network needs the rate a training run starts with, not
     /// a fine-tune's.
     pub const SCRATCH_LR: f64 = 1e-3;
+
+    /// An error unless the recipe is usable (checked before any frame is read, and again by
+    /// [`adapt`]).
+    pub fn check(&self) -> Result<()> {
+        if !(self.spread >= 1.0 && self.spread.is_finite()) {
+            return Err(Error::Data(format!(
+                "--spread {}: must be at least 1",
+                self.spread
+            )));
+        }
+        if self.batch == 0 || self.steps == 0 {
+            return Err(Error::Data(format!(
+                "{} steps of {} crops: both must be at least 1",
+                self.steps, self.batch
+            )));
+        }
+        Ok(())
+    }
 
     /// The default peak rate of a run that starts from a model (`scratch` false) or from its
     /// architecture alone.
@@ -755,18 +773,7 @@ pub fn adapt(
         paths,
         resume,
     } = run;
-    if !(cfg.spread >= 1.0 && cfg.spread.is_finite()) {
-        return Err(Error::Data(format!(
-            "spread {}: must be at least 1",
-            cfg.spread
-        )));
-    }
-    if cfg.batch == 0 || cfg.steps == 0 {
-        return Err(Error::Data(format!(
-            "{} steps of {} crops: both must be at least 1",
-            cfg.steps, cfg.batch
-        )));
-    }
+    cfg.check()?;
     let (init, start_meta) = match start {
         Start::Model(p) => (Some(p), Denoiser::read_meta(p)?),
         Start::Scratch(m) => (None, ModelMeta { steps: 0, ..m }),

@@ -1,6 +1,8 @@
 //! The denoising benchmark of `emccd bench --denoise`: networks beside the input and BM3D + GAT
 //! on virtual-camera test pairs (each scene at 20 and 200 photons at its peak, 10 ms), with
-//! seconds per frame. Each method's time includes the preprocessing it runs first.
+//! seconds per frame; each method's time includes the preprocessing it runs first. And the
+//! archive benchmark of `emccd bench --archive` ([`Archive`], Unix): the binary's streaming
+//! commands on a multi-gigabyte stack, with their wall time and peak memory.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -148,6 +150,7 @@ pub fn denoise(
     Ok(t)
 }
 
+#[cfg(unix)]
 /// The archive benchmark of `emccd bench --archive`: a long and a short BigTIFF raw stack of
 /// the virtual camera, streamed by `emccd info`, `emccd denoise --method none` (to OME-Zarr) and
 /// a network denoise of the first frames, each run as a child process of `exe` so its wall time
@@ -164,9 +167,12 @@ pub struct Archive {
     pub net_frames: usize,
 }
 
-/// Bytes of one of the archive benchmark's 512×512 u16 frames.
-const ARCHIVE_FRAME_BYTES: f64 = (512 * 512 * 2) as f64;
+#[cfg(unix)]
+/// Bytes of one of the archive benchmark's u16 frames.
+const ARCHIVE_FRAME_BYTES: f64 =
+    (emccd_camera::bench::ARCHIVE_SIDE * emccd_camera::bench::ARCHIVE_SIDE * 2) as f64;
 
+#[cfg(unix)]
 /// The two stacks of an [`Archive`] run.
 #[derive(Clone, Copy, Debug)]
 pub struct ArchiveStacks {
@@ -187,6 +193,7 @@ impl ArchiveStacks {
     }
 }
 
+#[cfg(unix)]
 /// One command of an [`Archive`] run, measured.
 #[derive(Clone, Debug)]
 pub struct ArchiveRow {
@@ -202,6 +209,7 @@ pub struct ArchiveRow {
     pub peak_rss_mib: f64,
 }
 
+#[cfg(unix)]
 /// What an [`Archive`] run reports as it goes.
 #[derive(Debug)]
 pub enum ArchiveEvent<'a> {
@@ -215,6 +223,7 @@ pub enum ArchiveEvent<'a> {
     Row(&'a ArchiveRow),
 }
 
+#[cfg(unix)]
 impl Archive {
     /// Runs the benchmark, reporting through `on`; the temporary folder is removed at the end
     /// (and on error).
@@ -222,7 +231,7 @@ impl Archive {
         use std::ffi::OsStr;
         if !(self.gb > 0.0 && self.gb.is_finite()) {
             return Err(Error::Data(format!(
-                "--archive {}: the stack's size is a positive number of GB",
+                "an archive of {} GB: the stack's size is a positive number of GB",
                 self.gb
             )));
         }
@@ -235,9 +244,8 @@ impl Archive {
         let mut write = |name: &str, frames: usize| -> Result<(PathBuf, f64)> {
             let path = d.join(name);
             on(ArchiveEvent::Writing(frames));
-            let t = emccd_camera::bench::archive_stack(&path, frames, &mut || {
-                on(ArchiveEvent::Frame)
-            })?;
+            let t =
+                emccd_camera::bench::archive_stack(&path, frames, &mut || on(ArchiveEvent::Frame))?;
             Ok((path, t))
         };
         // The short stack is as long as the network's share, so both stacks run the same work
@@ -267,7 +275,14 @@ impl Archive {
                 ("info", vec![o("info"), stack], frames),
                 (
                     "denoise --method none → .zarr",
-                    vec![o("denoise"), stack, o("--method"), o("none"), o("-o"), out.as_os_str()],
+                    vec![
+                        o("denoise"),
+                        stack,
+                        o("--method"),
+                        o("none"),
+                        o("-o"),
+                        out.as_os_str(),
+                    ],
                     frames,
                 ),
                 (
@@ -305,6 +320,7 @@ impl Archive {
     }
 }
 
+#[cfg(unix)]
 /// Runs `exe args` (stdout discarded, stderr kept for a failure's message) and returns its wall
 /// time (s) and peak resident memory (MiB).
 fn measure_child(exe: &std::path::Path, args: &[&std::ffi::OsStr]) -> Result<(f64, f64)> {

@@ -14,7 +14,7 @@
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
 //! use emccd_camera::{PhysicalParams, VirtualCamera};
 //! use emccd_nn::registry::{self, Estimator};
-//! let profile = emccd_profile::default_profile().crop(0, 0, 64, 64)?;
+//! let profile = emccd_profile::default_profile().crop(emccd_profile::Roi::corner(64, 64))?;
 //! let cam = VirtualCamera::new(profile.clone(), PhysicalParams::default())?;
 //! let scene: Vec<f32> = (0..64 * 64).map(|i| if (i / 64) % 16 < 8 { 1.0 } else { 0.2 }).collect();
 //! let pair = cam.test_pair(&scene, 200.0, 0.01, 1);

@@ -208,7 +208,9 @@ mod tests {
 
     #[test]
     fn ablations_switch_off_only_their_correction() {
-        let p = emccd_profile::default_profile().crop(0, 0, 32, 32).unwrap();
+        let p = emccd_profile::default_profile()
+            .crop(emccd_profile::Roi::corner(32, 32))
+            .unwrap();
         let t = 0.002;
         let raw: Vec<f32> = (0..p.len())
             .map(|i| 300.0 + (i % 7) as f32 * 20.0)
@@ -234,7 +236,9 @@ mod tests {
     /// positive number of seconds are errors, not panics or NaN frames.
     #[test]
     fn unusable_profiles_and_exposures_are_errors() {
-        let p = emccd_profile::default_profile().crop(0, 0, 16, 16).unwrap();
+        let p = emccd_profile::default_profile()
+            .crop(emccd_profile::Roi::corner(16, 16))
+            .unwrap();
         let raw = vec![300.0; p.len()];
         for t in [0.0, -1.0, f64::NAN, f64::INFINITY] {
             let e = preprocess(&p, &raw, t).unwrap_err().to_string();

@@ -629,7 +629,9 @@ mod tests {
 
     #[test]
     fn classical_estimators_need_no_model_and_match_denoise() {
-        let p = emccd_profile::default_profile().crop(0, 0, 32, 32).unwrap();
+        let p = emccd_profile::default_profile()
+            .crop(emccd_profile::Roi::corner(32, 32))
+            .unwrap();
         let no_model = |m: &str| Err(Error::Model(format!("{m}: no models in this test")));
         let raw: Vec<f32> = (0..32 * 32)
             .map(|i| 120.0 + (i % 7) as f32 * 30.0)

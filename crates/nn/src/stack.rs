@@ -106,6 +106,89 @@ pub struct ShardRun {
     pub skipped: usize,
 }
 
+/// Where and how [`denoise_to_zarr`] writes: the store, this process's share, and what the
+/// store records about how it was made.
+#[derive(Clone, Copy, Debug)]
+pub struct ZarrOutput<'a> {
+    /// The `.zarr` store.
+    pub path: &'a Path,
+    /// This process's share of the frames.
+    pub shard: emccd_io::zarr::Shard,
+    /// The profile as the user named it.
+    pub profile_arg: &'a str,
+    /// The model as the user named it, where one runs.
+    pub model_name: Option<&'a str>,
+    /// The program and its version ([`provenance`]).
+    pub software: &'a str,
+}
+
+impl ZarrOutput<'_> {
+    /// An error if the store is one of `inputs` (it would be overwritten while read).
+    pub fn check_inputs<'p>(&self, inputs: impl IntoIterator<Item = &'p Path>) -> Result<()> {
+        for i in inputs {
+            emccd_io::refuse_overwrite(self.path, i, &format!("the input {}", i.display()))?;
+        }
+        Ok(())
+    }
+}
+
+/// What [`denoise_to_zarr`] did.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ZarrRun {
+    /// Frames of the whole stack.
+    pub frames: usize,
+    /// This share's frames (from 0); empty where there are more shards than frames.
+    pub range: Range<usize>,
+    /// Frames denoised now and frames found complete.
+    pub run: ShardRun,
+    /// Frames of the store complete after this run, every share's.
+    pub done: usize,
+}
+
+/// Denoises this process's share of the stack that `inputs` make (in the order given) into the
+/// OME-Zarr store `out.path`: created ([`zarr_spec`]) or, made by the same command before,
+/// resumed, skipping frames already complete; a store made otherwise is refused. `pending`
+/// gets the number of frames about to be denoised, `on_frame` is called after each.
+pub fn denoise_to_zarr(
+    fd: &FrameDenoiser,
+    inputs: Vec<Recording>,
+    out: &ZarrOutput,
+    pending: &mut dyn FnMut(usize),
+    on_frame: &mut dyn FnMut(),
+) -> Result<ZarrRun> {
+    out.check_inputs(inputs.iter().map(|i| i.path.as_path()))?;
+    let spec = zarr_spec(
+        fd,
+        out.model_name,
+        &inputs,
+        out.profile_arg,
+        out.path,
+        out.software,
+    )?;
+    let frames = spec.frames;
+    let (store, _created) = ZarrStackWriter::create_or_open(out.path, &spec)?;
+    let range = out.shard.range(frames);
+    if range.is_empty() {
+        return Ok(ZarrRun {
+            frames,
+            range,
+            run: ShardRun {
+                written: 0,
+                skipped: 0,
+            },
+            done: store.done_count(),
+        });
+    }
+    pending(range.clone().filter(|&k| !store.is_done(k)).count());
+    let run = denoise_shard(fd, inputs, &store, range.clone(), on_frame)?;
+    Ok(ZarrRun {
+        frames,
+        range,
+        run,
+        done: store.done_count(),
+    })
+}
+
 /// Denoises frames `range` (from 0) of the stack that `inputs` make in the order given into
 /// `store`, skipping frames already complete there, so that a killed run is resumed by running
 /// it again; the other frames are skipped over unread. `on_frame` is called after every frame

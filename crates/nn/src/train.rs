@@ -62,13 +62,13 @@ pub struct TrainConfig {
     /// AdamW weight decay.
     #[cfg_attr(feature = "clap", arg(skip = TrainConfig::default().weight_decay))]
     pub weight_decay: f64,
-    /// Linear warm-up steps, at most a fifth of the run ([`TrainConfig::warmup_steps`]).
+    /// Linear warm-up steps (at most a fifth of the run).
     #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().warmup))]
     pub warmup: u64,
     /// Photo-electrons at a scene's brightest pixel, drawn log-uniformly from LO,HI.
     #[cfg_attr(feature = "clap", arg(long, default_value = "3,3000", value_parser = parse_range, value_name = "LO,HI"))]
     pub electrons: [f64; 2],
-    /// Instead of --electrons: the scene's *mean* photo-electrons per pixel, drawn
+    /// Instead of the brightest pixel's: the scene's mean photo-electrons per pixel, drawn
     /// log-uniformly from LO,HI (how EMCCD light levels are quoted; e.g. 0.2,100 for the
     /// photon-starved range EMCCDs are used in, what the low-light suite measures).
     #[serde(default)]
@@ -95,15 +95,15 @@ pub struct TrainConfig {
     pub read_noise_scale: [f64; 2],
     /// Use each synthesized pair about this many times (in different batches, with fresh flips
     /// and rotations) before it leaves the pool, so that synthesis costs batch/reuse pairs per
-    /// step. Worth it for a refinement network (`--inputs hybrid`), where every pair needs a
+    /// step. Worth it for a refinement network (hybrid inputs), where every pair needs a
     /// BM3D run (about 0.4 s per 128² crop on one core). 1: every pair is fresh.
     #[serde(default = "one")]
     #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().reuse, value_parser = clap::value_parser!(u32).range(1..=64)))]
     pub reuse: u32,
     /// On (the default), each crop in one of the 8 flips/transposes, drawn at random (more
     /// views of few images); off (`--no-augment`), every crop keeps its image's orientation.
-    #[serde(default = "yes")]
-    #[cfg_attr(feature = "clap", arg(long = "no-augment", action = clap::ArgAction::SetFalse))]
+    #[serde(default = "yes", skip_serializing_if = "is_yes")]
+    #[cfg_attr(feature = "clap", arg(long = "no-augment", action = clap::ArgAction::SetFalse, help = "Keep every crop in its image's orientation (by default each is in one of the 8 flips/transposes, drawn at random)"))]
     pub augment: bool,
     /// The estimate a refinement network is trained to correct.
     #[serde(default)]
@@ -122,7 +122,7 @@ pub struct TrainConfig {
     /// Validate every this many steps.
     #[cfg_attr(feature = "clap", arg(skip = TrainConfig::default().val_every))]
     pub val_every: u64,
-    /// Validate and checkpoint every this many steps.
+    /// Checkpoint every this many steps (`emccd train` also validates at this interval).
     #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().checkpoint_every))]
     pub checkpoint_every: u64,
 }
@@ -193,6 +193,10 @@ fn one() -> u32 {
 
 fn yes() -> bool {
     true
+}
+
+fn is_yes(v: &bool) -> bool {
+    *v
 }
 
 /// A crop's orientation for [`orient`]: drawn whether or not `augment` is on, so the rest of a
@@ -403,7 +407,8 @@ fn synth_sample(
             signal_scale(&clean.iter().map(|v| v / slope as f32).collect::<Vec<f32>>())
         }
     };
-    // The crop, 8-way augmented: optional transpose, then optional flips.
+    // The crop, in its drawn orientation (8-way augmentation unless switched off): optional
+    // transpose, then optional flips.
     let cut = |src: &[f32]| orient(&sub_image(src, w, x0, y0, c, c), c, mode);
     let (noisy_c, rn_c) = (cut(&noisy), cut(&rn));
     let p = match inputs {
@@ -1202,6 +1207,52 @@ mod tests {
                 .values()
                 .any(|(_, pt)| (0..8u8).any(|m| orient(pt, c, m) == t));
             assert!(found, "a drawn target is no orientation of a window pair");
+        }
+    }
+
+    /// Without augmentation every crop keeps the image's orientation (the test image grows to
+    /// the right and downwards), and the pairs drawn are the same ones: only the orientation
+    /// differs from an augmented run.
+    #[test]
+    fn without_augmentation_crops_keep_their_orientation() {
+        let (imgs, prof, cfg) = setup();
+        let abl = Ablation::default();
+        let c = cfg.crop;
+        let grows = |t: &[f32]| {
+            (0..c).all(|y| (1..c).all(|x| t[y * c + x] >= t[y * c + x - 1]))
+                && (1..c).all(|y| (0..c).all(|x| t[y * c + x] >= t[(y - 1) * c + x]))
+        };
+        let run = |augment: bool| {
+            let cfg = TrainConfig {
+                augment,
+                ..cfg.clone()
+            };
+            let mut pool = Pool {
+                pairs: Default::default(),
+            };
+            let targets: Vec<Vec<f32>> = (1..4)
+                .flat_map(|step| {
+                    let b = pool
+                        .batch(&imgs, &prof, &cfg, Inputs::Noisy, abl, step)
+                        .unwrap();
+                    b.target
+                        .chunks_exact(c * c)
+                        .map(<[f32]>::to_vec)
+                        .collect::<Vec<_>>()
+                })
+                .collect();
+            (targets, pool.pairs.keys().copied().collect::<Vec<u64>>())
+        };
+        let (plain, keys_plain) = run(false);
+        assert!(plain.iter().all(|t| grows(t)));
+        let (augmented, keys_augmented) = run(true);
+        assert!(
+            augmented.iter().any(|t| !grows(t)),
+            "no crop was flipped or transposed"
+        );
+        assert_eq!(keys_plain, keys_augmented);
+        for (p, a) in plain.iter().zip(&augmented) {
+            assert!((0..8u8).any(|m| orient(p, c, m) == *a));
         }
     }
 }

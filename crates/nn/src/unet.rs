@@ -31,10 +31,17 @@ pub struct UNetConfig {
     #[serde(default)]
     #[cfg_attr(feature = "clap", arg(skip = UNetConfig::DEFAULT.residual))]
     pub residual: usize,
-    /// U-Net denoiser: output the clean frame directly instead of a correction added to the
-    /// noisy frame (which, at a few photoelectrons, has to cancel every EM spike exactly).
+    /// No global residual: the output is the clean frame itself rather than a correction to
+    /// the residual channel. At a few photoelectrons the noisy frame is mostly single-electron
+    /// EM spikes, which a correction has to cancel exactly; a direct output need not.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    #[cfg_attr(feature = "clap", arg(long))]
+    #[cfg_attr(
+        feature = "clap",
+        arg(
+            long,
+            help = "U-Net denoiser: output the clean frame directly instead of a correction added to the noisy frame (which, at a few photoelectrons, has to cancel every EM spike exactly)"
+        )
+    )]
     pub direct: bool,
     /// U-Net: fold each N×N pixel block into channels before the first layer and unfold the
     /// output (FFDNet's down-sampling; 2 costs about a quarter of the operations per pixel, so

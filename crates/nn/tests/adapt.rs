@@ -18,7 +18,7 @@ const MEAN_E: f64 = 4.0;
 
 fn camera() -> VirtualCamera {
     let profile = emccd_profile::default_profile()
-        .crop(0, 0, SIDE, SIDE)
+        .crop(emccd_profile::Roi::corner(SIDE, SIDE))
         .unwrap();
     VirtualCamera::new(profile, PhysicalParams::default()).unwrap()
 }
@@ -459,4 +459,30 @@ fn a_recording_file_is_gathered_frame_by_frame() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("b.tif") && e.contains("one exposure"), "{e}");
+}
+
+#[test]
+fn a_recipe_is_checked_before_any_frame_is_read() {
+    assert!(AdaptConfig::default().check().is_ok());
+    for bad in [
+        AdaptConfig {
+            spread: 0.5,
+            ..AdaptConfig::default()
+        },
+        AdaptConfig {
+            spread: f64::NAN,
+            ..AdaptConfig::default()
+        },
+        AdaptConfig {
+            steps: 0,
+            ..AdaptConfig::default()
+        },
+        AdaptConfig {
+            batch: 0,
+            ..AdaptConfig::default()
+        },
+    ] {
+        let e = bad.check().unwrap_err().to_string();
+        assert!(e.contains("spread") || e.contains("at least 1"), "{e}");
+    }
 }

@@ -44,7 +44,9 @@ fn an_untrained_hybrid_network_returns_the_bm3d_estimate() {
     let out: Vec<f32> = m.net.forward(x).into_data().try_into_vec::<f32>().unwrap();
     assert_eq!(out, input[2 * n..].to_vec());
     // Through the pipeline (normalization and back): the BM3D + GAT estimate of the frame.
-    let p = emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap();
+    let p = emccd_profile::default_profile()
+        .crop(emccd_profile::Roi::corner(64, 64))
+        .unwrap();
     let slope = p.slope().unwrap();
     let clean: Vec<f32> = scene(64, 64)
         .iter()
@@ -239,7 +241,9 @@ fn a_hybrid_moved_onto_another_base_learns_again() {
             val: Vec::new(),
         },
         Run::new(
-            &emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap(),
+            &emccd_profile::default_profile()
+                .crop(emccd_profile::Roi::corner(64, 64))
+                .unwrap(),
             cfg,
             meta,
             &paths,

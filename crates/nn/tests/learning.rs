@@ -52,7 +52,9 @@ fn a_low_light_training_run_lowers_its_loss() {
             val: Vec::new(),
         },
         Run::new(
-            &emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap(),
+            &emccd_profile::default_profile()
+                .crop(emccd_profile::Roi::corner(64, 64))
+                .unwrap(),
             cfg,
             meta(8, 2),
             &paths,

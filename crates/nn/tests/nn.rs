@@ -302,7 +302,9 @@ fn blend_averages_ivst_and_the_network() {
     assert!(r.model.is_some());
     // What provenance names (and hashes) is the model that ran, not another default.
     assert_eq!(r.model_name.as_deref(), Some("lowlight"));
-    let profile = emccd_profile::default_profile().crop(0, 0, 48, 40).unwrap();
+    let profile = emccd_profile::default_profile()
+        .crop(emccd_profile::Roi::corner(48, 40))
+        .unwrap();
     let net = Denoiser::new(common::meta(4, 2), &emccd_nn::cpu()).unwrap();
     let raw: Vec<f32> = (0..48 * 40)
         .map(|i| 500.0 + ((i * 7919) % 97) as f32 * 3.0)
@@ -344,7 +346,9 @@ fn a_stack_is_denoised_in_shards_with_the_model_it_ran_in_its_provenance() {
     use emccd_profile::Recording;
 
     let (w, h) = (48, 40);
-    let profile = emccd_profile::default_profile().crop(0, 0, w, h).unwrap();
+    let profile = emccd_profile::default_profile()
+        .crop(emccd_profile::Roi::corner(w, h))
+        .unwrap();
     let dir = tempfile::tempdir().unwrap();
     let raws: Vec<Vec<f32>> = (0..5)
         .map(|k| {
@@ -476,7 +480,9 @@ fn a_stack_is_denoised_in_shards_with_the_model_it_ran_in_its_provenance() {
 #[test]
 fn the_denoise_bench_scores_every_scene_at_both_levels_and_skips_other_sizes() {
     let dir = tempfile::tempdir().unwrap();
-    let profile = emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap();
+    let profile = emccd_profile::default_profile()
+        .crop(emccd_profile::Roi::corner(64, 64))
+        .unwrap();
     let scene = |name: &str, w: usize, h: usize| {
         let path = dir.path().join(name);
         let data: Vec<f32> = (0..w * h)

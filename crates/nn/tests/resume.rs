@@ -22,7 +22,9 @@ fn images() -> Vec<Image> {
 }
 
 fn small_profile() -> emccd_profile::CameraProfile {
-    emccd_profile::default_profile().crop(0, 0, 64, 64).unwrap()
+    emccd_profile::default_profile()
+        .crop(emccd_profile::Roi::corner(64, 64))
+        .unwrap()
 }
 
 #[test]

@@ -15,7 +15,7 @@
 //!
 //! ```
 //! # fn main() -> emccd_profile::Result<()> {
-//! let p = emccd_profile::default_profile().crop(0, 0, 64, 64)?;
+//! let p = emccd_profile::default_profile().crop(emccd_profile::Roi::corner(64, 64))?;
 //! assert_eq!((p.width, p.height), (64, 64));
 //! // The photon-transfer slope s = K·f² with f² = 2: K DN per photoelectron.
 //! assert_eq!(p.dn_per_electron()?, p.slope()? / 2.0);
@@ -41,6 +41,69 @@ pub use default::{default_profile, DEFAULT_PROFILE_SEED};
 pub use error::{Error, Result};
 pub use fpn::{logistic, FpnForm};
 pub use recording::Recording;
+
+/// A rectangular region of a sensor: its top-left pixel (from 0) and its size, in pixels. As
+/// text `X,Y,WxH` (e.g. `128,128,256x256`), or `WxH` for a region at the top-left corner.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Roi {
+    /// First column.
+    pub x: usize,
+    /// First row.
+    pub y: usize,
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+}
+
+impl Roi {
+    /// The `width`×`height` region at the top-left corner.
+    pub fn corner(width: usize, height: usize) -> Roi {
+        Roi {
+            x: 0,
+            y: 0,
+            width,
+            height,
+        }
+    }
+}
+
+impl std::str::FromStr for Roi {
+    type Err = String;
+
+    fn from_str(s: &str) -> std::result::Result<Roi, String> {
+        let bad = || {
+            format!(
+                "'{s}': a region is X,Y,WxH (top-left pixel from 0, then the size, e.g. \
+                 128,128,256x256) or WxH at the top-left corner (e.g. 128x128)"
+            )
+        };
+        let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+        let (x, y, size) = match parts[..] {
+            [size] => ("0", "0", size),
+            [x, y, size] => (x, y, size),
+            _ => return Err(bad()),
+        };
+        let (w, h) = size.split_once(['x', 'X']).ok_or_else(bad)?;
+        let num = |v: &str| v.trim().parse::<usize>().map_err(|_| bad());
+        let r = Roi {
+            x: num(x)?,
+            y: num(y)?,
+            width: num(w)?,
+            height: num(h)?,
+        };
+        if r.width == 0 || r.height == 0 {
+            return Err(format!("'{s}': the region's size must be positive"));
+        }
+        Ok(r)
+    }
+}
+
+impl std::fmt::Display for Roi {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{},{},{}x{}", self.x, self.y, self.width, self.height)
+    }
+}
 
 use serde::{Deserialize, Serialize};
 
@@ -578,12 +641,20 @@ impl CameraProfile {
         if (w, h) == (self.width, self.height) {
             Ok(std::borrow::Cow::Borrowed(self))
         } else {
-            self.crop(0, 0, w, h).map(std::borrow::Cow::Owned)
+            self.crop(crate::Roi::corner(w, h))
+                .map(std::borrow::Cow::Owned)
         }
     }
 
-    /// The sub-array `x0..x0+w`, `y0..y0+h` (for simulating or calibrating a region of interest).
-    pub fn crop(&self, x0: usize, y0: usize, w: usize, h: usize) -> Result<CameraProfile> {
+    /// The profile of the sub-array `roi` (for simulating or calibrating a region of interest,
+    /// or for recordings made with sub-array readout).
+    pub fn crop(&self, roi: Roi) -> Result<CameraProfile> {
+        let Roi {
+            x: x0,
+            y: y0,
+            width: w,
+            height: h,
+        } = roi;
         let fits = |o: usize, n: usize, of: usize| o.checked_add(n).is_some_and(|e| e <= of);
         if w == 0 || h == 0 || !fits(x0, w, self.width) || !fits(y0, h, self.height) {
             return Err(Error::Parameter(format!(
@@ -704,11 +775,13 @@ impl CameraProfile {
 
 #[cfg(test)]
 mod tests {
-    use super::median;
+    use super::{median, Roi};
 
     #[test]
     fn a_frame_smaller_than_the_sensor_gets_the_top_left_profile() {
-        let p = crate::default_profile().crop(0, 0, 16, 12).unwrap();
+        let p = crate::default_profile()
+            .crop(crate::Roi::corner(16, 12))
+            .unwrap();
         assert!(matches!(
             p.top_left(16, 12).unwrap(),
             std::borrow::Cow::Borrowed(_)
@@ -723,7 +796,9 @@ mod tests {
 
     #[test]
     fn the_text_summary_says_what_is_calibrated_and_what_is_not() {
-        let p = crate::default_profile().crop(0, 0, 16, 12).unwrap();
+        let p = crate::default_profile()
+            .crop(crate::Roi::corner(16, 12))
+            .unwrap();
         let t = p.summary_text();
         assert!(t.starts_with(&p.camera), "{t}");
         assert!(t.contains("16 × 12 px"), "{t}");
@@ -737,6 +812,35 @@ mod tests {
         assert!(bare
             .summary_text()
             .contains("blooming x(t)     not calibrated"));
+    }
+
+    #[test]
+    fn regions_parse_and_print_back() {
+        let r: Roi = "128,64,256x32".parse().unwrap();
+        assert_eq!((r.x, r.y, r.width, r.height), (128, 64, 256, 32));
+        assert_eq!(r.to_string().parse::<Roi>().unwrap(), r);
+        let c: Roi = "64X48".parse().unwrap();
+        assert_eq!(
+            c,
+            Roi {
+                x: 0,
+                y: 0,
+                width: 64,
+                height: 48
+            }
+        );
+        for bad in [
+            "",
+            "64",
+            "1,2",
+            "a,b,3x3",
+            "1,2,0x5",
+            "1,2,3x",
+            "-1,0,4x4",
+            "1,2,3,4x4",
+        ] {
+            assert!(bad.parse::<Roi>().is_err(), "{bad}");
+        }
     }
 
     #[test]

@@ -96,7 +96,9 @@ mod tests {
 
     #[test]
     fn opens_checks_and_names_the_file() {
-        let p = crate::default_profile().crop(0, 0, 16, 12).unwrap();
+        let p = crate::default_profile()
+            .crop(crate::Roi::corner(16, 12))
+            .unwrap();
         let dir = tempfile::tempdir().unwrap();
         let (lo, hi) = p.exposure_range();
         let mid = 0.5 * (lo + hi);

@@ -287,7 +287,14 @@ mod tests {
 
     #[test]
     fn save_load_roundtrip_is_exact() {
-        let p = default_profile().crop(10, 20, 32, 24).unwrap();
+        let p = default_profile()
+            .crop(crate::Roi {
+                x: 10,
+                y: 20,
+                width: 32,
+                height: 24,
+            })
+            .unwrap();
         let dir = tempfile::tempdir().unwrap();
         p.save(dir.path()).unwrap();
         let q = crate::CameraProfile::load(dir.path()).unwrap();
@@ -297,7 +304,7 @@ mod tests {
 
     #[test]
     fn a_profile_is_saved_as_the_same_bytes_every_time() {
-        let p = default_profile().crop(0, 0, 8, 8).unwrap();
+        let p = default_profile().crop(crate::Roi::corner(8, 8)).unwrap();
         let dir = tempfile::tempdir().unwrap();
         let first = dir.path().join("0");
         p.save(&first).unwrap();
@@ -317,7 +324,7 @@ mod tests {
 
     #[test]
     fn damaged_profiles_are_named_errors() {
-        let p = default_profile().crop(0, 0, 8, 8).unwrap();
+        let p = default_profile().crop(crate::Roi::corner(8, 8)).unwrap();
         let dir = tempfile::tempdir().unwrap();
         p.save(dir.path()).unwrap();
         let maps = dir.path().join(super::MAPS_FILE);
@@ -338,10 +345,15 @@ mod tests {
     #[test]
     fn the_two_files_of_a_profile_must_belong_together() {
         let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
-        let p = default_profile().crop(0, 0, 8, 8).unwrap();
+        let p = default_profile().crop(crate::Roi::corner(8, 8)).unwrap();
         p.save(a.path()).unwrap();
         default_profile()
-            .crop(100, 100, 8, 8)
+            .crop(crate::Roi {
+                x: 100,
+                y: 100,
+                width: 8,
+                height: 8,
+            })
             .unwrap()
             .save(b.path())
             .unwrap();
