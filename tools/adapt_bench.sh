@@ -28,8 +28,11 @@ extra=()
 [ -z "$flags" ] || { extra=("$flags"); tag="$tag${flags#-}"; }
 base=(--method "$init"); from=(--init "$init")
 [ "$init" = scratch ] && base=() && from=(--init lowlight --from-scratch)
-# The lowest light levels first: where adaptation gains least.
-for d in $(ls -d "$dir"/*_m1/ "$dir"/*_m4/ "$dir"/*/ 2>/dev/null | awk '!seen[$0]++'); do
+# The lowest light levels first (where adaptation gains least), then the rest, each once.
+declare -A seen=()
+for d in "$dir"/*_m1/ "$dir"/*_m4/ "$dir"/*/; do
+    [ -d "$d" ] && [ -z "${seen[$d]:-}" ] || continue
+    seen[$d]=1
     d="${d%/}"
     [ -f "$d/stack.tif" ] || continue
     m="$d/adapted-$tag.safetensors"
