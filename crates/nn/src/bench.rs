@@ -186,6 +186,7 @@ pub struct ArchiveStacks {
     pub write_s: f64,
 }
 
+#[cfg(unix)]
 impl ArchiveStacks {
     /// Megabytes of the short stack's frames.
     pub fn short_mb(&self) -> f64 {
