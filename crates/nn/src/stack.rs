@@ -65,16 +65,13 @@ fn read_frame(rec: &mut Recording, buf: &mut [f32], at: impl Fn() -> String) -> 
 }
 
 /// The description of the OME-Zarr store that `inputs` (one stack, in this order) denoised by
-/// `fd` make at `out`: its size, its name (the file stem), the [`provenance`] every writing
-/// process compares, and what a person reads (the inputs and profile as typed, the model's
-/// name). An error if the inputs hold no frame.
+/// `fd` make at `out.path`: its size, its name (the file stem), the [`provenance`] every
+/// writing process compares, and what a person reads (the inputs and profile as typed, the
+/// model's name). An error if the inputs hold no frame.
 pub fn zarr_spec(
     fd: &FrameDenoiser,
-    model_name: Option<&str>,
     inputs: &[Recording],
-    profile_arg: &str,
-    out: &Path,
-    software: &str,
+    out: &ZarrOutput,
 ) -> Result<emccd_io::zarr::ZarrStackSpec> {
     let frames: usize = inputs.iter().map(|i| i.info.frames).sum();
     if frames == 0 {
@@ -85,14 +82,15 @@ pub fn zarr_spec(
         height: fd.profile.height,
         frames,
         name: out
+            .path
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default(),
-        provenance: provenance(fd, model_name, inputs, software)?,
+        provenance: provenance(fd, out.model_name, inputs, out.software)?,
         notes: json!({
             "inputs": inputs.iter().map(|i| i.path.display().to_string()).collect::<Vec<_>>(),
-            "profile": profile_arg,
-            "model": model_name,
+            "profile": out.profile_arg,
+            "model": out.model_name,
         }),
     })
 }
@@ -157,14 +155,7 @@ pub fn denoise_to_zarr(
     on_frame: &mut dyn FnMut(),
 ) -> Result<ZarrRun> {
     out.check_inputs(inputs.iter().map(|i| i.path.as_path()))?;
-    let spec = zarr_spec(
-        fd,
-        out.model_name,
-        &inputs,
-        out.profile_arg,
-        out.path,
-        out.software,
-    )?;
+    let spec = zarr_spec(fd, &inputs, out)?;
     let frames = spec.frames;
     let (store, _created) = ZarrStackWriter::create_or_open(out.path, &spec)?;
     let range = out.shard.range(frames);
