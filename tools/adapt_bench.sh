@@ -12,7 +12,7 @@
 #   STEPS    adaptation steps (default 200)
 #   METHOD   adapt --method (default resynthesis)
 #   LR       adapt --lr (default: adapt's own; `-` for the default with FLAGS)
-#   FLAGS    further adapt flags, one word (e.g. --no-augment; named in the tag)
+#   FLAGS    further adapt flags, one word (e.g. --augment; named in the tag)
 # Writes DIR/*/adapted-TAG.safetensors, DIR/*/eval-TAG.json and prints a per-level table.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"

@@ -50,7 +50,7 @@ done
     --crop 64 --steps 0 --seed 11 -o "$OUT/arch-8x4.safetensors" 2> /dev/null
 [ -f "$OUT/selfsup.safetensors" ] || $E adapt "$OUT"/pairs/noisy/*.tif --profile "$OUT/profile-256" \
     --init "$OUT/arch-8x4.safetensors" --from-scratch --method neighbors --crop 64 --batch 4 \
-    --steps "$STEPS" --lr 2e-4 --seed 11 -o "$OUT/selfsup.safetensors" 2> "$OUT/selfsup.log"
+    --steps "$STEPS" --lr 2e-4 --seed 11 --augment -o "$OUT/selfsup.safetensors" 2> "$OUT/selfsup.log"
 methods=(--method input --method bm3d)
 for m in ours eld-own pgn-own eld pgn selfsup no-multiplicative no-readout no-fpn no-blooming; do
     methods+=(--method "$OUT/$m.safetensors")

@@ -143,7 +143,7 @@ mod tests {
             "synthesize a.png -o n.tif --model pgn --signal-dn 500",
             "bench --frames 3",
             "adapt rec.tif --profile p --init microscopy -o a.safetensors",
-            "adapt rec.tif --profile p --spread 2 --no-augment --lr 1e-4 -o a.safetensors",
+            "adapt rec.tif --profile p --spread 2 --augment --lr 1e-4 -o a.safetensors",
             "profile crop default out --roi 8,8,64x32",
             "simulate pairs --clean a.png --crop 16,16,64x64 -o p",
             "train --clean dir --steps 10 -o m.safetensors",
@@ -200,6 +200,25 @@ mod tests {
             panic!("not adapt")
         };
         assert_eq!(a.cfg, emccd_nn::adapt::AdaptConfig::default());
+        assert!(
+            !a.cfg.augment,
+            "adapt keeps the recording's orientation unless asked"
+        );
+        let cli = Cli::try_parse_from([
+            "emccd",
+            "adapt",
+            "r.tif",
+            "--profile",
+            "p",
+            "--augment",
+            "-o",
+            "a",
+        ])
+        .unwrap();
+        let Command::Adapt(a) = cli.command else {
+            panic!("not adapt")
+        };
+        assert!(a.cfg.augment);
         let cli = Cli::try_parse_from(["emccd", "denoise", "a.tif", "-o", "b.tif"]).unwrap();
         let Command::Denoise(a) = cli.command else {
             panic!("not denoise")

@@ -22,7 +22,7 @@
 # images: Kodak 1–24, BSD68, FMD confocal fields 1–4). The whole tree must stay under 64 MiB;
 # move models/ you do not need out of it for the call.
 #
-# Env (long): RUNS ("name:extra args;…", each with CHARB, the low-light recipe with the
+# Env (long): FPS (1: the U-Net's frames per second on 512² frames first, alone), RUNS ("name:extra args;…", each with CHARB, the low-light recipe with the
 # Charbonnier loss, and the training images; .gpu/models/ holds the bundled models they start from).
 # Env (levers): LEVERS ("name:extra args;…"), LEVER_STEPS (steps of every run, default 1500).
 # Env: PROBE_S (probe seconds, default 100), UF_SIZES (Uformer sizes to time, default "t s b").
@@ -216,6 +216,21 @@ levers)
 long)
     setup
     export EMCCD_MODELS=$PWD/.gpu/models
+    # FPS=1: first the frames per second of the bundled networks' U-Net on 512² frames, alone on
+    # the GPU (a one-step model of the same architecture: the weights do not change the time).
+    if [ -n "${FPS:-}" ]; then
+        mkdir -p "$R/fps"
+        python3 - "$R/fps" <<'EOF2'
+import sys, numpy as np, tifffile
+rng = np.random.default_rng(1)
+for n in (12, 36):
+    x = 177 + rng.poisson(30, size=(n, 512, 512)) + rng.normal(0, 3, size=(n, 512, 512))
+    tifffile.imwrite(f"{sys.argv[1]}/s{n}.tif", np.clip(x, 0, 65535).astype(np.uint16), photometric="minisblack")
+EOF2
+        timeout 180 "$B" train $CHARB --arch unet --batch 2 --steps 1 --checkpoint-every 1 $(TRAIN_DATA) \
+            -o "$R/fps-unet.safetensors" >>"$R/fps.log" 2>&1
+        fps "$R/fps-unet.safetensors" 12 36
+    fi
     IFS=';' read -ra runs <<<"${RUNS:?RUNS}"
     # Probe: all runs at once, as they will run.
     for r in "${runs[@]}"; do

@@ -481,9 +481,11 @@ pub struct AdaptConfig {
     /// this factor (1: exactly its level).
     #[cfg_attr(feature = "clap", arg(long, default_value_t = AdaptConfig::default().spread))]
     pub spread: f64,
-    /// Each crop in one of the 8 flips/transposes, drawn at random; off, every crop in the
-    /// recording's own orientation.
-    #[cfg_attr(feature = "clap", arg(long = "no-augment", action = clap::ArgAction::SetFalse, help = "Train on crops in the recording's own orientation only (by default each crop is in one of the 8 flips/transposes)"))]
+    /// Each crop in one of the 8 flips/transposes, drawn at random; off (the default), every
+    /// crop in the recording's own orientation. A network adapted to one scene should learn it
+    /// as the held-out frames show it: with flips, seven of eight crops are views those frames
+    /// never have, and a camera need not be isotropic (blooming runs along columns).
+    #[cfg_attr(feature = "clap", arg(long, action = clap::ArgAction::SetTrue, help = "Train on crops in any of the 8 flips/transposes of the recording (by default every crop keeps the recording's own orientation, which adapts about twice as much)"))]
     pub augment: bool,
     /// Noise model of the synthesized pairs (`ours`: the profile's exact EMCCD chain).
     #[cfg_attr(feature = "clap", arg(long = "noise-model", value_name = "NOISE_MODEL", value_enum, default_value_t = AdaptConfig::default().noise))]
@@ -532,9 +534,10 @@ impl AdaptConfig {
 }
 
 impl Default for AdaptConfig {
-    /// 400 steps at a peak rate of 5·10⁻⁴: on held-out frames of emccd-detect's camera B and the
-    /// virtual camera (neither used to choose it) +0.5–0.7 dB over the bundled `lowlight`, where
-    /// 200 steps at 2·10⁻⁴ gave +0.35–0.47 (README, "Adaptation to a recording").
+    /// 400 steps at a peak rate of 5·10⁻⁴, crops in the recording's own orientation: on
+    /// held-out frames of emccd-detect's cameras A and B (never used to choose it) +0.53–1.21 dB
+    /// over the bundled `lowlight` per stack, where the same steps with flips and transposes
+    /// gave +0.39–0.71 (README, "Adaptation to a recording").
     fn default() -> AdaptConfig {
         AdaptConfig {
             method: AdaptMethod::Resynthesis,
@@ -543,7 +546,7 @@ impl Default for AdaptConfig {
             batch: 4,
             crop: 128,
             spread: 1.5,
-            augment: true,
+            augment: false,
             noise: NoiseModelKind::Ours,
             seed: 2411,
             checkpoint_every: 50,
