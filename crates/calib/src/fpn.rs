@@ -14,7 +14,7 @@ use serde::Serialize;
 
 use crate::fit::{levenberg_marquardt, median_mad};
 use crate::{Error, Result};
-use emccd_profile::{logistic, FpnForm};
+use emccd_profile::FpnForm;
 
 /// Mean absolute prediction error of both forms at one calibrated exposure.
 #[derive(Clone, Debug, Serialize)]
@@ -487,32 +487,24 @@ pub fn fit(
     })
 }
 
-/// Predicted FPN at exposure `t` from a fit: per-pixel or shared form, evaluated as the
-/// profile evaluates its curves ([`emccd_profile::logistic`]; the models above carry gradients
-/// for fitting).
+/// Predicted FPN at exposure `t` from a fit: evaluated as the profile evaluates its curves
+/// ([`emccd_profile::FpnCurves`]; the models above carry gradients for fitting). `base` is the
+/// bias map at the shortest exposure; the constant form is the pooled map.
 pub fn predict(r: &FpnResult, base: &[f32], form: FpnForm, exposure_s: f64) -> Vec<f32> {
-    let n = base.len();
-    let u = exposure_s.ln();
-    let u0 = r.exposures_s[0].ln();
-    match form {
-        FpnForm::Constant => r.pooled.clone(),
-        FpnForm::PerPixel if r.per_pixel => (0..n)
-            .map(|p| {
-                let t = &r.theta_maps;
-                let th = [t[p], t[n + p], t[2 * n + p], t[3 * n + p]].map(|v| v as f64);
-                if th[0].is_nan() {
-                    base[p]
-                } else {
-                    logistic(u, th).exp() as f32
-                }
-            })
-            .collect(),
-        _ => {
-            let th = r.shared_theta;
-            let k = (logistic(u, th) - logistic(u0, th)).exp();
-            base.iter().map(|&b| (b as f64 * k) as f32).collect()
-        }
+    let mut out = vec![0f32; base.len()];
+    emccd_profile::FpnCurves {
+        form,
+        base: if form == FpnForm::Constant {
+            &r.pooled
+        } else {
+            base
+        },
+        theta: if r.per_pixel { &r.theta_maps } else { &[] },
+        shared: r.shared_theta,
+        base_exposure_s: r.exposures_s[0],
     }
+    .eval(exposure_s, &mut out);
+    out
 }
 
 #[cfg(test)]

@@ -3,16 +3,7 @@
 //! approximation of its exact unbiased inverse (Mäkitalo & Foi 2013), so that a Gaussian
 //! denoiser (BM3D) can be applied with σ = 1.
 
-/// Noise of a Poisson–Gaussian frame.
-#[derive(Clone, Copy, Debug)]
-pub struct PoissonGaussian {
-    /// Variance per unit of signal (the photon-transfer slope for EMCCD data).
-    pub alpha: f64,
-    /// Standard deviation of the signal-independent part.
-    pub sigma: f64,
-    /// Offset of the Gaussian part.
-    pub mu: f64,
-}
+pub use emccd_profile::PoissonGaussian;
 
 /// Generalized Anscombe transform: noise std ≈ 1 afterwards.
 pub fn forward(z: f64, p: PoissonGaussian) -> f64 {

@@ -410,12 +410,7 @@ pub fn scene_estimate(
     }
     let m = mean.mean();
     let n = mean.frames as f64;
-    let p = crate::pipeline::vst_params(profile, exposure_s)?;
-    let q = emccd_eval::vst::PoissonGaussian {
-        alpha: p.alpha / n,
-        sigma: p.sigma / n.sqrt(),
-        mu: p.mu,
-    };
+    let q = crate::pipeline::vst_params(profile, exposure_s)?.of_mean(n);
     let est = emccd_eval::vst::bm3d_adaptive(&m, mean.width, mean.height, q);
     let finite_mean = m
         .iter()

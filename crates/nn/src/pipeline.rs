@@ -75,32 +75,14 @@ pub fn preprocess_ablated(
     Ok(d)
 }
 
-/// The Poisson–Gaussian noise of a preprocessed frame for the variance-stabilizing transform:
-/// gain = the photon-transfer slope, Gaussian σ = the median read noise at the exposure with
-/// the quantization's share.
-pub fn vst_params(p: &CameraProfile, exposure_s: f64) -> Result<emccd_eval::vst::PoissonGaussian> {
+/// The profile's Poisson–Gaussian noise at `exposure_s` ([`CameraProfile::vst_params`]),
+/// with [`usable`]'s message when the profile cannot describe a frame.
+pub(crate) fn vst_params(
+    p: &CameraProfile,
+    exposure_s: f64,
+) -> Result<emccd_profile::PoissonGaussian> {
     usable(p, p.len(), exposure_s)?;
-    let slope = p.slope()?;
-    Ok(vst_from(
-        slope,
-        p.read_noise_near(exposure_s),
-        p.quantization_dn,
-    ))
-}
-
-/// [`vst_params`] from the slope, a read-noise std map (DN) and the quantization step: training
-/// uses it with the map it synthesized, so BM3D sees what a calibration would have given.
-pub fn vst_from(
-    slope: f64,
-    read_noise: &[f32],
-    quantization_dn: f64,
-) -> emccd_eval::vst::PoissonGaussian {
-    let rn = emccd_profile::median(read_noise.iter().copied()).unwrap_or(0.0);
-    emccd_eval::vst::PoissonGaussian {
-        alpha: slope,
-        sigma: (rn * rn + quantization_dn.powi(2) / 12.0).sqrt(),
-        mu: 0.0,
-    }
+    Ok(p.vst_params(exposure_s)?)
 }
 
 /// BM3D after the generalized Anscombe transform, with the exact unbiased inverse, on a

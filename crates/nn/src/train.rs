@@ -424,7 +424,11 @@ fn synth_sample(
             let (ww, wh) = (wx1 - wx0, wy1 - wy0);
             let window = sub_image(&noisy, w, wx0, wy0, ww, wh);
             let rn_w = sub_image(&rn, w, wx0, wy0, ww, wh);
-            let vst = crate::pipeline::vst_from(slope, &rn_w, profile.quantization_dn);
+            let vst = emccd_profile::PoissonGaussian::from_read_noise(
+                slope,
+                &rn_w,
+                profile.quantization_dn,
+            );
             let est_w = cfg.base.estimate(&window, ww, wh, vst);
             let est = sub_image(&est_w, ww, x0 - wx0, y0 - wy0, c, c);
             prepare_hybrid(&noisy_c, &orient(&est, c, mode), slope, &rn_c, scale)
@@ -698,7 +702,7 @@ fn validate(model: &Denoiser, val: &Batch, n: usize, c: usize, device: &Device) 
         let t = &val.target[b * c * c..(b + 1) * c * c];
         let o = &out[b * c * c..(b + 1) * c * c];
         let i = &val.input[(b * ch + base) * c * c..(b * ch + base + 1) * c * c];
-        let peak = t.iter().copied().fold(0f32, f32::max).max(1e-6) as f64;
+        let peak = emccd_eval::scores::truth_peak(t);
         po += emccd_eval::psnr(o, t, peak);
         pi += emccd_eval::psnr(i, t, peak);
     }
@@ -796,7 +800,6 @@ fn recorded_batch(pairs: &RecordedPairs, cfg: &TrainConfig, seed: u64) -> Batch 
 }
 
 /// [`train`] on any [`Source`].
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn train_from(
     source: Source,
     val_images: Vec<Image>,

@@ -35,12 +35,14 @@ mod fpn;
 pub mod manifest;
 mod recording;
 mod store;
+mod vst;
 
 pub use blooming::{apply_blooming, column_means, preprocess, remove_blooming};
 pub use default::{default_profile, DEFAULT_PROFILE_SEED};
 pub use error::{Error, Result};
-pub use fpn::{logistic, FpnForm};
+pub use fpn::{logistic, FpnCurves, FpnForm};
 pub use recording::Recording;
+pub use vst::PoissonGaussian;
 
 /// A rectangular region of a sensor: its top-left pixel (from 0) and its size, in pixels. As
 /// text `X,Y,WxH` (e.g. `128,128,256x256`), or `WxH` for a region at the top-left corner.
