@@ -24,6 +24,8 @@ pub struct Streaming {
     /// This process's peak resident memory before the stack was read and after, MiB (NaN
     /// where the system does not report it): streaming keeps the difference small.
     pub peak_mib: [f64; 2],
+    /// Worker threads (rayon's pool).
+    pub threads: usize,
 }
 
 impl Streaming {
@@ -35,6 +37,54 @@ impl Streaming {
     /// The reference read's throughput, GB/s.
     pub fn reference_gb_s(&self) -> f64 {
         self.bytes / self.reference_s / 1e9
+    }
+}
+
+/// The report `emccd bench --calibration` prints: both passes, their ratio against the
+/// 1 GB/s target, and the peak memory.
+impl std::fmt::Display for Streaming {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "calibration streaming: {} frames of {SIDE}×{SIDE} u16 ({:.0} MB TIFF, page cache), {} threads",
+            self.frames,
+            self.bytes / 1e6,
+            self.threads
+        )?;
+        writeln!(f, "{:<46} {:>9} {:>9}", "pass", "s", "GB/s")?;
+        let row = |f: &mut std::fmt::Formatter<'_>, what: &str, s: f64, gb: f64| {
+            writeln!(f, "{what:<46} {s:>9.3} {gb:>9.2}")
+        };
+        row(
+            f,
+            "reference: read the bytes, no decoding",
+            self.reference_s,
+            self.reference_gb_s(),
+        )?;
+        row(
+            f,
+            "emccd: decode + per-pixel mean and variance",
+            self.decode_s,
+            self.decode_gb_s(),
+        )?;
+        writeln!(f)?;
+        let met = if self.decode_gb_s() >= 1.0 {
+            "met"
+        } else {
+            "not met"
+        };
+        writeln!(
+            f,
+            "ratio to the reference read: {:.2}  (target ≥ 1 GB/s: {met})",
+            self.reference_s / self.decode_s
+        )?;
+        write!(
+            f,
+            "peak memory: {:.1} MiB (before reading the stack: {:.1} MiB; the stack itself is {:.0} MiB)",
+            self.peak_mib[1],
+            self.peak_mib[0],
+            self.bytes / (1 << 20) as f64
+        )
     }
 }
 
@@ -84,6 +134,7 @@ pub fn streaming(dir: &Path, frames: usize) -> Result<Streaming> {
         reference_s,
         decode_s,
         peak_mib: [peak_before, peak_rss_mib()],
+        threads: rayon::current_num_threads(),
     })
 }
 

@@ -17,6 +17,65 @@ pub struct Synthesis {
     pub pgn_s: f64,
     /// The virtual camera: eq. 1 with blooming, FPN and the ADC.
     pub camera_s: f64,
+    /// Mean photoelectrons per pixel of the frames.
+    pub electrons: f64,
+    /// Frames timed.
+    pub frames: usize,
+    /// Pixels per frame.
+    pub pixels: usize,
+    /// Worker threads (rayon's pool).
+    pub threads: usize,
+}
+
+impl Synthesis {
+    /// One row of the table: a method's milliseconds per frame and megapixels per second.
+    pub fn row(&self, method: &str, seconds: f64) -> String {
+        let mpix = self.pixels as f64 / 1e6;
+        format!(
+            "{method:<44} {:>10.2} {:>10.1}",
+            seconds * 1e3,
+            mpix / seconds
+        )
+    }
+
+    /// The emccd-detect row and the ratios, for its seconds per frame ([`emccd_detect`]).
+    pub fn emccd_detect_rows(&self, seconds: f64) -> String {
+        format!(
+            "{}\n\nratio vs emccd-detect: ours {:.1}×, virtual camera {:.1}×  (same physics: PGN + read noise + ADC)",
+            self.row("emccd-detect sim_sub_frame (Python)", seconds),
+            seconds / self.ours_s,
+            seconds / self.camera_s
+        )
+    }
+}
+
+/// The table `emccd bench` prints (emccd's three syntheses; [`Synthesis::emccd_detect_rows`]
+/// adds the comparison).
+impl std::fmt::Display for Synthesis {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let side = (self.pixels as f64).sqrt().round();
+        writeln!(
+            f,
+            "synthesis throughput, {side}×{side} frames, {} e⁻/pixel, {} frames, {} threads",
+            self.electrons, self.frames, self.threads
+        )?;
+        writeln!(f, "{:<44} {:>10} {:>10}", "method", "ms/frame", "Mpix/s")?;
+        writeln!(
+            f,
+            "{}",
+            self.row("emccd ours (eq. 5, training pairs)", self.ours_s)
+        )?;
+        writeln!(
+            f,
+            "{}",
+            self.row("emccd pgn (Poisson-Gamma-Normal)", self.pgn_s)
+        )?;
+        write!(
+            f,
+            "{}",
+            self.row("emccd virtual camera (full eq. 1 + ADC)", self.camera_s)
+        )
+    }
 }
 
 fn per_frame(frames: usize, mut f: impl FnMut(u64)) -> f64 {
@@ -47,6 +106,10 @@ pub fn synthesis(cam: &VirtualCamera, electrons: f64, frames: usize) -> Result<S
         ours_s,
         pgn_s,
         camera_s,
+        electrons,
+        frames,
+        pixels: n,
+        threads: rayon::current_num_threads(),
     })
 }
 

@@ -82,39 +82,12 @@ fn archive_bench(gb: f64, dir: &std::path::Path, net_frames: usize) -> Result<()
                 done.finish_and_clear();
             }
         }
-        ArchiveEvent::Frame => {
-            if let Some(pb) = &pb {
-                pb.inc(1);
-            }
-        }
+        ArchiveEvent::Frame => pb.iter().for_each(|pb| pb.inc(1)),
         ArchiveEvent::Stacks(s) => {
-            if let Some(pb) = pb.take() {
-                pb.finish_and_clear();
-            }
-            let side = emccd_camera::bench::ARCHIVE_SIDE;
-            println!(
-                "archive streaming: BigTIFF stacks of {side}×{side} u16 frames: {} frames ({:.0} MB) and {} frames ({:.2} GB, written in {:.0} s, {:.0} MB/s)",
-                s.short_frames,
-                s.short_mb(),
-                s.long_frames,
-                s.long_bytes / 1e9,
-                s.write_s,
-                s.long_bytes / 1e6 / s.write_s
-            );
-            println!(
-                "{:<36} {:>7} {:>9} {:>9} {:>9} {:>9}",
-                "command", "stack", "frames", "s", "frames/s", "peak MiB"
-            );
+            pb.take().iter().for_each(|pb| pb.finish_and_clear());
+            println!("{s}");
         }
-        ArchiveEvent::Row(r) => println!(
-            "{:<36} {:>7} {:>9} {:>9.1} {:>9.1} {:>9.1}",
-            r.command,
-            r.stack,
-            r.frames,
-            r.seconds,
-            r.frames as f64 / r.seconds,
-            r.peak_rss_mib
-        ),
+        ArchiveEvent::Row(r) => println!("{r}"),
     })?;
     println!(
         "({} CPU threads; the stacks and outputs were in {} and are removed)",
@@ -145,21 +118,13 @@ fn bm3d_bench(sigmas: &[f64], limit: Option<usize>, data: &std::path::Path) -> R
         "BM3D on BSD68 ({} images), additive Gaussian noise, PSNR for 8-bit range",
         scenes.len()
     );
-    println!(
-        "{:>6} {:>10} {:>10} {:>10} {:>12}",
-        "σ", "noisy dB", "BM3D dB", "published", "s/image"
-    );
+    println!("{}", emccd_eval::bm3d::Bsd68Row::header());
     let images = scenes
         .iter()
         .map(|sc| emccd_io::Image::read_scene(sc))
         .collect::<std::result::Result<Vec<_>, _>>()?;
     for &sigma in sigmas {
-        let r = emccd_eval::bm3d::bsd68_row(&images, sigma);
-        let p = r.published_db.map_or("–".into(), |v| format!("{v:.2}"));
-        println!(
-            "{:>6} {:>10.2} {:>10.2} {:>10} {:>12.2}",
-            r.sigma, r.noisy_db, r.denoised_db, p, r.seconds
-        );
+        println!("{}", emccd_eval::bm3d::bsd68_row(&images, sigma));
     }
     Ok(())
 }
@@ -184,50 +149,16 @@ fn denoise_bench(
         profile.slope()?,
         profile.read_noise_dn()
     );
-    print!(
-        "{:<28} {:>8} {:>10} {:>10}",
-        "scene", "photons", "input dB", "BM3D dB"
-    );
-    for i in 0..models.len() {
-        print!(" {:>10}", format!("model {}", i + 1));
-    }
-    println!();
+    println!("{}", emccd_nn::bench::Row::header(models.len()));
     let t = emccd_nn::bench::denoise(
         &profile,
         &scenes,
         &models,
         frames,
-        &mut |r| {
-            print!(
-                "{:<28} {:>8} {:>10.2} {:>10.2}",
-                r.scene, r.photons, r.input_db, r.bm3d_db
-            );
-            for b in &r.model_db {
-                print!(" {b:>10.2}");
-            }
-            println!();
-        },
+        &mut |r| println!("{r}"),
         &mut |skip| eprintln!("{skip}"),
     )?;
-    println!();
-    println!(
-        "mean PSNR over {} pairs: input {:.2} dB, BM3D (GAT) {:.2} dB ({:.2} s per frame)",
-        t.pairs, t.input_db, t.bm3d_db, t.bm3d_s
-    );
-    for (i, est) in models.iter().enumerate() {
-        let m = est.model().expect("bench::models holds networks only");
-        println!(
-            "model {}: {} ({} params, {} steps, noise model {}): {:.2} dB ({:+.2} vs BM3D), {:.3} s per 512×512 frame",
-            i + 1,
-            est.name(),
-            m.num_params(),
-            m.meta.steps,
-            m.meta.noise_model.name(),
-            t.model_db[i],
-            t.model_db[i] - t.bm3d_db,
-            t.model_s[i]
-        );
-    }
+    println!("\n{}", t.summary(&models));
     println!(
         "({} CPU threads; network on {})",
         rayon::current_num_threads(),
@@ -238,42 +169,7 @@ fn denoise_bench(
 
 fn calibration_bench(frames: usize) -> Result<()> {
     let dir = tempfile::tempdir()?;
-    let r = emccd_calib::bench::streaming(dir.path(), frames)?;
-    let (side, threads) = (emccd_calib::bench::SIDE, rayon::current_num_threads());
-    println!(
-        "calibration streaming: {} frames of {side}×{side} u16 ({:.0} MB TIFF, page cache), {threads} threads",
-        r.frames,
-        r.bytes / 1e6
-    );
-    println!("{:<46} {:>9} {:>9}", "pass", "s", "GB/s");
-    println!(
-        "{:<46} {:>9.3} {:>9.2}",
-        "reference: read the bytes, no decoding",
-        r.reference_s,
-        r.reference_gb_s()
-    );
-    println!(
-        "{:<46} {:>9.3} {:>9.2}",
-        "emccd: decode + per-pixel mean and variance",
-        r.decode_s,
-        r.decode_gb_s()
-    );
-    println!();
-    println!(
-        "ratio to the reference read: {:.2}  (target ≥ 1 GB/s: {})",
-        r.reference_s / r.decode_s,
-        if r.decode_gb_s() >= 1.0 {
-            "met"
-        } else {
-            "not met"
-        }
-    );
-    println!(
-        "peak memory: {:.1} MiB (before reading the stack: {:.1} MiB; the stack itself is {:.0} MiB)",
-        r.peak_mib[1],
-        r.peak_mib[0],
-        r.bytes / (1 << 20) as f64
-    );
+    println!("{}", emccd_calib::bench::streaming(dir.path(), frames)?);
     Ok(())
 }
 
@@ -292,31 +188,13 @@ pub fn run(a: Args) -> Result<()> {
     }
     let frames = a.frames.max(1);
     let cam = VirtualCamera::default_camera();
-    let mpix = cam.profile.len() as f64 / 1e6;
-    let threads = rayon::current_num_threads();
-    let emccd_camera::bench::Synthesis {
-        ours_s: t_ours,
-        pgn_s: t_pgn,
-        camera_s: t_cam,
-    } = emccd_camera::bench::synthesis(&cam, a.electrons, frames)?;
-    println!(
-        "synthesis throughput, 512×512 frames, {} e⁻/pixel, {frames} frames, {threads} threads",
-        a.electrons
-    );
-    println!("{:<44} {:>10} {:>10}", "method", "ms/frame", "Mpix/s");
-    let row = |name: &str, t: f64| println!("{:<44} {:>10.2} {:>10.1}", name, t * 1e3, mpix / t);
-    row("emccd ours (eq. 5, training pairs)", t_ours);
-    row("emccd pgn (Poisson-Gamma-Normal)", t_pgn);
-    row("emccd virtual camera (full eq. 1 + ADC)", t_cam);
+    let t = emccd_camera::bench::synthesis(&cam, a.electrons, frames)?;
+    println!("{t}");
     if a.no_python {
         return Ok(());
     }
     match emccd_camera::bench::emccd_detect(frames.min(10), a.electrons) {
-        Ok(t_py) => {
-            row("emccd-detect sim_sub_frame (Python)", t_py);
-            println!();
-            println!("ratio vs emccd-detect: ours {:.1}×, virtual camera {:.1}×  (same physics: PGN + read noise + ADC)", t_py / t_ours, t_py / t_cam);
-        }
+        Ok(t_py) => println!("{}", t.emccd_detect_rows(t_py)),
         Err(why) => {
             println!("\nemccd-detect comparison skipped: {why}  (pip install emccd-detect)")
         }

@@ -406,6 +406,28 @@ pub struct Bsd68Row {
     pub seconds: f64,
 }
 
+impl Bsd68Row {
+    /// The header of the table [`Bsd68Row`]'s `Display` writes rows of.
+    pub fn header() -> String {
+        format!(
+            "{:>6} {:>10} {:>10} {:>10} {:>12}",
+            "σ", "noisy dB", "BM3D dB", "published", "s/image"
+        )
+    }
+}
+
+/// One row of `emccd bench --bm3d`'s table (under [`Bsd68Row::header`]).
+impl std::fmt::Display for Bsd68Row {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let p = self.published_db.map_or("–".into(), |v| format!("{v:.2}"));
+        write!(
+            f,
+            "{:>6} {:>10.2} {:>10.2} {p:>10} {:>12.2}",
+            self.sigma, self.noisy_db, self.denoised_db, self.seconds
+        )
+    }
+}
+
 /// [`Bsd68Row`] at `sigma` over the clean images `scenes` (values in [0, 1]).
 pub fn bsd68_row(scenes: &[emccd_io::Image], sigma: f64) -> Bsd68Row {
     let (mut pn, mut pd, mut secs) = (0.0, 0.0, 0.0);

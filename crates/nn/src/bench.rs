@@ -31,6 +31,34 @@ pub struct Row {
     pub model_db: Vec<f64>,
 }
 
+impl Row {
+    /// The header of the table of rows, for `models` models.
+    pub fn header(models: usize) -> String {
+        let mut h = format!(
+            "{:<28} {:>8} {:>10} {:>10}",
+            "scene", "photons", "input dB", "BM3D dB"
+        );
+        for i in 0..models {
+            h += &format!(" {:>10}", format!("model {}", i + 1));
+        }
+        h
+    }
+}
+
+/// One row of `emccd bench --denoise`'s table (under [`Row::header`]).
+impl std::fmt::Display for Row {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{:<28} {:>8} {:>10.2} {:>10.2}",
+            self.scene, self.photons, self.input_db, self.bm3d_db
+        )?;
+        self.model_db
+            .iter()
+            .try_for_each(|b| write!(f, " {b:>10.2}"))
+    }
+}
+
 /// Means over every pair.
 #[derive(Clone, Debug, Default)]
 pub struct Totals {
@@ -46,6 +74,32 @@ pub struct Totals {
     pub model_db: Vec<f64>,
     /// Each model's mean seconds per frame over the timed frames.
     pub model_s: Vec<f64>,
+}
+
+impl Totals {
+    /// The summary under the table: the means, and each of `models` (in [`denoise`]'s order)
+    /// with its size, training and seconds per frame.
+    pub fn summary(&self, models: &[Estimator]) -> String {
+        let mut s = format!(
+            "mean PSNR over {} pairs: input {:.2} dB, BM3D (GAT) {:.2} dB ({:.2} s per frame)",
+            self.pairs, self.input_db, self.bm3d_db, self.bm3d_s
+        );
+        for (i, est) in models.iter().enumerate() {
+            let Some(m) = est.model() else { continue };
+            s += &format!(
+                "\nmodel {}: {} ({} params, {} steps, noise model {}): {:.2} dB ({:+.2} vs BM3D), {:.3} s per 512×512 frame",
+                i + 1,
+                est.name(),
+                m.num_params(),
+                m.meta.steps,
+                m.meta.noise_model.name(),
+                self.model_db[i],
+                self.model_db[i] - self.bm3d_db,
+                self.model_s[i]
+            );
+        }
+        s
+    }
 }
 
 /// The models to benchmark: each argument a model file or bundled name (`MODEL@8` for the
@@ -191,6 +245,46 @@ impl ArchiveStacks {
     /// Megabytes of the short stack's frames.
     pub fn short_mb(&self) -> f64 {
         self.short_frames as f64 * ARCHIVE_FRAME_BYTES / 1e6
+    }
+}
+
+#[cfg(unix)]
+/// The line that says what was written, and the header of the rows that follow.
+impl std::fmt::Display for ArchiveStacks {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let side = emccd_camera::bench::ARCHIVE_SIDE;
+        writeln!(
+            f,
+            "archive streaming: BigTIFF stacks of {side}×{side} u16 frames: {} frames ({:.0} MB) and {} frames ({:.2} GB, written in {:.0} s, {:.0} MB/s)",
+            self.short_frames,
+            self.short_mb(),
+            self.long_frames,
+            self.long_bytes / 1e9,
+            self.write_s,
+            self.long_bytes / 1e6 / self.write_s
+        )?;
+        write!(
+            f,
+            "{:<36} {:>7} {:>9} {:>9} {:>9} {:>9}",
+            "command", "stack", "frames", "s", "frames/s", "peak MiB"
+        )
+    }
+}
+
+#[cfg(unix)]
+/// One row of the archive benchmark's table.
+impl std::fmt::Display for ArchiveRow {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{:<36} {:>7} {:>9} {:>9.1} {:>9.1} {:>9.1}",
+            self.command,
+            self.stack,
+            self.frames,
+            self.seconds,
+            self.frames as f64 / self.seconds,
+            self.peak_rss_mib
+        )
     }
 }
 
