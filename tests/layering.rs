@@ -83,3 +83,41 @@ fn libraries_depend_on_what_the_readme_says() {
         );
     }
 }
+
+/// The layers, lowest first: a crate may use only crates of a lower layer, so an upward or
+/// sideways edge fails here even if the README were edited to match it. The binary and the
+/// Python package sit above every library (a library naming `emccd-python` has no layer and
+/// fails too).
+const LAYERS: [&[&str]; 5] = [
+    &["io"],
+    &["profile"],
+    &["camera", "calib"],
+    &["eval"],
+    &["nn"],
+];
+
+fn layer_of(krate: &str) -> usize {
+    LAYERS
+        .iter()
+        .position(|l| l.contains(&krate))
+        .unwrap_or_else(|| panic!("emccd-{krate} has no layer in tests/layering.rs's LAYERS"))
+}
+
+#[test]
+fn every_edge_points_down_the_layers() {
+    let libraries: Vec<String> = std::fs::read_dir(format!("{ROOT}/crates"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n != "cli")
+        .collect();
+    for krate in &libraries {
+        let own = layer_of(krate);
+        for dep in emccd_deps(krate) {
+            assert!(
+                layer_of(&dep) < own,
+                "emccd-{krate} (layer {own}) uses emccd-{dep} (layer {}): edges point down",
+                layer_of(&dep)
+            );
+        }
+    }
+}

@@ -36,13 +36,7 @@ impl CameraOpts {
     fn profile(&self) -> Result<emccd_profile::CameraProfile> {
         let p = load_profile(&self.profile)?;
         Ok(match self.crop {
-            // Cut at the sensor's edge; a region starting past it is refused as given.
-            Some(r) if r.x < p.width && r.y < p.height => p.crop(Roi {
-                width: r.width.min(p.width - r.x),
-                height: r.height.min(p.height - r.y),
-                ..r
-            })?,
-            Some(r) => p.crop(r)?,
+            Some(r) => p.crop_clamped(r)?,
             None => p,
         })
     }
@@ -202,22 +196,7 @@ fn pairs(
     )
     .map_err(anyhow::Error::msg)?;
     pb.finish_and_clear();
-    println!(
-        "{:<40} {:>9} {:>12} {:>14}",
-        "pair", "photons", "PSNR in (dB)", "denoised (dB)"
-    );
-    for p in &manifest.pair {
-        let d = p
-            .psnr_denoised_db
-            .map_or("–".to_string(), |v| format!("{v:.2}"));
-        println!(
-            "{:<40} {:>9} {:>12.2} {:>14}",
-            p.noisy,
-            p.photons,
-            p.psnr_input_db.unwrap_or(f64::NAN),
-            d
-        );
-    }
+    println!("{}", manifest.psnr_table());
     let what = if est.is_some() {
         "preprocessed noisy | denoised | ground truth"
     } else {

@@ -112,6 +112,28 @@ impl PairsManifest {
     /// The manifest's file name in a pairs folder.
     pub const FILE: &'static str = "pairs.toml";
 
+    /// The table `emccd simulate pairs` prints: each pair's noisy file, photons, and the PSNR
+    /// of its input and (where a denoiser ran) of the denoised frame.
+    pub fn psnr_table(&self) -> String {
+        let mut t = format!(
+            "{:<40} {:>9} {:>12} {:>14}",
+            "pair", "photons", "PSNR in (dB)", "denoised (dB)"
+        );
+        for p in &self.pair {
+            let d = p
+                .psnr_denoised_db
+                .map_or("–".to_string(), |v| format!("{v:.2}"));
+            t += &format!(
+                "\n{:<40} {:>9} {:>12.2} {:>14}",
+                p.noisy,
+                p.photons,
+                p.psnr_input_db.unwrap_or(f64::NAN),
+                d
+            );
+        }
+        t
+    }
+
     /// Reads `dir/pairs.toml` and checks every exposure; the message names the file.
     pub fn load(dir: &Path) -> Result<PairsManifest, String> {
         let path = dir.join(Self::FILE);

@@ -648,6 +648,21 @@ impl CameraProfile {
         }
     }
 
+    /// [`CameraProfile::crop`] with a region that may run past the sensor: cut at its edge
+    /// (`--crop 1024x1024` of a 512² sensor is the whole sensor). A region starting past the
+    /// edge is refused as given.
+    pub fn crop_clamped(&self, roi: Roi) -> Result<CameraProfile> {
+        if roi.x < self.width && roi.y < self.height {
+            self.crop(Roi {
+                width: roi.width.min(self.width - roi.x),
+                height: roi.height.min(self.height - roi.y),
+                ..roi
+            })
+        } else {
+            self.crop(roi)
+        }
+    }
+
     /// The profile of the sub-array `roi` (for simulating or calibrating a region of interest,
     /// or for recordings made with sub-array readout).
     pub fn crop(&self, roi: Roi) -> Result<CameraProfile> {
