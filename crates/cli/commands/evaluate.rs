@@ -48,8 +48,8 @@ pub fn run(a: Args) -> Result<()> {
     let cameras = a
         .pairs
         .iter()
-        .map(|d| PairsDir::open(d, a.profile.as_deref()).map_err(anyhow::Error::msg))
-        .collect::<Result<Vec<_>>>()?;
+        .map(|d| PairsDir::open(d, a.profile.as_deref()))
+        .collect::<Result<Vec<_>, _>>()?;
     let estimators = a
         .methods
         .iter()
@@ -58,8 +58,7 @@ pub fn run(a: Args) -> Result<()> {
     let methods: Vec<Contender> = estimators.iter().map(Estimator::contender).collect();
     let total: usize = cameras.iter().map(|c| c.manifest.pair.len()).sum();
     let pb = progress((total * a.methods.len()) as u64, "evaluations");
-    let ev = evaluate(&cameras, &methods, a.out.as_deref(), &|| pb.inc(1))
-        .map_err(anyhow::Error::msg)?;
+    let ev = evaluate(&cameras, &methods, a.out.as_deref(), &|| pb.inc(1))?;
     pb.finish_and_clear();
     if a.json {
         println!("{}", serde_json::to_string_pretty(&ev.json())?);

@@ -193,8 +193,7 @@ fn pairs(
         &camera,
         contender.as_ref().map(|c| &*c.run),
         || pb.inc(1),
-    )
-    .map_err(anyhow::Error::msg)?;
+    )?;
     pb.finish_and_clear();
     println!("{}", manifest.psnr_table());
     let what = if est.is_some() {

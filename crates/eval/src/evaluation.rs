@@ -24,7 +24,7 @@ pub struct PairsDir {
 impl PairsDir {
     /// Opens `dir` with the profile `profile` names (`--profile`: a directory or `default`),
     /// else the one its `pairs.toml` names, else the bundled default.
-    pub fn open(dir: &Path, profile: Option<&str>) -> Result<PairsDir, String> {
+    pub fn open(dir: &Path, profile: Option<&str>) -> crate::Result<PairsDir> {
         let manifest = PairsManifest::load(dir)?;
         let load = |arg: &str, whose: String| {
             CameraProfile::load_arg(arg)
@@ -104,7 +104,7 @@ pub fn evaluate(
     methods: &[Contender],
     out: Option<&Path>,
     tick: &dyn Fn(),
-) -> Result<Evaluation, String> {
+) -> crate::Result<Evaluation> {
     if let Some(dir) = out {
         std::fs::create_dir_all(dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
     }
@@ -170,7 +170,7 @@ fn write_panel(
     p: &crate::Pair,
     frames: &PairFrames,
     outs: &[Vec<f32>],
-) -> Result<(), String> {
+) -> crate::Result<()> {
     let (w, h, truth) = (frames.width, frames.height, &frames.clean);
     let c = 256.min(w).min(h);
     let panels: Vec<&[f32]> = outs
@@ -193,5 +193,5 @@ fn write_panel(
         0.0,
         crate::scores::truth_peak(truth) as f32,
     )
-    .map_err(|e| emccd_io::error_lines(&e).join(": "))
+    .map_err(|e| emccd_io::error_lines(&e).join(": ").into())
 }

@@ -28,6 +28,27 @@ pub use scores::{LevelUnit, Score, Summaries, Summary};
 
 use rayon::prelude::*;
 
+/// What went wrong reading a pairs folder, writing one, or evaluating on it: the file and the
+/// cause, in words (the causes of lower layers are joined into the message).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct Error(pub String);
+
+impl From<String> for Error {
+    fn from(s: String) -> Error {
+        Error(s)
+    }
+}
+
+impl From<&str> for Error {
+    fn from(s: &str) -> Error {
+        Error(s.to_string())
+    }
+}
+
+/// This crate's results.
+pub type Result<T> = std::result::Result<T, Error>;
+
 /// Peak signal-to-noise ratio in dB for data range `r`: `10·log10(r² / MSE)`.
 pub fn psnr(test: &[f32], reference: &[f32], r: f64) -> f64 {
     assert_eq!(test.len(), reference.len(), "images differ in size");

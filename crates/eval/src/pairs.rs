@@ -89,15 +89,15 @@ pub struct PairFrames {
 impl Pair {
     /// Reads the pair's first noisy frame and its truth from the folder `dir` of its
     /// manifest; an error (naming the file) where a file is unreadable or the sizes differ.
-    pub fn read(&self, dir: &Path) -> Result<PairFrames, String> {
+    pub fn read(&self, dir: &Path) -> crate::Result<PairFrames> {
         let read = |f: &str| emccd_io::read_first(dir.join(f)).map_err(|e| e.to_string());
         let (info, noisy) = read(&self.noisy)?;
         let (cinfo, clean) = read(&self.clean)?;
         if (info.width, info.height) != (cinfo.width, cinfo.height) {
-            return Err(format!(
+            return Err(crate::Error(format!(
                 "{}: noisy {}×{} and clean {}×{} differ",
                 self.noisy, info.width, info.height, cinfo.width, cinfo.height
-            ));
+            )));
         }
         Ok(PairFrames {
             width: info.width,
@@ -135,7 +135,7 @@ impl PairsManifest {
     }
 
     /// Reads `dir/pairs.toml` and checks every exposure; the message names the file.
-    pub fn load(dir: &Path) -> Result<PairsManifest, String> {
+    pub fn load(dir: &Path) -> crate::Result<PairsManifest> {
         let path = dir.join(Self::FILE);
         let text = std::fs::read_to_string(&path)
             .map_err(|e| format!("reading {}: {e}", path.display()))?;
@@ -146,12 +146,12 @@ impl PairsManifest {
             .iter()
             .find(|p| !(p.exposure_s.is_finite() && p.exposure_s > 0.0))
         {
-            return Err(format!(
+            return Err(crate::Error(format!(
                 "{}: the pair {}: exposure_s = {} must be a positive number of seconds",
                 path.display(),
                 p.noisy,
                 p.exposure_s
-            ));
+            )));
         }
         Ok(m)
     }
@@ -227,7 +227,7 @@ mod tests {
         )
         .unwrap();
         let e = PairsManifest::load(dir.path()).unwrap_err();
-        assert!(e.contains("n.tif") && e.contains("positive"), "{e}");
+        assert!(e.0.contains("n.tif") && e.0.contains("positive"), "{e}");
     }
 
     #[test]
@@ -257,9 +257,9 @@ mod tests {
             (3, 2, 100.0, 7.0)
         );
         let e = pair("clean/b.tif").read(dir.path()).unwrap_err();
-        assert!(e.contains("3×2") && e.contains("4×2"), "{e}");
+        assert!(e.0.contains("3×2") && e.0.contains("4×2"), "{e}");
         let e = pair("clean/c.tif").read(dir.path()).unwrap_err();
-        assert!(e.contains("c.tif"), "{e}");
+        assert!(e.0.contains("c.tif"), "{e}");
         let named = |p: &str| PairsManifest {
             profile: Some(p.into()),
             ..Default::default()

@@ -32,7 +32,7 @@ pub struct PairsPlan<'a> {
 }
 
 /// Denoises a raw frame (profile, frame, exposure in s) to DN above bias.
-pub type Denoise<'a> = dyn Fn(&CameraProfile, &[f32], f64) -> Result<Vec<f32>, String> + 'a;
+pub type Denoise<'a> = dyn Fn(&CameraProfile, &[f32], f64) -> crate::Result<Vec<f32>> + 'a;
 
 /// The subfolders a run writes.
 fn subfolders(denoised: bool) -> &'static [&'static str] {
@@ -62,7 +62,7 @@ pub fn write_pairs(
     camera: &VirtualCamera,
     denoise: Option<&Denoise>,
     mut tick: impl FnMut(),
-) -> Result<PairsManifest, String> {
+) -> crate::Result<PairsManifest> {
     if plan.frames == 0 {
         return Err("a pair needs at least 1 noisy frame".into());
     }
@@ -90,7 +90,7 @@ pub fn write_pairs(
     r
 }
 
-fn check_outputs(plan: &PairsPlan, dirs: &[&str], out: &Path) -> Result<(), String> {
+fn check_outputs(plan: &PairsPlan, dirs: &[&str], out: &Path) -> crate::Result<()> {
     let stems: Vec<String> = plan
         .scenes
         .iter()
@@ -100,11 +100,11 @@ fn check_outputs(plan: &PairsPlan, dirs: &[&str], out: &Path) -> Result<(), Stri
     let mut by_stem: HashMap<&str, &Path> = HashMap::new();
     for (stem, scene) in stems.iter().zip(plan.scenes) {
         if let Some(other) = by_stem.insert(stem, scene) {
-            return Err(format!(
+            return Err(crate::Error(format!(
                 "scenes {} and {} have the same name, so their pairs would overwrite each other; rename one",
                 other.display(),
                 scene.display()
-            ));
+            )));
         }
     }
     let mut outputs = Vec::new();
@@ -118,10 +118,10 @@ fn check_outputs(plan: &PairsPlan, dirs: &[&str], out: &Path) -> Result<(), Stri
         }
     }
     if let Some((o, _)) = emccd_io::input_among(&outputs, plan.scenes) {
-        return Err(format!(
+        return Err(crate::Error(format!(
             "{}: an output of this run is an input scene; choose another -o, inputs are never overwritten",
             outputs[o].display()
-        ));
+        )));
     }
     Ok(())
 }
@@ -137,7 +137,7 @@ fn write_all(
     full: &VirtualCamera,
     denoise: Option<&Denoise>,
     tick: &mut dyn FnMut(),
-) -> Result<PairsManifest, String> {
+) -> crate::Result<PairsManifest> {
     let io = |e: emccd_io::Error| e.to_string();
     let mut manifest = PairsManifest {
         camera: Some(plan.camera_name.into()),
@@ -329,7 +329,7 @@ mod tests {
             || {},
         )
         .unwrap_err();
-        assert!(e.contains("same name"), "{e}");
+        assert!(e.0.contains("same name"), "{e}");
         assert!(!other.exists());
     }
 }

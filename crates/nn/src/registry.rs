@@ -549,7 +549,7 @@ impl Estimator {
             name: self.name(),
             run: Box::new(move |p: &CameraProfile, raw: &[f32], t: f64| {
                 self.run(p, raw, t)
-                    .map_err(|e| emccd_io::error_lines(&e).join(": "))
+                    .map_err(|e| emccd_io::error_lines(&e).join(": ").into())
             }),
         }
     }
