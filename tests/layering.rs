@@ -7,7 +7,9 @@ use std::collections::{BTreeMap, BTreeSet};
 
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 
-/// The emccd crates a library's manifest names.
+/// The emccd crates a library's manifest names: in `[dependencies]`, `[dev-dependencies]` and
+/// `[build-dependencies]`, also under `[target.'cfg(…)'.…]`, by the package a renamed entry
+/// (`x = { package = "emccd-…" }`) points at.
 fn emccd_deps(krate: &str) -> BTreeSet<String> {
     let path = std::path::Path::new(ROOT)
         .join("crates")
@@ -15,10 +17,31 @@ fn emccd_deps(krate: &str) -> BTreeSet<String> {
         .join("Cargo.toml");
     let text = std::fs::read_to_string(&path).unwrap();
     let doc: toml::Table = text.parse().unwrap();
-    ["dependencies", "dev-dependencies"]
-        .iter()
-        .filter_map(|k| doc.get(*k).and_then(|t| t.as_table()))
-        .flat_map(|t| t.keys().cloned())
+    fn tables_of(t: &toml::Table) -> Vec<&toml::Table> {
+        ["dependencies", "dev-dependencies", "build-dependencies"]
+            .iter()
+            .filter_map(|k| t.get(*k).and_then(|v| v.as_table()))
+            .collect()
+    }
+    let mut tables = tables_of(&doc);
+    for target in doc
+        .get("target")
+        .and_then(|t| t.as_table())
+        .into_iter()
+        .flat_map(|t| t.values())
+        .filter_map(|v| v.as_table())
+    {
+        tables.extend(tables_of(target));
+    }
+    tables
+        .into_iter()
+        .flat_map(|t| t.iter())
+        .map(|(key, v)| {
+            v.get("package")
+                .and_then(|p| p.as_str())
+                .unwrap_or(key)
+                .to_string()
+        })
         .filter(|k| k.starts_with("emccd-"))
         .map(|k| k.trim_start_matches("emccd-").to_string())
         .collect()

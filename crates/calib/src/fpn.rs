@@ -219,6 +219,61 @@ fn pooled_at(means: &[Vec<f32>], frames: &[usize], idx: &[usize], p: usize) -> f
         / w
 }
 
+/// The usable pixels that follow the crowd: at every exposure, a pixel's log ratio to the base
+/// map lies within 6 robust standard deviations of the median ratio.
+fn inliers(means: &[Vec<f32>], usable: &[bool]) -> Vec<bool> {
+    let n = usable.len();
+    let ratio = |i: usize, p: usize| (means[i][p] as f64).ln() - (means[0][p] as f64).ln();
+    let mut inlier = usable.to_vec();
+    for i in 1..means.len() {
+        let r: Vec<f64> = (0..n).filter(|&p| usable[p]).map(|p| ratio(i, p)).collect();
+        let crate::fit::Robust {
+            median: m,
+            sigma: mad,
+        } = median_mad(&r);
+        // Floor the scale at 1e-4 (0.02 DN at 200 DN) so a noiseless map does not reject everything.
+        let lim = 6.0 * mad.max(1e-4);
+        for p in 0..n {
+            if inlier[p] && (ratio(i, p) - m).abs() > lim {
+                inlier[p] = false;
+            }
+        }
+    }
+    inlier
+}
+
+/// The pixels the held-out scores are taken on: about [`HELDOUT_PIXELS`] of the `n`, at a
+/// stride sharing no factor with the width, so they walk through every column (a stride of 16
+/// on a 512-wide sensor would see only columns 0, 16, 32, … and miss column-periodic patterns
+/// such as even/odd readout channels).
+fn scored_pixels(n: usize, width: usize) -> Vec<usize> {
+    let gcd = |mut a: usize, mut b: usize| {
+        while b != 0 {
+            (a, b) = (b, a % b);
+        }
+        a
+    };
+    let mut stride = n.div_ceil(HELDOUT_PIXELS).max(1);
+    while stride > 1 && gcd(stride, width.max(1)) != 1 {
+        stride += 1;
+    }
+    (0..n).step_by(stride).collect()
+}
+
+/// The example pixel of the report: the paper shows (195, 5); take it when the sensor is that
+/// large and the pixel is an inlier, else the first inlier near the centre.
+fn example_pixel(inlier: &[bool], width: usize) -> usize {
+    let n = inlier.len();
+    let h = n / width.max(1);
+    [(195usize, 5usize), (width / 2, h / 2)]
+        .into_iter()
+        .filter(|&(x, y)| x < width && y < h)
+        .map(|(x, y)| y * width + x)
+        .chain(0..n)
+        .find(|&p| inlier[p])
+        .unwrap_or(0)
+}
+
 /// Fits the three forms and scores each on held-out exposures. `means[i]`/`stds[i]` are the
 /// bias maps at `exposures[i]` (ascending) from `frames[i]` frames each.
 pub fn fit(
@@ -238,23 +293,8 @@ pub fn fit(
     let u: Vec<f64> = exposures.iter().map(|t| t.ln()).collect();
     let base = &means[0];
     let usable: Vec<bool> = (0..n).map(|p| means.iter().all(|m| m[p] > 0.0)).collect();
-    // Log ratios to the base map; outliers are pixels far from the crowd at any exposure.
     let ratio = |i: usize, p: usize| (means[i][p] as f64).ln() - (base[p] as f64).ln();
-    let mut inlier = usable.clone();
-    for i in 1..e {
-        let r: Vec<f64> = (0..n).filter(|&p| usable[p]).map(|p| ratio(i, p)).collect();
-        let crate::fit::Robust {
-            median: m,
-            sigma: mad,
-        } = median_mad(&r);
-        // Floor the scale at 1e-4 (0.02 DN at 200 DN) so a noiseless map does not reject everything.
-        let lim = 6.0 * mad.max(1e-4);
-        for p in 0..n {
-            if inlier[p] && (ratio(i, p) - m).abs() > lim {
-                inlier[p] = false;
-            }
-        }
-    }
+    let inlier = inliers(&means[..e], &usable);
     let kept = inlier.iter().filter(|&&k| k).count();
     if kept < n / 2 {
         return Err(Error::Fit(format!(
@@ -311,20 +351,7 @@ pub fn fit(
     // score extrapolation, where per-pixel curves through a few noisy points can run off to
     // absurd values, while a profile is used inside its calibrated range (and at most 2×
     // beyond it, on request). The shared form's base is the shortest remaining exposure.
-    // A stride sharing no factor with the width, so the scored pixels walk through every column
-    // (a stride of 16 on a 512-wide sensor would see only columns 0, 16, 32, … and miss
-    // column-periodic patterns such as even/odd readout channels).
-    let gcd = |mut a: usize, mut b: usize| {
-        while b != 0 {
-            (a, b) = (b, a % b);
-        }
-        a
-    };
-    let mut stride = n.div_ceil(HELDOUT_PIXELS).max(1);
-    while stride > 1 && gcd(stride, width.max(1)) != 1 {
-        stride += 1;
-    }
-    let scored: Vec<usize> = (0..n).step_by(stride).collect();
+    let scored = scored_pixels(n, width);
     let heldout: Vec<[f64; 3]> = (0..e)
         .into_par_iter()
         .map(|i| {
@@ -443,16 +470,7 @@ pub fn fit(
         }
         chosen
     };
-    // Example pixel: the paper shows (195, 5); take it when the sensor is that large and the
-    // pixel is an inlier, else the first inlier near the centre.
-    let h = n / width.max(1);
-    let pick = [(195usize, 5usize), (width / 2, h / 2)]
-        .into_iter()
-        .filter(|&(x, y)| x < width && y < h)
-        .map(|(x, y)| y * width + x)
-        .chain(0..n)
-        .find(|&p| inlier[p])
-        .unwrap_or(0);
+    let pick = example_pixel(&inlier, width);
     let example = PixelCurve {
         x: pick % width.max(1),
         y: pick / width.max(1),

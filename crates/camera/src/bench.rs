@@ -8,7 +8,8 @@ use std::time::Instant;
 
 use crate::{Ablation, Error, NoiseModel, OursModel, PgnModel, VirtualCamera};
 
-/// Seconds per frame of each synthesis, after one warm-up frame.
+/// What [`synthesis`] measured: seconds per frame of each synthesis (after one warm-up frame)
+/// and the conditions they were measured in.
 #[derive(Clone, Copy, Debug)]
 pub struct Synthesis {
     /// Eq. 5 (training pairs).

@@ -799,28 +799,14 @@ fn recorded_batch(pairs: &RecordedPairs, cfg: &TrainConfig, seed: u64) -> Batch 
     }
 }
 
-/// [`train`] on any [`Source`].
-pub(crate) fn train_from(
-    source: Source,
-    val_images: Vec<Image>,
-    run: Run,
-    report: &mut dyn FnMut(&StepReport) -> bool,
-) -> Result<Denoiser> {
-    let Run {
-        profile,
-        cfg,
-        meta,
-        paths,
-        init,
-        resume,
-    } = run;
-    profile.require_complete()?;
+/// Refuses a run that cannot train: images smaller than the crop, empty or reversed ranges.
+fn check_run(source: &Source, val_images: &[Image], cfg: &TrainConfig) -> Result<()> {
     let c = cfg.crop;
-    let synthetic: &[Image] = match &source {
+    let synthetic: &[Image] = match source {
         Source::Synthetic(images) => images,
         Source::Recorded(_) => &[],
     };
-    for im in synthetic.iter().chain(&val_images) {
+    for im in synthetic.iter().chain(val_images) {
         if im.width < c || im.height < c {
             return Err(Error::Data(format!(
                 "a {}×{} image is smaller than the {c}-px crop",
@@ -847,58 +833,179 @@ pub(crate) fn train_from(
             )));
         }
     }
-    let abl = cfg.ablate;
-    let device = crate::device().autodiff();
-    let state_path = paths.checkpoint.join("state.json");
-    let (mut model, mut optim, start, mut loss_ema) = if resume && state_path.is_file() {
+    Ok(())
+}
+
+/// Where a run starts: its network, optimizer, first step and smoothed loss.
+struct Start {
+    model: Denoiser,
+    optim: burn::optim::ModuleOptimizer,
+    step: u64,
+    loss_ema: f64,
+}
+
+/// The checkpoint in `checkpoint` when resuming (and one was written), else the `init` model
+/// (with this run's metadata) or a new network seeded from the config, with a new optimizer.
+fn start_model(
+    checkpoint: &Path,
+    resume: bool,
+    init: Option<&Path>,
+    meta: &ModelMeta,
+    cfg: &TrainConfig,
+    device: &Device,
+) -> Result<Start> {
+    let adamw = || AdamWConfig::new().with_weight_decay(cfg.weight_decay as f32);
+    let state_path = checkpoint.join("state.json");
+    if resume && state_path.is_file() {
         let st: CkptState = serde_json::from_str(
             &std::fs::read_to_string(&state_path).map_err(|e| Error::io(&state_path, e))?,
         )
         .map_err(|e| Error::Model(format!("{}: {e}", state_path.display())))?;
-        let m = load_net_with_ids(st.meta.clone(), &paths.checkpoint.join("net.bpk"), &device)?;
-        let o = AdamWConfig::new()
-            .with_weight_decay(cfg.weight_decay as f32)
+        let model = load_net_with_ids(st.meta.clone(), &checkpoint.join("net.bpk"), device)?;
+        let optim = adamw()
             .init()
-            .load(paths.checkpoint.join("optim.bin"))
+            .load(checkpoint.join("optim.bin"))
             .map_err(|e| Error::Model(format!("optimizer state: {e:?}")))?;
-        (m, o, st.step, st.loss)
-    } else {
-        let m = match init {
-            Some(p) => {
-                let mut m = Denoiser::load(p, &device)?;
-                // A refinement network moved onto another base estimate would apply its
-                // corrections for the old base's errors: it restarts as the identity on the new
-                // base (its output layer zeroed), keeping what its other layers learned.
-                if m.meta.inputs == Inputs::Hybrid && m.meta.base != meta.base {
-                    m.net = match m.net {
-                        Net::UNet(u) => Net::UNet(u.with_zero_output()),
-                        other => other,
-                    };
-                }
-                // The architecture is the initial model's; the rest describes this run.
-                m.meta = ModelMeta {
-                    steps: m.meta.steps,
-                    arch: m.meta.arch,
-                    inputs: m.meta.inputs,
-                    ..meta.clone()
+        return Ok(Start {
+            model,
+            optim,
+            step: st.step,
+            loss_ema: st.loss,
+        });
+    }
+    let model = match init {
+        Some(p) => {
+            let mut m = Denoiser::load(p, device)?;
+            // A refinement network moved onto another base estimate would apply its
+            // corrections for the old base's errors: it restarts as the identity on the new
+            // base (its output layer zeroed), keeping what its other layers learned.
+            if m.meta.inputs == Inputs::Hybrid && m.meta.base != meta.base {
+                m.net = match m.net {
+                    Net::UNet(u) => Net::UNet(u.with_zero_output()),
+                    other => other,
                 };
-                m
             }
-            None => {
-                // Seeded initialization: the same seed gives the same network.
-                device.seed(cfg.seed);
-                Denoiser::new(meta.clone(), &device)?
-            }
-        };
-        (
-            m,
-            AdamWConfig::new()
-                .with_weight_decay(cfg.weight_decay as f32)
-                .init(),
-            0,
-            f64::NAN,
-        )
+            // The architecture is the initial model's; the rest describes this run.
+            m.meta = ModelMeta {
+                steps: m.meta.steps,
+                arch: m.meta.arch,
+                inputs: m.meta.inputs,
+                ..meta.clone()
+            };
+            m
+        }
+        None => {
+            // Seeded initialization: the same seed gives the same network.
+            device.seed(cfg.seed);
+            Denoiser::new(meta.clone(), device)?
+        }
     };
+    Ok(Start {
+        model,
+        optim: adamw().init(),
+        step: 0,
+        loss_ema: f64::NAN,
+    })
+}
+
+/// The fixed validation set: at each of VAL_LEVELS light levels spread over the training range,
+/// 2 crops per validation image (at most 16 per level; images drawn at random). Eight random
+/// crops — what this was before — made a noisy and level-skewed score: a hybrid's +0.48 dB
+/// there was +0.0–0.2 dB on whole frames.
+fn validation_set(
+    val_images: &[Image],
+    profile: &CameraProfile,
+    cfg: &TrainConfig,
+    inputs: Inputs,
+    abl: Ablation,
+) -> Result<Option<Batch>> {
+    if val_images.is_empty() {
+        return Ok(None);
+    }
+    let per_level = (2 * val_images.len()).min(16);
+    let mut input = Vec::new();
+    let mut target = Vec::new();
+    for (k, level) in val_levels(cfg).into_iter().enumerate() {
+        let mut vcfg = TrainConfig {
+            batch: per_level,
+            ..cfg.clone()
+        };
+        match &mut vcfg.mean_electrons {
+            Some(r) => *r = [level, level],
+            None => vcfg.electrons = [level, level],
+        }
+        let b = make_batch(
+            val_images,
+            profile,
+            &vcfg,
+            inputs,
+            abl,
+            (cfg.seed ^ 0x7A11D).wrapping_add(k as u64),
+        )?;
+        input.extend(b.input);
+        target.extend(b.target);
+    }
+    Ok(Some(Batch { input, target }))
+}
+
+/// Writes a checkpoint into `dir`: the weights (safetensors, and burnpack with the parameter
+/// identities the optimizer's state is keyed by), the optimizer state, and last the state file,
+/// which is what makes the checkpoint count.
+fn save_checkpoint(
+    dir: &Path,
+    model: &Denoiser,
+    optim: &burn::optim::ModuleOptimizer,
+    cfg: &TrainConfig,
+    step: u64,
+    loss: f64,
+) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    model.save(&dir.join("model.safetensors"))?;
+    save_net_with_ids(model, &dir.join("net.bpk"))?;
+    let opath = dir.join("optim.bin");
+    let tmp = emccd_io::temp_beside(&opath).map_err(|e| Error::io(&opath, e))?;
+    optim
+        .save(tmp.path())
+        .map_err(|e| Error::Model(format!("saving optimizer state: {e:?}")))?;
+    emccd_io::persist(tmp, &opath).map_err(|e| Error::Model(e.to_string()))?;
+    let st = serde_json::to_string_pretty(&CkptState {
+        step,
+        config: cfg.clone(),
+        loss,
+        meta: model.meta.clone(),
+    })
+    .map_err(|e| Error::Model(e.to_string()))?;
+    emccd_io::write_atomic(dir.join("state.json"), st.as_bytes())
+        .map_err(|e| Error::Model(e.to_string()))?;
+    Ok(())
+}
+
+/// [`train`] on any [`Source`].
+pub(crate) fn train_from(
+    source: Source,
+    val_images: Vec<Image>,
+    run: Run,
+    report: &mut dyn FnMut(&StepReport) -> bool,
+) -> Result<Denoiser> {
+    let Run {
+        profile,
+        cfg,
+        meta,
+        paths,
+        init,
+        resume,
+    } = run;
+    profile.require_complete()?;
+    check_run(&source, &val_images, &cfg)?;
+    let c = cfg.crop;
+    let abl = cfg.ablate;
+    let device = crate::device().autodiff();
+    let Start {
+        mut model,
+        mut optim,
+        step: start,
+        mut loss_ema,
+    } = start_model(&paths.checkpoint, resume, init, &meta, &cfg, &device)?;
     if matches!(source, Source::Recorded(_)) && model.meta.inputs != Inputs::Noisy {
         return Err(Error::Data(format!(
             "a {} network needs a base estimate of every training crop; recorded pairs train \
@@ -923,37 +1030,7 @@ pub(crate) fn train_from(
     let base_steps = model.meta.steps.saturating_sub(start);
     let inputs = model.meta.inputs;
     let ch = inputs.channels();
-    // Fixed validation set: at each of VAL_LEVELS light levels spread over the training range,
-    // 2 crops per validation image (at most 16 per level; images drawn at random). Eight random crops — what this was before — made a
-    // noisy and level-skewed score: a hybrid's +0.48 dB there was +0.0–0.2 dB on whole frames.
-    let val = if val_images.is_empty() {
-        None
-    } else {
-        let per_level = (2 * val_images.len()).min(16);
-        let mut input = Vec::new();
-        let mut target = Vec::new();
-        for (k, level) in val_levels(&cfg).into_iter().enumerate() {
-            let mut vcfg = TrainConfig {
-                batch: per_level,
-                ..cfg.clone()
-            };
-            match &mut vcfg.mean_electrons {
-                Some(r) => *r = [level, level],
-                None => vcfg.electrons = [level, level],
-            }
-            let b = make_batch(
-                &val_images,
-                profile,
-                &vcfg,
-                inputs,
-                abl,
-                (cfg.seed ^ 0x7A11D).wrapping_add(k as u64),
-            )?;
-            input.extend(b.input);
-            target.extend(b.target);
-        }
-        Some(Batch { input, target })
-    };
+    let val = validation_set(&val_images, profile, &cfg, inputs, abl)?;
     let nval = val.as_ref().map_or(0, |v| v.target.len() / (c * c));
     let mut val_psnr = None;
 
@@ -978,32 +1055,6 @@ pub(crate) fn train_from(
             }
         }
     });
-    let save_ckpt = |model: &Denoiser,
-                     optim: &burn::optim::ModuleOptimizer,
-                     step: u64,
-                     loss: f64|
-     -> Result<()> {
-        std::fs::create_dir_all(&paths.checkpoint).map_err(|e| Error::io(&paths.checkpoint, e))?;
-        model.save(&paths.checkpoint.join("model.safetensors"))?;
-        save_net_with_ids(model, &paths.checkpoint.join("net.bpk"))?;
-        let opath = paths.checkpoint.join("optim.bin");
-        let tmp = emccd_io::temp_beside(&opath).map_err(|e| Error::io(&opath, e))?;
-        optim
-            .save(tmp.path())
-            .map_err(|e| Error::Model(format!("saving optimizer state: {e:?}")))?;
-        emccd_io::persist(tmp, &opath).map_err(|e| Error::Model(e.to_string()))?;
-        // The state file is written last: it is what makes the checkpoint count.
-        let st = serde_json::to_string_pretty(&CkptState {
-            step,
-            config: cfg.clone(),
-            loss,
-            meta: model.meta.clone(),
-        })
-        .map_err(|e| Error::Model(e.to_string()))?;
-        emccd_io::write_atomic(&state_path, st.as_bytes())
-            .map_err(|e| Error::Model(e.to_string()))?;
-        Ok(())
-    };
     for step in start..cfg.steps {
         let batch = rx
             .recv()
@@ -1044,7 +1095,7 @@ pub(crate) fn train_from(
             }
         }
         if done % cfg.checkpoint_every.max(1) == 0 || done == cfg.steps {
-            save_ckpt(&model, &optim, done, loss_ema)?;
+            save_checkpoint(&paths.checkpoint, &model, &optim, &cfg, done, loss_ema)?;
         }
         if !report(&StepReport {
             step: done,

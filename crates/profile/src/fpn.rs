@@ -82,6 +82,11 @@ impl CameraProfile {
     /// FPN at exposure `t` in a given form (for comparing the two forms).
     pub fn fpn_at_form(&self, form: FpnForm, exposure_s: f64, out: &mut [f32]) {
         assert_eq!(out.len(), self.len(), "output buffer must hold one frame");
+        // A profile without bias frames (a gain series alone) has no pattern: `out` is left as
+        // it is (callers check `require_complete` first).
+        if self.maps.fpn_base.is_empty() {
+            return;
+        }
         FpnCurves {
             form,
             base: &self.maps.fpn_base,
