@@ -85,13 +85,18 @@ fn readme_layering() -> BTreeMap<String, BTreeSet<String>> {
     layers
 }
 
-#[test]
-fn libraries_depend_on_what_the_readme_says() {
-    let dirs: BTreeSet<String> = std::fs::read_dir(format!("{ROOT}/crates"))
+/// The library crates: every folder under `crates/` but the binary's.
+fn libraries() -> BTreeSet<String> {
+    std::fs::read_dir(format!("{ROOT}/crates"))
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .filter(|n| n != "cli")
-        .collect();
+        .collect()
+}
+
+#[test]
+fn libraries_depend_on_what_the_readme_says() {
+    let dirs = libraries();
     let layers = readme_layering();
     let listed: BTreeSet<String> = layers.keys().cloned().collect();
     assert_eq!(
@@ -128,11 +133,7 @@ fn layer_of(krate: &str) -> usize {
 
 #[test]
 fn every_edge_points_down_the_layers() {
-    let libraries: Vec<String> = std::fs::read_dir(format!("{ROOT}/crates"))
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .filter(|n| n != "cli")
-        .collect();
+    let libraries = libraries();
     for krate in &libraries {
         let own = layer_of(krate);
         for dep in emccd_deps(krate) {

@@ -917,7 +917,6 @@ fn validation_set(
     profile: &CameraProfile,
     cfg: &TrainConfig,
     inputs: Inputs,
-    abl: Ablation,
 ) -> Result<Option<Batch>> {
     if val_images.is_empty() {
         return Ok(None);
@@ -939,7 +938,7 @@ fn validation_set(
             profile,
             &vcfg,
             inputs,
-            abl,
+            cfg.ablate,
             (cfg.seed ^ 0x7A11D).wrapping_add(k as u64),
         )?;
         input.extend(b.input);
@@ -1030,7 +1029,7 @@ pub(crate) fn train_from(
     let base_steps = model.meta.steps.saturating_sub(start);
     let inputs = model.meta.inputs;
     let ch = inputs.channels();
-    let val = validation_set(&val_images, profile, &cfg, inputs, abl)?;
+    let val = validation_set(&val_images, profile, &cfg, inputs)?;
     let nval = val.as_ref().map_or(0, |v| v.target.len() / (c * c));
     let mut val_psnr = None;
 
