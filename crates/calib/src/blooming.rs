@@ -6,6 +6,7 @@
 
 use std::path::PathBuf;
 
+use emccd_profile::percentile;
 use serde::Serialize;
 
 use crate::fit::{line, LineFit};
@@ -156,12 +157,6 @@ fn longest_run(flags: &[bool]) -> Option<(usize, usize)> {
     best
 }
 
-fn percentile(v: &[f64], q: f64) -> f64 {
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    s[((s.len() - 1) as f64 * q).round() as usize]
-}
-
 /// What one blooming frame gives (the fields of [`BloomLevel`] of the same names).
 #[derive(Clone, Debug)]
 pub struct Measurement {
@@ -189,13 +184,15 @@ pub fn measure(
     let cm: Vec<f64> = (0..width)
         .map(|x| (0..height).map(|y| img[y * width + x] as f64).sum::<f64>() / height as f64)
         .collect();
-    let (lo, hi) = (percentile(&cm, 0.05), percentile(&cm, 0.95));
+    // Nearest-rank quantiles of the column and row means: finite whenever the frame is.
+    let quantile = |v: &[f64], q| percentile(v.iter().copied(), q).unwrap_or(f64::NAN);
+    let (lo, hi) = (quantile(&cm, 0.05), quantile(&cm, 0.95));
     let (bx0, bx1) = longest_run(&cm.iter().map(|&c| c > 0.5 * (lo + hi)).collect::<Vec<_>>())
         .ok_or_else(|| bad("blooming frame: no bright columns found"))?;
     let rm: Vec<f64> = (0..height)
         .map(|y| (bx0..bx1).map(|x| img[y * width + x] as f64).sum::<f64>() / (bx1 - bx0) as f64)
         .collect();
-    let (rlo, rhi) = (percentile(&rm, 0.05), percentile(&rm, 0.95));
+    let (rlo, rhi) = (quantile(&rm, 0.05), quantile(&rm, 0.95));
     let (by0, by1) = longest_run(
         &rm.iter()
             .map(|&r| r > 0.5 * (rlo + rhi))

@@ -65,12 +65,10 @@ fn viridis(t: f64) -> [u8; 3] {
 
 /// A heat map as an embedded PNG with a colour bar; scaled between the 1st and 99th percentiles.
 fn heat_map(map: &[f32], w: usize, h: usize, unit: &str) -> String {
-    let mut v: Vec<f32> = map.iter().copied().filter(|x| x.is_finite()).collect();
-    if v.is_empty() {
+    let range = |q| emccd_profile::percentile(map.iter().copied(), q);
+    let (Some(lo), Some(hi)) = (range(0.01), range(0.99)) else {
         return String::new();
-    }
-    v.sort_by(f32::total_cmp);
-    let (lo, hi) = (v[v.len() / 100] as f64, v[(v.len() * 99) / 100] as f64);
+    };
     let span = (hi - lo).max(1e-9);
     let mut rgb = Vec::with_capacity(w * h * 3);
     for &x in map {

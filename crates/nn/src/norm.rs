@@ -9,6 +9,7 @@
 //! noisy frame's upper percentiles are set by single-electron EM-register spikes, not by the
 //! scene, while the estimate's follow the scene's brightness.
 
+use emccd_profile::percentile;
 use serde::{Deserialize, Serialize};
 
 /// Inputs for the network and how to undo the scaling.
@@ -23,7 +24,7 @@ pub struct Prepared {
 /// The per-frame scale: the 99.5th percentile of the slope-normalized frame, floored so that
 /// an almost empty frame is not blown up.
 pub fn frame_scale(x_norm: &[f32]) -> f32 {
-    percentile(x_norm, 0.995).map_or(1.0, |p| p.max(FLOOR))
+    percentile(x_norm.iter().copied(), 0.995).map_or(1.0, |p| (p as f32).max(FLOOR))
 }
 
 /// Smallest per-frame scale, in slope units (about eight photoelectrons).
@@ -80,17 +81,6 @@ impl Scale {
     }
 }
 
-/// Percentile of a slope-normalized frame (`q` in [0, 1]); non-finite values are ignored.
-fn percentile(x: &[f32], q: f64) -> Option<f32> {
-    let mut v: Vec<f32> = x.iter().copied().filter(|x| x.is_finite()).collect();
-    if v.is_empty() {
-        return None;
-    }
-    let k = ((v.len() as f64 * q) as usize).min(v.len() - 1);
-    let (_, p, _) = v.select_nth_unstable_by(k, f32::total_cmp);
-    Some(*p)
-}
-
 /// Smallest hybrid scale, in slope units (about two photoelectrons): below it a frame is
 /// essentially empty and is not blown up.
 pub const HYBRID_SCALE_FLOOR: f32 = 1.0;
@@ -98,8 +88,8 @@ pub const HYBRID_SCALE_FLOOR: f32 = 1.0;
 /// The hybrid scale: the 99.5th percentile of a slope-normalized signal estimate (the BM3D
 /// estimate at inference, the clean frame in training), floored at [`HYBRID_SCALE_FLOOR`].
 pub fn signal_scale(estimate_norm: &[f32]) -> f32 {
-    percentile(estimate_norm, 0.995)
-        .unwrap_or(HYBRID_SCALE_FLOOR)
+    percentile(estimate_norm.iter().copied(), 0.995)
+        .map_or(HYBRID_SCALE_FLOOR, |p| p as f32)
         .max(HYBRID_SCALE_FLOOR)
 }
 

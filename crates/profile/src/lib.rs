@@ -307,6 +307,24 @@ pub fn median<T: Into<f64>>(values: impl IntoIterator<Item = T>) -> Option<f64> 
     })
 }
 
+/// The `q`-quantile (`q` in [0, 1]) of `f32` or `f64` values by nearest rank: the value of
+/// sorted rank ⌊n·q⌋ (the largest for `q` = 1); non-finite values are ignored. `None` when no
+/// value is left. One rule for every caller: network input scaling, report colour ranges and
+/// the blooming source search.
+pub fn percentile<T: Into<f64>>(values: impl IntoIterator<Item = T>, q: f64) -> Option<f64> {
+    let mut v: Vec<f64> = values
+        .into_iter()
+        .map(Into::into)
+        .filter(|x: &f64| x.is_finite())
+        .collect();
+    if v.is_empty() {
+        return None;
+    }
+    let k = ((v.len() as f64 * q) as usize).min(v.len() - 1);
+    let (_, p, _) = v.select_nth_unstable_by(k, f64::total_cmp);
+    Some(*p)
+}
+
 impl CameraProfile {
     /// Pixels per frame.
     pub fn len(&self) -> usize {
@@ -792,7 +810,7 @@ impl CameraProfile {
 
 #[cfg(test)]
 mod tests {
-    use super::{median, Roi};
+    use super::{median, percentile, Roi};
 
     #[test]
     fn a_frame_smaller_than_the_sensor_gets_the_top_left_profile() {
@@ -867,5 +885,16 @@ mod tests {
         assert_eq!(median([f32::NAN, 5.0, 1.0]), Some(3.0));
         assert_eq!(median([f64::NAN]), None);
         assert_eq!(median(Vec::<f32>::new()), None);
+    }
+
+    #[test]
+    fn percentile_by_nearest_rank() {
+        let v: Vec<f32> = (0..100).rev().map(|i| i as f32).collect();
+        assert_eq!(percentile(v.iter().copied(), 0.0), Some(0.0));
+        assert_eq!(percentile(v.iter().copied(), 0.01), Some(1.0));
+        assert_eq!(percentile(v.iter().copied(), 0.995), Some(99.0));
+        assert_eq!(percentile(v.iter().copied(), 1.0), Some(99.0));
+        assert_eq!(percentile([f64::INFINITY, f64::NAN, 2.0], 0.9), Some(2.0));
+        assert_eq!(percentile([f32::NAN], 0.5), None);
     }
 }
