@@ -16,7 +16,7 @@ use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 
 use emccd_camera::{PhysicalParams, VirtualCamera};
-use emccd_nn::registry::{self, FrameDenoiser, Method};
+use emccd_nn::registry::{self, Method};
 use emccd_nn::Denoiser;
 use emccd_profile::CameraProfile;
 
@@ -449,24 +449,12 @@ fn denoise<'py>(
     let cb = Callback::new(progress, f as u64);
     let r = py.detach(|| -> anyhow::Result<(Vec<f32>, Vec<String>)> {
         let mut warnings = Vec::new();
-        p.require_complete()
-            .map_err(|e| anyhow::anyhow!("the profile cannot denoise: {e}"))?;
+        let r = registry::resolve(method, model.as_deref(), load_model)?;
+        let fd = r.denoiser(p, emccd_nn::tile::Tiling { tile, overlap }, ensemble, units)?;
         if let Some(wn) = p.check_frames(w, h, exposure_s, "exposure_s", extrapolate)? {
             warnings.push(wn);
         }
-        let r = registry::resolve(method, model.as_deref(), load_model)?;
         warnings.extend(r.profile_warning(p));
-        let registry::Resolved {
-            method, model: net, ..
-        } = r;
-        let fd = FrameDenoiser {
-            profile: p,
-            method,
-            model: net.as_ref(),
-            tiling: emccd_nn::tile::Tiling { tile, overlap },
-            ensemble,
-            units,
-        };
         let mut out = Vec::with_capacity(raw.len());
         for (k, frame) in raw.chunks(w * h).enumerate() {
             out.extend(

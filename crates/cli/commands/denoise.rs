@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use emccd_io::zarr::Shard;
-use emccd_nn::registry::{FrameDenoiser, Method, Resolved, Units};
+use emccd_nn::registry::{FrameDenoiser, Method, Units};
 use emccd_nn::stack::{denoise_to_zarr, ZarrOutput};
 use emccd_nn::tile::Tiling;
 
@@ -81,28 +81,15 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(w) = r.profile_warning(&profile) {
         eprintln!("warning: {w}");
     }
-    let Resolved {
-        method,
-        model,
-        model_name,
-    } = r;
-    profile
-        .require_complete()
-        .with_context(|| format!("profile {}: it cannot denoise", a.profile))?;
+    let fd = r
+        .denoiser(&profile, a.tiling, a.ensemble, a.units)
+        .with_context(|| format!("--profile {}", a.profile))?;
     let zarr = emccd_io::Format::from_extension(&a.out) == Some(emccd_io::Format::Zarr);
     if a.shard.is_some() && !zarr {
         bail!("--shard needs a .zarr output (-o OUT.zarr): only a Zarr store is written by several processes at once");
     }
-    let fd = FrameDenoiser {
-        profile: &profile,
-        method,
-        model: model.as_ref(),
-        tiling: a.tiling,
-        ensemble: a.ensemble,
-        units: a.units,
-    };
     if zarr {
-        return run_zarr(&a, &fd, model_name.as_deref());
+        return run_zarr(&a, &fd, r.model_name.as_deref());
     }
     let several = a.inputs.len() > 1;
     let outs = emccd_io::output_paths(&a.inputs, &a.out, several.then_some("_denoised.tif"))?;

@@ -26,12 +26,18 @@ pub struct Pipeline<'a> {
     pub device: Device,
 }
 
+/// Checks that the profile has what denoising needs: a slope and bias maps (a gain-series
+/// calibration has neither).
+pub(crate) fn can_denoise(p: &CameraProfile) -> Result<()> {
+    p.require_complete()
+        .map_err(|e| Error::Data(format!("this profile cannot denoise: {e}")))
+}
+
 /// Checks that the profile can correct and describe a frame of `len` pixels at `exposure_s`:
 /// it has a slope and bias maps (a gain-series calibration has neither), the sizes agree, and
 /// the exposure is a positive number of seconds (a header or flag can say anything).
 fn usable(p: &CameraProfile, len: usize, exposure_s: f64) -> Result<()> {
-    p.require_complete()
-        .map_err(|e| Error::Data(format!("this profile cannot denoise: {e}")))?;
+    can_denoise(p)?;
     if len != p.len() {
         return Err(Error::Data(format!(
             "frame has {len} pixels, the profile's sensor {}×{} = {}",

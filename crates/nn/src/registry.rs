@@ -245,6 +245,26 @@ impl Resolved {
             .as_ref()
             .and_then(|m| profile_mismatch(m, profile))
     }
+
+    /// What runs this method and model on frames of `profile`'s camera; an error when the
+    /// profile lacks what denoising needs (a gain-series calibration has no slope or bias maps).
+    pub fn denoiser<'a>(
+        &'a self,
+        profile: &'a CameraProfile,
+        tiling: Tiling,
+        ensemble: usize,
+        units: Units,
+    ) -> Result<FrameDenoiser<'a>> {
+        crate::pipeline::can_denoise(profile)?;
+        Ok(FrameDenoiser {
+            profile,
+            method: self.method,
+            model: self.model.as_ref(),
+            tiling,
+            ensemble,
+            units,
+        })
+    }
 }
 
 /// The method and model a request runs: `method` and `model` as given (either may be absent),
