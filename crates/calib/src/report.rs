@@ -387,26 +387,24 @@ fn row(out: &mut String, name: &str, value: String, note: &str) {
     );
 }
 
-/// Writes `dir/index.html` and `dir/results.json` (each atomically).
-pub fn write(c: &Calibration, dir: &Path) -> std::io::Result<()> {
-    std::fs::create_dir_all(dir)?;
-    let mut t = String::new();
+/// The rows of the fitted-numbers table.
+fn fitted_rows(c: &Calibration, t: &mut String) {
     if let Some(p) = &c.ptc {
         row(
-            &mut t,
+            t,
             "photon-transfer slope s = K·f²",
             format!("{:.4} ± {:.4} DN", p.fit.slope, p.fit.slope_se),
             "median–variance, weighted by 1/Var²",
         );
         row(
-            &mut t,
+            t,
             "PTC intercept",
             format!("{:.2} ± {:.2} DN²", p.fit.intercept, p.fit.intercept_se),
             "read noise² + quantization + other signal-independent noise",
         );
-        row(&mut t, "PTC r²", format!("{:.6}", p.fit.r2), "");
+        row(t, "PTC r²", format!("{:.6}", p.fit.r2), "");
         row(
-            &mut t,
+            t,
             "K range (f ∈ [1.3, √2])",
             format!("{:.3} – {:.3} DN/e⁻", p.fit.slope / 2.0, p.fit.slope / 1.69),
             "K = s/f²",
@@ -414,14 +412,14 @@ pub fn write(c: &Calibration, dir: &Path) -> std::io::Result<()> {
     }
     if let Some(b) = c.bias.first() {
         row(
-            &mut t,
+            t,
             "bias level (median FPN)",
             format!("{:.2} DN at {} s", b.median_dn, b.exposure_s),
             "",
         );
         let rn: Vec<f32> = c.bias.iter().flat_map(|b| b.std.iter().copied()).collect();
         row(
-            &mut t,
+            t,
             "read noise (median std)",
             format!("{:.3} DN", emccd_profile::median(rn).unwrap_or(0.0)),
             &format!("over pixels and {} exposures", c.bias.len()),
@@ -430,31 +428,31 @@ pub fn write(c: &Calibration, dir: &Path) -> std::io::Result<()> {
     if let Some(f) = &c.fpn {
         if f.chosen == emccd_profile::FpnForm::Constant {
             row(
-                &mut t,
+                t,
                 "FPN shared θ",
                 "not used".into(),
                 "the bias does not change with exposure: the constant form was chosen",
             );
         } else {
             let th = |i: usize| crate::fpn::theta_text(f.shared_theta[i], f.shared_se[i]);
-            row(&mut t, "FPN shared θ1", th(1), "");
-            row(&mut t, "FPN shared θ2", th(2), "");
+            row(t, "FPN shared θ1", th(1), "");
+            row(t, "FPN shared θ2", th(2), "");
             row(
-                &mut t,
+                t,
                 "FPN shared θ3",
                 format!("{} (t = {:.3} s)", th(3), f.shared_theta[3].exp()),
                 "",
             );
         }
         row(
-            &mut t,
+            t,
             "FPN outlier pixels",
             format!("{}", f.outliers),
             "excluded from the shared fit",
         );
         let [hc, hs, hp] = f.heldout_mean_dn;
         row(
-            &mut t,
+            t,
             "FPN form used",
             format!("{:?}", f.chosen),
             &format!(
@@ -467,7 +465,7 @@ pub fn write(c: &Calibration, dir: &Path) -> std::io::Result<()> {
     }
     if let Some(b) = &c.blooming {
         row(
-            &mut t,
+            t,
             "blooming a",
             format!("{:.4e}", b.a),
             &format!(
@@ -476,7 +474,7 @@ pub fn write(c: &Calibration, dir: &Path) -> std::io::Result<()> {
             ),
         );
         row(
-            &mut t,
+            t,
             "blooming b",
             format!("{:.4} ± {:.4}", b.b, b.loglog.slope_se),
             &format!("r² = {:.5}", b.loglog.r2),
@@ -490,20 +488,20 @@ pub fn write(c: &Calibration, dir: &Path) -> std::io::Result<()> {
             )
         });
         row(
-            &mut t,
+            t,
             "e⁻ per DN (gain series MLE)",
             format!("{:.4} ± {:.4}", g.e_per_dn, g.e_per_dn_se),
             &r,
         );
         row(
-            &mut t,
+            t,
             "e⁻ per DN from moments",
             format!("{:.4}", g.moments_e_per_dn),
             "the fit's starting point",
         );
         for s in &g.settings {
             row(
-                &mut t,
+                t,
                 &format!("EM gain at {}× setting", s.nominal),
                 if s.fixed {
                     format!("{} (anchor)", s.nominal)
@@ -514,8 +512,10 @@ pub fn write(c: &Calibration, dir: &Path) -> std::io::Result<()> {
             );
         }
     }
+}
 
-    let mut h = String::new();
+/// The page up to the fitted-numbers table: title, style, what was not calibrated, warnings.
+fn page_head(c: &Calibration, h: &mut String) {
     let _ = write!(
         h,
         "<!doctype html><html><head><meta charset=utf-8><title>emccd calibration — {cam}</title><style>\
@@ -537,8 +537,10 @@ table{{border-collapse:collapse;font-size:14px}} td,th{{border:1px solid #ccc;pa
     for w in &c.warnings {
         let _ = write!(h, "<p class=warn>Warning: {}</p>", esc(w));
     }
-    let _ = write!(h, "<h2>Fitted numbers</h2><table><tr><th>quantity</th><th>value ± standard error</th><th>note</th></tr>{t}</table>");
+}
 
+/// Photon transfer: the curve and its levels.
+fn ptc_section(c: &Calibration, h: &mut String) {
     if let Some(p) = &c.ptc {
         let _ = write!(h, "<h2>Photon transfer (paper Fig. 10)</h2><p>Central crop {}×{} at ({}, {}); FPN {} · blooming {} before the median.</p><div class=row>{}<table><tr><th>file</th><th>median DN</th><th>variance DN²</th><th>frames</th><th>status</th></tr>",
             p.crop[2], p.crop[3], p.crop[0], p.crop[1],
@@ -559,6 +561,10 @@ table{{border-collapse:collapse;font-size:14px}} td,th{{border:1px solid #ccc;pa
         }
         h.push_str("</table></div>");
     }
+}
+
+/// The fixed pattern: the map, the curves and the forms' prediction errors (the map alone without a fit).
+fn fpn_section(c: &Calibration, h: &mut String) {
     if let (Some(f), false) = (&c.fpn, c.bias.is_empty()) {
         let i = (0..c.bias.len())
             .min_by(|&a, &b| {
@@ -593,6 +599,10 @@ table{{border-collapse:collapse;font-size:14px}} td,th{{border:1px solid #ccc;pa
             heat_map(&b.mean, c.width, c.height, "DN")
         );
     }
+}
+
+/// Read noise: the map, the normal Q–Q plot and the table per exposure.
+fn read_noise_section(c: &Calibration, h: &mut String) {
     if let Some(b) = c.bias.first() {
         let _ = write!(h, "<h2>Read noise (paper Fig. 4)</h2><div class=row><div><p>read-noise std at {} s</p>{}</div>{}</div><table><tr><th>exposure s</th><th>frames</th><th>FPN median DN</th><th>read-noise median DN</th><th>read-noise rms DN</th></tr>", b.exposure_s, heat_map(&b.std, c.width, c.height, "DN"), qq_plot(c));
         for l in &c.bias {
@@ -604,6 +614,10 @@ table{{border-collapse:collapse;font-size:14px}} td,th{{border:1px solid #ccc;pa
         }
         h.push_str("</table>");
     }
+}
+
+/// Blooming: the fit and its levels.
+fn blooming_section(c: &Calibration, h: &mut String) {
     if let Some(b) = &c.blooming {
         let _ = write!(h, "<h2>Blooming (paper Fig. 11)</h2><div class=row>{}<table><tr><th>exposure s</th><th>v1</th><th>v2</th><th>v3</th><th>c1</th><th>x</th></tr>", blooming_plot(c));
         for l in &b.levels {
@@ -611,12 +625,35 @@ table{{border-collapse:collapse;font-size:14px}} td,th{{border:1px solid #ccc;pa
         }
         h.push_str("</table></div>");
     }
+}
+
+/// The gain series: histogram with the fitted density, and the gains.
+fn gain_section(c: &Calibration, h: &mut String) {
     if c.gain_series.is_some() {
         let (hist, gains) = gain_plots(c);
         let _ = write!(
             h,
             "<h2>Gain series (Ryan et al. 2021)</h2><div class=row>{hist}{gains}</div>"
         );
+    }
+}
+
+/// Writes `dir/index.html` and `dir/results.json` (each atomically).
+pub fn write(c: &Calibration, dir: &Path) -> std::io::Result<()> {
+    std::fs::create_dir_all(dir)?;
+    let mut t = String::new();
+    fitted_rows(c, &mut t);
+    let mut h = String::new();
+    page_head(c, &mut h);
+    let _ = write!(h, "<h2>Fitted numbers</h2><table><tr><th>quantity</th><th>value ± standard error</th><th>note</th></tr>{t}</table>");
+    for section in [
+        ptc_section,
+        fpn_section,
+        read_noise_section,
+        blooming_section,
+        gain_section,
+    ] {
+        section(c, &mut h);
     }
     h.push_str(
         "<p style=\"color:#777;font-size:12px\">Written by emccd calibrate.</p></body></html>",
