@@ -290,11 +290,17 @@ pub fn fit(
             "the FPN exposure fit needs bias stacks at ≥ 4 exposures (3 shared coefficients), got {e}"
         )));
     }
-    let u: Vec<f64> = exposures.iter().map(|t| t.ln()).collect();
+    let m = Maps {
+        means,
+        stds,
+        frames,
+        u: exposures.iter().map(|t| t.ln()).collect(),
+        usable: (0..n).map(|p| means.iter().all(|m| m[p] > 0.0)).collect(),
+        n,
+    };
     let base = &means[0];
-    let usable: Vec<bool> = (0..n).map(|p| means.iter().all(|m| m[p] > 0.0)).collect();
     let ratio = |i: usize, p: usize| (means[i][p] as f64).ln() - (base[p] as f64).ln();
-    let inlier = inliers(&means[..e], &usable);
+    let inlier = inliers(&means[..e], &m.usable);
     let kept = inlier.iter().filter(|&&k| k).count();
     if kept < n / 2 {
         return Err(Error::Fit(format!(
@@ -310,165 +316,33 @@ pub fn fit(
                 / kept as f64
         })
         .collect();
-    let sh = fit_shared(&u, &points);
+    let sh = fit_shared(&m.u, &points);
     let [t1, t2, t3] = sh.params;
     let shared_theta = [0.0, t1, t2, t3];
     let shared_se = [0.0, sh.se[0], sh.se[1], sh.se[2]];
-    let log_bias = |p: usize, idx: &[usize]| -> Vec<f64> {
-        idx.iter().map(|&i| (means[i][p] as f64).ln()).collect()
-    };
 
     // Per-pixel fits start from the shared curve's shape; they need one exposure more than
     // their four coefficients.
     let per_pixel = e >= 5;
-    let all: Vec<usize> = (0..e).collect();
-    let theta_maps: Vec<f32> = if per_pixel {
-        let thetas: Vec<[f32; 4]> = (0..n)
-            .into_par_iter()
-            .map(|p| {
-                if !usable[p] {
-                    return [f32::NAN; 4];
-                }
-                fit_pixel(&u, &log_bias(p, &all), t2, t3).map(|v| v as f32)
-            })
-            .collect();
-        let mut planes = vec![0f32; 4 * n];
-        for (p, th) in thetas.iter().enumerate() {
-            for k in 0..4 {
-                planes[k * n + p] = th[k];
-            }
-        }
-        planes
+    let theta_maps = if per_pixel {
+        m.per_pixel_thetas(t2, t3)
     } else {
         Vec::new()
     };
+    let all: Vec<usize> = (0..e).collect();
     let pooled: Vec<f32> = (0..n)
         .map(|p| pooled_at(means, frames, &all, p) as f32)
         .collect();
-
-    // Leave one exposure out: every form refitted to the other exposures predicts this one, on a
-    // regular subset of pixels. Only interior exposures are left out: a fold at either end would
-    // score extrapolation, where per-pixel curves through a few noisy points can run off to
-    // absurd values, while a profile is used inside its calibrated range (and at most 2×
-    // beyond it, on request). The shared form's base is the shortest remaining exposure.
     let scored = scored_pixels(n, width);
-    let heldout: Vec<[f64; 3]> = (0..e)
-        .into_par_iter()
-        .map(|i| {
-            if i == 0 || i == e - 1 {
-                return [f64::NAN; 3];
-            }
-            let rest: Vec<usize> = (0..e).filter(|&j| j != i).collect();
-            let j0 = rest[0];
-            let ur: Vec<f64> = rest.iter().map(|&j| u[j]).collect();
-            let pr: Vec<f64> = rest.iter().map(|&j| points[j] - points[j0]).collect();
-            let f = fit_shared(&ur, &pr).params;
-            let k = shared_model(u[i], u[j0], &f).0.exp();
-            let (mut ec, mut es, mut ep) = (0.0, 0.0, 0.0);
-            for &p in &scored {
-                let m = means[i][p] as f64;
-                ec += (pooled_at(means, frames, &rest, p) - m).abs();
-                es += (means[j0][p] as f64 * k - m).abs();
-                if per_pixel {
-                    let pred = if usable[p] {
-                        let th = fit_pixel(&ur, &log_bias(p, &rest), f[1], f[2]);
-                        pixel_model(u[i], &th).0.exp()
-                    } else {
-                        means[j0][p] as f64
-                    };
-                    ep += (pred - m).abs();
-                }
-            }
-            let ns = scored.len() as f64;
-            [ec / ns, es / ns, if per_pixel { ep / ns } else { f64::NAN }]
-        })
-        .collect();
-
-    let pixel_pred = |p: usize, x: f64| -> f64 {
-        let th = [
-            theta_maps[p],
-            theta_maps[n + p],
-            theta_maps[2 * n + p],
-            theta_maps[3 * n + p],
-        ]
-        .map(|v| v as f64);
-        pixel_model(x, &th).0.exp()
-    };
-    let shared_pred =
-        |p: usize, x: f64| -> f64 { base[p] as f64 * shared_model(x, u[0], &sh.params).0.exp() };
-    let errors: Vec<FpnError> = (0..e)
-        .map(|i| {
-            let (mut es, mut ep, mut ei, mut fl, mut ni) = (0.0, 0.0, 0.0, 0.0, 0usize);
-            for p in 0..n {
-                let m = means[i][p] as f64;
-                let d = (shared_pred(p, u[i]) - m).abs();
-                es += d;
-                if inlier[p] {
-                    ei += d;
-                    ni += 1;
-                }
-                if per_pixel {
-                    ep += if usable[p] {
-                        (pixel_pred(p, u[i]) - m).abs()
-                    } else {
-                        m.abs()
-                    };
-                }
-                fl += stds[i][p] as f64;
-            }
-            let nn = n as f64;
-            FpnError {
-                exposure_s: exposures[i],
-                shared_mae_dn: es / nn,
-                per_pixel_mae_dn: if per_pixel { ep / nn } else { f64::NAN },
-                shared_mae_inliers_dn: ei / ni.max(1) as f64,
-                noise_floor_dn: (2.0 / std::f64::consts::PI).sqrt() * fl
-                    / nn
-                    / (frames[i].max(1) as f64).sqrt(),
-                constant_heldout_dn: heldout[i][0],
-                shared_heldout_dn: heldout[i][1],
-                per_pixel_heldout_dn: heldout[i][2],
-            }
-        })
-        .collect();
+    let heldout = m.heldout(&points, &scored, per_pixel);
+    let errors = m.in_sample_errors(exposures, &sh.params, &theta_maps, &inlier, &heldout);
     let heldout_mean_dn: [f64; 3] = std::array::from_fn(|k| {
         heldout[1..e - 1].iter().map(|h| h[k]).sum::<f64>() / (e - 2) as f64
     });
-    // Simplest first; a more complex form must do strictly better on held-out exposures. With
-    // four exposures a fold leaves the shared curve two informative points for three
-    // coefficients, so its held-out score means nothing (nor do the curve's standard errors):
-    // there the curve is kept when some exposure's mean log ratio to the base map is more than
-    // 3 standard errors from zero, the error following from the maps' own noise.
     let chosen = if e < 5 {
-        let se = |k: usize| {
-            let v: f64 = (0..n)
-                .filter(|&p| inlier[p])
-                .map(|p| {
-                    let rel = |i: usize| {
-                        stds[i][p] as f64 / (frames[i].max(1) as f64).sqrt() / means[i][p] as f64
-                    };
-                    rel(k).powi(2) + rel(0).powi(2)
-                })
-                .sum();
-            v.sqrt() / kept as f64
-        };
-        if (1..e).any(|k| points[k].abs() > 3.0 * se(k)) {
-            FpnForm::Shared
-        } else {
-            FpnForm::Constant
-        }
+        m.few_exposures_form(&points, &inlier, kept)
     } else {
-        let mut chosen = FpnForm::Constant;
-        let mut best = heldout_mean_dn[0];
-        for (form, err) in [
-            (FpnForm::Shared, heldout_mean_dn[1]),
-            (FpnForm::PerPixel, heldout_mean_dn[2]),
-        ] {
-            if err < best {
-                (chosen, best) = (form, err);
-            }
-        }
-        chosen
+        least_heldout_error(heldout_mean_dn)
     };
     let pick = example_pixel(&inlier, width);
     let example = PixelCurve {
@@ -476,13 +350,7 @@ pub fn fit(
         y: pick / width.max(1),
         measured_dn: (0..e).map(|i| means[i][pick] as f64).collect(),
         theta: if per_pixel {
-            [
-                theta_maps[pick],
-                theta_maps[n + pick],
-                theta_maps[2 * n + pick],
-                theta_maps[3 * n + pick],
-            ]
-            .map(|v| v as f64)
+            theta_at(&theta_maps, n, pick)
         } else {
             [f64::NAN; 4]
         },
@@ -503,6 +371,198 @@ pub fn fit(
         theta_maps,
         pooled,
     })
+}
+
+/// The bias maps a fit works on (one per exposure, shortest first), with what every part of
+/// the fit derives from them.
+struct Maps<'a> {
+    means: &'a [Vec<f32>],
+    stds: &'a [Vec<f32>],
+    frames: &'a [usize],
+    /// ln of the exposures.
+    u: Vec<f64>,
+    /// Pixels positive at every exposure (their logarithms exist).
+    usable: Vec<bool>,
+    /// Pixels per map.
+    n: usize,
+}
+
+impl Maps<'_> {
+    /// ln of pixel `p`'s bias at the exposures `idx`.
+    fn log_bias(&self, p: usize, idx: &[usize]) -> Vec<f64> {
+        idx.iter()
+            .map(|&i| (self.means[i][p] as f64).ln())
+            .collect()
+    }
+
+    /// The per-pixel curves' coefficients as four planes (θ0 of every pixel, then θ1, …),
+    /// started from the shared curve's shape (`t2`, `t3`); NaN where a pixel is not usable.
+    fn per_pixel_thetas(&self, t2: f64, t3: f64) -> Vec<f32> {
+        let (n, all) = (self.n, (0..self.u.len()).collect::<Vec<usize>>());
+        let thetas: Vec<[f32; 4]> = (0..n)
+            .into_par_iter()
+            .map(|p| {
+                if !self.usable[p] {
+                    return [f32::NAN; 4];
+                }
+                fit_pixel(&self.u, &self.log_bias(p, &all), t2, t3).map(|v| v as f32)
+            })
+            .collect();
+        let mut planes = vec![0f32; 4 * n];
+        for (p, th) in thetas.iter().enumerate() {
+            for k in 0..4 {
+                planes[k * n + p] = th[k];
+            }
+        }
+        planes
+    }
+
+    /// Leave one exposure out: every form refitted to the other exposures predicts this one, on
+    /// the `scored` pixels; mean absolute errors (constant, shared, per-pixel) per exposure.
+    /// Only interior exposures are left out (NaN at either end): a fold there would score
+    /// extrapolation, where per-pixel curves through a few noisy points can run off to absurd
+    /// values, while a profile is used inside its calibrated range (and at most 2× beyond it,
+    /// on request). The shared form's base is the shortest remaining exposure.
+    fn heldout(&self, points: &[f64], scored: &[usize], per_pixel: bool) -> Vec<[f64; 3]> {
+        let (means, u, e) = (self.means, &self.u, self.u.len());
+        (0..e)
+            .into_par_iter()
+            .map(|i| {
+                if i == 0 || i == e - 1 {
+                    return [f64::NAN; 3];
+                }
+                let rest: Vec<usize> = (0..e).filter(|&j| j != i).collect();
+                let j0 = rest[0];
+                let ur: Vec<f64> = rest.iter().map(|&j| u[j]).collect();
+                let pr: Vec<f64> = rest.iter().map(|&j| points[j] - points[j0]).collect();
+                let f = fit_shared(&ur, &pr).params;
+                let k = shared_model(u[i], u[j0], &f).0.exp();
+                let (mut ec, mut es, mut ep) = (0.0, 0.0, 0.0);
+                for &p in scored {
+                    let m = means[i][p] as f64;
+                    ec += (pooled_at(means, self.frames, &rest, p) - m).abs();
+                    es += (means[j0][p] as f64 * k - m).abs();
+                    if per_pixel {
+                        let pred = if self.usable[p] {
+                            let th = fit_pixel(&ur, &self.log_bias(p, &rest), f[1], f[2]);
+                            pixel_model(u[i], &th).0.exp()
+                        } else {
+                            means[j0][p] as f64
+                        };
+                        ep += (pred - m).abs();
+                    }
+                }
+                let ns = scored.len() as f64;
+                [ec / ns, es / ns, if per_pixel { ep / ns } else { f64::NAN }]
+            })
+            .collect()
+    }
+
+    /// Each exposure's errors of the forms fitted to every exposure (all pixels; the shared
+    /// form also on its inliers), beside its noise floor and its `heldout` errors.
+    fn in_sample_errors(
+        &self,
+        exposures: &[f64],
+        shared: &[f64; 3],
+        theta_maps: &[f32],
+        inlier: &[bool],
+        heldout: &[[f64; 3]],
+    ) -> Vec<FpnError> {
+        let (means, u, n) = (self.means, &self.u, self.n);
+        let per_pixel = !theta_maps.is_empty();
+        let pixel_pred = |p: usize, x: f64| pixel_model(x, &theta_at(theta_maps, n, p)).0.exp();
+        let shared_pred =
+            |p: usize, x: f64| means[0][p] as f64 * shared_model(x, u[0], shared).0.exp();
+        (0..exposures.len())
+            .map(|i| {
+                let (mut es, mut ep, mut ei, mut fl, mut ni) = (0.0, 0.0, 0.0, 0.0, 0usize);
+                for p in 0..n {
+                    let m = means[i][p] as f64;
+                    let d = (shared_pred(p, u[i]) - m).abs();
+                    es += d;
+                    if inlier[p] {
+                        ei += d;
+                        ni += 1;
+                    }
+                    if per_pixel {
+                        ep += if self.usable[p] {
+                            (pixel_pred(p, u[i]) - m).abs()
+                        } else {
+                            m.abs()
+                        };
+                    }
+                    fl += self.stds[i][p] as f64;
+                }
+                let nn = n as f64;
+                FpnError {
+                    exposure_s: exposures[i],
+                    shared_mae_dn: es / nn,
+                    per_pixel_mae_dn: if per_pixel { ep / nn } else { f64::NAN },
+                    shared_mae_inliers_dn: ei / ni.max(1) as f64,
+                    noise_floor_dn: (2.0 / std::f64::consts::PI).sqrt() * fl
+                        / nn
+                        / (self.frames[i].max(1) as f64).sqrt(),
+                    constant_heldout_dn: heldout[i][0],
+                    shared_heldout_dn: heldout[i][1],
+                    per_pixel_heldout_dn: heldout[i][2],
+                }
+            })
+            .collect()
+    }
+
+    /// The form with four exposures, where a fold leaves the shared curve two informative
+    /// points for three coefficients, so its held-out score means nothing (nor do the curve's
+    /// standard errors): the curve is kept when some exposure's mean log ratio to the base map
+    /// (`points`, over the `kept` inliers) is more than 3 standard errors from zero, the error
+    /// following from the maps' own noise.
+    fn few_exposures_form(&self, points: &[f64], inlier: &[bool], kept: usize) -> FpnForm {
+        let (means, stds, frames) = (self.means, self.stds, self.frames);
+        let se = |k: usize| {
+            let v: f64 = (0..self.n)
+                .filter(|&p| inlier[p])
+                .map(|p| {
+                    let rel = |i: usize| {
+                        stds[i][p] as f64 / (frames[i].max(1) as f64).sqrt() / means[i][p] as f64
+                    };
+                    rel(k).powi(2) + rel(0).powi(2)
+                })
+                .sum();
+            v.sqrt() / kept as f64
+        };
+        if (1..points.len()).any(|k| points[k].abs() > 3.0 * se(k)) {
+            FpnForm::Shared
+        } else {
+            FpnForm::Constant
+        }
+    }
+}
+
+/// Simplest first; a more complex form must do strictly better on held-out exposures
+/// (mean errors: constant, shared, per-pixel).
+fn least_heldout_error(heldout_mean_dn: [f64; 3]) -> FpnForm {
+    let mut chosen = FpnForm::Constant;
+    let mut best = heldout_mean_dn[0];
+    for (form, err) in [
+        (FpnForm::Shared, heldout_mean_dn[1]),
+        (FpnForm::PerPixel, heldout_mean_dn[2]),
+    ] {
+        if err < best {
+            (chosen, best) = (form, err);
+        }
+    }
+    chosen
+}
+
+/// Pixel `p`'s four coefficients from the planes of [`Maps::per_pixel_thetas`] (`n` pixels
+/// each).
+fn theta_at(theta_maps: &[f32], n: usize, p: usize) -> [f64; 4] {
+    [
+        theta_maps[p],
+        theta_maps[n + p],
+        theta_maps[2 * n + p],
+        theta_maps[3 * n + p],
+    ]
+    .map(|v| v as f64)
 }
 
 /// Predicted FPN at exposure `t` from a fit: evaluated as the profile evaluates its curves
