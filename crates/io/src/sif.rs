@@ -185,8 +185,63 @@ fn parse_header(r: &mut (impl BufRead + Seek), file_len: u64) -> Result<SifHeade
         ));
     }
     read_line(r, 64)?; // "65538 1"
-    let line3 = read_line(r, 4096)?;
-    let tokens: Vec<&[u8]> = line3
+    let acq = acquisition(&read_line(r, 4096)?)?;
+    let detector = String::from_utf8_lossy(&read_line(r, 256)?)
+        .trim()
+        .to_string();
+    let dims = read_line(r, 256)?;
+    let dims: Vec<u32> = String::from_utf8_lossy(&dims)
+        .split_whitespace()
+        .filter_map(|s| s.parse().ok())
+        .collect();
+    let sensor = (
+        dims.first().copied().unwrap_or(0),
+        dims.get(1).copied().unwrap_or(0),
+    );
+
+    // Find the image-structure line in the next 64 KiB by its arithmetic.
+    let search_start = r.stream_position()?;
+    let mut window = Vec::new();
+    r.by_ref().take(64 * 1024).read_to_end(&mut window)?;
+    let st = find_structure(&window).ok_or_else(|| {
+        fmt_err("no consistent image-structure line (damaged or unknown version)")
+    })?;
+    r.seek(SeekFrom::Start(search_start + st.end as u64))?;
+    let area = sub_images(r, st.sub_images, st.image_len)?;
+    let data_offset = skip_frame_lines(r, st.frames, acq.version)?;
+    if data_offset > file_len {
+        return Err(fmt_err("the header runs past the end of the file"));
+    }
+    Ok(SifHeader {
+        version: acq.version,
+        exposure_s: acq.exposure_s,
+        cycle_time_s: acq.cycle_time_s,
+        accumulations: acq.accumulations,
+        em_gain: acq.em_gain,
+        temperature_c: acq.temperature_c,
+        detector,
+        sensor,
+        width: area.width,
+        height: area.height,
+        binning: area.binning,
+        frames_declared: st.frames,
+        data_offset,
+    })
+}
+
+/// What the acquisition line (the header's third) says, checked field by field.
+struct Acquisition {
+    version: u32,
+    exposure_s: f64,
+    cycle_time_s: f64,
+    accumulations: u32,
+    em_gain: f64,
+    temperature_c: Option<f64>,
+}
+
+/// Reads the acquisition line; an error where a field is not what its place says.
+fn acquisition(line: &[u8]) -> Result<Acquisition> {
+    let tokens: Vec<&[u8]> = line
         .split(|&b| b == b' ' || b == b'\n')
         .filter(|t| !t.is_empty())
         .collect();
@@ -270,28 +325,25 @@ fn parse_header(r: &mut (impl BufRead + Seek), file_len: u64) -> Result<SifHeade
         .into_iter()
         .flatten()
         .find(|&t| t != -999.0 && t.is_finite());
-    let detector = String::from_utf8_lossy(&read_line(r, 256)?)
-        .trim()
-        .to_string();
-    let dims = read_line(r, 256)?;
-    let dims: Vec<u32> = String::from_utf8_lossy(&dims)
-        .split_whitespace()
-        .filter_map(|s| s.parse().ok())
-        .collect();
-    let sensor = (
-        dims.first().copied().unwrap_or(0),
-        dims.get(1).copied().unwrap_or(0),
-    );
+    Ok(Acquisition {
+        version,
+        exposure_s: n[1],
+        cycle_time_s: n[2],
+        accumulations: n[4].max(0.0) as u32,
+        em_gain: n[9],
+        temperature_c,
+    })
+}
 
-    // Find the image-structure line in the next 64 KiB by its arithmetic.
-    let search_start = r.stream_position()?;
-    let mut window = Vec::new();
-    r.by_ref().take(64 * 1024).read_to_end(&mut window)?;
-    let (rel_end, frames, image_len, subs) = find_structure(&window).ok_or_else(|| {
-        fmt_err("no consistent image-structure line (damaged or unknown version)")
-    })?;
-    r.seek(SeekFrom::Start(search_start + rel_end as u64))?;
+/// The frame's area: the sub-images' common width, their summed height, the first's binning.
+struct Area {
+    width: usize,
+    height: usize,
+    binning: (u32, u32),
+}
 
+/// Reads the `subs` sub-image lines; an error unless they cover `image_len` pixels.
+fn sub_images(r: &mut impl BufRead, subs: usize, image_len: usize) -> Result<Area> {
     let mut width = 0usize;
     let mut height = 0usize;
     let mut binning = (1, 1);
@@ -330,6 +382,16 @@ fn parse_header(r: &mut (impl BufRead + Seek), file_len: u64) -> Result<SifHeade
             width, height
         )));
     }
+    Ok(Area {
+        width,
+        height,
+        binning,
+    })
+}
+
+/// Reads past the per-frame lines (timestamps, then the optional flag line and what it
+/// announces); returns the offset of the pixel data.
+fn skip_frame_lines(r: &mut (impl BufRead + Seek), frames: usize, version: u32) -> Result<u64> {
     // One timestamp line per frame (leading spaces allowed).
     for f in 0..frames {
         let line = read_line(r, 64)?;
@@ -360,28 +422,20 @@ fn parse_header(r: &mut (impl BufRead + Seek), file_len: u64) -> Result<SifHeade
             _ => {}
         }
     }
-    if offset > file_len {
-        return Err(fmt_err("the header runs past the end of the file"));
-    }
-    Ok(SifHeader {
-        version,
-        exposure_s: n[1],
-        cycle_time_s: n[2],
-        accumulations: n[4].max(0.0) as u32,
-        em_gain: n[9],
-        temperature_c,
-        detector,
-        sensor,
-        width,
-        height,
-        binning,
-        frames_declared: frames,
-        data_offset: offset,
-    })
+    Ok(offset)
 }
 
-/// Returns (end offset of the line, frames, image length, sub-images).
-fn find_structure(w: &[u8]) -> Option<(usize, usize, usize, usize)> {
+/// The image-structure line: where it ends (the offset after its newline) and what it says.
+#[derive(Debug, PartialEq)]
+struct Structure {
+    end: usize,
+    frames: usize,
+    image_len: usize,
+    sub_images: usize,
+}
+
+/// Finds the image-structure line by its arithmetic (frames × image length = total).
+fn find_structure(w: &[u8]) -> Option<Structure> {
     let mut i = 0;
     while i + 6 < w.len() {
         if (w[i..].starts_with(b"65538 ") || w[i..].starts_with(b"65541 "))
@@ -400,7 +454,12 @@ fn find_structure(w: &[u8]) -> Option<(usize, usize, usize, usize)> {
                             && len > 0
                             && frames.checked_mul(len) == Some(total)
                         {
-                            return Some((end + 1, frames as usize, len as usize, subs as usize));
+                            return Some(Structure {
+                                end: end + 1,
+                                frames: frames as usize,
+                                image_len: len as usize,
+                                sub_images: subs as usize,
+                            });
                         }
                     }
                 }
@@ -419,7 +478,12 @@ mod tests {
     fn structure_line_needs_consistent_arithmetic() {
         assert_eq!(
             find_structure(b"xx65538 1 512 512 1 4 1 1048576 262144\n"),
-            Some((39, 4, 262144, 1))
+            Some(Structure {
+                end: 39,
+                frames: 4,
+                image_len: 262144,
+                sub_images: 1
+            })
         );
         assert_eq!(
             find_structure(b"65538 1 512 512 1 4 1 1048575 262144\n"),
