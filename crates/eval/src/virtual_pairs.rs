@@ -138,7 +138,6 @@ fn write_all(
     denoise: Option<&Denoise>,
     tick: &mut dyn FnMut(),
 ) -> crate::Result<PairsManifest> {
-    let io = |e: emccd_io::Error| e.to_string();
     let mut manifest = PairsManifest {
         camera: Some(plan.camera_name.into()),
         profile: Some(plan.profile.into()),
@@ -151,9 +150,9 @@ fn write_all(
             .into()),
         pair: vec![],
     };
-    for (si, scene) in plan.scenes.iter().enumerate() {
-        let img = emccd_io::Image::read_scene(scene)
-            .map_err(|e| format!("reading scene {}: {e}", scene.display()))?;
+    for (si, path) in plan.scenes.iter().enumerate() {
+        let img = emccd_io::Image::read_scene(path)
+            .map_err(|e| format!("reading scene {}: {e}", path.display()))?;
         let (w, h) = (img.width.min(full.width()), img.height.min(full.height()));
         let cropped;
         let cam = if (w, h) == (full.width(), full.height()) {
@@ -162,89 +161,17 @@ fn write_all(
             cropped = full.crop(w, h).map_err(|e| e.to_string())?;
             &cropped
         };
-        let img = img.center_crop(w, h).data;
-        let stem = scene_stem(si, scene);
-        for (pi, lv) in plan.levels.iter().enumerate() {
-            let (level, exposure_s) = (lv.photons, lv.exposure_s);
-            let pair = cam.test_pair(&img, level, exposure_s, pair_seed(plan.seed, si, pi));
-            let (e, truth) = (&pair.exposure, &pair.truth);
-            let name = lv.pair_name(&stem);
-            let noisy_rel = format!("noisy/{name}.tif");
-            let clean_rel = format!("clean/{name}.tif");
-            let preview_rel = format!("preview/{name}.png");
-            let mut wr = StackWriter::create(
-                out.join(&noisy_rel),
-                w,
-                h,
-                SampleFormat::U16,
-                Some(plan.frames),
-            )
-            .map_err(io)?;
-            wr.set_metadata(&Metadata {
-                exposure_s: Some(exposure_s),
-                em_gain: Some(cam.em_gain),
-                camera_model: Some(plan.camera_name.into()),
-                ..Default::default()
-            });
-            let mut raw = vec![0f32; w * h];
-            let mut first = Vec::new();
-            for k in 0..plan.frames {
-                pair.frame(k, &mut raw);
-                wr.write_frame(&raw).map_err(io)?;
-                if k == 0 {
-                    first = raw.clone();
-                }
-            }
-            wr.finish().map_err(io)?;
-            let mut cw =
-                StackWriter::create(out.join(&clean_rel), w, h, SampleFormat::F32, Some(1))
-                    .map_err(io)?;
-            cw.set_metadata(&Metadata {
-                exposure_s: Some(exposure_s),
-                ..Default::default()
-            });
-            cw.write_frame(truth).map_err(io)?;
-            cw.finish().map_err(io)?;
-            let raw_first = first.clone();
-            // Preview and input PSNR use the preprocessed frame (true FPN and blooming removed).
-            emccd_profile::preprocess(&mut first, w, e.blooming_x, &e.fpn);
-            let peak = crate::scores::truth_peak(truth);
-            let p_in = crate::psnr(&first, truth, peak);
-            let mut panels: Vec<&[f32]> = vec![&first];
-            let mut denoised = None;
-            let den;
-            if let Some(d) = denoise {
-                den = d(&cam.profile, &raw_first, exposure_s)?;
-                let rel = format!("denoised/{name}.tif");
-                let mut dw = StackWriter::create(out.join(&rel), w, h, SampleFormat::F32, Some(1))
-                    .map_err(io)?;
-                dw.write_frame(&den).map_err(io)?;
-                dw.finish().map_err(io)?;
-                denoised = Some((rel, db2(crate::psnr(&den, truth, peak))));
-                panels.push(&den);
-            }
-            panels.push(truth);
-            let np = panels.len();
-            let side = crate::scores::side_by_side(&panels, w, (0, 0), (w, h));
-            emccd_io::write_png_preview(out.join(&preview_rel), np * w, h, &side, 0.0, peak as f32)
-                .map_err(io)?;
-            let (denoised, psnr_denoised_db) = denoised.unzip();
-            manifest.pair.push(Pair {
-                scene: scene.display().to_string(),
-                noisy: noisy_rel,
-                clean: clean_rel,
-                preview: Some(preview_rel),
-                exposure_s,
-                photons: level,
-                exposure_ratio: lv.ratio,
-                mean_electrons: None,
-                frames: Some(plan.frames),
-                width: Some(w),
-                height: Some(h),
-                psnr_input_db: Some(db2(p_in)),
-                denoised,
-                psnr_denoised_db,
-            });
+        let scene = Scene {
+            path,
+            index: si,
+            stem: scene_stem(si, path),
+            cam,
+            image: img.center_crop(w, h).data,
+        };
+        for pi in 0..plan.levels.len() {
+            manifest
+                .pair
+                .push(write_pair(out, plan, &scene, pi, denoise)?);
             tick();
         }
     }
@@ -252,8 +179,127 @@ fn write_all(
         out.join(PairsManifest::FILE),
         manifest.to_toml("`emccd simulate pairs`").as_bytes(),
     )
-    .map_err(io)?;
+    .map_err(|e| e.to_string())?;
     Ok(manifest)
+}
+
+/// One scene of a plan, cropped to what its camera sees.
+struct Scene<'a> {
+    path: &'a Path,
+    /// Its place in the plan (it seeds the pairs).
+    index: usize,
+    stem: String,
+    /// The camera, cropped to the scene where the scene is smaller.
+    cam: &'a VirtualCamera,
+    image: Vec<f32>,
+}
+
+/// Synthesizes, writes and scores the pair of `scene` at the plan's light level `level`: the
+/// noisy stack, the clean frame, the denoised frame (with `denoise`) and the preview.
+fn write_pair(
+    out: &Path,
+    plan: &PairsPlan,
+    scene: &Scene,
+    level: usize,
+    denoise: Option<&Denoise>,
+) -> crate::Result<Pair> {
+    let io = |e: emccd_io::Error| e.to_string();
+    let (cam, lv) = (scene.cam, &plan.levels[level]);
+    let (w, h) = (cam.width(), cam.height());
+    let (photons, exposure_s) = (lv.photons, lv.exposure_s);
+    let pair = cam.test_pair(
+        &scene.image,
+        photons,
+        exposure_s,
+        pair_seed(plan.seed, scene.index, level),
+    );
+    let (e, truth) = (&pair.exposure, &pair.truth);
+    let name = lv.pair_name(&scene.stem);
+    let noisy_rel = format!("noisy/{name}.tif");
+    let clean_rel = format!("clean/{name}.tif");
+    let preview_rel = format!("preview/{name}.png");
+    let mut wr = StackWriter::create(
+        out.join(&noisy_rel),
+        w,
+        h,
+        SampleFormat::U16,
+        Some(plan.frames),
+    )
+    .map_err(io)?;
+    wr.set_metadata(&Metadata {
+        exposure_s: Some(exposure_s),
+        em_gain: Some(cam.em_gain),
+        camera_model: Some(plan.camera_name.into()),
+        ..Default::default()
+    });
+    let mut raw = vec![0f32; w * h];
+    let mut first = Vec::new();
+    for k in 0..plan.frames {
+        pair.frame(k, &mut raw);
+        wr.write_frame(&raw).map_err(io)?;
+        if k == 0 {
+            first = raw.clone();
+        }
+    }
+    wr.finish().map_err(io)?;
+    let clean_meta = Metadata {
+        exposure_s: Some(exposure_s),
+        ..Default::default()
+    };
+    write_frame_f32(&out.join(&clean_rel), w, h, truth, Some(&clean_meta)).map_err(io)?;
+    let raw_first = first.clone();
+    // Preview and input PSNR use the preprocessed frame (true FPN and blooming removed).
+    emccd_profile::preprocess(&mut first, w, e.blooming_x, &e.fpn);
+    let peak = crate::scores::truth_peak(truth);
+    let p_in = crate::psnr(&first, truth, peak);
+    let mut panels: Vec<&[f32]> = vec![&first];
+    let mut denoised = None;
+    let den;
+    if let Some(d) = denoise {
+        den = d(&cam.profile, &raw_first, exposure_s)?;
+        let rel = format!("denoised/{name}.tif");
+        write_frame_f32(&out.join(&rel), w, h, &den, None).map_err(io)?;
+        denoised = Some((rel, db2(crate::psnr(&den, truth, peak))));
+        panels.push(&den);
+    }
+    panels.push(truth);
+    let np = panels.len();
+    let side = crate::scores::side_by_side(&panels, w, (0, 0), (w, h));
+    emccd_io::write_png_preview(out.join(&preview_rel), np * w, h, &side, 0.0, peak as f32)
+        .map_err(io)?;
+    let (denoised, psnr_denoised_db) = denoised.unzip();
+    Ok(Pair {
+        scene: scene.path.display().to_string(),
+        noisy: noisy_rel,
+        clean: clean_rel,
+        preview: Some(preview_rel),
+        exposure_s,
+        photons,
+        exposure_ratio: lv.ratio,
+        mean_electrons: None,
+        frames: Some(plan.frames),
+        width: Some(w),
+        height: Some(h),
+        psnr_input_db: Some(db2(p_in)),
+        denoised,
+        psnr_denoised_db,
+    })
+}
+
+/// Writes one float32 frame as a TIFF, with `meta` where given.
+fn write_frame_f32(
+    path: &Path,
+    w: usize,
+    h: usize,
+    frame: &[f32],
+    meta: Option<&Metadata>,
+) -> emccd_io::Result<()> {
+    let mut wr = StackWriter::create(path, w, h, SampleFormat::F32, Some(1))?;
+    if let Some(m) = meta {
+        wr.set_metadata(m);
+    }
+    wr.write_frame(frame)?;
+    wr.finish()
 }
 
 #[cfg(test)]
