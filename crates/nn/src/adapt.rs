@@ -494,6 +494,35 @@ pub struct AdaptConfig {
 }
 
 impl AdaptConfig {
+    /// The training run this adaptation is: crops of `side` px around `level` mean
+    /// photoelectrons per pixel, from a model described by `start`.
+    fn train_config(&self, side: usize, level: f64, start: &ModelMeta) -> TrainConfig {
+        TrainConfig {
+            steps: self.steps,
+            batch: self.batch,
+            crop: side,
+            lr: self.lr,
+            warmup: (self.steps / 10).min(50),
+            mean_electrons: Some([level / self.spread, level * self.spread]),
+            // Recorded targets are noisy: only an L2 loss has the scene (their mean) as its
+            // minimizer; a Charbonnier loss would pull towards the skewed EM noise's median.
+            loss: match self.method {
+                AdaptMethod::Resynthesis => Loss::Charbonnier,
+                _ => Loss::L2,
+            },
+            read_noise_scale: [1.0, 1.0],
+            augment: self.augment,
+            noise: self.noise,
+            ablate: start.ablate,
+            // The network keeps the input scaling it was trained with.
+            scale: start.scale,
+            seed: self.seed,
+            val_every: self.checkpoint_every,
+            checkpoint_every: self.checkpoint_every,
+            ..TrainConfig::default()
+        }
+    }
+
     /// The peak learning rate of a network trained from scratch on the recording (the
     /// self-supervised baseline): a new network needs the rate a training run starts with, not
     /// a fine-tune's.
@@ -755,6 +784,52 @@ impl Recorded {
     }
 }
 
+/// What a run trains on, with the light level it is made for and the frame size.
+struct Material {
+    source: Source,
+    mean_electrons: f64,
+    size: (usize, usize),
+}
+
+/// The training material `method` makes of `data` (a scene estimate for resynthesis, recorded
+/// frames otherwise; recorded pairs scaled as the network's input is, `scale`).
+fn material(
+    method: AdaptMethod,
+    data: AdaptData,
+    profile: &CameraProfile,
+    scale: Scale,
+) -> Result<Material> {
+    Ok(match (method, data) {
+        (AdaptMethod::Resynthesis, AdaptData::Scene(scene)) => {
+            let size = (scene.image.width, scene.image.height);
+            Material {
+                source: Source::Synthetic(vec![scene.image]),
+                mean_electrons: scene.mean_electrons,
+                size,
+            }
+        }
+        (AdaptMethod::Resynthesis, AdaptData::Frames(_)) => {
+            return Err(Error::Data(
+                "resynthesis trains on a scene estimate, not on frames".into(),
+            ))
+        }
+        (m, AdaptData::Frames(set)) => {
+            let (level, size) = (set.mean_electrons(profile)?, (set.width, set.height));
+            Material {
+                source: Source::Recorded(RecordedPairs::new(set, profile, m, scale)?),
+                mean_electrons: level,
+                size,
+            }
+        }
+        (m, AdaptData::Scene(_)) => {
+            return Err(Error::Data(format!(
+                "{} trains on recorded frames, not on a scene estimate",
+                m.name()
+            )))
+        }
+    })
+}
+
 /// Adapts a network to a recording (see the module documentation and [`AdaptMethod`]) and
 /// writes it to `paths.out`, recording `provenance`. `report` is called after every step
 /// (return `false` to stop: the checkpoint stays and `--resume` continues).
@@ -784,35 +859,11 @@ pub fn adapt(
             start_meta.arch.name()
         )));
     }
-    let (source, level, (w, h)) = match (cfg.method, data) {
-        (AdaptMethod::Resynthesis, AdaptData::Scene(scene)) => {
-            let size = (scene.image.width, scene.image.height);
-            (
-                Source::Synthetic(vec![scene.image]),
-                scene.mean_electrons,
-                size,
-            )
-        }
-        (AdaptMethod::Resynthesis, AdaptData::Frames(_)) => {
-            return Err(Error::Data(
-                "resynthesis trains on a scene estimate, not on frames".into(),
-            ))
-        }
-        (m, AdaptData::Frames(set)) => {
-            let (level, size) = (set.mean_electrons(profile)?, (set.width, set.height));
-            (
-                Source::Recorded(RecordedPairs::new(set, profile, m, start_meta.scale)?),
-                level,
-                size,
-            )
-        }
-        (m, AdaptData::Scene(_)) => {
-            return Err(Error::Data(format!(
-                "{} trains on recorded frames, not on a scene estimate",
-                m.name()
-            )))
-        }
-    };
+    let Material {
+        source,
+        mean_electrons: level,
+        size: (w, h),
+    } = material(cfg.method, data, profile, start_meta.scale)?;
     let side = match &source {
         Source::Recorded(pairs) => pairs.side(cfg.crop, multiple),
         Source::Synthetic(_) => cfg.crop.min(w).min(h) / multiple * multiple,
@@ -828,31 +879,7 @@ pub fn adapt(
             }
         )));
     }
-    let m = level;
-    let tc = TrainConfig {
-        steps: cfg.steps,
-        batch: cfg.batch,
-        crop: side,
-        lr: cfg.lr,
-        warmup: (cfg.steps / 10).min(50),
-        mean_electrons: Some([m / cfg.spread, m * cfg.spread]),
-        // Recorded targets are noisy: only an L2 loss has the scene (their mean) as its
-        // minimizer; a Charbonnier loss would pull towards the skewed EM noise's median.
-        loss: match cfg.method {
-            AdaptMethod::Resynthesis => Loss::Charbonnier,
-            _ => Loss::L2,
-        },
-        read_noise_scale: [1.0, 1.0],
-        augment: cfg.augment,
-        noise: cfg.noise,
-        ablate: start_meta.ablate,
-        // The network keeps the input scaling it was trained with.
-        scale: start_meta.scale,
-        seed: cfg.seed,
-        val_every: cfg.checkpoint_every,
-        checkpoint_every: cfg.checkpoint_every,
-        ..TrainConfig::default()
-    };
+    let tc = cfg.train_config(side, level, &start_meta);
     let meta = ModelMeta {
         noise_model: cfg.noise,
         profile_fingerprint: profile.fingerprint_hex(),
@@ -862,7 +889,7 @@ pub fn adapt(
             provenance.from,
             provenance.frames,
             provenance.files.join(", "),
-            m,
+            level,
             cfg.steps,
             cfg.batch,
             cfg.lr,
