@@ -361,43 +361,7 @@ fn synth_sample(
         .collect();
     let mut noisy = vec![0f32; w * h];
     let noise_seed = rng.random::<u64>();
-    match cfg.noise {
-        NoiseModelKind::Ours => {
-            let model = OursModel::new(
-                slope,
-                profile.f_range,
-                profile.quantization_dn,
-                vec![rn.clone()],
-                abl,
-            )?;
-            model.synthesize(&clean, w, &mut noisy, noise_seed);
-        }
-        NoiseModelKind::Eld => {
-            EldModel::from_profile(profile)?.synthesize(&clean, w, &mut noisy, noise_seed)
-        }
-        NoiseModelKind::Pgn => {
-            let pgn = profile
-                .pgn
-                .as_ref()
-                .ok_or_else(|| Error::Data("the profile has no [pgn] parameters".into()))?;
-            let cic = match cfg.cic_e {
-                Some([lo, hi]) => lo + (hi - lo) * rng.random::<f64>(),
-                None => pgn.cic_e,
-            };
-            // The EM gain and e⁻/DN set the DN per electron; the slope they imply is the profile's.
-            PgnModel::new(
-                pgn.em_gain,
-                pgn.em_gain / k_mean,
-                cic,
-                pgn.dark_e_per_s,
-                0.01,
-                pgn.read_sigma_dn,
-                profile.quantization_dn,
-            )?
-            .with_read_noise_map(rn.clone())
-            .synthesize(&clean, w, &mut noisy, noise_seed)
-        }
-    }
+    pair_camera(cfg, profile, abl, &rn, &mut rng)?.synthesize(&clean, w, &mut noisy, noise_seed);
     let scale = match inputs {
         Inputs::Noisy => cfg.scale.of(
             &noisy.iter().map(|v| v / slope as f32).collect::<Vec<f32>>(),
@@ -436,6 +400,53 @@ fn synth_sample(
     };
     let target = cut(&clean).iter().map(|v| v / p.to_dn).collect();
     Ok((p.input, target))
+}
+
+/// The camera one training pair is synthesized with: the profile's noise model (`cfg.noise`)
+/// with this pair's draws, the read-noise map `rn` (a scaled, shifted tile of one of the
+/// profile's) and, for PGN, clock-induced charge drawn from `cfg.cic_e` (with `rng`, after the
+/// pair's other draws).
+fn pair_camera(
+    cfg: &TrainConfig,
+    profile: &CameraProfile,
+    abl: Ablation,
+    rn: &[f32],
+    rng: &mut Pcg64,
+) -> Result<Box<dyn NoiseModel>> {
+    let (slope, k_mean) = (profile.slope()?, profile.dn_per_electron()?);
+    Ok(match cfg.noise {
+        NoiseModelKind::Ours => Box::new(OursModel::new(
+            slope,
+            profile.f_range,
+            profile.quantization_dn,
+            vec![rn.to_vec()],
+            abl,
+        )?),
+        NoiseModelKind::Eld => Box::new(EldModel::from_profile(profile)?),
+        NoiseModelKind::Pgn => {
+            let pgn = profile
+                .pgn
+                .as_ref()
+                .ok_or_else(|| Error::Data("the profile has no [pgn] parameters".into()))?;
+            let cic = match cfg.cic_e {
+                Some([lo, hi]) => lo + (hi - lo) * rng.random::<f64>(),
+                None => pgn.cic_e,
+            };
+            // The EM gain and e⁻/DN set the DN per electron; the slope they imply is the profile's.
+            Box::new(
+                PgnModel::new(
+                    pgn.em_gain,
+                    pgn.em_gain / k_mean,
+                    cic,
+                    pgn.dark_e_per_s,
+                    0.01,
+                    pgn.read_sigma_dn,
+                    profile.quantization_dn,
+                )?
+                .with_read_noise_map(rn.to_vec()),
+            )
+        }
+    })
 }
 
 /// The `ww × wh` window at (`x0`, `y0`) of a row-major image `w` pixels wide.
