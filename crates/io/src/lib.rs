@@ -774,15 +774,36 @@ pub(crate) fn make_beside<T>(
 /// Flushes a finished temporary file to disk and renames it to `target`. Works by the temporary
 /// path, so it also covers a writer that replaced the file under that name (burn-store does).
 pub fn persist(tmp: tempfile::NamedTempFile, target: &Path) -> Result<()> {
-    readable(tmp.path()).map_err(|e| Error::from(e).with_path(target))?;
-    std::fs::File::open(tmp.path())
-        .and_then(|f| f.sync_all())
-        .map_err(|e| Error::from(e).with_path(target))?;
     let was = tmp.path().to_path_buf();
-    tmp.persist(target)
-        .map_err(|e| Error::from(e.error).with_path(target))?;
+    let staged = tmp.into_temp_path();
+    move_into_place(&staged, target).map_err(|e| Error::from(e).with_path(target))?;
+    // Renamed: the guard has nothing left to remove.
+    let _ = staged.keep();
     live_temps().remove(&was);
     Ok(())
+}
+
+/// Makes the finished file `staged` readable, flushes it to disk and renames it to `target` (on
+/// the same filesystem, so a reader sees the old file or the new one whole, never part of
+/// one), then flushes the folder entry. How every writer here puts a file in place: the atomic
+/// writer ([`persist`]) and the Zarr chunk writer.
+pub(crate) fn move_into_place(staged: &Path, target: &Path) -> std::io::Result<()> {
+    readable(staged)?;
+    std::fs::File::open(staged).and_then(|f| f.sync_all())?;
+    std::fs::rename(staged, target)?;
+    match target.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => sync_dir(dir),
+        _ => sync_dir(Path::new(".")),
+    }
+    Ok(())
+}
+
+/// Flushes a folder's entries (a rename or a new file in it) to disk; best effort, since not
+/// every filesystem allows it.
+pub(crate) fn sync_dir(dir: &Path) {
+    if let Ok(d) = std::fs::File::open(dir) {
+        let _ = d.sync_all();
+    }
 }
 
 /// Temporary files made by [`temp_beside`] and not yet renamed into place.

@@ -481,27 +481,15 @@ impl ZarrStackWriter {
         let staged = self.staging_dir.path().join(key.as_str());
         let target = self.path.join(key.as_str());
         let io = |e: std::io::Error| at(Error::from(e));
-        std::fs::File::open(&staged)
-            .and_then(|f| f.sync_all())
-            .map_err(io)?;
         let parent = target.parent().unwrap_or(&self.path);
         std::fs::create_dir_all(parent).map_err(io)?;
-        std::fs::rename(&staged, &target).map_err(io)?;
-        sync_dir(parent);
+        crate::move_into_place(&staged, &target).map_err(io)?;
         let marker = self.done.join(k.to_string());
         std::fs::File::create(&marker)
             .and_then(|f| f.sync_all())
             .map_err(io)?;
-        sync_dir(&self.done);
+        crate::sync_dir(&self.done);
         Ok(())
-    }
-}
-
-/// Flushes a folder's entries (a rename or a new file in it) to disk; best effort, since not
-/// every filesystem allows it.
-fn sync_dir(dir: &Path) {
-    if let Ok(d) = std::fs::File::open(dir) {
-        let _ = d.sync_all();
     }
 }
 

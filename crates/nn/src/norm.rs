@@ -39,10 +39,10 @@ pub const BIN: usize = 4;
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Scale {
-    /// The frame's 99.5th percentile ([`frame_scale`]; model files without the key).
+    /// The frame's 99.5th percentile (what `frame_scale` takes; model files without the key).
     #[default]
     Percentile,
-    /// The 99.5th percentile of the frame averaged over [`BIN`]×[`BIN`] blocks: the average
+    /// The 99.5th percentile of the frame averaged over 4×4 blocks (`BIN`): the average
     /// of 16 pixels follows the scene where single pixels follow the noise (at 4 e⁻ the noisy
     /// frame's percentile is 1.4–2× the clean frame's).
     Binned,
