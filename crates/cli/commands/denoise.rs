@@ -83,7 +83,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     let fd = r
         .denoiser(&profile, a.tiling, a.ensemble, a.units)
-        .with_context(|| format!("--profile {}", a.profile))?;
+        .map_err(|e| anyhow::anyhow!("profile {}: {e}", a.profile))?;
     let zarr = emccd_io::Format::from_extension(&a.out) == Some(emccd_io::Format::Zarr);
     if a.shard.is_some() && !zarr {
         bail!("--shard needs a .zarr output (-o OUT.zarr): only a Zarr store is written by several processes at once");

@@ -775,27 +775,43 @@ pub(crate) fn make_beside<T>(
 /// path, so it also covers a writer that replaced the file under that name (burn-store does).
 pub fn persist(tmp: tempfile::NamedTempFile, target: &Path) -> Result<()> {
     let was = tmp.path().to_path_buf();
-    let staged = tmp.into_temp_path();
-    move_into_place(&staged, target).map_err(|e| Error::from(e).with_path(target))?;
-    // Renamed: the guard has nothing left to remove.
-    let _ = staged.keep();
+    let placed = readable(&was)
+        .and_then(|()| flush(&was))
+        .map_err(|e| Error::from(e).with_path(target))
+        .and_then(|()| {
+            tmp.persist(target)
+                .map_err(|e| Error::from(e.error).with_path(target))
+        });
+    // Renamed, or removed with the guard on failure: either way no longer a live temporary.
     live_temps().remove(&was);
+    placed?;
+    sync_parent(target);
     Ok(())
 }
 
-/// Makes the finished file `staged` readable, flushes it to disk and renames it to `target` (on
-/// the same filesystem, so a reader sees the old file or the new one whole, never part of
-/// one), then flushes the folder entry. How every writer here puts a file in place: the atomic
-/// writer ([`persist`]) and the Zarr chunk writer.
+/// Flushes the finished file `staged` to disk and renames it to `target` (on the same
+/// filesystem, so a reader sees the old file or the new one whole, never part of one), then
+/// flushes the folder entry: [`persist`]'s steps for a file another library wrote (a Zarr chunk
+/// zarrs encoded in a staging folder).
 pub(crate) fn move_into_place(staged: &Path, target: &Path) -> std::io::Result<()> {
-    readable(staged)?;
-    std::fs::File::open(staged).and_then(|f| f.sync_all())?;
+    flush(staged)?;
     std::fs::rename(staged, target)?;
-    match target.parent() {
+    sync_parent(target);
+    Ok(())
+}
+
+/// Flushes a finished file's contents to disk, so that a rename never exposes a file whose
+/// data is still only in memory.
+fn flush(path: &Path) -> std::io::Result<()> {
+    std::fs::File::open(path).and_then(|f| f.sync_all())
+}
+
+/// Flushes the entry of `path` in its folder (after a rename).
+fn sync_parent(path: &Path) {
+    match path.parent() {
         Some(dir) if !dir.as_os_str().is_empty() => sync_dir(dir),
         _ => sync_dir(Path::new(".")),
     }
-    Ok(())
 }
 
 /// Flushes a folder's entries (a rename or a new file in it) to disk; best effort, since not

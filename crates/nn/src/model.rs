@@ -296,12 +296,12 @@ impl std::str::FromStr for Base {
 }
 
 /// Everything a model file says about itself: what running it needs (architecture, inputs,
-/// base, scale, ablation: the contract the denoising pipeline reads, present in every file) and
-/// how it came to be (noise model, profile, steps, recipe, the last run's `train` configuration,
-/// `adapted`). `train` is a record of the last run, not a second contract: its base, scale,
-/// noise model and ablation agree with the fields above by construction (`train_from` and
-/// `adapt` build both from one source), and files written before runs were recorded have only
-/// the fields above, so those are what readers use.
+/// base, scale, ablation: the contract the denoising pipeline reads; a file without the
+/// `inputs`, `base` or `scale` key has that field's default) and how it came to be (noise
+/// model, profile, steps, recipe, the last run's `train` configuration, `adapted`). `train` is
+/// a record of the last run, not a second contract: its base, scale, noise model and ablation
+/// are the fields above (`train_from` sets both from the run), and files written
+/// before runs were recorded have only the fields above, so those are what readers use.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ModelMeta {
     /// Architecture and size.

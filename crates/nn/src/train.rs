@@ -402,10 +402,10 @@ fn synth_sample(
     Ok((p.input, target))
 }
 
-/// The camera one training pair is synthesized with: the profile's noise model (`cfg.noise`)
-/// with this pair's draws, the read-noise map `rn` (a scaled, shifted tile of one of the
-/// profile's) and, for PGN, clock-induced charge drawn from `cfg.cic_e` (with `rng`, after the
-/// pair's other draws).
+/// The camera one training pair is synthesized with: the noise model `cfg.noise` with the
+/// profile's parameters and this pair's draws, the read-noise map `rn` (a scaled, shifted tile
+/// of one of the profile's; ELD has none) and, for PGN, clock-induced charge drawn from
+/// `cfg.cic_e` (with `rng`, after the pair's other draws).
 fn pair_camera(
     cfg: &TrainConfig,
     profile: &CameraProfile,
@@ -1036,6 +1036,11 @@ pub(crate) fn train_from(
         base: model.meta.base,
         ..cfg
     };
+    // ...and the model records what it is trained with: the record below then repeats its
+    // contract (ModelMeta) instead of contradicting it when a caller's metadata said otherwise.
+    model.meta.scale = cfg.scale;
+    model.meta.ablate = cfg.ablate;
+    model.meta.noise_model = cfg.noise;
     model.meta.train = Some(cfg.clone());
     let base_steps = model.meta.steps.saturating_sub(start);
     let inputs = model.meta.inputs;

@@ -67,4 +67,13 @@ fn a_low_light_training_run_lowers_its_loss() {
     .unwrap();
     let (first, last) = (losses[0], *losses.last().unwrap());
     assert!(last < 0.7 * first, "smoothed loss {first:.5} → {last:.5}");
+    // The model says what it was trained with (its metadata said `ours`), and its record of
+    // the run repeats that instead of contradicting it.
+    let saved = emccd_nn::Denoiser::read_meta(&paths.out).unwrap();
+    let run = saved.train.as_ref().expect("the run is recorded");
+    assert_eq!(saved.noise_model, emccd_camera::NoiseModelKind::Pgn);
+    assert_eq!(
+        (run.noise, run.ablate, run.scale, run.base),
+        (saved.noise_model, saved.ablate, saved.scale, saved.base)
+    );
 }

@@ -310,19 +310,25 @@ pub fn median<T: Into<f64>>(values: impl IntoIterator<Item = T>) -> Option<f64> 
 /// The `q`-quantile (`q` in [0, 1]) of `f32` or `f64` values by nearest rank: the value of
 /// sorted rank ⌊n·q⌋ (the largest for `q` = 1); non-finite values are ignored. `None` when no
 /// value is left. One rule for every caller: network input scaling, report colour ranges and
-/// the blooming source search.
-pub fn percentile<T: Into<f64>>(values: impl IntoIterator<Item = T>, q: f64) -> Option<f64> {
-    let mut v: Vec<f64> = values
+/// the blooming source search. The values are selected in their own type (a frame of `f32` is
+/// not copied to `f64`).
+pub fn percentile<T>(values: impl IntoIterator<Item = T>, q: f64) -> Option<f64>
+where
+    T: Copy + PartialOrd + Into<f64>,
+{
+    let mut v: Vec<T> = values
         .into_iter()
-        .map(Into::into)
-        .filter(|x: &f64| x.is_finite())
+        .filter(|&x| x.into().is_finite())
         .collect();
     if v.is_empty() {
         return None;
     }
     let k = ((v.len() as f64 * q) as usize).min(v.len() - 1);
-    let (_, p, _) = v.select_nth_unstable_by(k, f64::total_cmp);
-    Some(*p)
+    // Finite values are totally ordered by partial_cmp.
+    let (_, p, _) = v.select_nth_unstable_by(k, |a, b| {
+        a.partial_cmp(b).unwrap_or(std::cmp::Ordering::Equal)
+    });
+    Some((*p).into())
 }
 
 impl CameraProfile {
