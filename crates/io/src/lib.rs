@@ -747,10 +747,7 @@ pub(crate) fn make_beside<T>(
     path: &Path,
     make: impl FnOnce(&tempfile::Builder, &Path) -> std::io::Result<T>,
 ) -> std::io::Result<T> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
+    let dir = folder_of(path);
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
@@ -808,9 +805,14 @@ fn flush(path: &Path) -> std::io::Result<()> {
 
 /// Flushes the entry of `path` in its folder (after a rename).
 fn sync_parent(path: &Path) {
+    sync_dir(folder_of(path));
+}
+
+/// The folder `path` is in (`.` for a bare file name).
+fn folder_of(path: &Path) -> &Path {
     match path.parent() {
-        Some(dir) if !dir.as_os_str().is_empty() => sync_dir(dir),
-        _ => sync_dir(Path::new(".")),
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
     }
 }
 

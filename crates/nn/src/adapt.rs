@@ -881,7 +881,6 @@ pub fn adapt(
     }
     let tc = cfg.train_config(side, level, &start_meta);
     let meta = ModelMeta {
-        noise_model: cfg.noise,
         profile_fingerprint: profile.fingerprint_hex(),
         recipe: format!(
             "adapted ({}) from {} on {} frames of {} at {:.3} mean e⁻/pixel: {} steps, batch {} × {side}², lr {}, seed {}",
