@@ -1,8 +1,9 @@
 //! The libraries without the CLI, end to end: record a calibration acquisition with the virtual
 //! camera (`emccd-camera`), calibrate it (`emccd-calib`), synthesize
 //! training pairs from the calibrated profile and fine-tune the bundled network a few steps
-//! (`emccd-nn`), then denoise a low-light frame and score it (`emccd-eval`), and adapt the network
-//! to a short recording of that scene with no clean image (`emccd_nn::adapt`).
+//! (`emccd-train`), then denoise a low-light frame (`emccd-denoise`) and score it
+//! (`emccd-eval`), and adapt the network to a short recording of that scene with no clean image
+//! (`emccd_train::adapt`).
 //!
 //!     cargo run --release --example library
 //!
@@ -12,18 +13,20 @@ use anyhow::Result;
 use emccd_calib::manifest::Manifest;
 use emccd_camera::acquisition::CalibrationPlan;
 use emccd_camera::{PhysicalParams, VirtualCamera};
-use emccd_nn::adapt::{
-    adapt, AdaptConfig, AdaptData, AdaptMethod, AdaptRun, Adaptation, FrameSet, Start,
-};
-use emccd_nn::train::{train, Image, Run, RunPaths, TrainConfig, TrainImages};
-use emccd_nn::{FrameDenoiser, Method, ModelMeta, Units};
+use emccd_denoise::{Denoiser, Method, Units};
+use emccd_nn::{Adaptation, ModelMeta, TrainConfig};
 use emccd_profile::CameraProfile;
+use emccd_train::adapt::{adapt, AdaptConfig, AdaptData, AdaptRun, Start};
+use emccd_train::train::{train, Image, Run, RunPaths, TrainImages};
+use emccd_train::{AdaptMethod, FrameSet};
 
 /// A 64×64 sub-array keeps the example to seconds.
 const SIZE: usize = 64;
 
 fn main() -> Result<()> {
     let dir = tempfile::tempdir()?;
+    // Networks run where the caller says: here the CPU.
+    let device = emccd_nn::cpu();
     // 1. The camera: the bundled iXon 897 profile is the truth.
     let truth = CameraProfile::load_arg("default")?.crop(emccd_profile::Roi::corner(SIZE, SIZE))?;
     let cam = VirtualCamera::new(truth.clone(), PhysicalParams::default())?;
@@ -65,7 +68,7 @@ fn main() -> Result<()> {
             .collect(),
     };
     // Fine-tuned from the bundled default model: its architecture, new metadata for this camera.
-    let init = emccd_nn::registry::model_path("default")?;
+    let init = emccd_denoise::bundled::model_path("default")?;
     let cfg = TrainConfig {
         steps: 12,
         batch: 2,
@@ -79,7 +82,7 @@ fn main() -> Result<()> {
     let meta = ModelMeta {
         profile_fingerprint: profile.fingerprint_hex(),
         recipe: "examples/library.rs: 12 steps on synthetic scenes".into(),
-        ..emccd_nn::Denoiser::read_meta(&init)?
+        ..emccd_nn::Model::read_meta(&init)?
     };
     let paths = RunPaths {
         out: dir.path().join("model.safetensors"),
@@ -91,7 +94,7 @@ fn main() -> Result<()> {
             train: images,
             val: vec![scene(48, 48, 9)],
         },
-        Run::new(&profile, cfg, meta, &paths).with_init(Some(&init)),
+        Run::new(&profile, cfg, meta, &paths, &device).with_init(Some(&init)),
         &mut |r| {
             if let (Some(p), 0) = (r.val_psnr, r.step % 4) {
                 println!(
@@ -115,7 +118,7 @@ fn main() -> Result<()> {
     e.frame(&photons, 7, &mut raw);
     let peak = gt.iter().copied().fold(0f32, f32::max) as f64;
     for method in [Method::None, Method::Bm3d, Method::Net] {
-        let d = FrameDenoiser {
+        let d = Denoiser {
             profile: &profile,
             method,
             model: method.uses_model().then_some(&model),
@@ -138,7 +141,7 @@ fn main() -> Result<()> {
     for k in 0..8 {
         e.frame(&photons, 100 + k, &mut frame);
         set.add(
-            &emccd_nn::pipeline::preprocess(&profile, &frame, 0.01)?,
+            &emccd_classical::frame::preprocess(&profile, &frame, 0.01)?,
             0.01,
         )?;
     }
@@ -168,10 +171,11 @@ fn main() -> Result<()> {
                 checkpoint: dir.path().join("adapted.ckpt"),
             },
             resume: false,
+            device: device.clone(),
         },
         &mut |_| true,
     )?;
-    let d = FrameDenoiser {
+    let d = Denoiser {
         profile: &profile,
         method: Method::Net,
         model: Some(&adapted),

@@ -116,12 +116,14 @@ fn libraries_depend_on_what_the_readme_says() {
 /// sideways edge fails here even if the README were edited to match it. The binary and the
 /// Python package sit above every library (a library naming `emccd-python` has no layer and
 /// fails too).
-const LAYERS: [&[&str]; 5] = [
+const LAYERS: [&[&str]; 7] = [
     &["io"],
     &["profile"],
     &["camera", "calib"],
     &["eval"],
+    &["classical"],
     &["nn"],
+    &["train", "denoise"],
 ];
 
 fn layer_of(krate: &str) -> usize {
@@ -144,4 +146,200 @@ fn every_edge_points_down_the_layers() {
             );
         }
     }
+}
+
+/// A crate's root file (`src/lib.rs`, or the binary's `main.rs`) and the folder its modules
+/// live in.
+fn crate_root(krate: &str) -> (std::path::PathBuf, std::path::PathBuf) {
+    let dir = std::path::Path::new(ROOT).join("crates").join(krate);
+    let lib = dir.join("src/lib.rs");
+    if lib.is_file() {
+        (lib, dir.join("src"))
+    } else {
+        (dir.join("main.rs"), dir)
+    }
+}
+
+/// Every `.rs` file under `path` (a module's file, or its folder).
+fn rust_files(path: &std::path::Path) -> Vec<std::path::PathBuf> {
+    if path.is_file() {
+        return vec![path.to_path_buf()];
+    }
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(path).unwrap() {
+        out.extend(rust_files(&e.unwrap().path()));
+    }
+    out
+}
+
+/// The first path segments after `crate::` in Rust source, comments left out: `crate::a::b`
+/// gives `a`, `use crate::{a::X, b}` gives `a` and `b`.
+fn crate_paths(src: &str) -> BTreeSet<String> {
+    let code: String = src
+        .lines()
+        .map(|l| l.split("//").next().unwrap())
+        .collect::<Vec<_>>()
+        .join("\n");
+    let ident = |s: &str| -> String {
+        s.trim()
+            .chars()
+            .take_while(|c| c.is_alphanumeric() || *c == '_')
+            .collect()
+    };
+    let mut out = BTreeSet::new();
+    let mut rest = code.as_str();
+    while let Some(i) = rest.find("crate::") {
+        let after = &rest[i + "crate::".len()..];
+        if let Some(group) = after.strip_prefix('{') {
+            // The group's top-level items, up to its matching brace: `a::{X, Y}, b` names `a`, `b`.
+            let mut depth = 0;
+            let mut item = String::new();
+            for c in group.chars() {
+                match c {
+                    '{' => depth += 1,
+                    '}' if depth == 0 => break,
+                    '}' => depth -= 1,
+                    ',' if depth == 0 => {
+                        out.insert(ident(&item));
+                        item.clear();
+                        continue;
+                    }
+                    _ => {}
+                }
+                if depth == 0 {
+                    item.push(c);
+                }
+            }
+            out.insert(ident(&item));
+        } else {
+            out.insert(ident(after));
+        }
+        rest = after;
+    }
+    out.remove("");
+    out
+}
+
+/// A crate's module graph: top-level module → the top-level modules it names through `crate::`
+/// (an item the root re-exports counts as its module; the root itself is no module).
+fn module_graph(krate: &str) -> BTreeMap<String, BTreeSet<String>> {
+    let (root, dir) = crate_root(krate);
+    let mut modules = BTreeMap::new();
+    for e in std::fs::read_dir(&dir).unwrap() {
+        let path = e.unwrap().path();
+        let name = path.file_stem().unwrap().to_string_lossy().into_owned();
+        let is_module = (path.is_dir() && path.join("mod.rs").is_file())
+            || (path.extension().is_some_and(|x| x == "rs") && path != root);
+        if is_module {
+            modules.insert(name, path);
+        }
+    }
+    // `pub use module::{A, B};` in the root: A and B belong to `module`.
+    let root_src = std::fs::read_to_string(&root).unwrap();
+    let mut owner: BTreeMap<String, String> = BTreeMap::new();
+    for line in root_src.lines().map(str::trim) {
+        let Some(body) = line
+            .strip_prefix("pub use ")
+            .and_then(|b| b.strip_suffix(';'))
+        else {
+            continue;
+        };
+        let Some((module, items)) = body.split_once("::") else {
+            continue;
+        };
+        if !modules.contains_key(module) {
+            continue;
+        }
+        for item in items.trim_matches(|c| c == '{' || c == '}').split(',') {
+            let item = item.trim().rsplit("::").next().unwrap().trim().to_string();
+            owner.insert(item, module.to_string());
+        }
+    }
+    modules
+        .iter()
+        .map(|(name, path)| {
+            let uses = rust_files(path)
+                .iter()
+                .flat_map(|f| crate_paths(&std::fs::read_to_string(f).unwrap()))
+                .filter_map(|seg| {
+                    if modules.contains_key(&seg) {
+                        Some(seg)
+                    } else {
+                        owner.get(&seg).cloned()
+                    }
+                })
+                .filter(|m| m != name)
+                .collect();
+            (name.clone(), uses)
+        })
+        .collect()
+}
+
+/// A cycle in `graph`, if there is one, as the modules along it.
+fn find_cycle(graph: &BTreeMap<String, BTreeSet<String>>) -> Option<Vec<String>> {
+    fn visit(
+        node: &str,
+        graph: &BTreeMap<String, BTreeSet<String>>,
+        path: &mut Vec<String>,
+        done: &mut BTreeSet<String>,
+    ) -> Option<Vec<String>> {
+        if let Some(i) = path.iter().position(|n| n == node) {
+            let mut cycle = path[i..].to_vec();
+            cycle.push(node.to_string());
+            return Some(cycle);
+        }
+        if done.contains(node) {
+            return None;
+        }
+        path.push(node.to_string());
+        for next in graph.get(node).into_iter().flatten() {
+            if let Some(c) = visit(next, graph, path, done) {
+                return Some(c);
+            }
+        }
+        path.pop();
+        done.insert(node.to_string());
+        None
+    }
+    let mut done = BTreeSet::new();
+    graph
+        .keys()
+        .find_map(|n| visit(n, graph, &mut Vec::new(), &mut done))
+}
+
+/// Inside every crate (the binary's too), modules use each other without a cycle: a module that
+/// reaches back to one that uses it fails here, naming the loop.
+#[test]
+fn no_crate_has_a_module_cycle() {
+    let mut crates = libraries();
+    crates.insert("cli".into());
+    for krate in &crates {
+        let graph = module_graph(krate);
+        assert!(
+            graph.len() > 1 || krate == "cli",
+            "emccd-{krate}: no modules found"
+        );
+        if let Some(cycle) = find_cycle(&graph) {
+            panic!("emccd-{krate}: modules in a cycle: {}", cycle.join(" → "));
+        }
+    }
+}
+
+#[test]
+fn the_cycle_finder_finds_cycles() {
+    let g = |edges: &[(&str, &str)]| {
+        let mut m: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+        for (a, b) in edges {
+            m.entry(a.to_string()).or_default().insert(b.to_string());
+            m.entry(b.to_string()).or_default();
+        }
+        m
+    };
+    assert!(find_cycle(&g(&[("a", "b"), ("b", "c"), ("a", "c")])).is_none());
+    let c = find_cycle(&g(&[("a", "b"), ("b", "c"), ("c", "a")])).unwrap();
+    assert_eq!(c.len(), 4, "{c:?}");
+    assert_eq!(
+        crate_paths("use crate::{a::{X, Y}, b};\n// crate::c\nlet x = crate::d::f();"),
+        ["a", "b", "d"].iter().map(|s| s.to_string()).collect()
+    );
 }

@@ -183,7 +183,7 @@ fn shards_equal_one_process_and_a_killed_shard_resumes() {
     let pre = frames(&d.join("pre.zarr"));
     let raw = frames(&d.join("a.tif"));
     let p = emccd_profile::CameraProfile::load(d.join("prof")).unwrap();
-    let want = emccd_nn::pipeline::preprocess(&p, &raw[0], 0.01).unwrap();
+    let want = emccd_classical::frame::preprocess(&p, &raw[0], 0.01).unwrap();
     assert_eq!(bits(&pre[..1]), bits(&[want]));
 }
 

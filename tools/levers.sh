@@ -27,7 +27,7 @@ for r in "a:$L2 --lr 5e-4" \
          "b:$L2 --lr 5e-4 --direct" \
          "c:$L2 --lr 1e-3" \
          "d:--loss charbonnier --steps 1000 --checkpoint-every 100 --lr 1e-3" \
-         "e:--loss l2 --lr 1e-3 --base 32 --steps 300 --checkpoint-every 30" \
+         "e:--loss l2 --lr 1e-3 --channels 32 --steps 300 --checkpoint-every 30" \
          "f:--loss charbonnier --steps 3000 --checkpoint-every 100 --lr 1e-3 --unshuffle 2" \
          "g:--loss charbonnier --steps 1000 --checkpoint-every 100 --lr 1e-3 --noise-model ours" \
          "h:--loss charbonnier --steps 1000 --checkpoint-every 100 --lr 1e-3 --scale binned"; do

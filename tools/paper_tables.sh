@@ -20,7 +20,7 @@ NAT=../shared/data/clean/natural
 mkdir -p "$OUT"
 [ -f "$OUT/pairs/pairs.toml" ] || $E simulate pairs --clean $NAT/McMaster --crop 256x256 \
     --exposure-ratio 30,100,300,1000,1600 -o "$OUT/pairs" > "$OUT/pairs.log"
-common=(--profile default --clean $NAT/Kodak24 $NAT/BSD68 --base 8 --levels 4 --crop 64 --batch 4
+common=(--profile default --clean $NAT/Kodak24 $NAT/BSD68 --channels 8 --levels 4 --crop 64 --batch 4
         --steps "$STEPS" --warmup 150 --checkpoint-every 500 --seed 11)
 train() {
     local name=$1; shift
@@ -46,7 +46,7 @@ done
 # alone, with SRDTrans's spatial-redundancy sampling (`adapt --method neighbors`). The frames are
 # 256² crops at the sensor's origin: the profile of that region.
 [ -f "$OUT/profile-256/profile.toml" ] || $E profile crop default --roi 0,0,256x256 "$OUT/profile-256" > /dev/null
-[ -f "$OUT/arch-8x4.safetensors" ] || $E train --profile default --clean $NAT/Kodak24 --base 8 --levels 4 \
+[ -f "$OUT/arch-8x4.safetensors" ] || $E train --profile default --clean $NAT/Kodak24 --channels 8 --levels 4 \
     --crop 64 --steps 0 --seed 11 -o "$OUT/arch-8x4.safetensors" 2> /dev/null
 [ -f "$OUT/selfsup.safetensors" ] || $E adapt "$OUT"/pairs/noisy/*.tif --profile "$OUT/profile-256" \
     --init "$OUT/arch-8x4.safetensors" --from-scratch --method neighbors --crop 64 --batch 4 \

@@ -6,6 +6,17 @@ use anyhow::{Context, Result};
 use emccd_profile::{CameraProfile, Recording};
 use indicatif::{ProgressBar, ProgressStyle};
 
+/// The device networks run on: `BURN_DEVICE` (`flex`, `vulkan`, `wgpu`) if set, else the GPU
+/// of a GPU build when one answers, else the CPU (the libraries take the device they are given).
+pub fn device() -> burn::prelude::Device {
+    emccd_nn::device(std::env::var("BURN_DEVICE").ok().as_deref())
+}
+
+/// Loads a model argument (a bundled name or a file) onto [`device`].
+pub fn load_model(arg: &str) -> emccd_nn::Result<emccd_nn::Model> {
+    emccd_denoise::bundled::load(arg, &device())
+}
+
 /// Loads `--profile`: a directory, or `default` for the bundled profile.
 pub fn load_profile(arg: &str) -> Result<CameraProfile> {
     CameraProfile::load_arg(arg).with_context(|| {
@@ -36,10 +47,7 @@ pub fn progress(len: u64, what: &str) -> ProgressBar {
 pub fn step_progress(
     steps: u64,
     every: u64,
-) -> (
-    ProgressBar,
-    impl FnMut(&emccd_nn::train::StepReport) -> bool,
-) {
+) -> (ProgressBar, impl FnMut(&emccd_train::StepReport) -> bool) {
     let pb = ProgressBar::new(steps);
     pb.set_style(
         ProgressStyle::with_template("{bar:30} {pos}/{len} steps {msg} ETA {eta}")
@@ -49,7 +57,7 @@ pub fn step_progress(
     let every = every.max(1);
     let t0 = std::time::Instant::now();
     let bar = pb.clone();
-    let report = move |r: &emccd_nn::train::StepReport| {
+    let report = move |r: &emccd_train::StepReport| {
         bar.set_position(r.step);
         let v = r.val_psnr.map_or(String::new(), |p| {
             format!(

@@ -40,6 +40,7 @@ macro_rules! eprintln {
     }};
 }
 
+mod bench;
 mod commands;
 mod common;
 
@@ -163,7 +164,7 @@ mod tests {
         let Command::Train(a) = cli.command else {
             panic!("not train")
         };
-        assert_eq!(a.cfg, emccd_nn::train::TrainConfig::default());
+        assert_eq!(a.cfg, emccd_nn::TrainConfig::default());
         assert_eq!(a.shape, emccd_nn::UNetConfig::DEFAULT);
         let cli = Cli::try_parse_from([
             "emccd",
@@ -199,7 +200,7 @@ mod tests {
         let Command::Adapt(a) = cli.command else {
             panic!("not adapt")
         };
-        assert_eq!(a.cfg, emccd_nn::adapt::AdaptConfig::default());
+        assert_eq!(a.cfg, emccd_train::AdaptConfig::default());
         assert!(
             !a.cfg.augment,
             "adapt keeps the recording's orientation unless asked"

@@ -7,8 +7,8 @@ fn main() {
     let path = common::scratch("safetensors");
     let device = emccd_nn::cpu();
     afl::fuzz!(|data: &[u8]| {
-        if std::fs::write(&path, data).is_ok() && emccd_nn::Denoiser::read_meta(&path).is_ok() {
-            let _ = emccd_nn::Denoiser::load(&path, &device);
+        if std::fs::write(&path, data).is_ok() && emccd_nn::Model::read_meta(&path).is_ok() {
+            let _ = emccd_nn::Model::load(&path, &device);
         }
     });
 }

@@ -16,8 +16,8 @@ use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 
 use emccd_camera::{PhysicalParams, VirtualCamera};
-use emccd_nn::registry::{self, Method};
-use emccd_nn::Denoiser;
+use emccd_denoise::{bundled, Method, Units};
+use emccd_nn::Model;
 use emccd_profile::CameraProfile;
 
 create_exception!(
@@ -54,12 +54,18 @@ const EMBEDDED: [(&str, &[u8]); 4] = [
 ];
 
 /// A model argument: a bundled model by name (from the bytes carried here), else a file.
-fn load_model(arg: &str) -> emccd_nn::Result<Denoiser> {
-    match (registry::bundled(arg), EMBEDDED.iter().find(|e| e.0 == arg)) {
+/// The device networks run on: `BURN_DEVICE` if set (the libraries take the device they are
+/// given), else the GPU of a GPU build, else the CPU.
+fn device() -> burn::prelude::Device {
+    emccd_nn::device(std::env::var("BURN_DEVICE").ok().as_deref())
+}
+
+fn load_model(arg: &str) -> emccd_nn::Result<Model> {
+    match (bundled::bundled(arg), EMBEDDED.iter().find(|e| e.0 == arg)) {
         (Some(b), Some((_, bytes))) => {
-            Denoiser::from_bytes(bytes.to_vec(), Path::new(b.file), &emccd_nn::device())
+            Model::from_bytes(bytes.to_vec(), Path::new(b.file), &device())
         }
-        _ => registry::load(arg),
+        _ => bundled::load(arg, &device()),
     }
 }
 
@@ -437,11 +443,11 @@ fn denoise<'py>(
         .map(|m| m.parse::<Method>())
         .transpose()
         .map_err(err)?;
-    let units: registry::Units = units.parse().map_err(err)?;
+    let units: Units = units.parse().map_err(err)?;
     units.factor(p).map_err(err)?;
     emccd_nn::tile::Tiling::check_tile(tile)
         .map_err(|e| err(anyhow::anyhow!("tile {tile}: {e}")))?;
-    registry::check_ensemble(ensemble)
+    emccd_denoise::check_ensemble(ensemble)
         .map_err(|e| err(anyhow::anyhow!("ensemble {ensemble}: {e}")))?;
     let a = frames.as_array();
     let (f, h, w) = a.dim();
@@ -449,7 +455,7 @@ fn denoise<'py>(
     let cb = Callback::new(progress, f as u64);
     let r = py.detach(|| -> anyhow::Result<(Vec<f32>, Vec<String>)> {
         let mut warnings = Vec::new();
-        let r = registry::resolve(method, model.as_deref(), load_model)?;
+        let r = emccd_denoise::resolve(method, model.as_deref(), load_model)?;
         let fd = r.denoiser(p, emccd_nn::tile::Tiling { tile, overlap }, ensemble, units)?;
         if let Some(wn) = p.check_frames(w, h, exposure_s, "exposure_s", extrapolate)? {
             warnings.push(wn);
@@ -597,9 +603,9 @@ fn ssim(
 #[pyfunction]
 fn catalog() -> (Vec<&'static str>, Vec<&'static str>, &'static str) {
     (
-        registry::BUNDLED.iter().map(|b| b.name).collect(),
+        bundled::BUNDLED.iter().map(|b| b.name).collect(),
         Method::ALL.iter().map(|m| m.name()).collect(),
-        registry::DEFAULT_METHOD.name(),
+        emccd_denoise::DEFAULT_METHOD.name(),
     )
 }
 

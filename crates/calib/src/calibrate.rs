@@ -703,23 +703,6 @@ fn run_gain_series(
 }
 
 impl Calibration {
-    /// Writes the outputs of `emccd calibrate` (and of Python's `calibrate`): the HTML report
-    /// into `report` where asked, then the profile folder `out`; returns the profile.
-    pub fn save(&self, out: &Path, report: Option<&Path>) -> Result<CameraProfile> {
-        let profile = self.profile()?;
-        if let Some(dir) = report {
-            crate::report::write(self, dir).map_err(|e| Error::Write {
-                what: format!("the report to {}", dir.display()),
-                source: Box::new(e),
-            })?;
-        }
-        profile.save(out).map_err(|e| Error::Write {
-            what: format!("the profile to {}", out.display()),
-            source: Box::new(e),
-        })?;
-        Ok(profile)
-    }
-
     /// The camera profile. Fails only when there is nothing to put in one (no bias, flats or
     /// blooming stacks: a gain series alone does not describe a sensor).
     pub fn profile(&self) -> Result<CameraProfile> {

@@ -44,7 +44,6 @@
 
 #![deny(missing_docs)]
 
-pub mod bench;
 pub mod blooming;
 mod error;
 pub mod fit;

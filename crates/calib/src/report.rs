@@ -8,8 +8,29 @@ use std::path::Path;
 use base64::Engine as _;
 use plotters::prelude::*;
 
+use emccd_profile::CameraProfile;
+
 use crate::ptc::LevelStatus;
-use crate::Calibration;
+use crate::{Calibration, Error, Result};
+
+impl Calibration {
+    /// Writes the outputs of `emccd calibrate` (and of Python's `calibrate`): the HTML report
+    /// into `report` where asked, then the profile folder `out`; returns the profile.
+    pub fn save(&self, out: &Path, report: Option<&Path>) -> Result<CameraProfile> {
+        let profile = self.profile()?;
+        if let Some(dir) = report {
+            write(self, dir).map_err(|e| Error::Write {
+                what: format!("the report to {}", dir.display()),
+                source: Box::new(e),
+            })?;
+        }
+        profile.save(out).map_err(|e| Error::Write {
+            what: format!("the profile to {}", out.display()),
+            source: Box::new(e),
+        })?;
+        Ok(profile)
+    }
+}
 
 type Draw<'a> = DrawingArea<SVGBackend<'a>, plotters::coord::Shift>;
 type PlotResult = std::result::Result<(), Box<dyn std::error::Error>>;

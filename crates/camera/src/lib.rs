@@ -34,7 +34,6 @@
 #![deny(missing_docs)]
 
 pub mod acquisition;
-pub mod bench;
 pub mod noise;
 pub mod rng;
 pub mod virtual_camera;

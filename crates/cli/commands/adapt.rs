@@ -3,8 +3,9 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use emccd_nn::adapt::{adapt, AdaptConfig, AdaptData, AdaptRun, Adaptation, Recorded, Start};
-use emccd_nn::train::RunPaths;
+use emccd_nn::Adaptation;
+use emccd_train::adapt::{adapt, AdaptConfig, AdaptData, AdaptRun, Recorded, Start};
+use emccd_train::RunPaths;
 
 use crate::common::{load_profile, open_recording, progress, step_progress};
 
@@ -68,12 +69,12 @@ pub fn run(a: Args) -> Result<()> {
         ..a.cfg
     };
     cfg.check()?;
-    let init = emccd_nn::registry::model_path(&a.init)?;
+    let init = emccd_denoise::bundled::model_path(&a.init)?;
     for input in &a.inputs {
         emccd_io::refuse_overwrite(&a.out, input, "an input")?;
     }
     emccd_io::refuse_overwrite(&a.out, &init, "the --init model")?;
-    let init_meta = emccd_nn::Denoiser::read_meta(&init)?;
+    let init_meta = emccd_nn::Model::read_meta(&init)?;
     let mut rec = Recorded::new(
         cfg.method,
         &profile,
@@ -102,7 +103,7 @@ pub fn run(a: Args) -> Result<()> {
         ),
     }
     let provenance = Adaptation::new(
-        cfg.method,
+        cfg.method.name(),
         &a.init,
         scratch,
         &a.inputs,
@@ -125,6 +126,7 @@ pub fn run(a: Args) -> Result<()> {
             provenance,
             paths: &paths,
             resume: a.resume,
+            device: crate::common::device(),
         },
         &mut report,
     )?;

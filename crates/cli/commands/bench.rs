@@ -68,7 +68,7 @@ fn archive_bench(_: f64, _: &std::path::Path, _: usize) -> Result<()> {
 
 #[cfg(unix)]
 fn archive_bench(gb: f64, dir: &std::path::Path, net_frames: usize) -> Result<()> {
-    use emccd_nn::bench::{Archive, ArchiveEvent};
+    use crate::bench::denoise::{Archive, ArchiveEvent};
     let bench = Archive {
         exe: std::env::current_exe()?,
         gb,
@@ -118,13 +118,13 @@ fn bm3d_bench(sigmas: &[f64], limit: Option<usize>, data: &std::path::Path) -> R
         "BM3D on BSD68 ({} images), additive Gaussian noise, PSNR for 8-bit range",
         scenes.len()
     );
-    println!("{}", emccd_eval::bm3d::Bsd68Row::header());
+    println!("{}", crate::bench::bsd68::Bsd68Row::header());
     let images = scenes
         .iter()
         .map(|sc| emccd_io::Image::read_scene(sc))
         .collect::<std::result::Result<Vec<_>, _>>()?;
     for &sigma in sigmas {
-        println!("{}", emccd_eval::bm3d::bsd68_row(&images, sigma));
+        println!("{}", crate::bench::bsd68::bsd68_row(&images, sigma));
     }
     Ok(())
 }
@@ -136,7 +136,7 @@ fn denoise_bench(
     frames: usize,
     data: &std::path::Path,
 ) -> Result<()> {
-    let models = emccd_nn::bench::models(model_args)?;
+    let models = crate::bench::denoise::models(model_args)?;
     let profile = crate::common::load_profile(profile_arg)?;
     let scenes = if scene_args.is_empty() {
         emccd_io::image_files(&[data_folder(data, "clean/microscopy/fmd-confocal-bpae")?])?
@@ -149,8 +149,8 @@ fn denoise_bench(
         profile.slope()?,
         profile.read_noise_dn()
     );
-    println!("{}", emccd_nn::bench::Row::header(models.len()));
-    let t = emccd_nn::bench::denoise(
+    println!("{}", crate::bench::denoise::Row::header(models.len()));
+    let t = crate::bench::denoise::denoise(
         &profile,
         &scenes,
         &models,
@@ -162,14 +162,14 @@ fn denoise_bench(
     println!(
         "({} CPU threads; network on {})",
         rayon::current_num_threads(),
-        emccd_nn::device_name(&emccd_nn::device())
+        emccd_nn::device_name(&crate::common::device())
     );
     Ok(())
 }
 
 fn calibration_bench(frames: usize) -> Result<()> {
     let dir = tempfile::tempdir()?;
-    println!("{}", emccd_calib::bench::streaming(dir.path(), frames)?);
+    println!("{}", crate::bench::calib::streaming(dir.path(), frames)?);
     Ok(())
 }
 
@@ -188,12 +188,12 @@ pub fn run(a: Args) -> Result<()> {
     }
     let frames = a.frames.max(1);
     let cam = VirtualCamera::default_camera();
-    let t = emccd_camera::bench::synthesis(&cam, a.electrons, frames)?;
+    let t = crate::bench::camera::synthesis(&cam, a.electrons, frames)?;
     println!("{t}");
     if a.no_python {
         return Ok(());
     }
-    match emccd_camera::bench::emccd_detect(frames.min(10), a.electrons) {
+    match crate::bench::camera::emccd_detect(frames.min(10), a.electrons) {
         Ok(t_py) => println!("{}", t.emccd_detect_rows(t_py)),
         Err(why) => {
             println!("\nemccd-detect comparison skipped: {why}  (pip install emccd-detect)")

@@ -3,9 +3,9 @@
 use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
+use emccd_denoise::stack::{denoise_to_zarr, ZarrOutput};
+use emccd_denoise::{Denoiser, Method, Units};
 use emccd_io::zarr::Shard;
-use emccd_nn::registry::{FrameDenoiser, Method, Units};
-use emccd_nn::stack::{denoise_to_zarr, ZarrOutput};
 use emccd_nn::tile::Tiling;
 
 use crate::common::{load_profile, open_recording, progress};
@@ -72,12 +72,12 @@ pub struct Args {
 }
 
 fn parse_ensemble(s: &str) -> std::result::Result<usize, String> {
-    emccd_nn::registry::ensemble_size(s).map_err(|e| e.to_string())
+    emccd_denoise::ensemble_size(s).map_err(|e| e.to_string())
 }
 
 pub fn run(a: Args) -> Result<()> {
     let profile = load_profile(&a.profile)?;
-    let r = emccd_nn::registry::resolve(a.method, a.model.as_deref(), emccd_nn::registry::load)?;
+    let r = emccd_denoise::resolve(a.method, a.model.as_deref(), crate::common::load_model)?;
     if let Some(w) = r.profile_warning(&profile) {
         eprintln!("warning: {w}");
     }
@@ -99,7 +99,7 @@ pub fn run(a: Args) -> Result<()> {
     for (input, out) in a.inputs.iter().zip(outs) {
         let rec = open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
         let pb = progress(rec.info.frames as u64, "frames");
-        let frames = emccd_nn::stack::denoise_file(&fd, rec, &out, &mut || pb.inc(1))?;
+        let frames = emccd_denoise::stack::denoise_file(&fd, rec, &out, &mut || pb.inc(1))?;
         pb.finish_and_clear();
         eprintln!("{} → {} ({frames} frames)", input.display(), out.display());
     }
@@ -108,7 +108,7 @@ pub fn run(a: Args) -> Result<()> {
 
 /// Denoises the inputs, one logical stack in the order given, into one OME-Zarr store: this
 /// process's shard of the frames, skipping frames already complete.
-fn run_zarr(a: &Args, fd: &FrameDenoiser, model_name: Option<&str>) -> Result<()> {
+fn run_zarr(a: &Args, fd: &Denoiser, model_name: Option<&str>) -> Result<()> {
     let shard = a.shard.unwrap_or(Shard::ALL);
     let out = ZarrOutput {
         path: &a.out,

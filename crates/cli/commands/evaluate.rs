@@ -3,8 +3,8 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
+use emccd_denoise::Estimator;
 use emccd_eval::evaluation::{evaluate, Contender, PairsDir};
-use emccd_nn::registry::Estimator;
 
 use crate::common::progress;
 
@@ -53,7 +53,7 @@ pub fn run(a: Args) -> Result<()> {
     let estimators = a
         .methods
         .iter()
-        .map(|m| Estimator::parse(m, emccd_nn::registry::load))
+        .map(|m| Estimator::parse(m, crate::common::load_model))
         .collect::<Result<Vec<_>, _>>()?;
     let methods: Vec<Contender> = estimators.iter().map(Estimator::contender).collect();
     let total: usize = cameras.iter().map(|c| c.manifest.pair.len()).sum();

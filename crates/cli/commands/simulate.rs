@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use emccd_camera::acquisition::{CalibrationPlan, PairLevel};
 use emccd_camera::{PhysicalParams, VirtualCamera};
+use emccd_denoise::Estimator;
 use emccd_eval::virtual_pairs::{write_pairs, PairsPlan};
-use emccd_nn::registry::Estimator;
 
 use crate::common::{load_profile, progress};
 use emccd_profile::Roi;
@@ -170,7 +170,7 @@ fn pairs(
     opts: &CameraOpts,
 ) -> Result<()> {
     let est = denoise
-        .map(|m| Estimator::parse(m, emccd_nn::registry::load))
+        .map(|m| Estimator::parse(m, crate::common::load_model))
         .transpose()?;
     if frames == 0 {
         bail!("--frames must be at least 1");

@@ -3,8 +3,9 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use emccd_nn::train::{train, Run, RunPaths, TrainConfig, TrainImages};
-use emccd_nn::{Arch, Base, Inputs, ModelMeta, Scale, UNetConfig};
+use emccd_nn::model::{classical_for_run, scale_for_run};
+use emccd_nn::{Arch, Classical, Inputs, Scale, TrainConfig, UNetConfig};
+use emccd_train::{meta_for_run, train, Run, RunPaths, TrainImages};
 
 use crate::common::load_profile;
 
@@ -47,7 +48,7 @@ pub struct Args {
     /// photoelectrons per pixel; `emccd denoise --method ivst`). Default: the --init model's
     /// base, else bm3d. Another base than the --init model's restarts its output layer at zero.
     #[arg(long, value_enum)]
-    pub hybrid_base: Option<Base>,
+    pub hybrid_base: Option<Classical>,
     #[command(flatten)]
     pub cfg: TrainConfig,
     /// Fine-tune from this model (a file, or a bundled model: `default`, `microscopy`, `lowlight`).
@@ -67,29 +68,29 @@ pub fn run(a: Args) -> Result<()> {
     let init = a
         .init
         .as_deref()
-        .map(emccd_nn::registry::model_path)
+        .map(emccd_denoise::bundled::model_path)
         .transpose()?;
     if let Some(i) = &init {
         emccd_io::refuse_overwrite(&a.out, i, "the --init model")?;
     }
     let init_meta = init
         .as_deref()
-        .map(emccd_nn::Denoiser::read_meta)
+        .map(emccd_nn::Model::read_meta)
         .transpose()?;
     let cfg = TrainConfig {
-        base: Base::for_run(a.hybrid_base, a.inputs, init_meta.as_ref())?,
-        scale: Scale::for_run(a.scale, init_meta.as_ref()),
+        base: classical_for_run(a.hybrid_base, a.inputs, init_meta.as_ref())?,
+        scale: scale_for_run(a.scale, init_meta.as_ref()),
         val_every: a.cfg.checkpoint_every,
         ..a.cfg
     };
     let profile = load_profile(&a.profile)?;
     let images = TrainImages::read(&a.clean, &a.val)?;
-    let meta = ModelMeta::for_run(arch, a.inputs, &cfg, &profile, &images);
+    let meta = meta_for_run(arch, a.inputs, &cfg, &profile, &images);
     let paths = RunPaths::beside(&a.out);
     let (pb, mut report) = crate::common::step_progress(cfg.steps, cfg.checkpoint_every);
     let model = train(
         images,
-        Run::new(&profile, cfg, meta, &paths)
+        Run::new(&profile, cfg, meta, &paths, &crate::common::device())
             .with_init(init.as_deref())
             .resuming(a.resume),
         &mut report,

@@ -1,4 +1,6 @@
-//! Image-quality metrics and the test-pair manifest. The metrics agree with the reference
+//! Scoring any denoiser: image-quality metrics, the noisy/clean test pairs and their manifest,
+//! and evaluation tables over methods, cameras and light levels (the denoisers are the
+//! caller's: this crate runs none of its own). The metrics agree with the reference
 //! implementations users compare against: PSNR with an explicit data range, and SSIM as in Wang
 //! et al. (2004) with a Gaussian window, matching scikit-image's `structural_similarity(
 //! gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=R)` (tested against
@@ -16,12 +18,10 @@
 
 #![deny(missing_docs)]
 
-pub mod bm3d;
 pub mod evaluation;
 pub mod pairs;
 pub mod scores;
 pub mod virtual_pairs;
-pub mod vst;
 
 pub use pairs::{Pair, PairFrames, PairsManifest};
 pub use scores::{LevelUnit, Score, Summaries, Summary};

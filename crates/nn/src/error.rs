@@ -32,9 +32,6 @@ pub enum Error {
         #[source]
         source: emccd_io::Error,
     },
-    /// A benchmark's child process failed (its command and what it printed).
-    #[error("{0}")]
-    Bench(String),
     /// An error about one file or frame of several: `at` names it, `source` keeps its kind.
     #[error("{at}: {source}")]
     At {
@@ -67,6 +64,13 @@ impl Error {
 /// A profile that cannot serve a request (no slope, incomplete maps): the data are unusable.
 impl From<emccd_profile::Error> for Error {
     fn from(e: emccd_profile::Error) -> Error {
+        Error::Data(e.to_string())
+    }
+}
+
+/// A frame the classical layer cannot denoise through its profile: the data are unusable.
+impl From<emccd_classical::Error> for Error {
+    fn from(e: emccd_classical::Error) -> Error {
         Error::Data(e.to_string())
     }
 }

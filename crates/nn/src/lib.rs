@@ -1,53 +1,46 @@
-//! Denoising networks for EMCCD frames (burn 0.22): the architectures, the camera-independent
-//! input, tiled inference on frames of any size, model files with metadata, and training on
-//! pairs synthesized on the fly from the camera model.
+//! Denoising networks for EMCCD frames (burn 0.22), inference only: the architectures (U-Net,
+//! Uformer), model files with their metadata and the record of how they were made, the
+//! camera-independent input, tiled inference with self-ensembles on frames of any size, and a
+//! network applied to a raw frame through its camera profile ([`Inference`]). Training is
+//! `emccd-train`'s; the methods a user picks are `emccd-denoise`'s.
 //!
-//! Network code has no backend type: burn 0.22 tensors carry their backend in their `Device`.
-//! The pure-Rust `flex` CPU backend is the default feature; `vulkan`/`wgpu` add burn's wgpu
-//! GPU backend (no build-time downloads), picked by [`device`] when present.
+//! Network code has no backend type: burn 0.22 tensors carry their backend in their `Device`,
+//! which the caller chooses ([`device`]) and a [`Model`] keeps. The pure-Rust `flex` CPU
+//! backend is the default feature; `vulkan`/`wgpu` add burn's wgpu GPU backend (no build-time
+//! downloads).
 //!
-//! A frame from the virtual camera denoised as `emccd evaluate --method bm3d` does it, through
-//! the profile it was recorded with ([`registry::Estimator`]; a bundled network is named the
-//! same way, e.g. `lowlight` or `lowlight@8`):
+//! A bundled model run tiled over a frame larger than its tile:
 //!
 //! ```
-//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
-//! use emccd_camera::{PhysicalParams, VirtualCamera};
-//! use emccd_nn::registry::{self, Estimator};
-//! let profile = emccd_profile::default_profile().crop(emccd_profile::Roi::corner(64, 64))?;
-//! let cam = VirtualCamera::new(profile.clone(), PhysicalParams::default())?;
-//! let scene: Vec<f32> = (0..64 * 64).map(|i| if (i / 64) % 16 < 8 { 1.0 } else { 0.2 }).collect();
-//! let pair = cam.test_pair(&scene, 200.0, 0.01, 1);
-//! let mut raw = vec![0f32; 64 * 64];
-//! pair.frame(0, &mut raw);
-//! let peak = pair.truth.iter().copied().fold(0f32, f32::max) as f64;
-//! let input = Estimator::parse("input", registry::load)?.run(&profile, &raw, 0.01)?;
-//! let bm3d = Estimator::parse("bm3d", registry::load)?.run(&profile, &raw, 0.01)?;
-//! let gain = emccd_eval::psnr(&bm3d, &pair.truth, peak) - emccd_eval::psnr(&input, &pair.truth, peak);
-//! assert!(gain > 3.0, "BM3D gains {gain:.1} dB");
-//! # Ok(())
-//! # }
+//! use emccd_nn::tile::{run, Planes, Tiling};
+//! let file = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/default-unet.safetensors");
+//! let model = emccd_nn::Model::load(file.as_ref(), &emccd_nn::cpu())?;
+//! // The network's input: the frame and its noise level, in the camera-independent units.
+//! let frame: Vec<f32> = (0..2 * 96 * 80).map(|i| if i < 96 * 80 { 0.5 } else { 0.1 }).collect();
+//! let planes = Planes { data: &frame, channels: 2, width: 96, height: 80 };
+//! let tiling = Tiling { tile: 64, overlap: 16 };
+//! let out = run(&model.net, planes, model.meta.multiple(), tiling, model.device());
+//! assert_eq!(out.len(), 96 * 80);
+//! assert!(out.iter().all(|v| v.is_finite()));
+//! # Ok::<(), emccd_nn::Error>(())
 //! ```
 
 #![deny(missing_docs)]
 
-pub mod adapt;
-pub mod bench;
 mod error;
+pub mod inference;
 pub mod model;
 pub mod norm;
-pub mod pipeline;
-pub mod registry;
-pub mod stack;
+pub mod recipe;
 pub mod tile;
-pub mod train;
 pub mod uformer;
 pub mod unet;
 
 pub use error::{Error, Result};
-pub use model::{Arch, Base, Denoiser, Inputs, ModelMeta, Net};
+pub use inference::Inference;
+pub use model::{Arch, Classical, Inputs, Model, ModelMeta, Net};
 pub use norm::Scale;
-pub use registry::{FrameDenoiser, Method, Units};
+pub use recipe::{Adaptation, Loss, TrainConfig};
 pub use uformer::{Uformer, UformerConfig};
 pub use unet::{UNet, UNetConfig};
 
@@ -58,16 +51,20 @@ pub fn cpu() -> Device {
     Device::flex()
 }
 
-/// The device inference and training run on: the GPU when the binary was built with a GPU
-/// backend (`--features vulkan` or `wgpu`) and a GPU answers, else the flex CPU backend.
-/// `BURN_DEVICE=flex` (or `vulkan`, `wgpu`) overrides the choice at run time.
+/// The device networks run on: the one `requested` names (`flex`, or `vulkan`/`wgpu` in a GPU
+/// build: what the CLI and the Python package read from `BURN_DEVICE`), else the GPU when the
+/// binary was built with a GPU backend (`--features vulkan` or `wgpu`) and a GPU answers, else
+/// the flex CPU backend.
 ///
 /// A GPU build on a machine whose driver cannot be loaded (no Vulkan ICD, or NVIDIA's without
 /// the glvnd libraries it links) would otherwise abort at the first tensor, from a thread of the
 /// GPU runtime; it is tried once here and, failing, the run goes on on the CPU with a warning.
-pub fn device() -> Device {
+pub fn device(requested: Option<&str>) -> Device {
     #[cfg(any(feature = "vulkan", feature = "wgpu"))]
     {
+        if requested == Some("flex") {
+            return Device::flex();
+        }
         static CHOSEN: std::sync::OnceLock<Device> = std::sync::OnceLock::new();
         CHOSEN
             .get_or_init(|| {
@@ -86,7 +83,7 @@ pub fn device() -> Device {
     }
     #[cfg(not(any(feature = "vulkan", feature = "wgpu")))]
     {
-        if std::env::var("BURN_DEVICE").is_ok_and(|v| v != "flex") {
+        if requested.is_some_and(|v| v != "flex") {
             eprintln!("warning: BURN_DEVICE is set but this build has only the flex CPU backend");
         }
         Device::flex()

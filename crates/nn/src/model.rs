@@ -12,9 +12,11 @@ use serde::{Deserialize, Serialize};
 use emccd_camera::{Ablation, NoiseModelKind};
 
 use crate::norm::Scale;
+use crate::recipe::{Adaptation, TrainConfig};
 use crate::uformer::{Uformer, UformerConfig};
 use crate::unet::{UNet, UNetConfig};
 use crate::{Error, Result};
+pub use emccd_classical::Classical;
 
 /// Architectures this build knows, by the names flags and model files use.
 pub const ARCHS: [&str; 4] = ["unet", "uformer-t", "uformer-s", "uformer-b"];
@@ -220,79 +222,27 @@ impl Inputs {
     }
 }
 
-/// The classical estimate a refinement network ([`Inputs::Hybrid`]) is given and corrects.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
-#[serde(rename_all = "lowercase")]
-pub enum Base {
-    /// BM3D after the generalized Anscombe transform, one pass (files without the key).
-    #[default]
-    #[cfg_attr(
-        feature = "clap",
-        value(help = "BM3D after the generalized Anscombe transform, one pass")
-    )]
-    Bm3d,
-    /// BM3D with iterative variance stabilization and binning, the passes chosen from the
-    /// frame's light level ([`emccd_eval::vst::bm3d_adaptive`]): better below a few counts.
-    #[cfg_attr(
-        feature = "clap",
-        value(
-            help = "BM3D with iterative variance stabilization: better below a few photoelectrons"
-        )
-    )]
-    Ivst,
+/// The classical estimate of a training run's refinement network: `chosen` (only a refinement
+/// network has one), else the `init` model's, else one BM3D pass.
+pub fn classical_for_run(
+    chosen: Option<Classical>,
+    inputs: Inputs,
+    init: Option<&ModelMeta>,
+) -> Result<Classical> {
+    match (chosen, init) {
+        (Some(_), _) if inputs != Inputs::Hybrid => Err(Error::Model(
+            "--hybrid-base: only a refinement network (--inputs hybrid) has a base estimate".into(),
+        )),
+        (Some(b), _) => Ok(b),
+        (None, Some(init)) => Ok(init.base),
+        (None, None) => Ok(Classical::Bm3d),
+    }
 }
 
-impl Base {
-    /// The base of a training run: `chosen` (only a refinement network has one), else the
-    /// `init` model's, else one BM3D pass.
-    pub fn for_run(chosen: Option<Base>, inputs: Inputs, init: Option<&ModelMeta>) -> Result<Base> {
-        match (chosen, init) {
-            (Some(_), _) if inputs != Inputs::Hybrid => Err(Error::Model(
-                "--hybrid-base: only a refinement network (--inputs hybrid) has a base estimate"
-                    .into(),
-            )),
-            (Some(b), _) => Ok(b),
-            (None, Some(init)) => Ok(init.base),
-            (None, None) => Ok(Base::Bm3d),
-        }
-    }
-
-    /// The estimate of a preprocessed frame (DN above bias) with noise `p`.
-    pub fn estimate(
-        self,
-        dn: &[f32],
-        w: usize,
-        h: usize,
-        p: emccd_eval::vst::PoissonGaussian,
-    ) -> Vec<f32> {
-        match self {
-            Base::Bm3d => emccd_eval::vst::bm3d_poisson_gaussian(dn, w, h, p),
-            Base::Ivst => emccd_eval::vst::bm3d_adaptive(dn, w, h, p),
-        }
-    }
-
-    /// Lower-case name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Base::Bm3d => "bm3d",
-            Base::Ivst => "ivst",
-        }
-    }
-
-    /// Every base, for parsers.
-    pub const ALL: [Base; 2] = [Base::Bm3d, Base::Ivst];
-}
-
-impl std::str::FromStr for Base {
-    type Err = String;
-
-    fn from_str(s: &str) -> std::result::Result<Base, String> {
-        Base::ALL
-            .into_iter()
-            .find(|b| b.name() == s)
-            .ok_or_else(|| format!("{s:?}: the base estimate is bm3d or ivst"))
-    }
+/// The input scaling rule of a training run: the one asked for, else the rule of the model it
+/// starts from (a fine-tune keeps the input its weights were trained on), else the default.
+pub fn scale_for_run(given: Option<Scale>, init: Option<&ModelMeta>) -> Scale {
+    given.or(init.map(|m| m.scale)).unwrap_or_default()
 }
 
 /// Everything a model file says about itself: what running it needs (architecture, inputs,
@@ -312,7 +262,7 @@ pub struct ModelMeta {
     pub inputs: Inputs,
     /// The estimate a refinement network corrects (files without the key: one BM3D pass).
     #[serde(default)]
-    pub base: Base,
+    pub base: Classical,
     /// Noise model the training pairs were synthesized with.
     pub noise_model: NoiseModelKind,
     /// Ablated components (on disk: their names, `[]` for the full model).
@@ -329,10 +279,10 @@ pub struct ModelMeta {
     /// The configuration of the training run that wrote the file (the last one, for a
     /// fine-tuned model; files written before it was recorded have none).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub train: Option<crate::train::TrainConfig>,
+    pub train: Option<TrainConfig>,
     /// For a model adapted to a recording (`emccd adapt`): on what, and from which model.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub adapted: Option<crate::adapt::Adaptation>,
+    pub adapted: Option<Adaptation>,
 }
 
 impl ModelMeta {
@@ -344,23 +294,29 @@ impl ModelMeta {
 
 const META_KEY: &str = "emccd_model";
 
-/// A network with its metadata.
+/// A network with its metadata, on the device it runs on (chosen by whoever loads it).
 #[derive(Debug)]
-pub struct Denoiser {
+pub struct Model {
     /// The network.
     pub net: Net,
     /// Its description.
     pub meta: ModelMeta,
+    device: Device,
 }
 
-impl Denoiser {
+impl Model {
+    /// The device its network lives on.
+    pub fn device(&self) -> &Device {
+        &self.device
+    }
+
     /// The network's trainable parameters.
     pub fn num_params(&self) -> usize {
         burn::module::Module::num_params(&self.net)
     }
 
     /// A freshly initialized model.
-    pub fn new(meta: ModelMeta, device: &Device) -> Result<Denoiser> {
+    pub fn new(meta: ModelMeta, device: &Device) -> Result<Model> {
         check_size(&meta).map_err(|e| Error::Model(format!("model configuration: {e}")))?;
         let channels = meta.arch.in_channels();
         if channels != meta.inputs.channels() {
@@ -380,7 +336,11 @@ impl Denoiser {
             }
             Arch::Uformer(c) => Net::Uformer(c.init(device)),
         };
-        Ok(Denoiser { net, meta })
+        Ok(Model {
+            net,
+            meta,
+            device: device.clone(),
+        })
     }
 
     /// Writes the model atomically (temporary file, then rename).
@@ -413,16 +373,16 @@ impl Denoiser {
     }
 
     /// Loads a model onto `device`.
-    pub fn load(path: &Path, device: &Device) -> Result<Denoiser> {
+    pub fn load(path: &Path, device: &Device) -> Result<Model> {
         let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-        Denoiser::from_bytes(bytes, path, device)
+        Model::from_bytes(bytes, path, device)
     }
 
     /// Loads a model from the bytes of a model file (`path` names it in messages): for models
     /// a program carries inside it, like the Python package's bundled ones.
-    pub fn from_bytes(bytes: Vec<u8>, path: &Path, device: &Device) -> Result<Denoiser> {
+    pub fn from_bytes(bytes: Vec<u8>, path: &Path, device: &Device) -> Result<Model> {
         let meta = meta_of(&bytes, path)?;
-        let mut d = Denoiser::new(meta, device)?;
+        let mut d = Model::new(meta, device)?;
         let mut store = SafetensorsStore::from_bytes(Some(bytes)).skip_enum_variants(true);
         let r = d
             .net
@@ -466,14 +426,14 @@ fn meta_of(bytes: &[u8], path: &Path) -> Result<ModelMeta> {
 fn check_size(meta: &ModelMeta) -> std::result::Result<(), String> {
     if let Arch::UNet(c) = meta.arch {
         // Channels double at every level: bound the deepest level's width, not only the first.
-        if !(1..=512).contains(&c.base)
+        if !(1..=512).contains(&c.channels)
             || !(1..=8).contains(&c.levels)
-            || c.base << c.levels > 4096
+            || c.channels << c.levels > 4096
             || ![1, 2, 4].contains(&c.unshuffle)
         {
             return Err(format!(
                 "a U-Net of {} channels, {} levels and unshuffle {} is outside what emccd builds (1–512 channels, 1–8 levels, at most 4096 channels at the deepest level, unshuffle 1, 2 or 4)",
-                c.base, c.levels, c.unshuffle
+                c.channels, c.levels, c.unshuffle
             ));
         }
     }
@@ -516,9 +476,9 @@ fn import_error(path: &Path, e: impl std::fmt::Display) -> Error {
 mod tests {
     use super::*;
 
-    fn sized(base: usize, levels: usize, direct: bool, unshuffle: usize) -> UNetConfig {
+    fn sized(channels: usize, levels: usize, direct: bool, unshuffle: usize) -> UNetConfig {
         UNetConfig {
-            base,
+            channels,
             levels,
             direct,
             unshuffle,
@@ -529,21 +489,25 @@ mod tests {
     #[test]
     fn a_run_s_base_is_chosen_or_inherited_and_only_a_refinement_network_has_one() {
         assert_eq!(
-            Base::for_run(None, Inputs::Noisy, None).unwrap(),
-            Base::Bm3d
+            classical_for_run(None, Inputs::Noisy, None).unwrap(),
+            Classical::Bm3d
         );
         assert_eq!(
-            Base::for_run(Some(Base::Ivst), Inputs::Hybrid, None).unwrap(),
-            Base::Ivst
+            classical_for_run(Some(Classical::Ivst), Inputs::Hybrid, None).unwrap(),
+            Classical::Ivst
         );
-        let e = Base::for_run(Some(Base::Ivst), Inputs::Noisy, None)
+        let e = classical_for_run(Some(Classical::Ivst), Inputs::Noisy, None)
             .unwrap_err()
             .to_string();
         assert!(e.contains("--inputs hybrid"), "{e}");
         // The bundled hybrid network refines one BM3D pass: a run from it inherits that.
-        let hybrid = Denoiser::read_meta(&crate::registry::model_path("hybrid").unwrap()).unwrap();
+        let hybrid = Model::read_meta(
+            &std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../../models/hybrid-unet.safetensors"),
+        )
+        .unwrap();
         assert_eq!(
-            Base::for_run(None, Inputs::Hybrid, Some(&hybrid)).unwrap(),
+            classical_for_run(None, Inputs::Hybrid, Some(&hybrid)).unwrap(),
             hybrid.base
         );
     }
@@ -571,5 +535,20 @@ mod tests {
                 .to_string();
             assert!(e.contains(says), "{name}: {e}");
         }
+    }
+
+    #[test]
+    fn a_run_keeps_its_initial_models_scale_unless_told() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../models/lowlight-unet.safetensors");
+        let mut meta = Model::read_meta(&path).unwrap();
+        assert_eq!(scale_for_run(None, Some(&meta)), meta.scale);
+        meta.scale = Scale::Binned;
+        assert_eq!(scale_for_run(None, Some(&meta)), Scale::Binned);
+        assert_eq!(
+            scale_for_run(Some(Scale::Percentile), Some(&meta)),
+            Scale::Percentile
+        );
+        assert_eq!(scale_for_run(None, None), Scale::Percentile);
     }
 }

@@ -49,12 +49,6 @@ pub enum Scale {
 }
 
 impl Scale {
-    /// The rule of a training run: the one asked for, else the rule of the model it starts
-    /// from (a fine-tune keeps the input its weights were trained on), else the default.
-    pub fn for_run(given: Option<Scale>, init: Option<&crate::ModelMeta>) -> Scale {
-        given.or(init.map(|m| m.scale)).unwrap_or_default()
-    }
-
     /// Whether this is the rule of model files that do not record one.
     pub fn is_default(&self) -> bool {
         *self == Scale::Percentile
@@ -142,20 +136,6 @@ pub fn prepare_scaled(dn: &[f32], slope: f64, read_noise: &[f32], scale: f32) ->
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn a_run_keeps_its_initial_models_scale_unless_told() {
-        let path = crate::registry::model_path("lowlight").unwrap();
-        let mut meta = crate::Denoiser::read_meta(&path).unwrap();
-        assert_eq!(Scale::for_run(None, Some(&meta)), meta.scale);
-        meta.scale = Scale::Binned;
-        assert_eq!(Scale::for_run(None, Some(&meta)), Scale::Binned);
-        assert_eq!(
-            Scale::for_run(Some(Scale::Percentile), Some(&meta)),
-            Scale::Percentile
-        );
-        assert_eq!(Scale::for_run(None, None), Scale::Percentile);
-    }
 
     /// A frame of `n` pixels: a smooth scene of `mean` slope units with every `every`-th
     /// pixel raised by `spike` units (an EM spike or a hot pixel).

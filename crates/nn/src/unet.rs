@@ -16,8 +16,9 @@ use serde::{Deserialize, Serialize};
 #[cfg_attr(feature = "clap", derive(clap::Args))]
 pub struct UNetConfig {
     /// U-Net channels at full resolution (doubled at every level down).
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = UNetConfig::DEFAULT.base))]
-    pub base: usize,
+    #[serde(rename = "base")]
+    #[cfg_attr(feature = "clap", arg(long, alias = "base", default_value_t = UNetConfig::DEFAULT.channels))]
+    pub channels: usize,
     /// U-Net levels of down-sampling; frames are padded to a multiple of 2^levels.
     #[cfg_attr(feature = "clap", arg(long, default_value_t = UNetConfig::DEFAULT.levels))]
     pub levels: usize,
@@ -62,7 +63,7 @@ fn is_one(v: &usize) -> bool {
 impl UNetConfig {
     /// The CPU default: 16 channels, 4 levels (≈ 2.5 M parameters).
     pub const DEFAULT: UNetConfig = UNetConfig {
-        base: 16,
+        channels: 16,
         levels: 4,
         in_channels: 2,
         residual: 0,
@@ -82,7 +83,7 @@ impl UNetConfig {
         let mut up = Vec::new();
         let mut dec = Vec::new();
         let u = self.unshuffle.max(1);
-        let (mut ch, mut inp) = (self.base, self.in_channels * u * u);
+        let (mut ch, mut inp) = (self.channels, self.in_channels * u * u);
         for _ in 0..self.levels {
             enc.push(Block::new(inp, ch, device));
             down.push(
@@ -271,7 +272,7 @@ mod tests {
         let cfg = UNetConfig {
             unshuffle: 2,
             levels: 2,
-            base: 4,
+            channels: 4,
             ..UNetConfig::DEFAULT
         };
         assert_eq!(cfg.multiple(), 8);

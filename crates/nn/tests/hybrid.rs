@@ -2,9 +2,10 @@
 
 use burn::prelude::*;
 use emccd_camera::{NoiseModel, PgnModel};
+use emccd_classical::frame::bm3d_estimate;
 use emccd_nn::norm::{prepare, prepare_hybrid, signal_scale, HYBRID_SCALE_FLOOR};
-use emccd_nn::pipeline::{bm3d_estimate, Pipeline};
-use emccd_nn::{Arch, Denoiser, Inputs, ModelMeta, UNetConfig};
+use emccd_nn::Inference;
+use emccd_nn::{Arch, Inputs, Model, ModelMeta, UNetConfig};
 mod common;
 
 use common::{meta, scene};
@@ -12,7 +13,7 @@ use common::{meta, scene};
 fn hybrid_meta() -> ModelMeta {
     ModelMeta {
         arch: Arch::UNet(UNetConfig {
-            base: 4,
+            channels: 4,
             levels: 2,
             in_channels: 3,
             residual: Inputs::Hybrid.residual(),
@@ -36,7 +37,7 @@ fn three_channels() -> Vec<f32> {
 #[test]
 fn an_untrained_hybrid_network_returns_the_bm3d_estimate() {
     let dev = emccd_nn::cpu();
-    let m = Denoiser::new(hybrid_meta(), &dev).unwrap();
+    let m = Model::new(hybrid_meta(), &dev).unwrap();
     // Straight through the network: the output is the third channel, exactly.
     let n = 32 * 32;
     let input = three_channels();
@@ -56,12 +57,11 @@ fn an_untrained_hybrid_network_returns_the_bm3d_estimate() {
     PgnModel::from_profile(&p, 0.01)
         .unwrap()
         .synthesize(&clean, 64, &mut noisy, 3);
-    let pipe = Pipeline {
+    let pipe = Inference {
         model: &m,
         profile: &p,
         tiling: Default::default(),
         ensemble: 1,
-        device: dev,
     };
     let got = pipe.denoise_preprocessed(&noisy, 0.01).unwrap();
     let want = bm3d_estimate(&p, &noisy, 0.01).unwrap();
@@ -80,7 +80,7 @@ fn an_untrained_hybrid_network_returns_the_bm3d_estimate() {
 fn a_hybrid_needs_three_channels_and_a_unet() {
     let bad = ModelMeta {
         arch: Arch::UNet(UNetConfig {
-            base: 4,
+            channels: 4,
             levels: 2,
             in_channels: 2,
             residual: 0,
@@ -89,9 +89,7 @@ fn a_hybrid_needs_three_channels_and_a_unet() {
         }),
         ..hybrid_meta()
     };
-    let e = Denoiser::new(bad, &emccd_nn::cpu())
-        .unwrap_err()
-        .to_string();
+    let e = Model::new(bad, &emccd_nn::cpu()).unwrap_err().to_string();
     assert!(e.contains("3 input channels"), "{e}");
 }
 
@@ -181,7 +179,7 @@ fn the_noise_channel_is_the_frame_channels_standard_deviation() {
 fn a_zeroed_output_layer_makes_a_trained_hybrid_the_identity() {
     let dev = emccd_nn::cpu();
     let path = common::bundled("hybrid");
-    let m = Denoiser::load(&path, &dev).unwrap();
+    let m = Model::load(&path, &dev).unwrap();
     assert_eq!(m.meta.inputs, Inputs::Hybrid);
     let n = 32 * 32;
     let input = three_channels();
@@ -197,70 +195,4 @@ fn a_zeroed_output_layer_makes_a_trained_hybrid_the_identity() {
         other => panic!("the bundled hybrid is a U-Net, not {other:?}"),
     };
     assert_eq!(run(&zeroed), input[2 * n..].to_vec());
-}
-
-/// Moving the bundled hybrid onto the iterative base (`train --init hybrid --hybrid-base ivst`)
-/// starts at the identity on that base and then learns: after a few steps its output layer is
-/// no longer zero. (A zeroed layer that lost its trainable mark stayed zero for good.)
-#[test]
-fn a_hybrid_moved_onto_another_base_learns_again() {
-    use emccd_nn::train::{train, Image, Run, RunPaths, TrainConfig, TrainImages};
-    let dir = tempfile::tempdir().unwrap();
-    let bundled = common::bundled("hybrid");
-    let cfg = TrainConfig {
-        steps: 3,
-        batch: 2,
-        crop: 32,
-        lr: 1e-3,
-        warmup: 1,
-        noise: emccd_camera::NoiseModelKind::Pgn,
-        mean_electrons: Some([1.0, 4.0]),
-        base: emccd_nn::Base::Ivst,
-        val_every: 100,
-        checkpoint_every: 100,
-        seed: 5,
-        ..TrainConfig::default()
-    };
-    let start = Denoiser::load(&bundled, &emccd_nn::cpu()).unwrap();
-    let meta = ModelMeta {
-        base: emccd_nn::Base::Ivst,
-        ..start.meta.clone()
-    };
-    let paths = RunPaths {
-        out: dir.path().join("h.safetensors"),
-        checkpoint: dir.path().join("h.ckpt"),
-    };
-    let images = vec![Image {
-        width: 48,
-        height: 40,
-        data: scene(48, 40),
-    }];
-    let m = train(
-        TrainImages {
-            train: images,
-            val: Vec::new(),
-        },
-        Run::new(
-            &emccd_profile::default_profile()
-                .crop(emccd_profile::Roi::corner(64, 64))
-                .unwrap(),
-            cfg,
-            meta,
-            &paths,
-        )
-        .with_init(Some(&bundled)),
-        &mut |_| true,
-    )
-    .unwrap();
-    assert_eq!(m.meta.base, emccd_nn::Base::Ivst);
-    // The output layer's weights: read back from the saved file.
-    let bytes = std::fs::read(&paths.out).unwrap();
-    let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
-    let w = st.tensor("out.weight").unwrap();
-    let v: Vec<f32> = w
-        .data()
-        .chunks_exact(4)
-        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-        .collect();
-    assert!(v.iter().any(|&x| x != 0.0), "the output layer stayed zero");
 }

@@ -4,11 +4,11 @@ use emccd_nn::tile::{run, run_ensemble, Planes, Tiling};
 mod common;
 
 use common::{meta, scene, tiling_mismatch};
-use emccd_nn::{Arch, Denoiser, Net};
+use emccd_nn::{Arch, Model, Net};
 
 #[test]
 fn tiled_and_untiled_outputs_agree_in_the_interior() {
-    let m = Denoiser::new(meta(8, 3), &emccd_nn::cpu()).unwrap();
+    let m = Model::new(meta(8, 3), &emccd_nn::cpu()).unwrap();
     let (_, rel) = tiling_mismatch(
         &m.net,
         200,
@@ -31,9 +31,9 @@ fn model_files_round_trip_and_foreign_files_are_refused() {
     let dev = emccd_nn::cpu();
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("m.safetensors");
-    let m = Denoiser::new(meta(4, 2), &dev).unwrap();
+    let m = Model::new(meta(4, 2), &dev).unwrap();
     m.save(&p).unwrap();
-    let back = Denoiser::load(&p, &dev).unwrap();
+    let back = Model::load(&p, &dev).unwrap();
     assert_eq!(back.meta, m.meta);
     // The same model is saved as the same bytes (the metadata map is written in hash order
     // unless sorted; with four keys, seven saves in one order by chance is 1 in 24⁶).
@@ -66,10 +66,10 @@ fn model_files_round_trip_and_foreign_files_are_refused() {
         safetensors::serialize(vec![("w", t)], None).unwrap(),
     )
     .unwrap();
-    let e = Denoiser::load(&foreign, &dev).unwrap_err().to_string();
+    let e = Model::load(&foreign, &dev).unwrap_err().to_string();
     assert!(e.contains("without emccd model metadata"), "{e}");
     std::fs::write(dir.path().join("junk.safetensors"), b"not a model").unwrap();
-    let e = Denoiser::load(&dir.path().join("junk.safetensors"), &dev)
+    let e = Model::load(&dir.path().join("junk.safetensors"), &dev)
         .unwrap_err()
         .to_string();
     assert!(e.contains("not a safetensors model file"), "{e}");
@@ -152,7 +152,7 @@ fn self_ensemble_averages_the_network_over_flips_and_transposes() {
 fn the_bundled_default_model_output_is_pinned() {
     let dev = emccd_nn::cpu();
     let path = common::bundled("default");
-    let m = Denoiser::load(&path, &dev).unwrap();
+    let m = Model::load(&path, &dev).unwrap();
     let (w, h) = (64, 48);
     let img = scene(w, h);
     let mut input = img.clone();
@@ -226,7 +226,7 @@ fn model_metadata_that_disagrees_or_is_absurd_is_a_short_error() {
         file.extend(&bytes[8 + n..]);
         let p = dir.path().join(name);
         std::fs::write(&p, file).unwrap();
-        let e = Denoiser::load(&p, &dev).unwrap_err().to_string();
+        let e = Model::load(&p, &dev).unwrap_err().to_string();
         assert!(e.contains(want) && e.contains(name), "{e}");
         assert!(e.len() < 600, "{} characters: {e}", e.len());
     }
@@ -264,264 +264,9 @@ fn a_direct_unet_has_no_global_residual() {
     if let Arch::UNet(c) = &mut m.arch {
         c.direct = true;
     }
-    Denoiser::new(m.clone(), &dev).unwrap().save(&p).unwrap();
-    assert_eq!(Denoiser::load(&p, &dev).unwrap().meta, m);
+    Model::new(m.clone(), &dev).unwrap().save(&p).unwrap();
+    assert_eq!(Model::load(&p, &dev).unwrap().meta, m);
     let old: emccd_nn::UNetConfig =
         serde_json::from_str(r#"{"base":4,"levels":2,"in_channels":2}"#).unwrap();
     assert!(!old.direct);
-}
-
-/// Every bundled model is in `models/`, loads by name, and is the kind its method runs: the
-/// `hybrid` model a refinement network, the others denoisers.
-#[test]
-fn every_bundled_model_loads_by_name() {
-    for b in emccd_nn::registry::BUNDLED {
-        let m = emccd_nn::registry::load(b.name).unwrap_or_else(|e| panic!("{}: {e}", b.name));
-        assert_eq!(
-            m.meta.inputs == emccd_nn::Inputs::Hybrid,
-            b.name == "hybrid",
-            "{}",
-            b.name
-        );
-        assert!(m.meta.steps > 0, "{}: an untrained model", b.name);
-    }
-}
-
-/// `blend` is the pixel average of `ivst` and the network on the same frame, and takes the
-/// bundled `lowlight` network when no model is named; it is the default method.
-#[test]
-fn blend_averages_ivst_and_the_network() {
-    use emccd_nn::registry::{resolve, FrameDenoiser, Method, DEFAULT_METHOD};
-    assert_eq!(DEFAULT_METHOD, Method::Blend);
-    let r = resolve(None, None, |name| {
-        assert_eq!(name, "lowlight");
-        emccd_nn::registry::load(name)
-    })
-    .unwrap();
-    assert_eq!(r.method, Method::Blend);
-    assert!(r.model.is_some());
-    // What provenance names (and hashes) is the model that ran, not another default.
-    assert_eq!(r.model_name.as_deref(), Some("lowlight"));
-    let profile = emccd_profile::default_profile()
-        .crop(emccd_profile::Roi::corner(48, 40))
-        .unwrap();
-    let net = Denoiser::new(common::meta(4, 2), &emccd_nn::cpu()).unwrap();
-    let raw: Vec<f32> = (0..48 * 40)
-        .map(|i| 500.0 + ((i * 7919) % 97) as f32 * 3.0)
-        .collect();
-    let run = |method, model| {
-        FrameDenoiser {
-            profile: &profile,
-            method,
-            model,
-            tiling: Default::default(),
-            ensemble: 1,
-            units: emccd_nn::registry::Units::Dn,
-        }
-        .run(&raw, 0.01)
-        .unwrap()
-    };
-    let b = run(Method::Blend, Some(&net));
-    let n = run(Method::Net, Some(&net));
-    let i = run(Method::Ivst, None);
-    for k in 0..b.len() {
-        let want = 0.5 * (n[k] + i[k]);
-        assert!(
-            (b[k] - want).abs() <= 1e-4 * want.abs().max(1.0),
-            "pixel {k}"
-        );
-    }
-}
-
-/// A stack of two files denoised into a Zarr store in shares: a share across the files' boundary
-/// writes only its frames, a later run skips what is done and writes the rest, and the frames
-/// are what `FrameDenoiser::run` gives; a share past the end, a store of another size and a file
-/// shorter than its header are errors naming what is wrong; the provenance hashes the model
-/// that runs (`blend` without a model: `lowlight`).
-#[test]
-fn a_stack_is_denoised_in_shards_with_the_model_it_ran_in_its_provenance() {
-    use emccd_io::zarr::{ZarrStackSpec, ZarrStackWriter};
-    use emccd_nn::registry::{load, model_path, resolve, FrameDenoiser, Method, Units};
-    use emccd_nn::stack::{denoise_shard, provenance, ShardRun};
-    use emccd_profile::Recording;
-
-    let (w, h) = (48, 40);
-    let profile = emccd_profile::default_profile()
-        .crop(emccd_profile::Roi::corner(w, h))
-        .unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let raws: Vec<Vec<f32>> = (0..5)
-        .map(|k| {
-            (0..w * h)
-                .map(|i| (500 + (i * 7919 + k * 104729) % 97 * 3) as f32)
-                .collect()
-        })
-        .collect();
-    // a.tif holds frames 0–1 of the stack, b.tif frames 2–4.
-    let files = [("a.tif", &raws[..2]), ("b.tif", &raws[2..])];
-    for (name, frames) in files {
-        let mut wr = emccd_io::StackWriter::create(
-            dir.path().join(name),
-            w,
-            h,
-            emccd_io::SampleFormat::U16,
-            Some(frames.len()),
-        )
-        .unwrap();
-        wr.set_metadata(&emccd_io::Metadata {
-            exposure_s: Some(0.01),
-            ..Default::default()
-        });
-        for f in frames {
-            wr.write_frame(f).unwrap();
-        }
-        wr.finish().unwrap();
-    }
-    let open = |name: &str| {
-        Recording::open(
-            &dir.path().join(name),
-            &profile,
-            None,
-            "--exposure-s",
-            false,
-        )
-        .unwrap()
-    };
-    let both = || vec![open("a.tif"), open("b.tif")];
-
-    let r = resolve(None, None, load).unwrap();
-    let blend = FrameDenoiser {
-        profile: &profile,
-        method: r.method,
-        model: r.model.as_ref(),
-        tiling: Default::default(),
-        ensemble: 1,
-        units: Units::Dn,
-    };
-    let p = provenance(&blend, r.model_name.as_deref(), &both(), "emccd test").unwrap();
-    let lowlight = emccd_io::content_hash(&model_path("lowlight").unwrap()).unwrap();
-    assert_eq!(p["model_hash"], format!("{lowlight:016x}"));
-    assert_eq!(p["method"], "blend");
-    assert_eq!(
-        (
-            p["inputs"][0]["frames"].as_u64(),
-            p["inputs"][1]["frames"].as_u64()
-        ),
-        (Some(2), Some(3))
-    );
-
-    let fd = FrameDenoiser {
-        method: Method::None,
-        model: None,
-        ..blend
-    };
-    let spec = ZarrStackSpec {
-        width: w,
-        height: h,
-        frames: 5,
-        name: "t".into(),
-        provenance: provenance(&fd, None, &both(), "emccd test").unwrap(),
-        notes: serde_json::Value::Null,
-    };
-    let out = dir.path().join("out.zarr");
-    let (store, created) = ZarrStackWriter::create_or_open(&out, &spec).unwrap();
-    assert!(created);
-    let mut calls = 0;
-    let first = denoise_shard(&fd, both(), &store, 1..4, &mut || calls += 1).unwrap();
-    assert_eq!(
-        (first, calls),
-        (
-            ShardRun {
-                written: 3,
-                skipped: 0
-            },
-            3
-        )
-    );
-    assert_eq!(store.done_count(), 3);
-    let e = denoise_shard(&fd, both(), &store, 3..6, &mut || ())
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("frames 4–6 asked of a stack of 5"), "{e}");
-    let e = denoise_shard(&fd, vec![open("b.tif")], &store, 0..3, &mut || ())
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("the store holds 5 frames"), "{e}");
-    let rest = denoise_shard(&fd, both(), &store, 0..5, &mut || ()).unwrap();
-    assert_eq!(
-        rest,
-        ShardRun {
-            written: 2,
-            skipped: 3
-        }
-    );
-    drop(store);
-    let (_, frames) = emccd_io::read_all(&out).unwrap();
-    for (k, (got, raw)) in frames.iter().zip(&raws).enumerate() {
-        assert_eq!(got, &fd.run(raw, 0.01).unwrap(), "frame {k}");
-    }
-
-    // b.tif ends after 3 frames although its header (here: its StackInfo) promises 4.
-    let mut short = open("b.tif");
-    short.info.frames = 4;
-    let spec = ZarrStackSpec { frames: 6, ..spec };
-    let (store, _) =
-        ZarrStackWriter::create_or_open(&dir.path().join("short.zarr"), &spec).unwrap();
-    let e = denoise_shard(&fd, vec![open("a.tif"), short], &store, 0..6, &mut || ())
-        .unwrap_err()
-        .to_string();
-    assert!(
-        e.contains("b.tif: frame 4: the file ended before it"),
-        "{e}"
-    );
-    assert_eq!(store.done_count(), 5);
-}
-
-#[test]
-fn the_denoise_bench_scores_every_scene_at_both_levels_and_skips_other_sizes() {
-    let dir = tempfile::tempdir().unwrap();
-    let profile = emccd_profile::default_profile()
-        .crop(emccd_profile::Roi::corner(64, 64))
-        .unwrap();
-    let scene = |name: &str, w: usize, h: usize| {
-        let path = dir.path().join(name);
-        let data: Vec<f32> = (0..w * h)
-            .map(|i| 0.2 + 0.6 * ((i % w) as f32 / w as f32))
-            .collect();
-        emccd_io::write_png_preview(&path, w, h, &data, 0.0, 1.0).unwrap();
-        path
-    };
-    let scenes = [scene("a.png", 64, 64), scene("b.png", 32, 64)];
-    let models = emccd_nn::bench::models(&["default".to_string()]).unwrap();
-    let (mut rows, mut skipped) = (Vec::new(), Vec::new());
-    let t = emccd_nn::bench::denoise(
-        &profile,
-        &scenes,
-        &models,
-        1,
-        &mut |r| rows.push(r.clone()),
-        &mut |s| skipped.push(s),
-    )
-    .unwrap();
-    assert_eq!(t.pairs, emccd_nn::bench::PHOTONS.len());
-    assert_eq!(rows.len(), t.pairs);
-    assert!(rows
-        .iter()
-        .all(|r| r.scene == "a.png" && r.model_db.len() == 1));
-    assert!(
-        skipped.len() == 1 && skipped[0].contains("b.png"),
-        "{skipped:?}"
-    );
-    // Denoising helps, and the totals are the rows' means.
-    for r in &rows {
-        assert!(
-            r.bm3d_db > r.input_db && r.model_db[0] > r.input_db,
-            "{r:?}"
-        );
-    }
-    let mean = rows.iter().map(|r| r.bm3d_db).sum::<f64>() / rows.len() as f64;
-    assert!((t.bm3d_db - mean).abs() < 1e-9);
-    assert!(t.model_s[0] > 0.0 && t.bm3d_s > 0.0);
-    // Anything that runs no network is refused as a bench model.
-    assert!(emccd_nn::bench::models(&["bm3d".to_string()]).is_err());
 }

@@ -3,7 +3,7 @@
 
 use burn::module::Module;
 use emccd_nn::tile::Tiling;
-use emccd_nn::{Arch, Denoiser, ModelMeta, UformerConfig};
+use emccd_nn::{Arch, Model, ModelMeta, UformerConfig};
 mod common;
 
 fn meta(cfg: UformerConfig) -> ModelMeta {
@@ -38,7 +38,7 @@ fn any_frame_size_runs_and_tiles_without_seams() {
         depths: [1, 1, 1, 1, 2, 1, 1, 1, 1],
         ..UformerConfig::T
     };
-    let m = Denoiser::new(meta(cfg), &dev).unwrap();
+    let m = Model::new(meta(cfg), &dev).unwrap();
     assert_eq!(m.meta.multiple(), 128);
     let (w, h) = (300, 200);
     let (whole, rel) = common::tiling_mismatch(
@@ -68,11 +68,11 @@ fn uformer_model_files_round_trip() {
         depths: [1; 9],
         ..UformerConfig::T
     };
-    let m = Denoiser::new(meta(cfg), &dev).unwrap();
+    let m = Model::new(meta(cfg), &dev).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("u.safetensors");
     m.save(&p).unwrap();
-    let back = Denoiser::load(&p, &dev).unwrap();
+    let back = Model::load(&p, &dev).unwrap();
     assert_eq!(back.meta, m.meta);
     let x = common::scene_input(128, 128, &dev);
     let a: Vec<f32> = m

@@ -11,10 +11,10 @@ pub fn bundled(name: &str) -> std::path::PathBuf {
 }
 
 /// Metadata of a small U-Net.
-pub fn meta(base: usize, levels: usize) -> ModelMeta {
+pub fn meta(channels: usize, levels: usize) -> ModelMeta {
     ModelMeta {
         arch: Arch::UNet(UNetConfig {
-            base,
+            channels,
             levels,
             in_channels: 2,
             residual: 0,

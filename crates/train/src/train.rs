@@ -21,150 +21,13 @@ use rand_pcg::Pcg64;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::adapt::RecordedPairs;
-use crate::model::{Denoiser, Inputs, ModelMeta, Net};
-use crate::norm::{prepare_hybrid, prepare_scaled, signal_scale, Scale};
-use crate::{Error, Result};
+use crate::crops::{draw_orientation, orient, sub_image};
+use crate::recorded::RecordedPairs;
+use emccd_nn::norm::{prepare_hybrid, prepare_scaled, signal_scale};
+use emccd_nn::{Error, Inputs, Loss, Model, ModelMeta, Net, Result, TrainConfig};
 
 /// A clean training image, values in [0, 1].
 pub use emccd_io::Image;
-
-/// The training loss on network-unit outputs.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
-#[serde(rename_all = "lowercase")]
-pub enum Loss {
-    /// `√(d² + 10⁻⁶)`: L1-like, robust.
-    #[default]
-    Charbonnier,
-    /// Mean squared error: what PSNR scores (the posterior mean minimizes it).
-    L2,
-}
-
-/// The recipe (recorded in the model file it produces, [`crate::ModelMeta::train`]). With the
-/// `clap` feature it is also `emccd train`'s flags (their defaults are [`TrainConfig::default`]'s,
-/// tested); what a run resolves from its `--init` model (`scale`, `base`) is set by the caller.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(feature = "clap", derive(clap::Args))]
-pub struct TrainConfig {
-    /// Optimizer steps.
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().steps))]
-    pub steps: u64,
-    /// Crops per step.
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().batch))]
-    pub batch: usize,
-    /// Crop side, px.
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().crop))]
-    pub crop: usize,
-    /// Peak learning rate.
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().lr))]
-    pub lr: f64,
-    /// AdamW weight decay.
-    #[cfg_attr(feature = "clap", arg(skip = TrainConfig::default().weight_decay))]
-    pub weight_decay: f64,
-    /// Linear warm-up steps (at most a fifth of the run).
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().warmup))]
-    pub warmup: u64,
-    /// Photo-electrons at a scene's brightest pixel, drawn log-uniformly from LO,HI.
-    #[cfg_attr(feature = "clap", arg(long, default_value = "3,3000", value_parser = parse_range, value_name = "LO,HI"))]
-    pub electrons: [f64; 2],
-    /// Instead of the brightest pixel's: the scene's mean photo-electrons per pixel, drawn
-    /// log-uniformly from LO,HI (how EMCCD light levels are quoted; e.g. 0.2,100 for the
-    /// photon-starved range EMCCDs are used in, what the low-light suite measures).
-    #[serde(default)]
-    #[cfg_attr(feature = "clap", arg(long, value_parser = parse_range, value_name = "LO,HI"))]
-    pub mean_electrons: Option<[f64; 2]>,
-    /// Noise model pgn: clock-induced charge per pixel and frame (e⁻), drawn uniformly from
-    /// LO,HI; default: the profile's.
-    #[serde(default)]
-    #[cfg_attr(feature = "clap", arg(long = "cic", value_parser = parse_range, value_name = "LO,HI"))]
-    pub cic_e: Option<[f64; 2]>,
-    /// Training loss.
-    #[serde(default)]
-    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = TrainConfig::default().loss))]
-    pub loss: Loss,
-    /// How a denoiser's input is scaled per frame (recorded in the model it trains).
-    #[serde(default, skip_serializing_if = "Scale::is_default")]
-    #[cfg_attr(feature = "clap", arg(skip = TrainConfig::default().scale))]
-    pub scale: Scale,
-    /// Multiply the profile's read noise by a factor drawn log-uniformly from LO,HI for every
-    /// pair (noise model ours), so the model learns many read-noise-to-gain ratios and serves
-    /// cameras other than the training profile. 1,1: the profile's own read noise only.
-    #[serde(default = "unit_range")]
-    #[cfg_attr(feature = "clap", arg(long, default_value = "1,1", value_parser = parse_range, value_name = "LO,HI"))]
-    pub read_noise_scale: [f64; 2],
-    /// Use each synthesized pair about this many times (in different batches, with fresh flips
-    /// and rotations) before it leaves the pool, so that synthesis costs batch/reuse pairs per
-    /// step. Worth it for a refinement network (hybrid inputs), where every pair needs a
-    /// BM3D run (about 0.4 s per 128² crop on one core). 1: every pair is fresh.
-    #[serde(default = "one")]
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().reuse, value_parser = clap::value_parser!(u32).range(1..=64)))]
-    pub reuse: u32,
-    /// On (the default), each crop in one of the 8 flips/transposes, drawn at random (more
-    /// views of few images); off (`--no-augment`), every crop keeps its image's orientation.
-    #[serde(default = "yes", skip_serializing_if = "is_yes")]
-    #[cfg_attr(feature = "clap", arg(long = "no-augment", action = clap::ArgAction::SetFalse, help = "Keep every crop in its image's orientation (by default each is in one of the 8 flips/transposes, drawn at random)"))]
-    pub augment: bool,
-    /// The estimate a refinement network is trained to correct.
-    #[serde(default)]
-    #[cfg_attr(feature = "clap", arg(skip = TrainConfig::default().base))]
-    pub base: crate::Base,
-    /// Noise model of the synthesized pairs.
-    #[cfg_attr(feature = "clap", arg(long = "noise-model", value_name = "NOISE_MODEL", value_enum, default_value_t = TrainConfig::default().noise))]
-    pub noise: NoiseModelKind,
-    /// Components to switch off: multiplicative, readout, quantization (synthesis); fpn,
-    /// blooming (recorded in the model: its denoising pipeline then skips that correction).
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().ablate))]
-    pub ablate: Ablation,
-    /// Seed of everything random.
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().seed))]
-    pub seed: u64,
-    /// Validate every this many steps.
-    #[cfg_attr(feature = "clap", arg(skip = TrainConfig::default().val_every))]
-    pub val_every: u64,
-    /// Checkpoint every this many steps (`emccd train` also validates at this interval).
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = TrainConfig::default().checkpoint_every))]
-    pub checkpoint_every: u64,
-}
-
-/// `LO,HI`: two comma-separated numbers (a range to draw from).
-pub fn parse_range(s: &str) -> std::result::Result<[f64; 2], String> {
-    let v: Vec<&str> = s.split(',').map(str::trim).collect();
-    match v[..] {
-        [lo, hi] => match (lo.parse(), hi.parse()) {
-            (Ok(lo), Ok(hi)) => Ok([lo, hi]),
-            _ => Err(format!("{s:?}: two numbers, LO,HI")),
-        },
-        _ => Err(format!("{s:?}: two comma-separated numbers, LO,HI")),
-    }
-}
-
-impl Default for TrainConfig {
-    fn default() -> TrainConfig {
-        TrainConfig {
-            steps: 20_000,
-            batch: 4,
-            crop: 128,
-            lr: 2e-4,
-            weight_decay: 0.02,
-            warmup: 500,
-            electrons: [3.0, 3000.0],
-            mean_electrons: None,
-            cic_e: None,
-            loss: Loss::Charbonnier,
-            scale: Scale::Percentile,
-            read_noise_scale: [1.0, 1.0],
-            reuse: 1,
-            augment: true,
-            base: crate::Base::Bm3d,
-            noise: NoiseModelKind::Ours,
-            ablate: Ablation::default(),
-            seed: 897,
-            val_every: 250,
-            checkpoint_every: 250,
-        }
-    }
-}
 
 /// Light levels of the validation set.
 pub const VAL_LEVELS: usize = 4;
@@ -181,33 +44,6 @@ pub fn val_levels(cfg: &TrainConfig) -> Vec<f64> {
 /// The value at `u` ∈ [0, 1) of a log-uniform draw from `[lo, hi]`.
 fn log_uniform(u: f64, [lo, hi]: [f64; 2]) -> f64 {
     (lo.ln() + u * (hi.ln() - lo.ln())).exp()
-}
-
-fn unit_range() -> [f64; 2] {
-    [1.0, 1.0]
-}
-
-fn one() -> u32 {
-    1
-}
-
-fn yes() -> bool {
-    true
-}
-
-fn is_yes(v: &bool) -> bool {
-    *v
-}
-
-/// A crop's orientation for [`orient`]: drawn whether or not `augment` is on, so the rest of a
-/// run's random sequence does not depend on it; 0 (as recorded) without augmentation.
-pub(crate) fn draw_orientation(rng: &mut Pcg64, augment: bool) -> u8 {
-    let mode = rng.random_range(0..8u8);
-    if augment {
-        mode
-    } else {
-        0
-    }
 }
 
 /// Clean images for a run: what it trains on and what it validates on.
@@ -253,48 +89,6 @@ impl TrainImages {
             train: train.into_iter().map(|x| x.1).collect(),
             val: val.into_iter().map(|x| x.1).collect(),
         })
-    }
-}
-
-impl TrainConfig {
-    /// A one-line description of the run on `images`, for the model file's `recipe`.
-    pub fn recipe(&self, images: &TrainImages) -> String {
-        format!(
-            "{} train / {} val images; batch {} × {}², each pair used ≈{}×; AdamW lr {} wd {} warm-up {} + cosine; {:?} loss; {}; read noise ×{:?}; CIC {:?}; seed {}",
-            images.train.len(),
-            images.val.len(),
-            self.batch,
-            self.crop,
-            self.reuse,
-            self.lr,
-            self.weight_decay,
-            self.warmup_steps(),
-            self.loss,
-            match self.mean_electrons {
-                Some(r) => format!("mean electrons {r:?}"),
-                None => format!("peak electrons {:?}", self.electrons),
-            },
-            self.read_noise_scale,
-            self.cic_e,
-            self.seed
-        )
-    }
-
-    /// The warm-up a run takes: `warmup`, but at most a fifth of the steps (a short run, a
-    /// test or a quick fine-tune, still spends most of its steps at the peak rate), at least 1.
-    pub fn warmup_steps(&self) -> u64 {
-        self.warmup.min(self.steps / 5).max(1)
-    }
-
-    /// Learning rate at `step`: linear warm-up ([`TrainConfig::warmup_steps`]), then cosine
-    /// decay to 1 % of the peak.
-    pub fn lr_at(&self, step: u64) -> f64 {
-        let w = self.warmup_steps();
-        if step < w {
-            return self.lr * (step + 1) as f64 / w as f64;
-        }
-        let p = (step - w) as f64 / (self.steps.saturating_sub(w).max(1)) as f64;
-        self.lr * (0.01 + 0.99 * 0.5 * (1.0 + (std::f64::consts::PI * p.min(1.0)).cos()))
     }
 }
 
@@ -449,39 +243,6 @@ fn pair_camera(
     })
 }
 
-/// The `ww × wh` window at (`x0`, `y0`) of a row-major image `w` pixels wide.
-pub(crate) fn sub_image(
-    src: &[f32],
-    w: usize,
-    x0: usize,
-    y0: usize,
-    ww: usize,
-    wh: usize,
-) -> Vec<f32> {
-    (0..ww * wh)
-        .map(|i| src[(y0 + i / ww) * w + x0 + i % ww])
-        .collect()
-}
-
-/// A c×c plane in one of the 8 orientations: optional transpose (`mode & 4`), then optional
-/// horizontal (`& 1`) and vertical (`& 2`) flips.
-pub(crate) fn orient(src: &[f32], c: usize, mode: u8) -> Vec<f32> {
-    let mut out = vec![0f32; c * c];
-    for y in 0..c {
-        for x in 0..c {
-            let (mut u, mut v) = if mode & 4 != 0 { (y, x) } else { (x, y) };
-            if mode & 1 != 0 {
-                u = c - 1 - u;
-            }
-            if mode & 2 != 0 {
-                v = c - 1 - v;
-            }
-            out[y * c + x] = src[v * c + u];
-        }
-    }
-    out
-}
-
 /// The training pair with sample seed `s`: the image (chosen by `s`) and its synthesized crop.
 fn sample(
     images: &[Image],
@@ -621,30 +382,28 @@ impl RunPaths {
     }
 }
 
-impl ModelMeta {
-    /// The metadata of a new training run's model: `arch` taking `inputs` (a refinement network
-    /// refines `cfg.base`), trained with `cfg` on `images` through `profile`. The run records
-    /// its steps and `cfg`.
-    pub fn for_run(
-        arch: crate::Arch,
-        inputs: crate::Inputs,
-        cfg: &TrainConfig,
-        profile: &CameraProfile,
-        images: &TrainImages,
-    ) -> ModelMeta {
-        ModelMeta {
-            arch,
-            inputs,
-            base: cfg.base,
-            noise_model: cfg.noise,
-            ablate: cfg.ablate,
-            scale: cfg.scale,
-            profile_fingerprint: profile.fingerprint_hex(),
-            steps: 0,
-            train: None,
-            adapted: None,
-            recipe: cfg.recipe(images),
-        }
+/// The metadata of a new training run's model: `arch` taking `inputs` (a refinement network
+/// refines `cfg.base`), trained with `cfg` on `images` through `profile`. The run records its
+/// steps and `cfg`.
+pub fn meta_for_run(
+    arch: emccd_nn::Arch,
+    inputs: emccd_nn::Inputs,
+    cfg: &TrainConfig,
+    profile: &CameraProfile,
+    images: &TrainImages,
+) -> ModelMeta {
+    ModelMeta {
+        arch,
+        inputs,
+        base: cfg.base,
+        noise_model: cfg.noise,
+        ablate: cfg.ablate,
+        scale: cfg.scale,
+        profile_fingerprint: profile.fingerprint_hex(),
+        steps: 0,
+        train: None,
+        adapted: None,
+        recipe: cfg.recipe(images.train.len(), images.val.len()),
     }
 }
 
@@ -658,7 +417,7 @@ struct CkptState {
 
 /// The optimizer's state is keyed by parameter identity, which safetensors does not carry; the
 /// checkpoint's weights are therefore also kept as burnpack, which does.
-fn save_net_with_ids(model: &Denoiser, path: &Path) -> Result<()> {
+fn save_net_with_ids(model: &Model, path: &Path) -> Result<()> {
     use burn_store::{BurnpackStore, ModuleSnapshot};
     let tmp = emccd_io::temp_beside(path).map_err(|e| Error::io(path, e))?;
     let mut store = BurnpackStore::from_file(tmp.path()).overwrite(true);
@@ -669,9 +428,9 @@ fn save_net_with_ids(model: &Denoiser, path: &Path) -> Result<()> {
     emccd_io::persist(tmp, path).map_err(|e| Error::Model(e.to_string()))
 }
 
-fn load_net_with_ids(meta: ModelMeta, path: &Path, device: &Device) -> Result<Denoiser> {
+fn load_net_with_ids(meta: ModelMeta, path: &Path, device: &Device) -> Result<Model> {
     use burn_store::{BurnpackStore, ModuleSnapshot};
-    let mut d = Denoiser::new(meta, device)?;
+    let mut d = Model::new(meta, device)?;
     let mut store = BurnpackStore::from_file(path);
     d.net
         .load_from(&mut store)
@@ -682,7 +441,7 @@ fn load_net_with_ids(meta: ModelMeta, path: &Path, device: &Device) -> Result<De
 /// Validation PSNR (dB, peak = clean maximum) of the network output and of its residual
 /// channel (the noisy input; for a hybrid network, the BM3D estimate it refines), averaged over
 /// the fixed validation batch.
-fn validate(model: &Denoiser, val: &Batch, n: usize, c: usize, device: &Device) -> ValPsnr {
+fn validate(model: &Model, val: &Batch, n: usize, c: usize, device: &Device) -> ValPsnr {
     let net = model.net.valid();
     let ch = model.meta.inputs.channels();
     let base = model.meta.inputs.residual();
@@ -741,15 +500,18 @@ pub struct Run<'a> {
     pub init: Option<&'a Path>,
     /// Continue from the checkpoint in `paths.checkpoint`.
     pub resume: bool,
+    /// Where the network trains (the caller's choice: `emccd_nn::device`).
+    pub device: Device,
 }
 
 impl<'a> Run<'a> {
-    /// A run of a new network.
+    /// A run of a new network on `device`.
     pub fn new(
         profile: &'a CameraProfile,
         cfg: TrainConfig,
         meta: ModelMeta,
         paths: &'a RunPaths,
+        device: &Device,
     ) -> Run<'a> {
         Run {
             profile,
@@ -758,6 +520,7 @@ impl<'a> Run<'a> {
             paths,
             init: None,
             resume: false,
+            device: device.clone(),
         }
     }
 
@@ -782,7 +545,7 @@ pub fn train(
     images: TrainImages,
     run: Run,
     report: &mut dyn FnMut(&StepReport) -> bool,
-) -> Result<Denoiser> {
+) -> Result<Model> {
     if images.train.is_empty() {
         return Err(Error::Data("no training images".into()));
     }
@@ -849,7 +612,7 @@ fn check_run(source: &Source, val_images: &[Image], cfg: &TrainConfig) -> Result
 
 /// Where a run starts: its network, optimizer, first step and smoothed loss.
 struct Start {
-    model: Denoiser,
+    model: Model,
     optim: burn::optim::ModuleOptimizer,
     step: u64,
     loss_ema: f64,
@@ -886,7 +649,7 @@ fn start_model(
     }
     let model = match init {
         Some(p) => {
-            let mut m = Denoiser::load(p, device)?;
+            let mut m = Model::load(p, device)?;
             // A refinement network moved onto another base estimate would apply its
             // corrections for the old base's errors: it restarts as the identity on the new
             // base (its output layer zeroed), keeping what its other layers learned.
@@ -908,7 +671,7 @@ fn start_model(
         None => {
             // Seeded initialization: the same seed gives the same network.
             device.seed(cfg.seed);
-            Denoiser::new(meta.clone(), device)?
+            Model::new(meta.clone(), device)?
         }
     };
     Ok(Start {
@@ -963,7 +726,7 @@ fn validation_set(
 /// which is what makes the checkpoint count.
 fn save_checkpoint(
     dir: &Path,
-    model: &Denoiser,
+    model: &Model,
     optim: &burn::optim::ModuleOptimizer,
     cfg: &TrainConfig,
     step: u64,
@@ -996,7 +759,7 @@ pub(crate) fn train_from(
     val_images: Vec<Image>,
     run: Run,
     report: &mut dyn FnMut(&StepReport) -> bool,
-) -> Result<Denoiser> {
+) -> Result<Model> {
     let Run {
         profile,
         cfg,
@@ -1004,12 +767,13 @@ pub(crate) fn train_from(
         paths,
         init,
         resume,
+        device,
     } = run;
     profile.require_complete()?;
     check_run(&source, &val_images, &cfg)?;
     let c = cfg.crop;
     let abl = cfg.ablate;
-    let device = crate::device().autodiff();
+    let device = device.autodiff();
     let Start {
         mut model,
         mut optim,

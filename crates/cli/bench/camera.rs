@@ -6,7 +6,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use crate::{Ablation, Error, NoiseModel, OursModel, PgnModel, VirtualCamera};
+use emccd_camera::{Ablation, Error, NoiseModel, OursModel, PgnModel, VirtualCamera};
 
 /// What [`synthesis`] measured: seconds per frame of each synthesis (after one warm-up frame)
 /// and the conditions they were measured in.
@@ -184,4 +184,22 @@ pub fn emccd_detect(frames: usize, electrons: f64) -> Result<f64, String> {
             out.trim()
         )
     })
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_synthesis_bench_times_every_synthesis() {
+        let cam = emccd_camera::VirtualCamera::new(
+            emccd_profile::default_profile()
+                .crop(emccd_profile::Roi::corner(64, 64))
+                .unwrap(),
+            Default::default(),
+        )
+        .unwrap();
+        let t = super::synthesis(&cam, 4.0, 2).unwrap();
+        for s in [t.ours_s, t.pgn_s, t.camera_s] {
+            assert!(s > 0.0 && s.is_finite(), "{t:?}");
+        }
+    }
 }

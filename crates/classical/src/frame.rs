@@ -1,45 +1,92 @@
-//! Denoising a raw frame: preprocess with the profile (paper eq. 4: `B⁻¹(D) − FPN_t`), build the
-//! camera-independent input, run the network tiled, and return the photo-signal in DN above bias.
-//! A hybrid network first gets the classical estimate its model file names (one BM3D + GAT pass,
-//! [`bm3d_estimate`], or iterative BM3D, [`crate::Base`]) and refines it.
+//! A camera frame denoised through its profile: preprocessing (paper eq. 4: `B⁻¹(D) − FPN_t`),
+//! the profile's Poisson–Gaussian noise at the frame's exposure, and the classical estimate of
+//! the photo-signal in DN above bias (what `denoise --method bm3d|ivst` returns and what a
+//! hybrid network refines).
 
-use burn::prelude::*;
 use emccd_camera::Ablation;
-use emccd_profile::CameraProfile;
+use emccd_profile::{CameraProfile, PoissonGaussian};
+use serde::{Deserialize, Serialize};
 
-use crate::model::{Denoiser, Inputs};
-use crate::norm::{prepare, prepare_hybrid, signal_scale};
-use crate::tile::{run_ensemble, Planes, Tiling};
+use crate::vst::{bm3d_adaptive, bm3d_iterative, bm3d_poisson_gaussian, Pass};
 use crate::{Error, Result};
 
-/// A model ready for inference with the profile it is applied through.
-pub struct Pipeline<'a> {
-    /// Network (inference copy).
-    pub model: &'a Denoiser,
-    /// Camera profile.
-    pub profile: &'a CameraProfile,
-    /// Tiling.
-    pub tiling: Tiling,
-    /// Orientations averaged (geometric self-ensemble, 1–8; 1 = plain inference).
-    pub ensemble: usize,
-    /// Device.
-    pub device: Device,
+/// A classical estimate of a preprocessed frame: the two this project uses (and the one a
+/// refinement network is given and corrects, recorded as `base` in its model file).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum Classical {
+    /// BM3D after the generalized Anscombe transform, one pass (files without the key).
+    #[default]
+    #[cfg_attr(
+        feature = "clap",
+        value(help = "BM3D after the generalized Anscombe transform, one pass")
+    )]
+    Bm3d,
+    /// BM3D with iterative variance stabilization and binning, the passes chosen from the
+    /// frame's light level ([`bm3d_adaptive`]): better below a few counts.
+    #[cfg_attr(
+        feature = "clap",
+        value(
+            help = "BM3D with iterative variance stabilization: better below a few photoelectrons"
+        )
+    )]
+    Ivst,
+}
+
+impl Classical {
+    /// The estimate of a preprocessed frame (DN above bias, `w × h`) with noise `p`.
+    pub fn estimate(self, dn: &[f32], w: usize, h: usize, p: PoissonGaussian) -> Vec<f32> {
+        match self {
+            Classical::Bm3d => bm3d_poisson_gaussian(dn, w, h, p),
+            Classical::Ivst => bm3d_adaptive(dn, w, h, p),
+        }
+    }
+
+    /// The estimate of a preprocessed frame (DN above bias) of the profile's size, with the
+    /// profile's noise at `exposure_s`.
+    pub fn of_frame(self, p: &CameraProfile, dn: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+        usable(p, dn.len(), exposure_s)?;
+        Ok(self.estimate(dn, p.width, p.height, vst_params(p, exposure_s)?))
+    }
+
+    /// Lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Classical::Bm3d => "bm3d",
+            Classical::Ivst => "ivst",
+        }
+    }
+
+    /// Every classical estimate, for parsers.
+    pub const ALL: [Classical; 2] = [Classical::Bm3d, Classical::Ivst];
+}
+
+impl std::str::FromStr for Classical {
+    type Err = String;
+
+    fn from_str(s: &str) -> std::result::Result<Classical, String> {
+        Classical::ALL
+            .into_iter()
+            .find(|b| b.name() == s)
+            .ok_or_else(|| format!("{s:?}: the base estimate is bm3d or ivst"))
+    }
 }
 
 /// Checks that the profile has what denoising needs: a slope and bias maps (a gain-series
 /// calibration has neither).
-pub(crate) fn can_denoise(p: &CameraProfile) -> Result<()> {
+pub fn can_denoise(p: &CameraProfile) -> Result<()> {
     p.require_complete()
-        .map_err(|e| Error::Data(format!("this profile cannot denoise: {e}")))
+        .map_err(|e| Error(format!("this profile cannot denoise: {e}")))
 }
 
 /// Checks that the profile can correct and describe a frame of `len` pixels at `exposure_s`:
 /// it has a slope and bias maps (a gain-series calibration has neither), the sizes agree, and
 /// the exposure is a positive number of seconds (a header or flag can say anything).
-fn usable(p: &CameraProfile, len: usize, exposure_s: f64) -> Result<()> {
+pub fn usable(p: &CameraProfile, len: usize, exposure_s: f64) -> Result<()> {
     can_denoise(p)?;
     if len != p.len() {
-        return Err(Error::Data(format!(
+        return Err(Error(format!(
             "frame has {len} pixels, the profile's sensor {}×{} = {}",
             p.width,
             p.height,
@@ -83,10 +130,7 @@ pub fn preprocess_ablated(
 
 /// The profile's Poisson–Gaussian noise at `exposure_s` ([`CameraProfile::vst_params`]),
 /// with [`usable`]'s message when the profile cannot describe a frame.
-pub(crate) fn vst_params(
-    p: &CameraProfile,
-    exposure_s: f64,
-) -> Result<emccd_profile::PoissonGaussian> {
+pub fn vst_params(p: &CameraProfile, exposure_s: f64) -> Result<PoissonGaussian> {
     usable(p, p.len(), exposure_s)?;
     Ok(p.vst_params(exposure_s)?)
 }
@@ -94,100 +138,25 @@ pub(crate) fn vst_params(
 /// BM3D after the generalized Anscombe transform, with the exact unbiased inverse, on a
 /// preprocessed frame (DN above bias) of the profile's size.
 pub fn bm3d_estimate(p: &CameraProfile, dn: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
-    classical_estimate(p, dn, exposure_s, crate::Base::Bm3d)
+    Classical::Bm3d.of_frame(p, dn, exposure_s)
 }
 
-/// The classical estimate `base` of a preprocessed frame (DN above bias) of the profile's size,
-/// with the profile's noise parameters: what `denoise --method bm3d|ivst` returns, and what a
-/// hybrid network refines.
-pub fn classical_estimate(
-    p: &CameraProfile,
-    dn: &[f32],
-    exposure_s: f64,
-    base: crate::Base,
-) -> Result<Vec<f32>> {
-    usable(p, dn.len(), exposure_s)?;
-    Ok(base.estimate(dn, p.width, p.height, vst_params(p, exposure_s)?))
-}
-
-/// Iterative BM3D with the given passes ([`emccd_eval::vst::bm3d_iterative`]) instead of the
-/// schedule [`crate::Base::Ivst`] picks (for comparing schedules).
+/// Iterative BM3D with the given passes ([`bm3d_iterative`]) instead of the schedule
+/// [`Classical::Ivst`] picks (for comparing schedules).
 pub fn bm3d_passes(
     p: &CameraProfile,
     dn: &[f32],
     exposure_s: f64,
-    passes: &[emccd_eval::vst::Pass],
+    passes: &[Pass],
 ) -> Result<Vec<f32>> {
     usable(p, dn.len(), exposure_s)?;
-    Ok(emccd_eval::vst::bm3d_iterative(
+    Ok(bm3d_iterative(
         dn,
         p.width,
         p.height,
         vst_params(p, exposure_s)?,
         passes,
     ))
-}
-
-impl<'a> Pipeline<'a> {
-    /// Plain inference of `model` through `profile`: default tiling, no self-ensemble, on
-    /// [`crate::device`].
-    pub fn new(model: &'a Denoiser, profile: &'a CameraProfile) -> Pipeline<'a> {
-        Pipeline {
-            model,
-            profile,
-            tiling: Tiling::default(),
-            ensemble: 1,
-            device: crate::device(),
-        }
-    }
-}
-
-impl Pipeline<'_> {
-    /// The preprocessed frame (DN above bias) at `exposure_s`: blooming and FPN removed, unless
-    /// the model was made for an ablation that skips them.
-    pub fn preprocess(&self, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
-        preprocess_ablated(self.profile, raw, exposure_s, self.model.meta.ablate)
-    }
-
-    /// Denoises a preprocessed frame (DN above bias) of the profile's size.
-    pub fn denoise_preprocessed(&self, dn: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
-        let p = self.profile;
-        usable(p, dn.len(), exposure_s)?;
-        let slope = p.slope()?;
-        let rn = p.read_noise_near(exposure_s);
-        let inputs = self.model.meta.inputs;
-        let prep = match inputs {
-            Inputs::Noisy => prepare(dn, p.width, slope, rn, self.model.meta.scale),
-            Inputs::Hybrid => {
-                let est = classical_estimate(p, dn, exposure_s, self.model.meta.base)?;
-                let scale =
-                    signal_scale(&est.iter().map(|v| v / slope as f32).collect::<Vec<f32>>());
-                prepare_hybrid(dn, &est, slope, rn, scale)
-            }
-        };
-        let multiple = self.model.meta.multiple();
-        let planes = Planes {
-            data: &prep.input,
-            channels: inputs.channels(),
-            width: p.width,
-            height: p.height,
-        };
-        let out = run_ensemble(
-            &self.model.net,
-            planes,
-            multiple,
-            self.tiling,
-            self.ensemble,
-            &self.device,
-        );
-        Ok(out.into_iter().map(|v| v * prep.to_dn).collect())
-    }
-
-    /// Preprocesses and denoises a raw frame.
-    pub fn denoise_raw(&self, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
-        let d = self.preprocess(raw, exposure_s)?;
-        self.denoise_preprocessed(&d, exposure_s)
-    }
 }
 
 #[cfg(test)]

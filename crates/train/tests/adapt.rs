@@ -1,16 +1,16 @@
-//! `emccd_nn::adapt` against the virtual camera's truth: the scene estimate of a short stack,
+//! `emccd_train::adapt` against the virtual camera's truth: the scene estimate of a short stack,
 //! adaptation of a small network on it, and what the adapted file records.
 
+#[path = "../../nn/tests/common/mod.rs"]
 mod common;
 
 use emccd_camera::{PhysicalParams, VirtualCamera};
-use emccd_nn::adapt::{
-    adapt, scene_estimate, AdaptConfig, AdaptData, AdaptMethod, AdaptRun, Adaptation, FrameMean,
-    FrameSet, Recorded, SceneEstimate, Start,
+use emccd_classical::frame::preprocess;
+use emccd_nn::{Adaptation, Inference, Model};
+use emccd_train::adapt::{
+    adapt, scene_estimate, AdaptConfig, AdaptData, AdaptRun, Recorded, SceneEstimate, Start,
 };
-use emccd_nn::pipeline::{preprocess, Pipeline};
-use emccd_nn::train::RunPaths;
-use emccd_nn::Denoiser;
+use emccd_train::{AdaptMethod, FrameMean, FrameSet, RunPaths};
 
 const SIDE: usize = 64;
 const EXPOSURE: f64 = 0.01;
@@ -116,7 +116,7 @@ fn adaptation_improves_held_out_frames_and_records_its_provenance() {
     // A seeded initial network: unseeded, every run (and CI) started from another one, and the
     // gain of 40 steps ranged from 5 % to 47 % (seeds 1–8: 19–47 %; this one 40 %).
     dev.seed(5);
-    Denoiser::new(common::meta(8, 2), &dev)
+    Model::new(common::meta(8, 2), &dev)
         .unwrap()
         .save(&init)
         .unwrap();
@@ -149,6 +149,7 @@ fn adaptation_improves_held_out_frames_and_records_its_provenance() {
             provenance: provenance.clone(),
             paths: &paths,
             resume: false,
+            device: emccd_nn::cpu(),
         },
         &mut |r| {
             losses.push(r.loss);
@@ -162,7 +163,7 @@ fn adaptation_improves_held_out_frames_and_records_its_provenance() {
         "the loss did not fall: {:?}",
         losses
     );
-    let meta = Denoiser::read_meta(&paths.out).unwrap();
+    let meta = Model::read_meta(&paths.out).unwrap();
     assert_eq!(meta.adapted.as_ref(), Some(&provenance));
     assert_eq!(meta.steps, 40);
     assert_eq!(meta.profile_fingerprint, cam.profile.fingerprint_hex());
@@ -173,18 +174,17 @@ fn adaptation_improves_held_out_frames_and_records_its_provenance() {
     let mut raw = vec![0f32; SIDE * SIDE];
     cam.exposure(EXPOSURE).frame(&photons(), 999, &mut raw);
     let truth = cam.exposure(EXPOSURE).expected_signal(&photons());
-    let run = |m: &Denoiser| {
-        Pipeline {
+    let run = |m: &Model| {
+        Inference {
             model: m,
             profile: &cam.profile,
             tiling: Default::default(),
             ensemble: 1,
-            device: dev.clone(),
         }
         .denoise_raw(&raw, EXPOSURE)
         .unwrap()
     };
-    let before = rmse(&run(&Denoiser::load(&init, &dev).unwrap()), &truth);
+    let before = rmse(&run(&Model::load(&init, &dev).unwrap()), &truth);
     let after = rmse(&run(&model), &truth);
     assert!(
         after < 0.9 * before,
@@ -243,6 +243,7 @@ fn self_supervised_adaptation_lowers_its_loss() {
                 provenance: provenance.clone(),
                 paths: &paths,
                 resume: false,
+                device: emccd_nn::cpu(),
             },
             &mut |r| {
                 losses.push(r.loss);
@@ -253,7 +254,7 @@ fn self_supervised_adaptation_lowers_its_loss() {
         let avg = |s: &[f64]| s.iter().sum::<f64>() / s.len() as f64;
         let (first, last) = (avg(&losses[..10]), avg(&losses[50..]));
         assert!(last < first, "{}: loss {first} → {last}", method.name());
-        let meta = Denoiser::read_meta(&paths.out).unwrap();
+        let meta = Model::read_meta(&paths.out).unwrap();
         assert_eq!(meta.adapted.as_ref(), Some(&provenance));
         assert_eq!(meta.steps, 60);
     }
@@ -284,6 +285,7 @@ fn self_supervised_adaptation_lowers_its_loss() {
                     checkpoint: dir.path().join("one.ckpt"),
                 },
                 resume: false,
+                device: emccd_nn::cpu(),
             },
             &mut |_| true,
         )

@@ -5,7 +5,7 @@ use std::io::Read;
 use std::path::Path;
 use std::time::Instant;
 
-use crate::{Error, Result};
+use anyhow::{anyhow, Result};
 
 /// Frame side of the benchmark's stack.
 pub const SIDE: usize = 512;
@@ -94,7 +94,7 @@ impl std::fmt::Display for Streaming {
 pub fn streaming(dir: &Path, frames: usize) -> Result<Streaming> {
     let frames = frames.max(2);
     let path = dir.join("stack.tif");
-    let io = |e| Error::io(&path, e);
+    let io = |e: emccd_io::Error| anyhow!("{}: {e}", path.display());
     let mut wr =
         emccd_io::StackWriter::create(&path, SIDE, SIDE, emccd_io::SampleFormat::U16, Some(frames))
             .map_err(io)?;
@@ -106,7 +106,7 @@ pub fn streaming(dir: &Path, frames: usize) -> Result<Streaming> {
         wr.write_frame(&f).map_err(io)?;
     }
     wr.finish().map_err(io)?;
-    let os = |e: std::io::Error| Error::io(&path, emccd_io::Error::from(e));
+    let os = |e: std::io::Error| anyhow!("{}: {e}", path.display());
     let bytes = std::fs::metadata(&path).map_err(os)?.len() as f64;
     let peak_before = peak_rss_mib();
     // Reference: reading the same bytes from the page cache and doing nothing with them.
@@ -124,7 +124,7 @@ pub fn streaming(dir: &Path, frames: usize) -> Result<Streaming> {
     let reference_s = t.elapsed().as_secs_f64();
     std::hint::black_box(sink);
     let t = Instant::now();
-    let (_, st) = crate::stats::accumulate(&path, None, 2, &[], None, &crate::Silent)?;
+    let (_, st) = emccd_calib::stats::accumulate(&path, None, 2, &[], None, &emccd_calib::Silent)?;
     let decode_s = t.elapsed().as_secs_f64();
     std::hint::black_box(st.mean());
     let _ = std::fs::remove_file(&path);
@@ -146,4 +146,24 @@ fn peak_rss_mib() -> f64 {
         line.split_whitespace().nth(1)?.parse().ok()
     };
     kib().map_or(f64::NAN, |k| k / 1024.0)
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_streaming_bench_reads_what_it_wrote_and_removes_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let r = super::streaming(dir.path(), 1).unwrap();
+        // At least two frames, so a variance exists; 512×512 u16 each, plus the TIFF's headers.
+        assert_eq!(r.frames, 2);
+        assert!(r.bytes >= (2 * 512 * 512 * 2) as f64);
+        assert!(r.decode_s > 0.0 && r.reference_s > 0.0);
+        // On Linux both are reported (a process's peak is never zero), and a peak never falls.
+        let [before, after] = r.peak_mib;
+        if cfg!(target_os = "linux") {
+            assert!(before > 0.0 && after >= before, "{before} → {after} MiB");
+        }
+        assert!(r.decode_gb_s().is_finite() && r.reference_gb_s().is_finite());
+        assert!(!dir.path().join("stack.tif").exists());
+    }
 }

@@ -2,11 +2,13 @@
 //! Alone in its own test binary because burn's seeded initialization draws from a process-wide
 //! generator that tests running in parallel would also draw from.
 
-use emccd_nn::train::{train, Image, Run, RunPaths, TrainConfig, TrainImages};
+use emccd_nn::TrainConfig;
+use emccd_train::train::{train, Image, Run, RunPaths, TrainImages};
+#[path = "../../nn/tests/common/mod.rs"]
 mod common;
 
 use common::{meta, scene};
-use emccd_nn::Denoiser;
+use emccd_nn::Model;
 
 fn images() -> Vec<Image> {
     (0..3)
@@ -30,6 +32,7 @@ fn small_profile() -> emccd_profile::CameraProfile {
 #[test]
 fn a_resumed_run_matches_an_uninterrupted_one() {
     let dir = tempfile::tempdir().unwrap();
+    let dev = emccd_nn::cpu();
     let cfg = TrainConfig {
         steps: 4,
         batch: 2,
@@ -51,7 +54,7 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
             train: images(),
             val: images()[..1].to_vec(),
         },
-        Run::new(&prof, cfg.clone(), meta(4, 2), &paths("full")),
+        Run::new(&prof, cfg.clone(), meta(4, 2), &paths("full"), &dev),
         &mut |r| {
             seen.push((r.step, r.loss, r.val_psnr));
             true
@@ -60,7 +63,7 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
     .unwrap();
     assert_eq!(full.meta.steps, 4);
     // The file records the run's configuration, typed.
-    let saved = Denoiser::load(&paths("full").out, &emccd_nn::cpu()).unwrap();
+    let saved = Model::load(&paths("full").out, &emccd_nn::cpu()).unwrap();
     assert_eq!(saved.meta.train.as_ref(), Some(&cfg));
     assert!(seen.iter().all(|s| s.1.is_finite()) && seen.last().unwrap().2.is_some());
     // Interrupted after 2 steps (the checkpoint at step 2), then resumed to 4.
@@ -70,7 +73,7 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
             train: images(),
             val: images()[..1].to_vec(),
         },
-        Run::new(&prof, cfg.clone(), meta(4, 2), &p),
+        Run::new(&prof, cfg.clone(), meta(4, 2), &p, &dev),
         &mut |r| r.step < 2,
     )
     .unwrap();
@@ -80,21 +83,20 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
             train: images(),
             val: images()[..1].to_vec(),
         },
-        Run::new(&prof, cfg, meta(4, 2), &p).resuming(true),
+        Run::new(&prof, cfg, meta(4, 2), &p, &dev).resuming(true),
         &mut |_| true,
     )
     .unwrap();
     assert_eq!(resumed.meta.steps, 4);
-    let dev = emccd_nn::cpu();
     let x = common::scene_input(32, 32, &dev);
-    let a: Vec<f32> = Denoiser::load(&paths("full").out, &dev)
+    let a: Vec<f32> = Model::load(&paths("full").out, &dev)
         .unwrap()
         .net
         .forward(x.clone())
         .into_data()
         .try_into_vec::<f32>()
         .unwrap();
-    let b: Vec<f32> = Denoiser::load(&p.out, &dev)
+    let b: Vec<f32> = Model::load(&p.out, &dev)
         .unwrap()
         .net
         .forward(x)

@@ -10,8 +10,8 @@ use std::time::Instant;
 use emccd_camera::VirtualCamera;
 use emccd_profile::CameraProfile;
 
-use crate::registry::{load, Estimator};
-use crate::{Error, Result};
+use emccd_denoise::Estimator;
+use emccd_nn::{Error, Result};
 
 /// Photons at a scene's peak of the benchmark's two pairs per scene.
 pub const PHOTONS: [f64; 2] = [20.0, 200.0];
@@ -107,7 +107,7 @@ impl Totals {
 pub fn models(args: &[String]) -> Result<Vec<Estimator>> {
     args.iter()
         .map(|m| {
-            let est = Estimator::parse(m, load)?;
+            let est = Estimator::parse(m, crate::common::load_model)?;
             if est.model().is_none() {
                 return Err(Error::Model(format!(
                     "--denoise {m}: not a model (a file, or `default`, `microscopy`, `lowlight`; `MODEL@8` for the self-ensemble)"
@@ -130,7 +130,7 @@ pub fn denoise(
     on_row: &mut dyn FnMut(&Row),
     skipped: &mut dyn FnMut(String),
 ) -> Result<Totals> {
-    let bm3d = Estimator::parse("bm3d", load)?;
+    let bm3d = Estimator::parse("bm3d", crate::common::load_model)?;
     let cam = VirtualCamera::new(profile.clone(), Default::default())?;
     let e = cam.exposure(0.01);
     let k = models.len();
@@ -161,7 +161,7 @@ pub fn denoise(
             let mut raw = vec![0f32; w * h];
             e.frame(&phot, 1000 + (si * 2 + li) as u64, &mut raw);
             let peak = emccd_eval::scores::truth_peak(&truth);
-            let pre = crate::pipeline::preprocess(profile, &raw, 0.01)?;
+            let pre = emccd_classical::frame::preprocess(profile, &raw, 0.01)?;
             let clock = Instant::now();
             let bm = bm3d.run(profile, &raw, 0.01)?;
             t.bm3d_s += clock.elapsed().as_secs_f64();
@@ -224,7 +224,7 @@ pub struct Archive {
 #[cfg(unix)]
 /// Bytes of one of the archive benchmark's u16 frames.
 const ARCHIVE_FRAME_BYTES: f64 =
-    (emccd_camera::bench::ARCHIVE_SIDE * emccd_camera::bench::ARCHIVE_SIDE * 2) as f64;
+    (crate::bench::camera::ARCHIVE_SIDE * crate::bench::camera::ARCHIVE_SIDE * 2) as f64;
 
 #[cfg(unix)]
 /// The two stacks of an [`Archive`] run.
@@ -252,7 +252,7 @@ impl ArchiveStacks {
 /// The line that says what was written, and the header of the rows that follow.
 impl std::fmt::Display for ArchiveStacks {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let side = emccd_camera::bench::ARCHIVE_SIDE;
+        let side = crate::bench::camera::ARCHIVE_SIDE;
         writeln!(
             f,
             "archive streaming: BigTIFF stacks of {side}×{side} u16 frames: {} frames ({:.0} MB) and {} frames ({:.2} GB, written in {:.0} s, {:.0} MB/s)",
@@ -339,8 +339,9 @@ impl Archive {
         let mut write = |name: &str, frames: usize| -> Result<(PathBuf, f64)> {
             let path = d.join(name);
             on(ArchiveEvent::Writing(frames));
-            let t =
-                emccd_camera::bench::archive_stack(&path, frames, &mut || on(ArchiveEvent::Frame))?;
+            let t = crate::bench::camera::archive_stack(&path, frames, &mut || {
+                on(ArchiveEvent::Frame)
+            })?;
             Ok((path, t))
         };
         // The short stack is as long as the network's share, so both stacks run the same work
@@ -444,8 +445,60 @@ fn measure_child(exe: &std::path::Path, args: &[&std::ffi::OsStr]) -> Result<(f6
         let mut err = String::new();
         log.rewind().map_err(io)?;
         let _ = log.read_to_string(&mut err);
-        return Err(Error::Bench(format!("emccd {args:?} failed: {err}")));
+        return Err(Error::Data(format!("emccd {args:?} failed: {err}")));
     }
     // ru_maxrss is in KiB on Linux.
     Ok((seconds, usage.ru_maxrss as f64 / 1024.0))
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_denoise_bench_scores_every_scene_at_both_levels_and_skips_other_sizes() {
+        let dir = tempfile::tempdir().unwrap();
+        let profile = emccd_profile::default_profile()
+            .crop(emccd_profile::Roi::corner(64, 64))
+            .unwrap();
+        let scene = |name: &str, w: usize, h: usize| {
+            let path = dir.path().join(name);
+            let data: Vec<f32> = (0..w * h)
+                .map(|i| 0.2 + 0.6 * ((i % w) as f32 / w as f32))
+                .collect();
+            emccd_io::write_png_preview(&path, w, h, &data, 0.0, 1.0).unwrap();
+            path
+        };
+        let scenes = [scene("a.png", 64, 64), scene("b.png", 32, 64)];
+        let models = super::models(&["default".to_string()]).unwrap();
+        let (mut rows, mut skipped) = (Vec::new(), Vec::new());
+        let t = super::denoise(
+            &profile,
+            &scenes,
+            &models,
+            1,
+            &mut |r| rows.push(r.clone()),
+            &mut |s| skipped.push(s),
+        )
+        .unwrap();
+        assert_eq!(t.pairs, super::PHOTONS.len());
+        assert_eq!(rows.len(), t.pairs);
+        assert!(rows
+            .iter()
+            .all(|r| r.scene == "a.png" && r.model_db.len() == 1));
+        assert!(
+            skipped.len() == 1 && skipped[0].contains("b.png"),
+            "{skipped:?}"
+        );
+        // Denoising helps, and the totals are the rows' means.
+        for r in &rows {
+            assert!(
+                r.bm3d_db > r.input_db && r.model_db[0] > r.input_db,
+                "{r:?}"
+            );
+        }
+        let mean = rows.iter().map(|r| r.bm3d_db).sum::<f64>() / rows.len() as f64;
+        assert!((t.bm3d_db - mean).abs() < 1e-9);
+        assert!(t.model_s[0] > 0.0 && t.bm3d_s > 0.0);
+        // Anything that runs no network is refused as a bench model.
+        assert!(super::models(&["bm3d".to_string()]).is_err());
+    }
 }

@@ -9,8 +9,9 @@ use emccd_io::zarr::ZarrStackWriter;
 use emccd_profile::Recording;
 use serde_json::{json, Value};
 
-use crate::registry::{model_path, FrameDenoiser};
-use crate::{Error, Result};
+use crate::bundled::model_path;
+use crate::denoiser::Denoiser;
+use emccd_nn::{Error, Result};
 
 /// What a denoised stack's frames are a function of, compared by every process that writes
 /// the store: each input by its real path, size and modification time (a file rewritten
@@ -19,7 +20,7 @@ use crate::{Error, Result};
 /// was loaded from) and the output's units and network settings; `software` names the program
 /// and its version.
 pub fn provenance(
-    fd: &FrameDenoiser,
+    fd: &Denoiser,
     model_name: Option<&str>,
     inputs: &[Recording],
     software: &str,
@@ -69,7 +70,7 @@ fn read_frame(rec: &mut Recording, buf: &mut [f32], at: impl Fn() -> String) -> 
 /// writing process compares, and what a person reads (the inputs and profile as typed, the
 /// model's name). An error if the inputs hold no frame.
 pub fn zarr_spec(
-    fd: &FrameDenoiser,
+    fd: &Denoiser,
     inputs: &[Recording],
     out: &ZarrOutput,
 ) -> Result<emccd_io::zarr::ZarrStackSpec> {
@@ -148,7 +149,7 @@ pub struct ZarrRun {
 /// resumed, skipping frames already complete; a store made otherwise is refused. `pending`
 /// gets the number of frames about to be denoised, `on_frame` is called after each.
 pub fn denoise_to_zarr(
-    fd: &FrameDenoiser,
+    fd: &Denoiser,
     inputs: Vec<Recording>,
     out: &ZarrOutput,
     pending: &mut dyn FnMut(usize),
@@ -187,7 +188,7 @@ pub fn denoise_to_zarr(
 /// or `range` reaches past the inputs' frames; errors about a frame name its input and its
 /// number there (from 1), and an input that ends before its header's frame count is one.
 pub fn denoise_shard(
-    fd: &FrameDenoiser,
+    fd: &Denoiser,
     inputs: Vec<Recording>,
     store: &ZarrStackWriter,
     range: Range<usize>,
@@ -253,7 +254,7 @@ pub fn denoise_shard(
 /// Errors about a frame name the input and the frame's number (from 1); an input that ends
 /// before its header's frame count is one. Returns the frames written.
 pub fn denoise_file(
-    fd: &FrameDenoiser,
+    fd: &Denoiser,
     mut input: Recording,
     out: &Path,
     on_frame: &mut dyn FnMut(),

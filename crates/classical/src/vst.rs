@@ -337,8 +337,8 @@ mod tests {
         ];
         let it = bm3d_iterative(&noisy, w, h, p, &passes);
         let (a, b) = (
-            crate::psnr(&one, &truth, 1.0),
-            crate::psnr(&it, &truth, 1.0),
+            emccd_eval::psnr(&one, &truth, 1.0),
+            emccd_eval::psnr(&it, &truth, 1.0),
         );
         assert!(b > a, "one pass {a:.2} dB, iterative {b:.2} dB");
     }

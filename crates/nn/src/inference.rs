@@ -1,0 +1,90 @@
+//! A network applied to a raw frame through its camera profile: preprocess with the profile
+//! (paper eq. 4: `B⁻¹(D) − FPN_t`), build the camera-independent input, run the network tiled,
+//! and return the photo-signal in DN above bias. A hybrid network first gets the classical
+//! estimate its model file names ([`crate::Classical`]) and refines it.
+
+use emccd_profile::CameraProfile;
+
+use crate::model::{Inputs, Model};
+use crate::norm::{prepare, prepare_hybrid, signal_scale};
+use crate::tile::{run_ensemble, Planes, Tiling};
+use crate::Result;
+use emccd_classical::frame::{preprocess_ablated, usable};
+
+/// A model ready for inference with the profile it is applied through.
+pub struct Inference<'a> {
+    /// Network (inference copy).
+    pub model: &'a Model,
+    /// Camera profile.
+    pub profile: &'a CameraProfile,
+    /// Tiling.
+    pub tiling: Tiling,
+    /// Orientations averaged (geometric self-ensemble, 1–8; 1 = plain inference).
+    pub ensemble: usize,
+}
+
+impl<'a> Inference<'a> {
+    /// Plain inference of `model` through `profile`: default tiling, no self-ensemble, on the
+    /// model's device.
+    pub fn new(model: &'a Model, profile: &'a CameraProfile) -> Inference<'a> {
+        Inference {
+            model,
+            profile,
+            tiling: Tiling::default(),
+            ensemble: 1,
+        }
+    }
+}
+
+impl Inference<'_> {
+    /// The preprocessed frame (DN above bias) at `exposure_s`: blooming and FPN removed, unless
+    /// the model was made for an ablation that skips them.
+    pub fn preprocess(&self, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+        Ok(preprocess_ablated(
+            self.profile,
+            raw,
+            exposure_s,
+            self.model.meta.ablate,
+        )?)
+    }
+
+    /// Denoises a preprocessed frame (DN above bias) of the profile's size.
+    pub fn denoise_preprocessed(&self, dn: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+        let p = self.profile;
+        usable(p, dn.len(), exposure_s)?;
+        let slope = p.slope()?;
+        let rn = p.read_noise_near(exposure_s);
+        let inputs = self.model.meta.inputs;
+        let prep = match inputs {
+            Inputs::Noisy => prepare(dn, p.width, slope, rn, self.model.meta.scale),
+            Inputs::Hybrid => {
+                let est = self.model.meta.base.of_frame(p, dn, exposure_s)?;
+                let scale =
+                    signal_scale(&est.iter().map(|v| v / slope as f32).collect::<Vec<f32>>());
+                prepare_hybrid(dn, &est, slope, rn, scale)
+            }
+        };
+        let multiple = self.model.meta.multiple();
+        let planes = Planes {
+            data: &prep.input,
+            channels: inputs.channels(),
+            width: p.width,
+            height: p.height,
+        };
+        let out = run_ensemble(
+            &self.model.net,
+            planes,
+            multiple,
+            self.tiling,
+            self.ensemble,
+            self.model.device(),
+        );
+        Ok(out.into_iter().map(|v| v * prep.to_dn).collect())
+    }
+
+    /// Preprocesses and denoises a raw frame.
+    pub fn denoise_raw(&self, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+        let d = self.preprocess(raw, exposure_s)?;
+        self.denoise_preprocessed(&d, exposure_s)
+    }
+}
