@@ -129,7 +129,7 @@ fn dct_matrix(n: usize) -> Vec<f64> {
 }
 
 /// Kaiser window (β = 2) of side n, row-major: the outer product of 1-D windows.
-fn kaiser(n: usize) -> Vec<f64> {
+pub(crate) fn kaiser(n: usize) -> Vec<f64> {
     fn i0(x: f64) -> f64 {
         let (mut s, mut t) = (1.0, 1.0);
         for k in 1..30 {
@@ -175,7 +175,7 @@ fn haar(g: &mut [Block], len: usize, inverse: bool) {
 }
 
 /// Reference positions along one axis: every `step` px, plus the last possible one.
-fn positions(len: usize, n: usize, step: usize) -> Vec<usize> {
+pub(crate) fn positions(len: usize, n: usize, step: usize) -> Vec<usize> {
     let last = len - n;
     let mut v: Vec<usize> = (0..=last).step_by(step).collect();
     if *v.last().unwrap_or(&0) != last {

@@ -1,8 +1,9 @@
 //! Classical denoising of EMCCD frames, no training involved: BM3D ([`bm3d`], written here: no
 //! maintained crate implements the two-stage filter), the generalized Anscombe transform and
-//! its exact unbiased inverse with iterative BM3D ([`vst`]), and both applied to a camera frame
+//! its exact unbiased inverse with iterative BM3D ([`vst`]), both applied to a camera frame
 //! through its calibrated profile ([`frame`]: preprocessing, the profile's noise, the estimate a
-//! hybrid network refines).
+//! hybrid network refines), and a movie frame estimated from the frames around it
+//! ([`temporal`]: blocks tracked along the motion, averaged, and denoised at a mean's noise).
 //!
 //! A flat frame with Poisson–Gaussian noise, stabilized, denoised and brought back unbiased:
 //!
@@ -20,6 +21,7 @@
 
 pub mod bm3d;
 pub mod frame;
+pub mod temporal;
 pub mod vst;
 
 pub use frame::Classical;

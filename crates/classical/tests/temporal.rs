@@ -1,0 +1,223 @@
+//! Temporal denoising against known truth: one frame is iterative BM3D, neighbours add what
+//! their photons promise on a still scene and on a drifting one, an event in one frame stays in
+//! that frame, and the mean over a uniform region stays the signal's.
+
+use emccd_classical::temporal::{estimate, motion_mean, single};
+use emccd_classical::vst::{bm3d_adaptive, PoissonGaussian};
+
+const W: usize = 64;
+const H: usize = 64;
+/// A preprocessed EMCCD frame as a Poisson–Gaussian camera in DN: 2 DN per count (the gain),
+/// 0.5 DN read noise (a quarter of a count: the EM register lifts the signal far above it).
+const CAM: PoissonGaussian = PoissonGaussian {
+    alpha: 2.0,
+    sigma: 0.5,
+    mu: 0.0,
+};
+
+/// Uniforms from a 64-bit LCG, so the test depends on no random stream but its own.
+struct Lcg(u64);
+
+impl Lcg {
+    fn uniform(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    fn normal(&mut self) -> f64 {
+        (0..12).map(|_| self.uniform()).sum::<f64>() - 6.0
+    }
+
+    fn poisson(&mut self, lambda: f64) -> f64 {
+        if lambda > 50.0 {
+            return (lambda + lambda.sqrt() * self.normal()).round().max(0.0);
+        }
+        let (mut k, mut p, r) = (0.0, (-lambda).exp(), self.uniform());
+        let mut cdf = p;
+        while r > cdf {
+            k += 1.0;
+            p *= lambda / k;
+            cdf += p;
+        }
+        k
+    }
+
+    /// A frame of `CAM` (DN) of the expected counts `counts`.
+    fn frame(&mut self, counts: &[f64]) -> Vec<f32> {
+        counts
+            .iter()
+            .map(|&c| (CAM.alpha * self.poisson(c) + CAM.sigma * self.normal()) as f32)
+            .collect()
+    }
+}
+
+/// Bars, a gradient and round blobs, `peak` counts at the brightest.
+fn scene(peak: f64) -> Vec<f64> {
+    scene_at(peak, 0.0)
+}
+
+/// [`scene`] moved right by `dx` px (sub-pixel moves sample the same smooth pattern).
+fn scene_at(peak: f64, dx: f64) -> Vec<f64> {
+    (0..W * H)
+        .map(|i| {
+            let (x, y) = ((i % W) as f64 - dx, (i / W) as f64);
+            let bars = 0.325 + 0.175 * (std::f64::consts::PI * x / 8.0).sin().signum();
+            let blob = (-((x - 40.0).powi(2) + (y - 20.0).powi(2)) / 30.0).exp();
+            peak * (bars + 0.25 * y / H as f64 + 0.25 * blob)
+        })
+        .collect()
+}
+
+/// Frame `center` of `frames` (DN) estimated from the frames within `k` of it.
+fn temporal(frames: &[Vec<f32>], center: usize, k: usize) -> Vec<f32> {
+    let lo = center.saturating_sub(k);
+    let window: Vec<&[f32]> = frames[lo..(center + k + 1).min(frames.len())]
+        .iter()
+        .map(|f| f.as_slice())
+        .collect();
+    let singles: Vec<Vec<f32>> = window.iter().map(|f| single(f, W, H, CAM)).collect();
+    let singles: Vec<&[f32]> = singles.iter().map(|f| f.as_slice()).collect();
+    estimate(&window, &singles, center - lo, W, H, CAM)
+}
+
+fn psnr(est: &[f32], truth: &[f64]) -> f64 {
+    let peak = truth.iter().copied().fold(0.0, f64::max);
+    let mse = est
+        .iter()
+        .zip(truth)
+        .map(|(&e, &t)| (e as f64 - t).powi(2))
+        .sum::<f64>()
+        / truth.len() as f64;
+    10.0 * (peak * peak / mse).log10()
+}
+
+/// A window of one frame is iterative BM3D of that frame, and its mean is the frame.
+#[test]
+fn a_window_of_one_frame_is_the_single_frame_estimate() {
+    let mut rng = Lcg(3);
+    let frame = rng.frame(&scene(4.0));
+    let own = single(&frame, W, H, CAM);
+    assert_eq!(own, bm3d_adaptive(&frame, W, H, CAM));
+    assert_eq!(estimate(&[&frame], &[&own], 0, W, H, CAM), own);
+    let mm = motion_mean(&[&frame], &[&own], 0, W, H, CAM);
+    assert_eq!(mm.mean, frame);
+    assert!(mm.frames.iter().all(|&n| n == 1.0));
+}
+
+/// A still scene at about 1 photoelectron per pixel: five frames hold five
+/// times the photons. At these light levels a doubling of the photons is worth 1.1–1.7 dB to
+/// BM3D + GAT (README, "Low light"), so log2(5) ≈ 2.3 doublings should give at least
+/// 2.3 × 1.1 ≈ 2.5 dB; the test asks for 2, below that by the spread of one scene.
+#[test]
+fn still_frames_add_what_their_photons_promise() {
+    let mut rng = Lcg(11);
+    let truth_counts = scene(2.0);
+    let frames: Vec<Vec<f32>> = (0..5).map(|_| rng.frame(&truth_counts)).collect();
+    let truth: Vec<f64> = truth_counts.iter().map(|c| c * CAM.alpha).collect();
+    let temporal = psnr(&temporal(&frames, 2, 2), &truth);
+    let single = psnr(&bm3d_adaptive(&frames[2], W, H, CAM), &truth);
+    println!("single frame {single:.2} dB, five frames {temporal:.2} dB");
+    assert!(temporal > single + 2.0, "{single:.2} → {temporal:.2} dB");
+}
+
+/// A spot in one frame only (a blink, a transient): the frame keeps at least 80 % of its
+/// photo-signal and its neighbours, whose windows hold it, take less than 10 %.
+#[test]
+fn a_spot_in_one_frame_stays_in_that_frame() {
+    let mut rng = Lcg(29);
+    let background = scene(2.0);
+    // 400 counts in a Gaussian spot of σ = 1.5 px at (20, 44), on frame 2 of 5.
+    let spot: Vec<f64> = (0..W * H)
+        .map(|i| {
+            let (x, y) = ((i % W) as f64, (i / W) as f64);
+            let r2 = (x - 20.0).powi(2) + (y - 44.0).powi(2);
+            400.0 / (2.0 * std::f64::consts::PI * 2.25) * (-r2 / 4.5).exp()
+        })
+        .collect();
+    let frames: Vec<Vec<f32>> = (0..5)
+        .map(|k| {
+            let counts: Vec<f64> = if k == 2 {
+                background.iter().zip(&spot).map(|(b, s)| b + s).collect()
+            } else {
+                background.clone()
+            };
+            rng.frame(&counts)
+        })
+        .collect();
+    // The spot's photo-signal in DN over a 9×9 box, above the known background.
+    let in_box = |est: &[f32]| -> f64 {
+        let mut s = 0.0;
+        for y in 40..49 {
+            for x in 16..25 {
+                s += est[y * W + x] as f64 - CAM.alpha * background[y * W + x];
+            }
+        }
+        s
+    };
+    let total = CAM.alpha * spot.iter().sum::<f64>();
+    let kept = in_box(&temporal(&frames, 2, 2)) / total;
+    // Frame 1's windows hold the spot's frame.
+    let leaked = in_box(&temporal(&frames, 1, 2)) / total;
+    println!("kept {kept:.3}, leaked {leaked:.3}");
+    assert!(kept >= 0.8, "the spot's frame keeps {kept:.3} of it");
+    assert!(leaked.abs() < 0.1, "its neighbour takes {leaked:.3} of it");
+}
+
+/// A uniform scene at 0.5, 2 and 8 counts per pixel: the mean of the estimate is the signal's
+/// within 1 % (the transform's inverse is the exact unbiased one; the 64² mean's own noise is
+/// about √(α·z + σ²)/(64·z) of the signal, under 0.8 % at 0.5 counts).
+#[test]
+fn the_mean_of_a_uniform_region_stays() {
+    let mut rng = Lcg(47);
+    for counts in [0.5, 2.0, 8.0] {
+        let truth = vec![counts; W * H];
+        let frames: Vec<Vec<f32>> = (0..5).map(|_| rng.frame(&truth)).collect();
+        let est = temporal(&frames, 2, 2);
+        let one = single(&frames[2], W, H, CAM);
+        println!(
+            "{counts} counts: single-frame mean off by {:.2} %",
+            100.0
+                * (one.iter().map(|&v| v as f64).sum::<f64>()
+                    / one.len() as f64
+                    / (CAM.alpha * counts)
+                    - 1.0)
+        );
+        let mean = est.iter().map(|&v| v as f64).sum::<f64>() / est.len() as f64;
+        let rel = mean / (CAM.alpha * counts) - 1.0;
+        println!("{counts} counts: mean off by {:.2} %", 100.0 * rel);
+        assert!(
+            rel.abs() < 0.01,
+            "{counts} counts: mean off by {:.2} %",
+            100.0 * rel
+        );
+    }
+}
+
+/// A scene drifting right by 1 px per frame at 2 photons per pixel (4 counts at its brightest):
+/// blocks are tracked along the motion, and five frames still beat one (measured +1.5 dB; the
+/// test asks for 1). At 0.5 photons per pixel and 2.5 px per frame the motion is below what
+/// noise lets one see: the neighbours must then cost nothing (measured −0.2 dB; allowed −0.5).
+#[test]
+fn a_drifting_scene_is_followed_where_it_can_be_seen() {
+    let cases = [(2.0, 1.0, 1.0), (0.5, 2.5, -0.5)];
+    for (counts, speed, at_least) in cases {
+        let mut rng = Lcg(9);
+        let frames: Vec<Vec<f32>> = (0..5)
+            .map(|k| rng.frame(&scene_at(counts * 2.0, speed * k as f64)))
+            .collect();
+        let truth: Vec<f64> = scene_at(counts * 2.0, speed * 2.0)
+            .iter()
+            .map(|c| c * CAM.alpha)
+            .collect();
+        let one = psnr(&single(&frames[2], W, H, CAM), &truth);
+        let five = psnr(&temporal(&frames, 2, 2), &truth);
+        println!("{counts} e⁻, {speed} px/frame: {one:.2} → {five:.2} dB");
+        assert!(
+            five - one >= at_least,
+            "{counts} e⁻, {speed} px/frame: {one:.2} → {five:.2} dB"
+        );
+    }
+}
