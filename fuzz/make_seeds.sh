@@ -29,5 +29,5 @@ cp ../profiles/default/profile.toml seeds/profile/default.toml
 # A 557-parameter U-Net (2 channels, 1 level), one training step.
 F=../../shared/data/clean/microscopy/fmd-confocal-bpae
 cargo run -q --release --manifest-path ../Cargo.toml -- train --clean "$F/field1-avg50.png" --val "$F/field2-avg50.png" \
-    --steps 1 --batch 1 --crop 32 --base 2 --levels 1 --checkpoint-every 1 --warmup 1 -o "$PWD/seeds/model/tiny.safetensors" 2>/dev/null
+    --steps 1 --batch 1 --crop 32 --channels 2 --levels 1 --checkpoint-every 1 --warmup 1 -o "$PWD/seeds/model/tiny.safetensors" 2>/dev/null
 rm -rf seeds/model/tiny.safetensors.ckpt

@@ -21,7 +21,7 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
             "2",
             "--crop",
             "32",
-            "--base",
+            "--channels",
             "4",
             "--levels",
             "2",

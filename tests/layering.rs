@@ -1,7 +1,9 @@
 //! The crates' layering is what the README's Layout section states: its "Layering" paragraph
 //! names, for each library, the emccd crates it uses, and each library's `[dependencies]` and
 //! `[dev-dependencies]` must be exactly those. A back-edge (a lower layer reaching up) or a
-//! README that no longer says what the manifests do fails this test.
+//! README that no longer says what the manifests do fails this test. Inside every crate, the
+//! top-level modules must use each other without a cycle (read from their `crate::` paths,
+//! with the items the crate's root re-exports counted as their modules').
 
 use std::collections::{BTreeMap, BTreeSet};
 

@@ -1,5 +1,7 @@
-//! `emccd`: the command-line front end. Glue only: parsing, progress bars, messages and exit
-//! codes; the work is done by the library crates under `crates/`.
+//! `emccd`: the command-line front end. The commands (`commands/`) are glue: parsing, the
+//! device from `BURN_DEVICE`, progress bars, messages and exit codes; the work is done by the
+//! library crates under `crates/`. The benchmarks `emccd bench` runs live here (`bench/`),
+//! since they time the libraries and, for the archive benchmark, this binary itself.
 
 // The standard `println!`/`eprintln!` panic when the stream is closed (`emccd info f | head -1`,
 // or a log reader that went away in the middle of a batch). These shadow them for the whole
@@ -166,6 +168,15 @@ mod tests {
         };
         assert_eq!(a.cfg, emccd_nn::TrainConfig::default());
         assert_eq!(a.shape, emccd_nn::UNetConfig::DEFAULT);
+        // The U-Net's width was `--base` before it was `--channels`; both are taken.
+        for flag in ["--channels", "--base"] {
+            let cli = Cli::try_parse_from(["emccd", "train", "--clean", "d", "-o", "m", flag, "8"])
+                .unwrap();
+            let Command::Train(a) = cli.command else {
+                panic!("not train")
+            };
+            assert_eq!(a.shape.channels, 8, "{flag}");
+        }
         let cli = Cli::try_parse_from([
             "emccd",
             "train",

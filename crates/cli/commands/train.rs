@@ -3,8 +3,8 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use emccd_nn::model::{classical_for_run, scale_for_run};
 use emccd_nn::{Arch, Classical, Inputs, Scale, TrainConfig, UNetConfig};
+use emccd_train::train::{classical_for_run, scale_for_run};
 use emccd_train::{meta_for_run, train, Run, RunPaths, TrainImages};
 
 use crate::common::load_profile;

@@ -51,7 +51,7 @@ impl Resolved {
 }
 
 /// The method and model a request runs: `method` and `model` as given (either may be absent),
-/// with `load` turning a model argument into a model ([`load`], or a loader that also knows
+/// with `load` turning a model argument into a model ([`crate::bundled::load`], or a loader that also knows
 /// models embedded in a program). The model a method takes by default is `hybrid` for
 /// [`Method::Hybrid`], `lowlight` for [`Method::Blend`], `default` for [`Method::Net`]; a model alone picks the method it was
 /// trained for. An error where a model does not fit the method.

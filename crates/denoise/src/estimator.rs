@@ -31,7 +31,7 @@ enum Kind {
 }
 
 impl Estimator {
-    /// The estimator `name` stands for, with its model loaded by `load` ([`load`], or a
+    /// The estimator `name` stands for, with its model loaded by `load` ([`crate::bundled::load`], or a
     /// loader that also knows models embedded in a program).
     pub fn parse(name: &str, load: impl Fn(&str) -> Result<Model>) -> Result<Estimator> {
         let classical = match name {

@@ -51,10 +51,11 @@ pub fn cpu() -> Device {
     Device::flex()
 }
 
-/// The device networks run on: the one `requested` names (`flex`, or `vulkan`/`wgpu` in a GPU
-/// build: what the CLI and the Python package read from `BURN_DEVICE`), else the GPU when the
-/// binary was built with a GPU backend (`--features vulkan` or `wgpu`) and a GPU answers, else
-/// the flex CPU backend.
+/// The device networks run on: the flex CPU backend when `requested` says `flex` (what the CLI
+/// and the Python package read from `BURN_DEVICE`), else the GPU when the binary was built with
+/// a GPU backend (`--features vulkan` or `wgpu`) and a GPU answers, else the flex CPU backend.
+/// (Which GPU API a GPU build opens is burn's `Device::default`, which reads `BURN_DEVICE`
+/// itself; the choice is made once per process.)
 ///
 /// A GPU build on a machine whose driver cannot be loaded (no Vulkan ICD, or NVIDIA's without
 /// the glvnd libraries it links) would otherwise abort at the first tensor, from a thread of the
@@ -84,7 +85,9 @@ pub fn device(requested: Option<&str>) -> Device {
     #[cfg(not(any(feature = "vulkan", feature = "wgpu")))]
     {
         if requested.is_some_and(|v| v != "flex") {
-            eprintln!("warning: BURN_DEVICE is set but this build has only the flex CPU backend");
+            eprintln!(
+                "warning: a GPU device was requested (BURN_DEVICE) but this build has only the flex CPU backend"
+            );
         }
         Device::flex()
     }

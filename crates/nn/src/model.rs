@@ -222,29 +222,6 @@ impl Inputs {
     }
 }
 
-/// The classical estimate of a training run's refinement network: `chosen` (only a refinement
-/// network has one), else the `init` model's, else one BM3D pass.
-pub fn classical_for_run(
-    chosen: Option<Classical>,
-    inputs: Inputs,
-    init: Option<&ModelMeta>,
-) -> Result<Classical> {
-    match (chosen, init) {
-        (Some(_), _) if inputs != Inputs::Hybrid => Err(Error::Model(
-            "--hybrid-base: only a refinement network (--inputs hybrid) has a base estimate".into(),
-        )),
-        (Some(b), _) => Ok(b),
-        (None, Some(init)) => Ok(init.base),
-        (None, None) => Ok(Classical::Bm3d),
-    }
-}
-
-/// The input scaling rule of a training run: the one asked for, else the rule of the model it
-/// starts from (a fine-tune keeps the input its weights were trained on), else the default.
-pub fn scale_for_run(given: Option<Scale>, init: Option<&ModelMeta>) -> Scale {
-    given.or(init.map(|m| m.scale)).unwrap_or_default()
-}
-
 /// Everything a model file says about itself: what running it needs (architecture, inputs,
 /// base, scale, ablation: the contract the denoising pipeline reads; a file without the
 /// `inputs`, `base` or `scale` key has that field's default) and how it came to be (noise
@@ -308,6 +285,16 @@ impl Model {
     /// The device its network lives on.
     pub fn device(&self) -> &Device {
         &self.device
+    }
+
+    /// This model for inference after training: its network without the autodiff graph, on
+    /// `device` (the device it trained on, without autodiff).
+    pub fn valid(self, device: &Device) -> Model {
+        Model {
+            net: self.net.valid(),
+            meta: self.meta,
+            device: device.clone(),
+        }
     }
 
     /// The network's trainable parameters.
@@ -487,32 +474,6 @@ mod tests {
     }
 
     #[test]
-    fn a_run_s_base_is_chosen_or_inherited_and_only_a_refinement_network_has_one() {
-        assert_eq!(
-            classical_for_run(None, Inputs::Noisy, None).unwrap(),
-            Classical::Bm3d
-        );
-        assert_eq!(
-            classical_for_run(Some(Classical::Ivst), Inputs::Hybrid, None).unwrap(),
-            Classical::Ivst
-        );
-        let e = classical_for_run(Some(Classical::Ivst), Inputs::Noisy, None)
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("--inputs hybrid"), "{e}");
-        // The bundled hybrid network refines one BM3D pass: a run from it inherits that.
-        let hybrid = Model::read_meta(
-            &std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-                .join("../../models/hybrid-unet.safetensors"),
-        )
-        .unwrap();
-        assert_eq!(
-            classical_for_run(None, Inputs::Hybrid, Some(&hybrid)).unwrap(),
-            hybrid.base
-        );
-    }
-
-    #[test]
     fn architectures_for_training_are_the_builds_and_their_combinations() {
         let unet = Arch::for_training("unet", Inputs::Hybrid, sized(16, 3, false, 1)).unwrap();
         assert_eq!(unet.name(), "unet");
@@ -535,20 +496,5 @@ mod tests {
                 .to_string();
             assert!(e.contains(says), "{name}: {e}");
         }
-    }
-
-    #[test]
-    fn a_run_keeps_its_initial_models_scale_unless_told() {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../models/lowlight-unet.safetensors");
-        let mut meta = Model::read_meta(&path).unwrap();
-        assert_eq!(scale_for_run(None, Some(&meta)), meta.scale);
-        meta.scale = Scale::Binned;
-        assert_eq!(scale_for_run(None, Some(&meta)), Scale::Binned);
-        assert_eq!(
-            scale_for_run(Some(Scale::Percentile), Some(&meta)),
-            Scale::Percentile
-        );
-        assert_eq!(scale_for_run(None, None), Scale::Percentile);
     }
 }

@@ -205,7 +205,7 @@ impl TrainConfig {
     }
 }
 
-/// What an adapted model file records about its adaptation ([`ModelMeta::adapted`]).
+/// What an adapted model file records about its adaptation ([`crate::ModelMeta::adapted`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Adaptation {
     /// How it was adapted (`resynthesis`, `noise2noise`, …).

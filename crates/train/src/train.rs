@@ -24,7 +24,7 @@ use serde::{Deserialize, Serialize};
 use crate::crops::{draw_orientation, orient, sub_image};
 use crate::recorded::RecordedPairs;
 use emccd_nn::norm::{prepare_hybrid, prepare_scaled, signal_scale};
-use emccd_nn::{Error, Inputs, Loss, Model, ModelMeta, Net, Result, TrainConfig};
+use emccd_nn::{Classical, Error, Inputs, Loss, Model, ModelMeta, Net, Result, Scale, TrainConfig};
 
 /// A clean training image, values in [0, 1].
 pub use emccd_io::Image;
@@ -380,6 +380,29 @@ impl RunPaths {
             checkpoint: PathBuf::from(format!("{}.ckpt", out.display())),
         }
     }
+}
+
+/// The classical estimate of a training run's refinement network: `chosen` (only a refinement
+/// network has one), else the `init` model's, else one BM3D pass.
+pub fn classical_for_run(
+    chosen: Option<Classical>,
+    inputs: Inputs,
+    init: Option<&ModelMeta>,
+) -> Result<Classical> {
+    match (chosen, init) {
+        (Some(_), _) if inputs != Inputs::Hybrid => Err(Error::Model(
+            "--hybrid-base: only a refinement network (--inputs hybrid) has a base estimate".into(),
+        )),
+        (Some(b), _) => Ok(b),
+        (None, Some(init)) => Ok(init.base),
+        (None, None) => Ok(Classical::Bm3d),
+    }
+}
+
+/// The input scaling rule of a training run: the one asked for, else the rule of the model it
+/// starts from (a fine-tune keeps the input its weights were trained on), else the default.
+pub fn scale_for_run(given: Option<Scale>, init: Option<&ModelMeta>) -> Scale {
+    given.or(init.map(|m| m.scale)).unwrap_or_default()
 }
 
 /// The metadata of a new training run's model: `arch` taking `inputs` (a refinement network
@@ -773,6 +796,7 @@ pub(crate) fn train_from(
     check_run(&source, &val_images, &cfg)?;
     let c = cfg.crop;
     let abl = cfg.ablate;
+    let inference = device.clone();
     let device = device.autodiff();
     let Start {
         mut model,
@@ -884,13 +908,13 @@ pub(crate) fn train_from(
         }) {
             drop(rx);
             let _ = producer.join();
-            return Ok(model);
+            return Ok(model.valid(&inference));
         }
     }
     drop(rx);
     let _ = producer.join();
     model.save(&paths.out)?;
-    Ok(model)
+    Ok(model.valid(&inference))
 }
 
 #[cfg(test)]
@@ -1087,5 +1111,46 @@ mod tests {
         for (p, a) in plain.iter().zip(&augmented) {
             assert!((0..8u8).any(|m| orient(p, c, m) == *a));
         }
+    }
+
+    #[test]
+    fn a_run_s_base_is_chosen_or_inherited_and_only_a_refinement_network_has_one() {
+        assert_eq!(
+            classical_for_run(None, Inputs::Noisy, None).unwrap(),
+            Classical::Bm3d
+        );
+        assert_eq!(
+            classical_for_run(Some(Classical::Ivst), Inputs::Hybrid, None).unwrap(),
+            Classical::Ivst
+        );
+        let e = classical_for_run(Some(Classical::Ivst), Inputs::Noisy, None)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--inputs hybrid"), "{e}");
+        // The bundled hybrid network refines one BM3D pass: a run from it inherits that.
+        let hybrid = Model::read_meta(
+            &std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../../models/hybrid-unet.safetensors"),
+        )
+        .unwrap();
+        assert_eq!(
+            classical_for_run(None, Inputs::Hybrid, Some(&hybrid)).unwrap(),
+            hybrid.base
+        );
+    }
+
+    #[test]
+    fn a_run_keeps_its_initial_models_scale_unless_told() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../models/lowlight-unet.safetensors");
+        let mut meta = Model::read_meta(&path).unwrap();
+        assert_eq!(scale_for_run(None, Some(&meta)), meta.scale);
+        meta.scale = Scale::Binned;
+        assert_eq!(scale_for_run(None, Some(&meta)), Scale::Binned);
+        assert_eq!(
+            scale_for_run(Some(Scale::Percentile), Some(&meta)),
+            Scale::Percentile
+        );
+        assert_eq!(scale_for_run(None, None), Scale::Percentile);
     }
 }
