@@ -125,6 +125,7 @@ fn main() -> Result<()> {
             tiling: Default::default(),
             ensemble: 1,
             units: Units::Dn,
+            window: 0,
         };
         let out = d.run(&raw, 0.01)?;
         println!(
@@ -182,6 +183,7 @@ fn main() -> Result<()> {
         tiling: Default::default(),
         ensemble: 1,
         units: Units::Dn,
+        window: 0,
     };
     println!(
         "adapted net: {:.2} dB",

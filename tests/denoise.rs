@@ -308,3 +308,60 @@ fn the_default_method_is_the_blend_of_ivst_and_lowlight() {
     assert_ne!(default, run(&["--method", "ivst"], "ivst.tif"));
     assert_ne!(default, run(&["--method", "bm3d"], "bm3d.tif"));
 }
+
+/// `--method temporal` through the binary: a cropped 4-frame stack is denoised with its
+/// neighbours (frame count and size kept, the window in the Zarr provenance), `--window 0`
+/// gives `ivst`'s frames, and a window asked of a per-frame method is refused before anything
+/// is written.
+#[test]
+fn temporal_denoises_a_stack_with_its_neighbours() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let clean = shared("clean/microscopy/fmd-confocal-bpae/field1-avg50.png");
+    ok(&emccd(
+        &[
+            "simulate",
+            "pairs",
+            "--clean",
+            clean.to_str().unwrap(),
+            "--frames",
+            "4",
+            "--crop",
+            "96x80",
+            "-o",
+            "pairs",
+        ],
+        d,
+    ));
+    ok(&emccd(
+        &["profile", "crop", "default", "prof", "--roi", "96x80"],
+        d,
+    ));
+    let noisy = "pairs/noisy/field1-avg50_p20.tif";
+    let run = |args: &[&str]| {
+        let mut all = vec!["denoise", noisy, "--profile", "prof"];
+        all.extend_from_slice(args);
+        emccd(&all, d)
+    };
+    ok(&run(&[
+        "-o", "t.tif", "--method", "temporal", "--window", "1",
+    ]));
+    let (info, t) = emccd_io::read_all(d.join("t.tif")).unwrap();
+    assert_eq!((info.width, info.height, info.frames), (96, 80, 4));
+    ok(&run(&[
+        "-o", "t0.tif", "--method", "temporal", "--window", "0",
+    ]));
+    ok(&run(&["-o", "ivst.tif", "--method", "ivst"]));
+    let (_, t0) = emccd_io::read_all(d.join("t0.tif")).unwrap();
+    let (_, ivst) = emccd_io::read_all(d.join("ivst.tif")).unwrap();
+    assert_eq!(t0, ivst);
+    assert_ne!(t, ivst);
+    ok(&run(&["-o", "t.zarr", "--method", "temporal"]));
+    let attrs = std::fs::read_to_string(d.join("t.zarr/zarr.json")).unwrap();
+    assert!(attrs.contains("\"window\": 2"), "{attrs}");
+    let o = run(&["-o", "b.tif", "--method", "bm3d", "--window", "1"]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--method temporal"), "{err}");
+    assert!(!d.join("b.tif").exists());
+}

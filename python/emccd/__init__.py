@@ -146,6 +146,7 @@ def denoise(
     overlap: int = 32,
     extrapolate: bool = False,
     progress: Progress = None,
+    window: Optional[int] = None,
 ) -> np.ndarray:
     """Denoises raw EMCCD frames (DN as the camera wrote them; 2-D or 3-D, any integer or float
     dtype) as ``emccd denoise`` does: blooming and the fixed pattern are removed with the
@@ -154,7 +155,8 @@ def denoise(
 
     ``method``: ``blend`` (the default with no model: iterative BM3D and the ``lowlight``
     network averaged, the most accurate at low light), ``ivst`` (iterative BM3D), ``bm3d``, ``hybrid`` (BM3D refined by a network), ``net`` (a network alone, the
-    fastest) or ``none`` (preprocessing only). ``model``: a bundled model (``default``,
+    fastest), ``temporal`` (each frame of a 3-D stack estimated from the ``window`` frames
+    before and after it too, 2 by default) or ``none`` (preprocessing only). ``model``: a bundled model (``default``,
     ``microscopy``, ``lowlight``, ``hybrid``) or a model file; a model alone picks the method it was trained
     for. ``exposure_s`` is required (arrays carry no header; :func:`read` returns it in the
     metadata). ``progress(done, total)`` is called after each frame; an exception it raises
@@ -181,6 +183,7 @@ def denoise(
         int(ensemble),
         bool(extrapolate),
         progress,
+        None if window is None else int(window),
     )
     for n in notes:
         warnings.warn(n, stacklevel=2)

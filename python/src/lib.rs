@@ -420,9 +420,10 @@ fn calibrate(
 
 /// Denoises raw frames [frames, height, width] (DN, the profile's size) taken with
 /// `exposure_s`, as `emccd denoise` does: returns float32 frames in DN above bias or
-/// photoelectrons, and the warnings the CLI would print.
+/// photoelectrons, and the warnings the CLI would print. `method="temporal"` estimates each
+/// frame from the `window` frames before and after it too (the frames are one recording).
 #[pyfunction]
-#[pyo3(signature = (frames, profile, exposure_s, model=None, method=None, units="dn", tile=512, overlap=32, ensemble=1, extrapolate=false, progress=None))]
+#[pyo3(signature = (frames, profile, exposure_s, model=None, method=None, units="dn", tile=512, overlap=32, ensemble=1, extrapolate=false, progress=None, window=None))]
 #[allow(clippy::too_many_arguments)]
 fn denoise<'py>(
     py: Python<'py>,
@@ -437,6 +438,7 @@ fn denoise<'py>(
     ensemble: usize,
     extrapolate: bool,
     progress: Option<Py<PyAny>>,
+    window: Option<usize>,
 ) -> PyResult<(Bound<'py, PyArray3<f32>>, Vec<String>)> {
     let p = &profile.inner;
     let method = method
@@ -456,12 +458,46 @@ fn denoise<'py>(
     let r = py.detach(|| -> anyhow::Result<(Vec<f32>, Vec<String>)> {
         let mut warnings = Vec::new();
         let r = emccd_denoise::resolve(method, model.as_deref(), load_model)?;
-        let fd = r.denoiser(p, emccd_nn::tile::Tiling { tile, overlap }, ensemble, units)?;
+        let window = r.window(window)?;
+        let fd = r.denoiser(
+            p,
+            emccd_nn::tile::Tiling { tile, overlap },
+            ensemble,
+            units,
+            window,
+        )?;
         if let Some(wn) = p.check_frames(w, h, exposure_s, "exposure_s", extrapolate)? {
             warnings.push(wn);
         }
         warnings.extend(r.profile_warning(p));
         let mut out = Vec::with_capacity(raw.len());
+        if fd.method.temporal() {
+            let at = |k: usize| format!("frame {}", k + 1);
+            emccd_denoise::movie::denoise_frames(
+                &fd,
+                exposure_s,
+                f,
+                0..f,
+                &at,
+                &mut |k, buf| {
+                    if let Some(buf) = buf {
+                        buf.copy_from_slice(&raw[k * w * h..(k + 1) * w * h]);
+                    }
+                    Ok(())
+                },
+                &mut |k, frame| {
+                    out.extend(frame);
+                    if !cb.advance(1) {
+                        return Err(emccd_nn::Error::Data(format!(
+                            "stopped after frame {}",
+                            k + 1
+                        )));
+                    }
+                    Ok(())
+                },
+            )?;
+            return Ok((out, warnings));
+        }
         for (k, frame) in raw.chunks(w * h).enumerate() {
             out.extend(
                 fd.run(frame, exposure_s)

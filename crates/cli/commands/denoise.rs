@@ -17,6 +17,7 @@ use crate::common::{load_profile, open_recording, progress};
 /// BM3D + GAT, above it and above `ivst` at every light level); `--method ivst` is the
 /// classical half alone, `--method bm3d` one plain BM3D + GAT pass, `--method hybrid` refines BM3D's estimate with the bundled
 /// hybrid network (still in training), `--method net` runs a network alone (fastest), `--method
+/// temporal` estimates each frame of a stack from its neighbours too (`--window`), `--method
 /// none` only preprocesses. TIFF/BigTIFF, SIF, FITS and Zarr in (stacks are streamed frame by
 /// frame); float32 TIFF, FITS or OME-Zarr out (by the output's extension), in DN above bias by
 /// default. The exposure comes from the file header (SIF, emccd TIFF) or --exposure-s.
@@ -61,6 +62,11 @@ pub struct Args {
     /// a geometric self-ensemble, slightly higher PSNR for proportionally more time.
     #[arg(long, default_value_t = 1, value_parser = parse_ensemble)]
     pub ensemble: usize,
+    /// --method temporal: the frames before and after each frame it uses (default 2: five
+    /// frames; 0: each frame alone, as --method ivst). A frame's window stays within its
+    /// recording and is clipped at the recording's ends; at most 2·K + 1 frames are held.
+    #[arg(long, value_name = "K", value_parser = clap::value_parser!(u16).range(0..=16))]
+    pub window: Option<u16>,
     /// Denoise only share I of N of the frames (I from 0; contiguous, one chunk per frame) into
     /// a `.zarr` output that N processes write at once — a SLURM array task passes
     /// `--shard $SLURM_ARRAY_TASK_ID/N` with N written out (a task resubmitted alone has an
@@ -81,8 +87,9 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(w) = r.profile_warning(&profile) {
         eprintln!("warning: {w}");
     }
+    let window = r.window(a.window.map(usize::from))?;
     let fd = r
-        .denoiser(&profile, a.tiling, a.ensemble, a.units)
+        .denoiser(&profile, a.tiling, a.ensemble, a.units, window)
         .map_err(|e| anyhow::anyhow!("profile {}: {e}", a.profile))?;
     let zarr = emccd_io::Format::from_extension(&a.out) == Some(emccd_io::Format::Zarr);
     if a.shard.is_some() && !zarr {

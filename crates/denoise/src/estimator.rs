@@ -34,6 +34,13 @@ impl Estimator {
     /// The estimator `name` stands for, with its model loaded by `load` ([`crate::bundled::load`], or a
     /// loader that also knows models embedded in a program).
     pub fn parse(name: &str, load: impl Fn(&str) -> Result<Model>) -> Result<Estimator> {
+        if name == "temporal" {
+            return Err(Error::Model(
+                "--method temporal: evaluate scores each frame of a pair alone; denoise a stack \
+                 with `emccd denoise --method temporal`"
+                    .into(),
+            ));
+        }
         let classical = match name {
             "input" => Some(Method::None),
             "bm3d" => Some(Method::Bm3d),
@@ -143,6 +150,7 @@ impl Estimator {
                 tiling: Tiling::default(),
                 ensemble: *ensemble,
                 units: Units::Dn,
+                window: 0,
             }
             .run(raw, exposure_s),
         }
@@ -220,6 +228,7 @@ mod tests {
                 tiling: Tiling::default(),
                 ensemble: 1,
                 units: Units::Dn,
+                window: 0,
             };
             assert_eq!(
                 est.run(&p, &raw, 0.01).unwrap(),

@@ -36,9 +36,10 @@ pub mod bundled;
 pub mod denoiser;
 pub mod estimator;
 pub mod method;
+pub mod movie;
 pub mod stack;
 
-pub use denoiser::{profile_mismatch, resolve, Denoiser, Resolved};
+pub use denoiser::{profile_mismatch, resolve, Denoiser, Resolved, DEFAULT_WINDOW};
 pub use emccd_nn::{Error, Result};
 pub use estimator::Estimator;
 pub use method::{check_ensemble, ensemble_size, Method, ModelSpec, Units, DEFAULT_METHOD};

@@ -30,6 +30,12 @@ pub enum Method {
     /// Better than `bm3d` below about 8 e⁻ per pixel (4 counts), the same above; up to about
     /// 2.3× its time.
     Ivst,
+    /// A movie's frame from the frames around it (`--window K`: the K frames before and after
+    /// it, 2 by default): blocks tracked along the motion are averaged into a
+    /// motion-compensated mean, which iterative BM3D denoises at a mean's noise; where the
+    /// neighbours do not match (motion it cannot follow, a blink, a scene cut) each pixel falls
+    /// back to `ivst` of the frame alone, as does a single frame. About twice `ivst`'s time.
+    Temporal,
     /// No denoising: blooming and the fixed pattern removed and the units converted, as every
     /// method does first (the preprocessed photo-signal, for one's own analysis).
     None,
@@ -43,20 +49,22 @@ pub const DEFAULT_METHOD: Method = Method::Blend;
 
 impl Method {
     /// Every method.
-    pub const ALL: [Method; 6] = [
+    pub const ALL: [Method; 7] = [
         Method::Hybrid,
         Method::Blend,
         Method::Net,
         Method::Bm3d,
         Method::Ivst,
+        Method::Temporal,
         Method::None,
     ];
 
-    /// The classical estimate this method runs without a network, if it is one.
+    /// The classical estimate this method runs on a frame alone, if it is one (a temporal
+    /// method's, on a frame without neighbours).
     pub fn classical(self) -> Option<Classical> {
         match self {
             Method::Bm3d => Some(Classical::Bm3d),
-            Method::Ivst => Some(Classical::Ivst),
+            Method::Ivst | Method::Temporal => Some(Classical::Ivst),
             Method::Hybrid | Method::Blend | Method::Net | Method::None => None,
         }
     }
@@ -69,8 +77,14 @@ impl Method {
             Method::Net => "net",
             Method::Bm3d => "bm3d",
             Method::Ivst => "ivst",
+            Method::Temporal => "temporal",
             Method::None => "none",
         }
+    }
+
+    /// Whether the method estimates a frame from its neighbours too (and so takes a window).
+    pub fn temporal(self) -> bool {
+        self == Method::Temporal
     }
 
     /// Whether the method runs a network (and so takes a model).

@@ -38,7 +38,7 @@ pub fn provenance(
         None => None,
     };
     let net = fd.model.is_some();
-    Ok(json!({
+    let mut p = json!({
         "software": software,
         "inputs": ids,
         "profile_fingerprint": fd.profile.fingerprint_hex(),
@@ -48,7 +48,11 @@ pub fn provenance(
         "tile": net.then_some(fd.tiling.tile),
         "overlap": net.then_some(fd.tiling.overlap),
         "ensemble": net.then_some(fd.ensemble),
-    }))
+    });
+    if fd.method.temporal() {
+        p["window"] = fd.window.into();
+    }
+    Ok(p)
 }
 
 /// The recording's next frame into `buf`; `at` names it in errors (a read error, or a file
@@ -224,6 +228,41 @@ pub fn denoise_shard(
         let name = i.path.display().to_string();
         let count = i.info.frames;
         let at = |j: usize| format!("{name}: frame {}", j + 1);
+        if fd.method.temporal() {
+            // This input's frames of the share, with their windows' frames around them.
+            let first = k;
+            let want =
+                range.start.max(first) - first..range.end.min(first + count).max(first) - first;
+            let exposure = i.exposure;
+            let reader = &mut i;
+            crate::movie::denoise_frames(
+                fd,
+                exposure,
+                count,
+                want.clone(),
+                &at,
+                &mut |j, buf| match buf {
+                    Some(buf) => read_frame(reader, buf, || at(j)),
+                    None => reader
+                        .reader
+                        .skip_frame()
+                        .map(|_| ())
+                        .map_err(|source| Error::Frame { at: at(j), source }),
+                },
+                &mut |j, out| {
+                    if store.is_done(first + j) {
+                        run.skipped += 1;
+                    } else {
+                        store.write_frame(first + j, &out)?;
+                        run.written += 1;
+                        on_frame();
+                    }
+                    Ok(())
+                },
+            )?;
+            k += count;
+            continue;
+        }
         for j in 0..count {
             if k >= range.end {
                 break;
@@ -269,6 +308,27 @@ pub fn denoise_file(
     )?;
     let name = input.path.display().to_string();
     let at = |j: usize| format!("{name}: frame {}", j + 1);
+    if fd.method.temporal() {
+        let exposure = input.exposure;
+        crate::movie::denoise_frames(
+            fd,
+            exposure,
+            frames,
+            0..frames,
+            &at,
+            &mut |j, buf| match buf {
+                Some(buf) => read_frame(&mut input, buf, || at(j)),
+                None => Ok(()),
+            },
+            &mut |_, out| {
+                w.write_frame(&out)?;
+                on_frame();
+                Ok(())
+            },
+        )?;
+        w.finish()?;
+        return Ok(frames);
+    }
     let mut buf = vec![0f32; width * height];
     for j in 0..frames {
         read_frame(&mut input, &mut buf, || at(j))?;

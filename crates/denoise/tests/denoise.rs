@@ -54,6 +54,7 @@ fn blend_averages_ivst_and_the_network() {
             tiling: Default::default(),
             ensemble: 1,
             units: emccd_denoise::Units::Dn,
+            window: 0,
         }
         .run(&raw, 0.01)
         .unwrap()
@@ -136,6 +137,7 @@ fn a_stack_is_denoised_in_shards_with_the_model_it_ran_in_its_provenance() {
         tiling: Default::default(),
         ensemble: 1,
         units: Units::Dn,
+        window: 0,
     };
     let p = provenance(&blend, r.model_name.as_deref(), &both(), "emccd test").unwrap();
     let lowlight = emccd_io::content_hash(&model_path("lowlight").unwrap()).unwrap();

@@ -53,6 +53,7 @@ fn blend_is_pinned() {
             tiling,
             ensemble,
             units: Units::Dn,
+            window: 0,
         }
         .run(&raw, 0.01)
         .unwrap();

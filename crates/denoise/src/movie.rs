@@ -1,0 +1,100 @@
+//! A recording's frames denoised with their neighbours ([`Method::Temporal`]) in bounded
+//! memory: each frame is preprocessed and given its single-frame estimate once, as it is read,
+//! and at most `2K + 1` of them (the window of `K` frames each side) are held at a time. A
+//! frame's window stays within its recording and is clipped at the recording's ends.
+//!
+//! [`Method::Temporal`]: crate::Method::Temporal
+
+use std::collections::VecDeque;
+use std::ops::Range;
+
+use emccd_classical::frame::{preprocess, vst_params};
+use emccd_nn::{Classical, Error, Result};
+
+use crate::denoiser::Denoiser;
+
+/// One frame held for the windows it belongs to: its number, the preprocessed frame and its
+/// single-frame estimate (both DN above bias).
+struct Held {
+    index: usize,
+    frame: Vec<f32>,
+    single: Vec<f32>,
+}
+
+/// Frames `want` of a recording of `count` frames taken with `exposure_s`, denoised by `fd`'s
+/// temporal method with `fd.window` frames each side. The recording's frames are taken in
+/// order by `next(j, Some(buf))`, from the first any window needs; the ones before it are
+/// passed over by `next(j, None)`. Each wanted frame is handed to `emit(j, frame)`, in order,
+/// in `fd`'s units. Errors about a frame are named by `at(j)`.
+#[allow(clippy::too_many_arguments)]
+pub fn denoise_frames(
+    fd: &Denoiser,
+    exposure_s: f64,
+    count: usize,
+    want: Range<usize>,
+    at: &dyn Fn(usize) -> String,
+    next: &mut dyn FnMut(usize, Option<&mut [f32]>) -> Result<()>,
+    emit: &mut dyn FnMut(usize, Vec<f32>) -> Result<()>,
+) -> Result<()> {
+    let want = want.start..want.end.min(count);
+    if want.is_empty() {
+        return Ok(());
+    }
+    let k = fd.window;
+    let (lo, hi) = (want.start.saturating_sub(k), (want.end + k).min(count));
+    let p = fd.profile;
+    let noise = vst_params(p, exposure_s)?;
+    let to_units = fd.units.factor(p)?;
+    for j in 0..lo {
+        next(j, None)?;
+    }
+    let mut held: VecDeque<Held> = VecDeque::with_capacity(2 * k + 1);
+    let mut buf = vec![0f32; p.len()];
+    let mut due = want.start;
+    for j in lo..hi {
+        next(j, Some(&mut buf))?;
+        held.push_back(prepare(fd, j, &buf, exposure_s).map_err(|e| e.at(at(j)))?);
+        // Every frame whose window is now complete (or ends at the last frame read).
+        while due < want.end && (due + k <= j || j + 1 == hi) {
+            while held.front().is_some_and(|h| h.index + k < due) {
+                held.pop_front();
+            }
+            let window: Vec<&Held> = held.iter().filter(|h| h.index <= due + k).collect();
+            let center = window
+                .iter()
+                .position(|h| h.index == due)
+                .expect("the frame itself is held");
+            let frames: Vec<&[f32]> = window.iter().map(|h| h.frame.as_slice()).collect();
+            let singles: Vec<&[f32]> = window.iter().map(|h| h.single.as_slice()).collect();
+            let mut out = emccd_classical::temporal::estimate(
+                &frames, &singles, center, p.width, p.height, noise,
+            );
+            if to_units != 1.0 {
+                out.iter_mut().for_each(|v| *v *= to_units);
+            }
+            emit(due, out)?;
+            due += 1;
+        }
+    }
+    Ok(())
+}
+
+/// Raw frame `index` preprocessed, with its single-frame estimate: refused when a value is not
+/// finite (as [`Denoiser::run`] refuses it).
+fn prepare(fd: &Denoiser, index: usize, raw: &[f32], exposure_s: f64) -> Result<Held> {
+    let width = fd.profile.width.max(1);
+    if let Some(i) = raw.iter().position(|v| !v.is_finite()) {
+        return Err(Error::Data(format!(
+            "a non-finite value at pixel ({}, {})",
+            i % width,
+            i / width
+        )));
+    }
+    let frame = preprocess(fd.profile, raw, exposure_s)?;
+    let single = Classical::Ivst.of_frame(fd.profile, &frame, exposure_s)?;
+    Ok(Held {
+        index,
+        frame,
+        single,
+    })
+}

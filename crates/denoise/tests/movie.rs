@@ -1,0 +1,225 @@
+//! `--method temporal` on stacks: streamed in windows, it gives what the windows computed in
+//! memory give; `--window 0` is `ivst` to the bit; shares of an OME-Zarr store read the frames
+//! of context around them and so equal one process's output; a stack too short for its window
+//! uses the frames it has; a bad frame is an error naming it, with nothing left behind.
+
+use emccd_camera::{PhysicalParams, VirtualCamera};
+use emccd_classical::frame::{preprocess, vst_params};
+use emccd_denoise::stack::{denoise_file, denoise_shard, provenance};
+use emccd_denoise::{resolve, Denoiser, Method, Units};
+use emccd_io::zarr::{ZarrStackSpec, ZarrStackWriter};
+use emccd_profile::{CameraProfile, Recording};
+
+const W: usize = 48;
+const H: usize = 40;
+const EXPOSURE: f64 = 0.01;
+
+fn profile() -> CameraProfile {
+    emccd_profile::default_profile()
+        .crop(emccd_profile::Roi::corner(W, H))
+        .unwrap()
+}
+
+/// `n` raw frames of the virtual camera: bars drifting right by 1 px per frame, about 2
+/// photoelectrons per pixel.
+fn movie(n: usize) -> Vec<Vec<f32>> {
+    let cam = VirtualCamera::new(profile(), PhysicalParams::default()).unwrap();
+    let e = cam.exposure(EXPOSURE);
+    (0..n)
+        .map(|k| {
+            let photons: Vec<f32> = (0..W * H)
+                .map(|i| {
+                    let x = (i % W + 48 - k) % 48;
+                    if (x / 6) % 2 == 0 {
+                        6.0
+                    } else {
+                        1.5
+                    }
+                })
+                .collect();
+            let mut raw = vec![0f32; W * H];
+            e.frame(&photons, 100 + k as u64, &mut raw);
+            raw
+        })
+        .collect()
+}
+
+fn write(path: &std::path::Path, frames: &[Vec<f32>]) {
+    let mut wr =
+        emccd_io::StackWriter::create(path, W, H, emccd_io::SampleFormat::F32, Some(frames.len()))
+            .unwrap();
+    wr.set_metadata(&emccd_io::Metadata {
+        exposure_s: Some(EXPOSURE),
+        ..Default::default()
+    });
+    for f in frames {
+        wr.write_frame(f).unwrap();
+    }
+    wr.finish().unwrap();
+}
+
+fn open(path: &std::path::Path, p: &CameraProfile) -> Recording {
+    Recording::open(path, p, None, "--exposure-s", false).unwrap()
+}
+
+fn temporal(p: &CameraProfile, window: usize) -> Denoiser<'_> {
+    Denoiser {
+        profile: p,
+        method: Method::Temporal,
+        model: None,
+        tiling: Default::default(),
+        ensemble: 1,
+        units: Units::Dn,
+        window,
+    }
+}
+
+/// Every frame of `raws` from its clipped window, computed with everything in memory.
+fn in_memory(p: &CameraProfile, raws: &[Vec<f32>], k: usize) -> Vec<Vec<f32>> {
+    let noise = vst_params(p, EXPOSURE).unwrap();
+    let pre: Vec<Vec<f32>> = raws
+        .iter()
+        .map(|r| preprocess(p, r, EXPOSURE).unwrap())
+        .collect();
+    let singles: Vec<Vec<f32>> = pre
+        .iter()
+        .map(|f| emccd_classical::temporal::single(f, W, H, noise))
+        .collect();
+    (0..raws.len())
+        .map(|t| {
+            let lo = t.saturating_sub(k);
+            let hi = (t + k + 1).min(raws.len());
+            let frames: Vec<&[f32]> = pre[lo..hi].iter().map(|f| f.as_slice()).collect();
+            let s: Vec<&[f32]> = singles[lo..hi].iter().map(|f| f.as_slice()).collect();
+            emccd_classical::temporal::estimate(&frames, &s, t - lo, W, H, noise)
+        })
+        .collect()
+}
+
+#[test]
+fn a_streamed_stack_is_the_windows_computed_in_memory() {
+    let p = profile();
+    let dir = tempfile::tempdir().unwrap();
+    let raws = movie(7);
+    let input = dir.path().join("movie.tif");
+    write(&input, &raws);
+    for k in [1, 2] {
+        let out = dir.path().join(format!("k{k}.tif"));
+        let n = denoise_file(&temporal(&p, k), open(&input, &p), &out, &mut || ()).unwrap();
+        assert_eq!(n, 7);
+        let (_, got) = emccd_io::read_all(&out).unwrap();
+        assert_eq!(got, in_memory(&p, &raws, k), "window {k}");
+    }
+}
+
+#[test]
+fn window_zero_is_ivst_to_the_bit_and_a_short_stack_uses_what_it_has() {
+    let p = profile();
+    let dir = tempfile::tempdir().unwrap();
+    let raws = movie(3);
+    let input = dir.path().join("movie.tif");
+    write(&input, &raws);
+    let ivst = Denoiser {
+        method: Method::Ivst,
+        window: 0,
+        ..temporal(&p, 0)
+    };
+    let out = dir.path().join("w0.tif");
+    denoise_file(&temporal(&p, 0), open(&input, &p), &out, &mut || ()).unwrap();
+    let (_, got) = emccd_io::read_all(&out).unwrap();
+    for (g, raw) in got.iter().zip(&raws) {
+        assert_eq!(g, &ivst.run(raw, EXPOSURE).unwrap());
+    }
+    // A window of 3 on 3 frames: each frame's window is the whole stack.
+    let out = dir.path().join("w3.tif");
+    denoise_file(&temporal(&p, 3), open(&input, &p), &out, &mut || ()).unwrap();
+    let (_, got) = emccd_io::read_all(&out).unwrap();
+    assert_eq!(got, in_memory(&p, &raws, 3));
+    // One frame: its own estimate, as ivst gives it.
+    let single = dir.path().join("one.tif");
+    write(&single, &raws[..1]);
+    let out = dir.path().join("one_out.tif");
+    denoise_file(&temporal(&p, 3), open(&single, &p), &out, &mut || ()).unwrap();
+    let (_, got) = emccd_io::read_all(&out).unwrap();
+    assert_eq!(got[0], ivst.run(&raws[0], EXPOSURE).unwrap());
+    // A window asked of a method that denoises frames alone is refused.
+    let r = resolve(Some(Method::Bm3d), None, |_| unreachable!()).unwrap();
+    assert!(r
+        .window(Some(2))
+        .unwrap_err()
+        .to_string()
+        .contains("--method temporal"));
+    assert_eq!(r.window(None).unwrap(), 0);
+    let r = resolve(Some(Method::Temporal), None, |_| unreachable!()).unwrap();
+    assert_eq!(r.window(None).unwrap(), emccd_denoise::DEFAULT_WINDOW);
+}
+
+/// Two files make one OME-Zarr stack; windows stay within a file. Shares split inside a file
+/// read their frames of context and write only their own: the store equals the files
+/// denoised one by one.
+#[test]
+fn shares_of_a_store_read_their_context_and_equal_one_process() {
+    let p = profile();
+    let dir = tempfile::tempdir().unwrap();
+    let raws = movie(9);
+    let (a, b) = (dir.path().join("a.tif"), dir.path().join("b.tif"));
+    write(&a, &raws[..4]);
+    write(&b, &raws[4..]);
+    let fd = temporal(&p, 2);
+    let both = || vec![open(&a, &p), open(&b, &p)];
+    let spec = ZarrStackSpec {
+        width: W,
+        height: H,
+        frames: 9,
+        name: "m".into(),
+        provenance: provenance(&fd, None, &both(), "emccd test").unwrap(),
+        notes: serde_json::Value::Null,
+    };
+    assert_eq!(spec.provenance["window"], 2);
+    let out = dir.path().join("m.zarr");
+    let (store, _) = ZarrStackWriter::create_or_open(&out, &spec).unwrap();
+    for share in [2..6, 6..9, 0..2] {
+        denoise_shard(&fd, both(), &store, share, &mut || ()).unwrap();
+    }
+    assert_eq!(store.done_count(), 9);
+    drop(store);
+    let (_, got) = emccd_io::read_all(&out).unwrap();
+    let mut want = in_memory(&p, &raws[..4], 2);
+    want.extend(in_memory(&p, &raws[4..], 2));
+    assert_eq!(got, want);
+}
+
+/// A frame with a NaN in the middle of a stack (a float file written elsewhere) is an error
+/// naming it, raised when the frame is read, before any window that holds it is denoised.
+#[test]
+fn a_bad_frame_in_the_middle_is_named_before_its_windows_run() {
+    let p = profile();
+    let mut raws = movie(5);
+    raws[2][17] = f32::NAN;
+    let mut emitted = Vec::new();
+    let e = emccd_denoise::movie::denoise_frames(
+        &temporal(&p, 1),
+        EXPOSURE,
+        5,
+        0..5,
+        &|j| format!("nan.tif: frame {}", j + 1),
+        &mut |j, buf| {
+            if let Some(buf) = buf {
+                buf.copy_from_slice(&raws[j]);
+            }
+            Ok(())
+        },
+        &mut |j, _| {
+            emitted.push(j);
+            Ok(())
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("nan.tif: frame 3") && e.contains("non-finite value at pixel (17, 0)"),
+        "{e}"
+    );
+    // Frame 1 needs frames 1–2 and was done; frame 2's window holds frame 3.
+    assert_eq!(emitted, vec![0]);
+}
