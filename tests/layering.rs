@@ -236,25 +236,36 @@ fn module_graph(krate: &str) -> BTreeMap<String, BTreeSet<String>> {
             modules.insert(name, path);
         }
     }
-    // `pub use module::{A, B};` in the root: A and B belong to `module`.
-    let root_src = std::fs::read_to_string(&root).unwrap();
+    // `pub use module::{A, B};` in the root (on one line or several): A and B belong to
+    // `module`.
+    let root_src: String = std::fs::read_to_string(&root)
+        .unwrap()
+        .lines()
+        .map(|l| l.split("//").next().unwrap())
+        .collect::<Vec<_>>()
+        .join(" ");
     let mut owner: BTreeMap<String, String> = BTreeMap::new();
-    for line in root_src.lines().map(str::trim) {
-        let Some(body) = line
-            .strip_prefix("pub use ")
-            .and_then(|b| b.strip_suffix(';'))
+    for statement in root_src.split(';') {
+        // The statement may follow an item's closing brace or an attribute on its line.
+        let Some(body) = ["pub use ", "pub(crate) use "]
+            .iter()
+            .find_map(|p| statement.rfind(p).map(|i| &statement[i + p.len()..]))
         else {
             continue;
         };
         let Some((module, items)) = body.split_once("::") else {
             continue;
         };
-        if !modules.contains_key(module) {
+        if !modules.contains_key(module.trim()) {
             continue;
         }
-        for item in items.trim_matches(|c| c == '{' || c == '}').split(',') {
+        for item in items
+            .trim()
+            .trim_matches(|c| c == '{' || c == '}')
+            .split(',')
+        {
             let item = item.trim().rsplit("::").next().unwrap().trim().to_string();
-            owner.insert(item, module.to_string());
+            owner.insert(item, module.trim().to_string());
         }
     }
     modules
