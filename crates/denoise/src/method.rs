@@ -34,7 +34,7 @@ pub enum Method {
     /// it, 2 by default): blocks tracked along the motion are averaged into a
     /// motion-compensated mean, which iterative BM3D denoises at a mean's noise; where the
     /// neighbours do not match (motion it cannot follow, a blink, a scene cut) each pixel falls
-    /// back to `ivst` of the frame alone, as does a single frame. About twice `ivst`'s time.
+    /// back to `ivst` of the frame alone, as does a single frame. Two to three times `ivst`'s time.
     Temporal,
     /// No denoising: blooming and the fixed pattern removed and the units converted, as every
     /// method does first (the preprocessed photo-signal, for one's own analysis).
