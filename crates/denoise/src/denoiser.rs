@@ -168,17 +168,23 @@ pub struct Denoiser<'a> {
 pub const DEFAULT_WINDOW: usize = 2;
 
 impl Denoiser<'_> {
-    /// Denoises one raw frame (DN, the profile's size) taken with `exposure_s`; a frame with a
-    /// non-finite value is an error naming the pixel.
-    pub fn run(&self, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+    /// An error naming the first pixel of `raw` that is not a finite number, if one is.
+    pub(crate) fn check_finite(&self, raw: &[f32]) -> Result<()> {
         let width = self.profile.width.max(1);
-        if let Some(i) = raw.iter().position(|v| !v.is_finite()) {
-            return Err(Error::Data(format!(
+        match raw.iter().position(|v| !v.is_finite()) {
+            Some(i) => Err(Error::Data(format!(
                 "a non-finite value at pixel ({}, {})",
                 i % width,
                 i / width
-            )));
+            ))),
+            None => Ok(()),
         }
+    }
+
+    /// Denoises one raw frame (DN, the profile's size) taken with `exposure_s`; a frame with a
+    /// non-finite value is an error naming the pixel.
+    pub fn run(&self, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+        self.check_finite(raw)?;
         if self.method.uses_model() != self.model.is_some() {
             return Err(Error::Model(format!(
                 "--method {} {} a model",

@@ -9,7 +9,7 @@ use std::collections::VecDeque;
 use std::ops::Range;
 
 use emccd_classical::frame::{preprocess, vst_params};
-use emccd_nn::{Classical, Error, Result};
+use emccd_nn::{Classical, Result};
 
 use crate::denoiser::Denoiser;
 
@@ -82,14 +82,7 @@ pub fn denoise_frames(
 /// Raw frame `index` preprocessed, with its single-frame estimate: refused when a value is not
 /// finite (as [`Denoiser::run`] refuses it).
 fn prepare(fd: &Denoiser, index: usize, raw: &[f32], exposure_s: f64) -> Result<Held> {
-    let width = fd.profile.width.max(1);
-    if let Some(i) = raw.iter().position(|v| !v.is_finite()) {
-        return Err(Error::Data(format!(
-            "a non-finite value at pixel ({}, {})",
-            i % width,
-            i / width
-        )));
-    }
+    fd.check_finite(raw)?;
     let frame = preprocess(fd.profile, raw, exposure_s)?;
     let single = Classical::Ivst.of_frame(fd.profile, &frame, exposure_s)?;
     Ok(Held {
