@@ -54,18 +54,16 @@ pub fn denoise_frames(
     for j in lo..hi {
         next(j, Some(&mut buf))?;
         held.push_back(prepare(fd, j, &buf, exposure_s).map_err(|e| e.at(at(j)))?);
-        // Every frame whose window is now complete (or ends at the last frame read).
+        // Every frame whose window is now complete (or ends at the last frame read). A frame
+        // is denoised as soon as frame `due + k` is read, so what is held past the frames
+        // before its window is exactly its window.
         while due < want.end && (due + k <= j || j + 1 == hi) {
             while held.front().is_some_and(|h| h.index + k < due) {
                 held.pop_front();
             }
-            let window: Vec<&Held> = held.iter().filter(|h| h.index <= due + k).collect();
-            let center = window
-                .iter()
-                .position(|h| h.index == due)
-                .expect("the frame itself is held");
-            let frames: Vec<&[f32]> = window.iter().map(|h| h.frame.as_slice()).collect();
-            let singles: Vec<&[f32]> = window.iter().map(|h| h.single.as_slice()).collect();
+            let center = due - held.front().expect("the frame itself is held").index;
+            let frames: Vec<&[f32]> = held.iter().map(|h| h.frame.as_slice()).collect();
+            let singles: Vec<&[f32]> = held.iter().map(|h| h.single.as_slice()).collect();
             let mut out = emccd_classical::temporal::estimate(
                 &frames, &singles, center, p.width, p.height, noise,
             );

@@ -69,6 +69,15 @@ fn read_frame(rec: &mut Recording, buf: &mut [f32], at: impl Fn() -> String) -> 
     }
 }
 
+/// Passes over the recording's next frame unread; `at` names it in errors. A file shorter than
+/// its header fails only where the missing frames are read, so skipping past its end is not one.
+fn skip_frame(rec: &mut Recording, at: impl Fn() -> String) -> Result<()> {
+    rec.reader
+        .skip_frame()
+        .map(|_| ())
+        .map_err(|source| Error::Frame { at: at(), source })
+}
+
 /// The description of the OME-Zarr store that `inputs` (one stack, in this order) denoised by
 /// `fd` make at `out.path`: its size, its name (the file stem), the [`provenance`] every
 /// writing process compares, and what a person reads (the inputs and profile as typed, the
@@ -230,24 +239,19 @@ pub fn denoise_shard(
         let at = |j: usize| format!("{name}: frame {}", j + 1);
         if fd.method.temporal() {
             // This input's frames of the share, with their windows' frames around them.
+            // (The loop ends before an input that starts at or after the share's end.)
             let first = k;
-            let want =
-                range.start.max(first) - first..range.end.min(first + count).max(first) - first;
+            let want = range.start.saturating_sub(first)..(range.end - first).min(count);
             let exposure = i.exposure;
-            let reader = &mut i;
             crate::movie::denoise_frames(
                 fd,
                 exposure,
                 count,
-                want.clone(),
+                want,
                 &at,
                 &mut |j, buf| match buf {
-                    Some(buf) => read_frame(reader, buf, || at(j)),
-                    None => reader
-                        .reader
-                        .skip_frame()
-                        .map(|_| ())
-                        .map_err(|source| Error::Frame { at: at(j), source }),
+                    Some(buf) => read_frame(&mut i, buf, || at(j)),
+                    None => skip_frame(&mut i, || at(j)),
                 },
                 &mut |j, out| {
                     if store.is_done(first + j) {
@@ -275,11 +279,7 @@ pub fn denoise_shard(
                 on_frame();
             } else {
                 run.skipped += range.contains(&k) as usize;
-                // A file shorter than its header fails the shard that needs the missing frames
-                // (above); skipping past its end here is harmless to this one.
-                i.reader
-                    .skip_frame()
-                    .map_err(|source| Error::Frame { at: at(j), source })?;
+                skip_frame(&mut i, || at(j))?;
             }
             k += 1;
         }
