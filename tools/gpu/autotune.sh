@@ -22,19 +22,13 @@ mkdir -p "$R" "$OUT"
 log() { echo "[$(($(date +%s) - T0))s] $*" | tee -a "$OUT/autotune.log"; }
 left() { echo $((secs - ($(date +%s) - T0))); }
 
-for f in .gl/*.deb; do dpkg -x "$f" /; done
-ldconfig
-icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
-if [ -f "$icd" ] && ! ls /usr/share/vulkan/icd.d/*nvidia* /etc/vulkan/icd.d/*nvidia* >/dev/null 2>&1; then
-    export VK_DRIVER_FILES=$icd
-fi
+# vulkan_env, stamp
+. tools/gpu/common.sh
+vulkan_env
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee -a "$OUT/autotune.log"
 for b in emccd emccd-autotune emccd-checks; do
     [ -f ".gpu/$b.xz" ] && xz -dc ".gpu/$b.xz" >"$R/$b" && chmod +x "$R/$b"
 done
-
-# Lines with the wall-clock time in front (the training log's own seconds are whole).
-stamp() { while IFS= read -r l; do echo "$(date +%s.%N | cut -c1-14) $l"; done; }
 
 # train NAME BINARY: 200 steps, a log line every 20, each stamped.
 train() {

@@ -37,17 +37,8 @@ D=$PWD/.gpu/data
 OUT=${OUT:-/tmp/out}
 mkdir -p "$R" "$OUT"
 log() { echo "[$(($(date +%s) - T0))s] $*" | tee -a "$R/session.log"; }
-
-vulkan_env() {
-    if true; then
-        for f in .gl/*.deb; do dpkg -x "$f" /; done
-        ldconfig
-    fi
-    local icd=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
-    if [ -f "$icd" ] && ! ls /usr/share/vulkan/icd.d/*nvidia* /etc/vulkan/icd.d/*nvidia* >/dev/null 2>&1; then
-        export VK_DRIVER_FILES=$icd
-    fi
-}
+# vulkan_env, stamp
+. tools/gpu/common.sh
 
 # The set-up of a phase that starts runs: the Vulkan loader, the binary unpacked, the machine
 # and the binary's version in the session log, no runs in flight.
@@ -68,9 +59,6 @@ launch() {
     setsid nohup bash -c "'$B' train $* --checkpoint-every 250 -o '$R/$name.safetensors' 2>&1 | { while IFS= read -r l; do echo \"\$(date +%s) \$l\"; done; } > '$R/$name.train.log'" >/dev/null 2>&1 &
     echo $! >>"$R/pids"
 }
-
-# Lines of a training log with the seconds since launch in front.
-stamp() { while IFS= read -r l; do echo "$(date +%s.%N | cut -c1-14) $l"; done; }
 
 # Steps per second of a run from its stamped log: (last step − first step) / time between them.
 rate() {
