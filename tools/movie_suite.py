@@ -22,12 +22,15 @@ Scenes: McMaster 1 and 7 and FMD field 5 (never trained on: the low-light suite'
 motion in turn; particles and jitter make their own.
 
 Usage: python3 tools/movie_suite.py [OUT] [--cameras lowlight-a,lowlight-b] [--levels 0.5,1,4,16]
-           [--motions static,drift,...] [--frames 16] [--size 256] [--methods bm3d,blend,temporal]
+           [--motions static,drift,...] [--frames 16] [--size 256] [--methods bm3d,blend,temporal,temporal-blend]
            [--no-bm4d]
 Needs: python3 with emccd-detect, bm4d, scipy, tifffile, pillow (pip install emccd-detect bm4d
-scipy tifffile pillow) and the release binary (built if missing). Writes OUT/table.md (mean PSNR
-over each movie's frames per camera, motion and level, with each method's seconds per 512²
-frame) and OUT/results.json; the acquisitions and profiles are made once and reused.
+scipy tifffile pillow) and the release binary (built if missing). Each camera's movies and their
+truth stacks go to OUT/CAMERA/movies with a pairs.toml, and every emccd method is scored there by
+`emccd evaluate` (movie pairs: PSNR over all the frames, the truth's peak as range); BM4D is run
+here on the same preprocessed frames and scored the same way. Writes OUT/table.md (PSNR per
+camera, motion and level, with each method's seconds per 512² frame) and OUT/results.json; the
+acquisitions and profiles are made once and reused.
 """
 
 import argparse
@@ -116,9 +119,9 @@ def movie(motion, scene, other, n, frames, rng):
 
 
 def psnr(est, truth):
+    """PSNR over every pixel of every frame, the truth's peak as range (as `emccd evaluate`)."""
     peak = truth.max()
-    return float(np.mean([10 * math.log10(peak * peak / max(np.mean((e - t) ** 2), 1e-12))
-                          for e, t in zip(est, truth)]))
+    return float(10 * math.log10(peak * peak / max(np.mean((est - truth) ** 2), 1e-12)))
 
 
 def gat(z, alpha, sigma):
@@ -152,7 +155,7 @@ def main():
     ap.add_argument("--motions", default=",".join(MOTIONS))
     ap.add_argument("--frames", type=int, default=16)
     ap.add_argument("--size", type=int, default=256)
-    ap.add_argument("--methods", default="bm3d,blend,temporal")
+    ap.add_argument("--methods", default="bm3d,blend,temporal,temporal-blend")
     ap.add_argument("--no-bm4d", action="store_true")
     ap.add_argument("--seed", type=int, default=11)
     a = ap.parse_args()
@@ -181,48 +184,66 @@ def main():
         g_dn = cam["em_gain"] / cam["eperdn"]
         hot = np.random.default_rng(a.seed).random((n, n)) < spec["hot_fraction"]
         rng = np.random.default_rng(a.seed + 1)
+        mdir = cdir / "movies"
+        mdir.mkdir(parents=True, exist_ok=True)
+        # The movies, their truth stacks and pairs.toml: movie pairs `emccd evaluate` scores.
+        pairs, bm4d_rows = [], {}
         for mi, motion in enumerate(motions):
             scene, other = gray(SCENES[mi % 3]), gray(SCENES[(mi + 1) % 3])
             rel = movie(motion, scene, other, n, a.frames, rng)
             for level in levels:
                 e = rel * (level / max(rel.mean(), 1e-6))
                 stem = f"{motion}_m{level:g}"
-                mdir = cdir / "movies"
-                mdir.mkdir(parents=True, exist_ok=True)
                 flux = lambda f: f / cam["qe"] / EXPOSURE + hot * (unseen_camera.HOT_RATE / cam["qe"])  # noqa: E731
                 raw = np.stack([det.sim_sub_frame(flux(f), EXPOSURE) for f in e]).astype(np.uint16)
                 truth = (e * g_dn).astype(np.float32)
                 tifffile.imwrite(mdir / f"{stem}.tif", raw, imagej=True)
-                row = dict(camera=cam_name, motion=motion, level=level, frames=a.frames)
-                scores, seconds = {}, {}
-                base = [str(exe), "denoise", str(mdir / f"{stem}.tif"), "--profile", str(cdir / "profile"),
-                        "--exposure-s", str(EXPOSURE)]
-                for m in ["none"] + methods:
-                    out = mdir / f"{stem}_{m}.tif"
-                    seconds[m] = run(base + ["-o", str(out), "--method", m]) / a.frames * (512 * 512) / (n * n)
-                    est = tifffile.imread(out).reshape(truth.shape)
-                    scores["input" if m == "none" else m] = psnr(est, truth)
-                    if m == "temporal":
-                        row["temporal_mean_ratio"] = float(est.mean() / truth.mean())
+                tifffile.imwrite(mdir / f"{stem}_truth.tif", truth, imagej=True)
+                pairs.append(dict(scene=motion, noisy=f"{stem}.tif", clean=f"{stem}_truth.tif",
+                                  exposure_s=EXPOSURE, photons=float(e.max()), mean_electrons=level,
+                                  frames=a.frames, width=n, height=n))
                 if not a.no_bm4d:
                     import bm4d
-                    pre = tifffile.imread(mdir / f"{stem}_none.tif").reshape(truth.shape).astype(np.float64)
+                    pre_path = mdir / f"{stem}_none.tif"
+                    subprocess.run([str(exe), "denoise", str(mdir / f"{stem}.tif"), "--profile",
+                                    str(cdir / "profile"), "--exposure-s", str(EXPOSURE), "--method", "none",
+                                    "-o", str(pre_path)], check=True, capture_output=True)
+                    pre = tifffile.imread(pre_path).reshape(truth.shape).astype(np.float64)
                     t = time.perf_counter()
                     den = bm4d.bm4d(gat(pre, alpha, sigma), 1.0)
                     est = gat_inverse(np.asarray(den), alpha, sigma)
-                    seconds["bm4d"] = (time.perf_counter() - t) / a.frames * (512 * 512) / (n * n)
-                    scores["bm4d"] = psnr(est, truth)
-                row["psnr"], row["s_per_512"] = scores, seconds
+                    bm4d_rows[(motion, level)] = (psnr(est, truth),
+                                                  (time.perf_counter() - t) / a.frames * (512 * 512) / (n * n))
+                print(f"{cam_name} {stem}: made" + (f", bm4d {bm4d_rows[(motion, level)][0]:.2f} dB"
+                                                      if (motion, level) in bm4d_rows else ""), file=sys.stderr)
+        with open(mdir / "pairs.toml", "w") as f:
+            f.write(f'camera = "{cam_name}"\nprofile = "../profile"\n'
+                    f'note = "movies of tools/movie_suite.py: raw stacks and their truth stacks (DN above bias)"\n')
+            for p in pairs:
+                f.write("\n[[pair]]\n" + "".join(
+                    f"{k} = {json.dumps(v)}\n" for k, v in p.items()))
+        # Every emccd method through the product: `emccd evaluate` on the movie pairs.
+        ev = json.loads(subprocess.run([str(exe), "evaluate", str(mdir), "--json", "--method", "input", *methods],
+                                       check=True, capture_output=True, text=True).stdout)
+        for motion in motions:
+            for level in levels:
+                row = dict(camera=cam_name, motion=motion, level=level, frames=a.frames, psnr={}, s_per_512={})
+                for sc in ev["pairs"]:
+                    if sc["scene"] == motion and sc["mean_electrons"] == level:
+                        row["psnr"][sc["method"]] = sc["psnr_db"]
+                        row["s_per_512"][sc["method"]] = sc["seconds"] / sc["pixels"] * 512 * 512
+                if (motion, level) in bm4d_rows:
+                    row["psnr"]["bm4d"], row["s_per_512"]["bm4d"] = bm4d_rows[(motion, level)]
                 rows.append(row)
                 print(json.dumps(row), file=sys.stderr)
-                (a.out / "results.json").write_text(json.dumps(rows, indent=1))
+        (a.out / "results.json").write_text(json.dumps(rows, indent=1))
     cols = ["input", "bm3d", "blend", "bm4d"] + [m for m in methods if m not in ("bm3d", "blend")]
     cols = [c for c in cols if c == "input" or c in methods or (c == "bm4d" and not a.no_bm4d)]
     lines = ["| camera | motion | mean e⁻ | " + " | ".join(cols) + " |", "|---" * (3 + len(cols)) + "|"]
     for r in rows:
         lines.append(f"| {r['camera']} | {r['motion']} | {r['level']:g} | "
                      + " | ".join(f"{r['psnr'][c]:.2f}" for c in cols) + " |")
-    secs = {c: np.mean([r["s_per_512"][c if c != "input" else "none"] for r in rows]) for c in cols}
+    secs = {c: np.mean([r["s_per_512"][c] for r in rows]) for c in cols}
     lines += ["", "seconds per 512² frame: " + ", ".join(f"{c} {secs[c]:.2f}" for c in cols)]
     (a.out / "table.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

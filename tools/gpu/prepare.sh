@@ -8,7 +8,7 @@
 #   .gpu/emccd-checks.xz    (b) with burn's autotune-checks, for a run of (b) that goes to NaN
 #   .gpu/data/train, val    clean images: FMD confocal fields 1–4 and Kodak 1–8; BSD68 1–4
 # Run it from the repository root with ../shared beside it; a second run rebuilds only what
-# changed. The release builds take about 15 minutes each on 2 cores the first time.
+# changed. The first release build takes about 15 minutes on 2 cores, the other two less.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 D=../shared/data/clean
@@ -26,9 +26,10 @@ fi
 cp "$D"/microscopy/fmd-confocal-bpae/field[1-4]-avg50.png .gpu/data/train/
 for k in 01 02 03 04 05 06 07 08; do cp "$D"/natural/Kodak24/kodim$k.png .gpu/data/train/ 2>/dev/null || true; done
 ls "$D"/natural/BSD68 | head -4 | while read -r f; do cp "$D/natural/BSD68/$f" .gpu/data/val/; done
-build() { # FEATURES NAME (each in its own target folder, so a rebuild keeps its burn)
-    CARGO_TARGET_DIR="target/gpu-$2" cargo build --release --locked --features "$1"
-    strip -o ".gpu/$2" "target/gpu-$2/release/emccd"
+build() { # FEATURES NAME (one target folder: cargo keeps each feature set's burn beside the
+    # others, and the crates the features do not touch are built once)
+    CARGO_TARGET_DIR=target/gpu cargo build --release --locked --features "$1"
+    strip -o ".gpu/$2" target/gpu/release/emccd
     xz -9e -T2 -f ".gpu/$2"
     echo "built .gpu/$2.xz ($1): $(du -h ".gpu/$2.xz" | cut -f1)"
 }

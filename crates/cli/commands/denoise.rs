@@ -65,7 +65,7 @@ pub struct Args {
     /// --method temporal: the frames before and after each frame it uses (default 2: five
     /// frames; 0: each frame alone, as --method ivst). A frame's window stays within its
     /// recording and is clipped at the recording's ends; at most 2·K + 1 frames are held.
-    #[arg(long, value_name = "K", value_parser = clap::value_parser!(u16).range(0..=16))]
+    #[arg(long, value_name = "K", value_parser = clap::value_parser!(u16).range(0..=emccd_denoise::MAX_WINDOW as i64))]
     pub window: Option<u16>,
     /// Denoise only share I of N of the frames (I from 0; contiguous, one chunk per frame) into
     /// a `.zarr` output that N processes write at once — a SLURM array task passes

@@ -16,7 +16,9 @@ use crate::common::progress;
 /// results.csv and PNG panels (input | each method | ground truth). PSNR uses the ground truth's
 /// peak as data range; the paper's convention (images / 65535, range 1) is reported beside it.
 /// LPIPS is not computed: its network weights cannot be obtained here. The input is never
-/// aligned or rescaled with the ground truth's help.
+/// aligned or rescaled with the ground truth's help. A pair whose truth is a stack as long as
+/// its noisy stack is a movie: every frame is scored (PSNR over all of them, SSIM their mean,
+/// the panel its middle frame), and the temporal methods use each frame's neighbours.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Directories with pairs.toml (one per camera).
@@ -32,7 +34,9 @@ pub struct Args {
     /// network's self-ensemble, `blend:MODEL` with another network), `ivst:λ/b,λ/b,…` (iterative BM3D with these passes: the data's weight and the
     /// bin side, e.g. `ivst:1/3,0.7/2,0.4/1`), `hybrid` (the bundled BM3D-refining network), or
     /// a model file (`default`, `microscopy`, `lowlight` = the bundled networks; a hybrid model file runs as
-    /// the hybrid method); repeatable. `MODEL@8` averages the model over 8 flips/transposes
+    /// the hybrid method), `temporal` and `temporal-blend` (a movie's frames from their
+    /// neighbours, 2 each side or `temporal:K` K; on a still pair, `ivst` and `blend`);
+    /// repeatable. `MODEL@8` averages the model over 8 flips/transposes
     /// (self-ensemble; 2, 4, 8).
     #[arg(long = "method", required = true, num_args = 1..)]
     pub methods: Vec<String>,

@@ -37,8 +37,8 @@ impl Resolved {
             (true, w) => Ok(w.unwrap_or(DEFAULT_WINDOW)),
             (false, None | Some(0)) => Ok(0),
             (false, Some(_)) => Err(Error::Model(format!(
-                "--window: --method {} denoises each frame alone; --method temporal uses the \
-                 neighbouring frames",
+                "--window: --method {} denoises each frame alone; --method temporal and \
+                 temporal-blend use the neighbouring frames",
                 self.method.name()
             ))),
         }
@@ -108,7 +108,7 @@ pub fn resolve(
             let method = method.unwrap_or(DEFAULT_METHOD);
             let name = name.unwrap_or(match method {
                 Method::Hybrid => "hybrid",
-                Method::Blend => "lowlight",
+                Method::Blend | Method::TemporalBlend => "lowlight",
                 _ => "default",
             });
             let m = load(name)?;
@@ -167,6 +167,9 @@ pub struct Denoiser<'a> {
 /// drift of up to 2.5 px per frame is still followed (`emccd-classical`'s temporal tests).
 pub const DEFAULT_WINDOW: usize = 2;
 
+/// The most frames each side a temporal method takes (33 frames held at a time).
+pub const MAX_WINDOW: usize = 16;
+
 impl Denoiser<'_> {
     /// An error naming the first pixel of `raw` that is not a finite number, if one is.
     pub(crate) fn check_finite(&self, raw: &[f32]) -> Result<()> {
@@ -196,33 +199,77 @@ impl Denoiser<'_> {
                 }
             )));
         }
-        let mut d = match (self.model, self.method.classical()) {
-            (Some(m), _) => {
-                let pipe = Inference {
-                    model: m,
-                    profile: self.profile,
-                    tiling: self.tiling,
-                    ensemble: self.ensemble,
-                };
-                let pre = pipe.preprocess(raw, exposure_s)?;
-                let net = pipe.denoise_preprocessed(&pre, exposure_s)?;
-                if self.method == Method::Blend {
-                    let iv = Classical::Ivst.of_frame(self.profile, &pre, exposure_s)?;
-                    net.iter().zip(&iv).map(|(a, b)| 0.5 * (a + b)).collect()
-                } else {
-                    net
-                }
-            }
-            (None, Some(base)) => {
-                let pre = preprocess(self.profile, raw, exposure_s)?;
-                base.of_frame(self.profile, &pre, exposure_s)?
-            }
-            (None, None) => preprocess(self.profile, raw, exposure_s)?,
-        };
+        let pre = self.preprocess(raw, exposure_s)?;
+        let mut d = self.estimate(&pre, exposure_s)?;
         let to_units = self.units.factor(self.profile)?;
         if to_units != 1.0 {
             d.iter_mut().for_each(|v| *v *= to_units);
         }
         Ok(d)
+    }
+
+    /// The network run through this profile, tiling and ensemble.
+    fn inference<'m>(&'m self, model: &'m Model) -> Inference<'m> {
+        Inference {
+            model,
+            profile: self.profile,
+            tiling: self.tiling,
+            ensemble: self.ensemble,
+        }
+    }
+
+    /// A raw frame preprocessed (DN above bias): blooming and the fixed pattern removed, unless
+    /// the model was made for an ablation that skips them.
+    pub(crate) fn preprocess(&self, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+        match self.model {
+            Some(m) => self.inference(m).preprocess(raw, exposure_s),
+            None => Ok(preprocess(self.profile, raw, exposure_s)?),
+        }
+    }
+
+    /// The method's estimate of one preprocessed frame (DN above bias) alone: what a per-frame
+    /// method outputs, and what a temporal one tracks motion on and falls back to.
+    pub(crate) fn estimate(&self, pre: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+        match (self.model, self.method.classical()) {
+            (Some(m), _) => {
+                let net = self.inference(m).denoise_preprocessed(pre, exposure_s)?;
+                if self.method.blends() {
+                    let iv = Classical::Ivst.of_frame(self.profile, pre, exposure_s)?;
+                    Ok(net.iter().zip(&iv).map(|(a, b)| 0.5 * (a + b)).collect())
+                } else {
+                    Ok(net)
+                }
+            }
+            (None, Some(base)) => Ok(base.of_frame(self.profile, pre, exposure_s)?),
+            (None, None) => Ok(pre.to_vec()),
+        }
+    }
+
+    /// A temporal method's estimate of a motion-compensated `mean` of about `frames` frames
+    /// (DN above bias) at noise `noise` of one frame: iterative BM3D at a mean's noise, and for
+    /// `temporal-blend` averaged with the network's estimate of the frames' sum (what the
+    /// network knows: one frame at `frames` times the light), divided back.
+    pub(crate) fn estimate_mean(
+        &self,
+        mean: &[f32],
+        frames: f64,
+        noise: emccd_profile::PoissonGaussian,
+        exposure_s: f64,
+    ) -> Result<Vec<f32>> {
+        let (w, h) = (self.profile.width, self.profile.height);
+        let iv = emccd_classical::vst::bm3d_adaptive(mean, w, h, noise.of_mean(frames));
+        match self.model {
+            Some(m) if self.method.blends() => {
+                let sum: Vec<f32> = mean.iter().map(|v| v * frames as f32).collect();
+                let net = self.inference(m).denoise_preprocessed(&sum, exposure_s)?;
+                let back = 1.0 / frames as f32;
+                Ok(net
+                    .iter()
+                    .zip(&iv)
+                    .map(|(a, b)| 0.5 * (a * back + b))
+                    .collect())
+            }
+            _ => Ok(iv),
+        }
     }
 }

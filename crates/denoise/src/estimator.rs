@@ -27,6 +27,8 @@ enum Kind {
         method: Method,
         model: Option<Model>,
         ensemble: usize,
+        /// Frames each side, for a temporal method.
+        window: usize,
     },
 }
 
@@ -34,24 +36,46 @@ impl Estimator {
     /// The estimator `name` stands for, with its model loaded by `load` ([`crate::bundled::load`], or a
     /// loader that also knows models embedded in a program).
     pub fn parse(name: &str, load: impl Fn(&str) -> Result<Model>) -> Result<Estimator> {
-        if name == "temporal" {
-            return Err(Error::Model(
-                "--method temporal: evaluate scores each frame of a pair alone; denoise a stack \
-                 with `emccd denoise --method temporal`"
-                    .into(),
-            ));
-        }
         let classical = match name {
             "input" => Some(Method::None),
             "bm3d" => Some(Method::Bm3d),
             "ivst" => Some(Method::Ivst),
             _ => None,
         };
-        let kind = if let Some(method) = classical {
+        // `temporal[:K]`, `temporal-blend[:K]`: K frames each side.
+        let (stem, window) = match name.split_once(':') {
+            Some((m @ ("temporal" | "temporal-blend"), k)) => (
+                m,
+                k.parse::<usize>()
+                    .ok()
+                    .filter(|k| *k <= crate::MAX_WINDOW)
+                    .ok_or_else(|| {
+                        Error::Model(format!(
+                            "--method {name}: after `:`, the frames each side (0 to {})",
+                            crate::MAX_WINDOW
+                        ))
+                    })?,
+            ),
+            _ => (name, crate::DEFAULT_WINDOW),
+        };
+        let kind = if stem == "temporal" || stem == "temporal-blend" {
+            let blend = stem == "temporal-blend";
+            Kind::Denoise {
+                method: if blend {
+                    Method::TemporalBlend
+                } else {
+                    Method::Temporal
+                },
+                model: if blend { Some(load("lowlight")?) } else { None },
+                ensemble: 1,
+                window,
+            }
+        } else if let Some(method) = classical {
             Kind::Denoise {
                 method,
                 model: None,
                 ensemble: 1,
+                window: 0,
             }
         } else if let Some(passes) = name.strip_prefix("ivst:") {
             Kind::Passes(
@@ -83,6 +107,7 @@ impl Estimator {
                 method: Method::Blend,
                 model: Some(model),
                 ensemble,
+                window: 0,
             }
         } else {
             let spec = ModelSpec::parse(name)?;
@@ -95,6 +120,7 @@ impl Estimator {
                 },
                 model: Some(model),
                 ensemble: spec.ensemble,
+                window: 0,
             }
         };
         Ok(Estimator {
@@ -123,7 +149,7 @@ impl Estimator {
         emccd_eval::evaluation::Contender {
             name: self.name(),
             run: Box::new(move |p: &CameraProfile, raw: &[f32], t: f64| {
-                self.run(p, raw, t)
+                self.run_frames(p, raw, t)
                     .map_err(|e| emccd_io::error_lines(&e).join(": ").into())
             }),
         }
@@ -132,27 +158,80 @@ impl Estimator {
     /// Its estimate of one raw frame (DN, the profile's size) taken with `exposure_s`, in DN
     /// above bias.
     pub fn run(&self, profile: &CameraProfile, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
+        self.run_frames(profile, raw, exposure_s)
+    }
+
+    /// Its estimate of a movie's raw frames (each the profile's size, one after another), as
+    /// `emccd denoise` gives it: a temporal method from each frame's neighbours, the others
+    /// frame by frame.
+    pub fn run_frames(
+        &self,
+        profile: &CameraProfile,
+        raw: &[f32],
+        exposure_s: f64,
+    ) -> Result<Vec<f32>> {
+        let n = profile.len();
+        if n == 0 || raw.len() % n != 0 {
+            return Err(Error::Data(format!(
+                "{} values are not frames of {}×{}",
+                raw.len(),
+                profile.width,
+                profile.height
+            )));
+        }
+        let count = raw.len() / n;
         match &self.kind {
             Kind::Passes(s) => {
-                let pre = emccd_classical::frame::preprocess(profile, raw, exposure_s)?;
-                Ok(emccd_classical::frame::bm3d_passes(
-                    profile, &pre, exposure_s, &s.0,
-                )?)
+                let mut out = Vec::with_capacity(raw.len());
+                for f in raw.chunks(n) {
+                    let pre = emccd_classical::frame::preprocess(profile, f, exposure_s)?;
+                    out.extend(emccd_classical::frame::bm3d_passes(
+                        profile, &pre, exposure_s, &s.0,
+                    )?);
+                }
+                Ok(out)
             }
             Kind::Denoise {
                 method,
                 model,
                 ensemble,
-            } => Denoiser {
-                profile,
-                method: *method,
-                model: model.as_ref(),
-                tiling: Tiling::default(),
-                ensemble: *ensemble,
-                units: Units::Dn,
-                window: 0,
+                window,
+            } => {
+                let fd = Denoiser {
+                    profile,
+                    method: *method,
+                    model: model.as_ref(),
+                    tiling: Tiling::default(),
+                    ensemble: *ensemble,
+                    units: Units::Dn,
+                    window: *window,
+                };
+                let mut out = Vec::with_capacity(raw.len());
+                if method.temporal() {
+                    crate::movie::denoise_frames(
+                        &fd,
+                        exposure_s,
+                        count,
+                        0..count,
+                        &|j| format!("frame {}", j + 1),
+                        &mut |j, buf| {
+                            if let Some(buf) = buf {
+                                buf.copy_from_slice(&raw[j * n..(j + 1) * n]);
+                            }
+                            Ok(())
+                        },
+                        &mut |_, f| {
+                            out.extend(f);
+                            Ok(())
+                        },
+                    )?;
+                } else {
+                    for f in raw.chunks(n) {
+                        out.extend(fd.run(f, exposure_s)?);
+                    }
+                }
+                Ok(out)
             }
-            .run(raw, exposure_s),
         }
     }
 }

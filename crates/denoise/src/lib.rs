@@ -39,7 +39,7 @@ pub mod method;
 pub mod movie;
 pub mod stack;
 
-pub use denoiser::{profile_mismatch, resolve, Denoiser, Resolved, DEFAULT_WINDOW};
+pub use denoiser::{profile_mismatch, resolve, Denoiser, Resolved, DEFAULT_WINDOW, MAX_WINDOW};
 pub use emccd_nn::{Error, Result};
 pub use estimator::Estimator;
 pub use method::{check_ensemble, ensemble_size, Method, ModelSpec, Units, DEFAULT_METHOD};

@@ -8,8 +8,8 @@
 use std::collections::VecDeque;
 use std::ops::Range;
 
-use emccd_classical::frame::{preprocess, vst_params};
-use emccd_nn::{Classical, Result};
+use emccd_classical::frame::vst_params;
+use emccd_nn::Result;
 
 use crate::denoiser::Denoiser;
 
@@ -64,9 +64,16 @@ pub fn denoise_frames(
             let center = due - held.front().expect("the frame itself is held").index;
             let frames: Vec<&[f32]> = held.iter().map(|h| h.frame.as_slice()).collect();
             let singles: Vec<&[f32]> = held.iter().map(|h| h.single.as_slice()).collect();
-            let mut out = emccd_classical::temporal::estimate(
-                &frames, &singles, center, p.width, p.height, noise,
-            );
+            let mut out = emccd_classical::temporal::estimate_with(
+                &frames,
+                &singles,
+                center,
+                p.width,
+                p.height,
+                noise,
+                |mean, n| fd.estimate_mean(mean, n, noise, exposure_s),
+            )
+            .map_err(|e| e.at(at(due)))?;
             if to_units != 1.0 {
                 out.iter_mut().for_each(|v| *v *= to_units);
             }
@@ -81,8 +88,8 @@ pub fn denoise_frames(
 /// finite (as [`Denoiser::run`] refuses it).
 fn prepare(fd: &Denoiser, index: usize, raw: &[f32], exposure_s: f64) -> Result<Held> {
     fd.check_finite(raw)?;
-    let frame = preprocess(fd.profile, raw, exposure_s)?;
-    let single = Classical::Ivst.of_frame(fd.profile, &frame, exposure_s)?;
+    let frame = fd.preprocess(raw, exposure_s)?;
+    let single = fd.estimate(&frame, exposure_s)?;
     Ok(Held {
         index,
         frame,

@@ -68,7 +68,8 @@ impl PairsDir {
 pub struct Contender<'a> {
     /// Name (as `evaluate --method` was given it).
     pub name: &'a str,
-    /// The denoiser: profile, raw frame and exposure in, photo-signal in DN above bias out.
+    /// The denoiser: profile, raw frames (one, or a movie's) and exposure in, photo-signal in DN
+    /// above bias out.
     pub run: Box<Denoise<'a>>,
 }
 
@@ -127,6 +128,15 @@ pub fn evaluate(
                 let t = std::time::Instant::now();
                 let denoised = (m.run)(&prof, raw, p.exposure_s)
                     .map_err(|e| format!("{} on {}: {e}", m.name, p.noisy))?;
+                if denoised.len() != raw.len() {
+                    return Err(crate::Error(format!(
+                        "{} on {}: {} values out for {} in",
+                        m.name,
+                        p.noisy,
+                        denoised.len(),
+                        raw.len()
+                    )));
+                }
                 let seconds = t.elapsed().as_secs_f64();
                 scores.push(Score::measure(
                     m.name, &cam.name, p, &frames, &denoised, seconds,
@@ -162,7 +172,8 @@ pub fn evaluate(
     Ok(ev)
 }
 
-/// A 256² crop (the frame's centre) of input | each method | ground truth, side by side, as
+/// A 256² crop (the frame's centre; a movie's middle frame) of input | each method | ground
+/// truth, side by side, as
 /// `DIR/PREFIX<noisy file stem>.png`, scaled from 0 to the truth's peak.
 fn write_panel(
     dir: &Path,
@@ -171,12 +182,15 @@ fn write_panel(
     frames: &PairFrames,
     outs: &[Vec<f32>],
 ) -> crate::Result<()> {
-    let (w, h, truth) = (frames.width, frames.height, &frames.clean);
+    // A movie's middle frame.
+    let (w, h, k) = (frames.width, frames.height, frames.frames / 2);
+    let truth = frames.clean_frame(k);
+    let at = k * w * h..(k + 1) * w * h;
     let c = 256.min(w).min(h);
     let panels: Vec<&[f32]> = outs
         .iter()
-        .map(Vec::as_slice)
-        .chain(std::iter::once(truth.as_slice()))
+        .map(|o| &o[at.clone()])
+        .chain(std::iter::once(truth))
         .collect();
     let n = panels.len();
     let img = crate::scores::side_by_side(&panels, w, ((w - c) / 2, (h - c) / 2), (c, c));

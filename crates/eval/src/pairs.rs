@@ -73,37 +73,74 @@ pub struct Pair {
     pub psnr_denoised_db: Option<f64>,
 }
 
-/// A pair's frames, read: the first noisy frame and the ground truth, of one size.
+/// A pair's frames, read: the noisy frames scored and their ground truth, of one size. A pair
+/// whose truth is one frame scores the noisy stack's first frame (the stack's other frames are
+/// repeated acquisitions); a movie pair — a truth stack as long as the noisy one, one truth per
+/// frame — scores every frame, so a method that uses the neighbouring frames is scored as it
+/// runs on a recording.
 #[derive(Clone, Debug)]
 pub struct PairFrames {
     /// Width, px.
     pub width: usize,
     /// Height, px.
     pub height: usize,
-    /// The first raw noisy frame (DN).
+    /// Frames scored: 1, or a movie's frame count.
+    pub frames: usize,
+    /// The raw noisy frames scored (DN), one after another.
     pub noisy: Vec<f32>,
-    /// The ground truth (DN above bias).
+    /// Their ground truth (DN above bias), one after another.
     pub clean: Vec<f32>,
 }
 
+impl PairFrames {
+    /// Frame `k`'s ground truth.
+    pub fn clean_frame(&self, k: usize) -> &[f32] {
+        let n = self.width * self.height;
+        &self.clean[k * n..(k + 1) * n]
+    }
+}
+
 impl Pair {
-    /// Reads the pair's first noisy frame and its truth from the folder `dir` of its
-    /// manifest; an error (naming the file) where a file is unreadable or the sizes differ.
+    /// Reads the pair's frames ([`PairFrames`]) from the folder `dir` of its manifest; an error
+    /// (naming the file) where a file is unreadable, the sizes differ, or a truth stack's
+    /// length is not the noisy stack's.
     pub fn read(&self, dir: &Path) -> crate::Result<PairFrames> {
-        let read = |f: &str| emccd_io::read_first(dir.join(f)).map_err(|e| e.to_string());
-        let (info, noisy) = read(&self.noisy)?;
-        let (cinfo, clean) = read(&self.clean)?;
+        let err = |e: emccd_io::Error| crate::Error(emccd_io::error_lines(&e).join(": "));
+        let (cinfo, clean) = emccd_io::read_all(dir.join(&self.clean)).map_err(err)?;
+        if clean.is_empty() {
+            return Err(crate::Error(format!(
+                "{}: the file holds no frame",
+                self.clean
+            )));
+        }
+        let (info, noisy) = if clean.len() > 1 {
+            emccd_io::read_all(dir.join(&self.noisy)).map_err(err)?
+        } else {
+            let (info, first) = emccd_io::read_first(dir.join(&self.noisy)).map_err(err)?;
+            (info, vec![first])
+        };
         if (info.width, info.height) != (cinfo.width, cinfo.height) {
             return Err(crate::Error(format!(
                 "{}: noisy {}×{} and clean {}×{} differ",
                 self.noisy, info.width, info.height, cinfo.width, cinfo.height
             )));
         }
+        if clean.len() > 1 && noisy.len() != clean.len() {
+            return Err(crate::Error(format!(
+                "{}: {} noisy frames and {} frames of truth in {}; a movie pair has one truth \
+                 per frame, a still pair one truth",
+                self.noisy,
+                noisy.len(),
+                clean.len(),
+                self.clean
+            )));
+        }
         Ok(PairFrames {
             width: info.width,
             height: info.height,
-            noisy,
-            clean,
+            frames: clean.len(),
+            noisy: noisy.concat(),
+            clean: clean.concat(),
         })
     }
 }
@@ -228,6 +265,46 @@ mod tests {
         .unwrap();
         let e = PairsManifest::load(dir.path()).unwrap_err();
         assert!(e.0.contains("n.tif") && e.0.contains("positive"), "{e}");
+    }
+
+    /// A truth stack as long as the noisy stack makes a movie pair: every frame is read; a
+    /// truth of one frame scores the noisy stack's first frame; other lengths are refused.
+    #[test]
+    fn a_truth_stack_makes_a_movie_pair() {
+        let dir = tempfile::tempdir().unwrap();
+        let write = |name: &str, frames: &[f32]| {
+            let mut wr = emccd_io::StackWriter::create(
+                dir.path().join(name),
+                2,
+                2,
+                emccd_io::SampleFormat::F32,
+                Some(frames.len()),
+            )
+            .unwrap();
+            for &v in frames {
+                wr.write_frame(&[v; 4]).unwrap();
+            }
+            wr.finish().unwrap();
+        };
+        write("noisy.tif", &[10.0, 20.0, 30.0]);
+        write("truth3.tif", &[1.0, 2.0, 3.0]);
+        write("truth2.tif", &[1.0, 2.0]);
+        write("truth1.tif", &[1.0]);
+        let pair = |clean: &str| Pair {
+            noisy: "noisy.tif".into(),
+            clean: clean.into(),
+            ..Default::default()
+        };
+        let f = pair("truth3.tif").read(dir.path()).unwrap();
+        assert_eq!(f.frames, 3);
+        assert_eq!(
+            (f.noisy[4], f.noisy[11], f.clean_frame(2)),
+            (20.0, 30.0, &[3.0; 4][..])
+        );
+        let f = pair("truth1.tif").read(dir.path()).unwrap();
+        assert_eq!((f.frames, f.noisy.len()), (1, 4));
+        let e = pair("truth2.tif").read(dir.path()).unwrap_err();
+        assert!(e.0.contains("3 noisy frames and 2"), "{e}");
     }
 
     #[test]

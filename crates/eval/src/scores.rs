@@ -30,15 +30,16 @@ pub struct Score {
     pub psnr_paper_db: f64,
     /// SSIM (Gaussian window, the truth's peak as data range).
     pub ssim: f64,
-    /// Seconds the method took on this frame (preprocessing included).
+    /// Seconds the method took on the pair's frames (preprocessing included).
     pub seconds: f64,
-    /// Pixels in the frame.
+    /// Pixels in the frames scored.
     pub pixels: usize,
 }
 
 impl Score {
-    /// Scores `out`, `method`'s estimate for `pair` of `camera`, against the pair's ground
-    /// truth in `frames` (photo-signal in DN above bias); `seconds` is what the method took.
+    /// Scores `out`, `method`'s estimate of the frames scored of `pair` of `camera` (one after
+    /// another), against their ground truth in `frames` (photo-signal in DN above bias);
+    /// `seconds` is what the method took.
     pub fn measure(
         method: &str,
         camera: &str,
@@ -49,6 +50,15 @@ impl Score {
     ) -> Score {
         let (truth, w, h) = (&frames.clean, frames.width, frames.height);
         let peak = truth_peak(truth);
+        let n = w * h;
+        // A movie's SSIM is its frames' mean; PSNR pools every pixel of every frame.
+        let ssim = (0..frames.frames)
+            .map(|k| {
+                let f = k * n..(k + 1) * n;
+                crate::ssim(&out[f.clone()], &truth[f], w, h, peak, Default::default())
+            })
+            .sum::<f64>()
+            / frames.frames.max(1) as f64;
         Score {
             method: method.into(),
             camera: camera.into(),
@@ -58,9 +68,9 @@ impl Score {
             mean_electrons: pair.mean_electrons,
             psnr_db: crate::psnr(out, truth, peak),
             psnr_paper_db: crate::psnr(out, truth, 65535.0),
-            ssim: crate::ssim(out, truth, w, h, peak, Default::default()),
+            ssim,
             seconds,
-            pixels: w * h,
+            pixels: n * frames.frames,
         }
     }
 }

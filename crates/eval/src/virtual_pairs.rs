@@ -31,7 +31,8 @@ pub struct PairsPlan<'a> {
     pub profile: &'a str,
 }
 
-/// Denoises a raw frame (profile, frame, exposure in s) to DN above bias.
+/// Denoises raw frames (profile, one frame or a movie's frames one after another, exposure in
+/// s) to DN above bias, frame for frame: a movie's methods may use each frame's neighbours.
 pub type Denoise<'a> = dyn Fn(&CameraProfile, &[f32], f64) -> crate::Result<Vec<f32>> + 'a;
 
 /// The subfolders a run writes.
