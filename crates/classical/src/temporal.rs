@@ -1,20 +1,24 @@
 //! Classical denoising of a movie frame from the frames around it. Block matching follows the
-//! motion: each 8×8 block of frame `t` is looked for in frame `t ± 1` within a few pixels of
-//! where it was, then in `t ± 2` around where it was found in `t ± 1`, and so on outward. The
-//! frames' single-frame estimates propose each move; the noisy frames, after the generalized
-//! Anscombe transform (noise about 1 at every level, so one threshold tells a match from a
-//! mismatch), decide between it and staying, and accept the match or end the track. The
-//! matched blocks are averaged in
-//! the data's own units — a motion-compensated mean that holds about `N` frames' photons
-//! wherever `N` frames matched — and the mean is denoised by iterative BM3D at the noise of a
-//! mean of `N` frames (gain α/N, read noise σ/√N).
+//! motion: each 8×8 block of frame `t` is looked for in frame `t ± 1` around where the whole
+//! scene moved (the frame's best whole-pixel shift, which noise cannot fake over a whole
+//! frame), then in `t ± 2` around where it was found in `t ± 1`, and so on outward. The
+//! frames' single-frame estimates say whether a block moved on its own (a particle, a
+//! deformation): their best match is taken where it is clearly closer. The noisy frames, after
+//! the generalized Anscombe transform (noise about 1 at every level, so one threshold tells a
+//! match from a mismatch), accept the match or end the track; they choose nothing, since a
+//! choice made on them fits their noise. The matched blocks are averaged in the data's own
+//! units — a motion-compensated mean that holds about `N` frames' photons wherever `N` frames
+//! matched — and the mean is denoised by iterative BM3D at the noise of a mean of `N` frames
+//! (gain α/N, read noise σ/√N).
 //!
 //! Where the neighbours hold nothing like frame `t` (a particle that moved off its track, a
-//! spot that blinked, a scene cut), no block passes the threshold; there the estimate falls
-//! back, pixel by pixel and in proportion to the frames that matched, to iterative BM3D of frame
-//! `t` alone. The mean is taken in the data's units and both estimates invert the transform
+//! spot that blinked), no block passes the threshold; a neighbour whose blocks as a whole
+//! differ more than noise does (a scene cut) ends the window on its side. There the estimate
+//! falls back, pixel by pixel and in proportion to the frames that matched, to iterative BM3D of
+//! frame `t` alone. Neighbours are brought to frame `t`'s brightness along the window's trend
+//! (bleaching). The mean is taken in the data's units and both estimates invert the transform
 //! with its exact unbiased inverse, so the mean over a region stays the signal's (within 1 %
-//! in the tests, down to half a count per pixel).
+//! in the tests, down to half a count per pixel, bleaching or not).
 
 use rayon::prelude::*;
 
@@ -55,10 +59,31 @@ pub struct MotionMean {
     pub frames: Vec<f32>,
 }
 
+/// A neighbour whose tracked blocks differ from frame `t`'s by more than this times the best
+/// neighbour's (the median summed squared difference of each frame's blocks) holds another
+/// scene: a cut, or motion too fast to follow. Below about a photon per pixel a block of
+/// another scene often passes the per-block threshold (the scenes' contrast is under the noise
+/// of 64 pixels), but over a whole frame's blocks the excess is plain: in the tests a still
+/// scene's neighbours' medians agree within 2 %, and a cut at 2 counts per pixel lifts its
+/// frames' 13–19 % above them.
+const SCENE_GATE: f64 = 1.1;
+
+/// One step of a block's track: the frame, where the block was found, and the summed squared
+/// difference there (after the transform, noise 1).
+#[derive(Clone, Copy)]
+struct Step {
+    frame: usize,
+    x: usize,
+    y: usize,
+    d: f64,
+}
+
 /// The motion-compensated mean of `window[center]` (frames `w × h` with noise `p`, in time
 /// order; the window may be clipped at a stack's ends). `guides` are the frames' single-frame
 /// estimates, which propose where each block went; the noisy frames decide and
-/// accept, since their difference's noise is what the threshold knows.
+/// accept, since their difference's noise is what the threshold knows. Each neighbour is first
+/// brought to frame `t`'s brightness along the window's trend ([`brightness`]: bleaching), and a
+/// neighbour that is another scene ([`SCENE_GATE`]) ends the window on its side.
 pub fn motion_mean(
     window: &[&[f32]],
     guides: &[&[f32]],
@@ -78,52 +103,110 @@ pub fn motion_mean(
             frames: vec![1.0; w * h],
         };
     }
-    let gat: Vec<Vec<f32>> = window
+    let scale = brightness(window, center, 0..=window.len() - 1);
+    // The guides too: a dimmer neighbour's guide would propose moves towards brighter content.
+    let scaled = |frames: &[&[f32]]| -> Vec<Vec<f32>> {
+        frames
+            .iter()
+            .zip(&scale)
+            .map(|(f, &s)| f.iter().map(|&z| z * s as f32).collect())
+            .collect()
+    };
+    let (mut frames, guides) = (scaled(window), scaled(guides));
+    let to_gat =
+        |f: &Vec<f32>| -> Vec<f32> { f.iter().map(|&z| forward(z as f64, p) as f32).collect() };
+    let guides: Vec<Vec<f32>> = guides.iter().map(to_gat).collect();
+    let gat: Vec<Vec<f32>> = frames
         .iter()
         .map(|f| f.iter().map(|&z| forward(z as f64, p) as f32).collect())
         .collect();
-    let win = kaiser(N);
     let limit = threshold();
     let (xs, ys) = (positions(w, N, STEP), positions(h, N, STEP));
-    // Per worker, over the frame: Σ k·(the matched blocks' values), Σ k·m and Σ k, for the
+    // How the whole scene moved into each frame from the one before it on the way out from
+    // frame `t` (the track's previous frame): each block's move is looked for around it.
+    let moves: Vec<(isize, isize)> = (0..window.len())
+        .map(|f| match f.cmp(&center) {
+            std::cmp::Ordering::Less => global_shift(&gat[f + 1], &gat[f], w, h),
+            std::cmp::Ordering::Greater => global_shift(&gat[f - 1], &gat[f], w, h),
+            std::cmp::Ordering::Equal => (0, 0),
+        })
+        .collect();
+    // Every reference block's track, outward in both directions until a block fails.
+    let tracks: Vec<Vec<Vec<Step>>> = ys
+        .par_iter()
+        .map(|&y| {
+            xs.iter()
+                .map(|&x| {
+                    let mut steps = Vec::with_capacity(window.len() - 1);
+                    for dir in [-1isize, 1] {
+                        let (mut px, mut py) = (x, y);
+                        let mut f = center as isize + dir;
+                        while f >= 0 && (f as usize) < window.len() {
+                            let fu = f as usize;
+                            let shifted = |c: usize, d: isize, len: usize| {
+                                (c as isize + d).clamp(0, (len - N) as isize) as usize
+                            };
+                            let predicted =
+                                (shifted(px, moves[fu].0, w), shifted(py, moves[fu].1, h));
+                            match track(
+                                (&gat[center], &gat[fu]),
+                                (&guides[center], &guides[fu]),
+                                w,
+                                h,
+                                (x, y),
+                                predicted,
+                            ) {
+                                Some((d, bx, by)) if d <= limit => {
+                                    steps.push(Step {
+                                        frame: fu,
+                                        x: bx,
+                                        y: by,
+                                        d,
+                                    });
+                                    (px, py) = (bx, by);
+                                }
+                                _ => break,
+                            }
+                            f += dir;
+                        }
+                    }
+                    steps
+                })
+                .collect()
+        })
+        .collect();
+    let (first, last) = same_scene(&tracks, center, window.len());
+    if (first, last) != (0, window.len() - 1) {
+        // The trend of this scene's frames alone.
+        let scale = brightness(window, center, first..=last);
+        for f in first..=last {
+            frames[f] = window[f].iter().map(|&z| z * scale[f] as f32).collect();
+        }
+    }
+    let win = kaiser(N);
+    // Per row of reference blocks: Σ k·(the matched blocks' values), Σ k·m and Σ k, for the
     // window weight k of each block and its m matched frames.
     let zero = || (vec![0f64; w * h], vec![0f64; w * h], vec![0f64; w * h]);
     let (num, den, cnt) = ys
         .par_iter()
-        .fold(zero, |(mut num, mut den, mut cnt), &y| {
-            for &x in &xs {
-                let mut matched: Vec<(usize, usize, usize, f64)> = vec![(center, x, y, 1.0)];
-                for dir in [-1isize, 1] {
-                    let (mut px, mut py) = (x, y);
-                    let mut f = center as isize + dir;
-                    while f >= 0 && (f as usize) < window.len() {
-                        let found = track(
-                            (&gat[center], &gat[f as usize]),
-                            (guides[center], guides[f as usize]),
-                            w,
-                            h,
-                            (x, y),
-                            (px, py),
-                        );
-                        match found {
-                            Some((d, bx, by)) if d <= limit => {
-                                matched.push((f as usize, bx, by, weight(d)));
-                                (px, py) = (bx, by);
-                            }
-                            _ => break,
-                        }
-                        f += dir;
-                    }
-                }
-                let m: f64 = matched.iter().map(|b| b.3).sum();
+        .zip(&tracks)
+        .fold(zero, |(mut num, mut den, mut cnt), (&y, row)| {
+            for (&x, steps) in xs.iter().zip(row) {
+                let kept = || {
+                    steps
+                        .iter()
+                        .filter(|s| (first..=last).contains(&s.frame))
+                        .map(|s| (s.frame, s.x, s.y, weight(s.d)))
+                };
+                let m: f64 = 1.0 + kept().map(|b| b.3).sum::<f64>();
                 for r in 0..N {
                     for q in 0..N {
                         let k = win[r * N + q];
                         let i = (y + r) * w + x + q;
-                        let sum: f64 = matched
-                            .iter()
-                            .map(|&(f, bx, by, wt)| wt * window[f][(by + r) * w + bx + q] as f64)
-                            .sum();
+                        let sum: f64 = frames[center][i] as f64
+                            + kept()
+                                .map(|(f, bx, by, wt)| wt * frames[f][(by + r) * w + bx + q] as f64)
+                                .sum::<f64>();
                         num[i] += k * sum;
                         den[i] += k * m;
                         cnt[i] += k;
@@ -166,16 +249,140 @@ pub fn motion_mean(
     MotionMean { mean, frames }
 }
 
-/// Where the block at `at` of frame `t` went in another frame, searched around its last
-/// position `around`, and the summed squared difference there after the transform (noise 1).
-/// The guides (the frames' single-frame estimates) propose the move: on them noise cannot pull a
-/// match off its place among a search's many positions, but below a photon or so per pixel they
-/// are too smooth to say where a block went. So the noisy frames decide between the two
-/// positions, staying and the guides' (a choice of two, which noise barely biases).
-/// Requiring the move to win by a margin kept still scenes better aligned at the lowest light
-/// but lost drifting ones (measured: a margin of one standard deviation of the difference of
-/// two sums gave +1.5 dB more on a still scene at 0.5 photons per pixel and −3 dB on a
-/// 2.5 px/frame drift at 2).
+/// The first and last frames of the window that hold frame `center`'s scene: walking out from
+/// it, a frame whose tracked blocks' median difference is above [`SCENE_GATE`] times the
+/// best-matching neighbour's ends the scene on that side (it and every frame beyond). The
+/// best neighbour stands for noise alone because the transform's noise is 1 only above a few
+/// counts per pixel (measured: true matches at 0.84 of 2·N² near 2 counts, and EMCCD frames
+/// are not exactly Poisson–Gaussian), and a window rarely holds no frame of its own scene. A
+/// frame most blocks' tracks never reached is left to the blocks that did.
+fn same_scene(tracks: &[Vec<Vec<Step>>], center: usize, len: usize) -> (usize, usize) {
+    let blocks: usize = tracks.iter().map(Vec::len).sum();
+    let medians: Vec<Option<f64>> = (0..len)
+        .map(|f| {
+            let ds: Vec<f64> = tracks
+                .iter()
+                .flatten()
+                .flat_map(|steps| steps.iter().filter(|s| s.frame == f).map(|s| s.d))
+                .collect();
+            if f == center || 2 * ds.len() < blocks {
+                None
+            } else {
+                emccd_profile::median(ds)
+            }
+        })
+        .collect();
+    let floor = medians
+        .iter()
+        .flatten()
+        .copied()
+        .fold(f64::INFINITY, f64::min);
+    let other = |f: usize| medians[f].is_some_and(|m| m > SCENE_GATE * floor);
+    let mut first = center;
+    while first > 0 && !other(first - 1) {
+        first -= 1;
+    }
+    let mut last = center;
+    while last + 1 < len && !other(last + 1) {
+        last += 1;
+    }
+    (first, last)
+}
+
+/// Per window frame, the factor that brings it to frame `center`'s brightness along the
+/// window's trend: the least-squares slope of the log of the frames' means over time, fitted on
+/// the frames `within` around `center` that change by under 10 % from one to the next (a larger step is
+/// a cut or a flash, whose frames the matching refuses anyway). Without it a bleaching scene's
+/// first and last frames, whose neighbours are all brighter or all dimmer, would be biased by
+/// the trend (4 %/frame bleaching: 4 % at the ends of a 5-frame window). Only the trend is
+/// taken, not each frame's own mean, so the noise of the mean still averages over the window.
+fn brightness(
+    window: &[&[f32]],
+    center: usize,
+    within: std::ops::RangeInclusive<usize>,
+) -> Vec<f64> {
+    let means: Vec<f64> = window
+        .iter()
+        .map(|f| f.iter().map(|&v| v as f64).sum::<f64>() / f.len().max(1) as f64)
+        .collect();
+    let mut one = vec![1.0; window.len()];
+    let step_ok = |a: f64, b: f64| a > 0.0 && b > 0.0 && (a / b).ln().abs() <= 0.1;
+    let (mut lo, mut hi) = (center, center);
+    while lo > *within.start() && step_ok(means[lo - 1], means[lo]) {
+        lo -= 1;
+    }
+    while hi < *within.end() && step_ok(means[hi + 1], means[hi]) {
+        hi += 1;
+    }
+    if hi == lo {
+        return one;
+    }
+    let n = (hi - lo + 1) as f64;
+    let xbar = (lo..=hi).map(|f| f as f64).sum::<f64>() / n;
+    let ybar = (lo..=hi).map(|f| means[f].ln()).sum::<f64>() / n;
+    let sxy: f64 = (lo..=hi)
+        .map(|f| (f as f64 - xbar) * (means[f].ln() - ybar))
+        .sum();
+    let sxx: f64 = (lo..=hi).map(|f| (f as f64 - xbar).powi(2)).sum();
+    let slope = sxy / sxx;
+    for (f, s) in one.iter_mut().enumerate().take(hi + 1).skip(lo) {
+        *s = (-slope * (f as f64 - center as f64)).exp();
+    }
+    one
+}
+
+/// How much closer (summed squared difference after the transform, in units of the noise of
+/// one pixel) the guides must put a block at its proposed move than where it was for the track
+/// to move: a quarter of a block's noise. A smaller gain would leave a mismatch whose energy
+/// is a small part of the noise that averaging removes; taking every move the guides or the
+/// noisy frames favour would fit noise: on a flat region every proposal is noise, and a choice
+/// made on the noisy frames picks the neighbours' blocks that resemble frame `t`'s noise, which
+/// then averages out less and biases the mean (measured: 2–5 % on a uniform scene at half a
+/// count per pixel).
+const MOVE_GAIN: f64 = 0.05 * (N * N) as f64;
+
+/// The whole-pixel shift (within [`SEARCH`] px) that best carries frame `from` onto frame `to`
+/// (both after the transform): the one with the least mean squared difference over the pixels
+/// at least [`SEARCH`] px from the border. A drift or a tip-tilt jitter moves every block
+/// alike, and where noise hides the move from each block (below a photon or so per pixel) the
+/// whole frame still shows it; a still scene gives no shift, so no block is moved by noise.
+fn global_shift(from: &[f32], to: &[f32], w: usize, h: usize) -> (isize, isize) {
+    let s = SEARCH as usize;
+    if w <= 2 * s || h <= 2 * s {
+        return (0, 0);
+    }
+    let mut best = (f64::INFINITY, (0, 0));
+    for dy in -SEARCH..=SEARCH {
+        for dx in -SEARCH..=SEARCH {
+            let d: f64 = (s..h - s)
+                .into_par_iter()
+                .map(|y| {
+                    let a = &from[y * w + s..y * w + w - s];
+                    let yb = (y as isize + dy) as usize;
+                    let xb = (s as isize + dx) as usize;
+                    let b = &to[yb * w + xb..yb * w + xb + w - 2 * s];
+                    a.iter()
+                        .zip(b)
+                        .map(|(p, q)| ((p - q) as f64).powi(2))
+                        .sum::<f64>()
+                })
+                .sum();
+            // Ties go to the smaller move.
+            let nearer = dx * dx + dy * dy < best.1 .0 * best.1 .0 + best.1 .1 * best.1 .1;
+            if d < best.0 || (d == best.0 && nearer) {
+                best = (d, (dx, dy));
+            }
+        }
+    }
+    best.1
+}
+
+/// Where the block at `at` of frame `t` went in another frame, searched around where the
+/// scene's move puts it, `around`, and the summed squared difference there between the noisy frames after
+/// the transform (noise 1), which accepts or refuses it. The guides (the frames' single-frame
+/// estimates, transformed too) say where it went: their best match within the search, taken if
+/// it is closer than staying by [`MOVE_GAIN`]. They decide alone, since a decision on the noisy
+/// frames is a decision on their noise.
 fn track(
     (own, other): (&[f32], &[f32]),
     (own_guide, other_guide): (&[f32], &[f32]),
@@ -184,18 +391,10 @@ fn track(
     at: (usize, usize),
     around: (usize, usize),
 ) -> Option<(f64, usize, usize)> {
-    let stay = ssd(own, other, w, at, around);
-    let (_, gx, gy) = best_match(own_guide, other_guide, w, h, at, around)?;
-    if (gx, gy) == around {
-        return Some((stay, gx, gy));
-    }
-    let moved = ssd(own, other, w, at, (gx, gy));
-
-    Some(if moved < stay {
-        (moved, gx, gy)
-    } else {
-        (stay, around.0, around.1)
-    })
+    let (moved, gx, gy) = best_match(own_guide, other_guide, w, h, at, around)?;
+    let go = (gx, gy) != around && ssd(own_guide, other_guide, w, at, around) - moved > MOVE_GAIN;
+    let (x, y) = if go { (gx, gy) } else { around };
+    Some((ssd(own, other, w, at, (x, y)), x, y))
 }
 
 /// The summed squared difference of the blocks at `a` in `one` and at `b` in `other`.
