@@ -227,11 +227,13 @@ def main():
                                        check=True, capture_output=True, text=True).stdout)
         for motion in motions:
             for level in levels:
-                row = dict(camera=cam_name, motion=motion, level=level, frames=a.frames, psnr={}, s_per_512={})
+                row = dict(camera=cam_name, motion=motion, level=level, frames=a.frames, psnr={}, s_per_512={},
+                           mean_ratio={})
                 for sc in ev["pairs"]:
                     if sc["scene"] == motion and sc["mean_electrons"] == level:
                         row["psnr"][sc["method"]] = sc["psnr_db"]
                         row["s_per_512"][sc["method"]] = sc["seconds"] / sc["pixels"] * 512 * 512
+                        row["mean_ratio"][sc["method"]] = sc.get("mean_ratio")
                 if (motion, level) in bm4d_rows:
                     row["psnr"]["bm4d"], row["s_per_512"]["bm4d"] = bm4d_rows[(motion, level)]
                 rows.append(row)

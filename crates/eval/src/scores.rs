@@ -30,6 +30,8 @@ pub struct Score {
     pub psnr_paper_db: f64,
     /// SSIM (Gaussian window, the truth's peak as data range).
     pub ssim: f64,
+    /// The estimate's mean over the frames scored over the truth's: photometry (1 = unbiased).
+    pub mean_ratio: f64,
     /// Seconds the method took on the pair's frames (preprocessing included).
     pub seconds: f64,
     /// Pixels in the frames scored.
@@ -69,6 +71,7 @@ impl Score {
             psnr_db: crate::psnr(out, truth, peak),
             psnr_paper_db: crate::psnr(out, truth, 65535.0),
             ssim,
+            mean_ratio: mean(out.iter().map(|&v| v as f64)) / mean(truth.iter().map(|&v| v as f64)),
             seconds,
             pixels: n * frames.frames,
         }
@@ -270,13 +273,13 @@ fn csv_field(s: &str) -> String {
 /// One row per score (`results.csv`).
 pub fn csv(scores: &[Score]) -> String {
     let mut csv = String::from(
-        "method,camera,scene,photons,mean_electrons,psnr_db,psnr_paper_db,ssim,seconds\n",
+        "method,camera,scene,photons,mean_electrons,psnr_db,psnr_paper_db,ssim,mean_ratio,seconds\n",
     );
     for s in scores {
         let me = s.mean_electrons.map_or(String::new(), |m| m.to_string());
         let _ = writeln!(
             csv,
-            "{},{},{},{},{me},{:.4},{:.4},{:.6},{:.4}",
+            "{},{},{},{},{me},{:.4},{:.4},{:.6},{:.5},{:.4}",
             csv_field(&s.method),
             csv_field(&s.camera),
             csv_field(&s.scene),
@@ -284,6 +287,7 @@ pub fn csv(scores: &[Score]) -> String {
             s.psnr_db,
             s.psnr_paper_db,
             s.ssim,
+            s.mean_ratio,
             s.seconds
         );
     }
@@ -324,6 +328,7 @@ mod tests {
             psnr_db: psnr,
             psnr_paper_db: psnr + 40.0,
             ssim: 0.5,
+            mean_ratio: 1.0,
             seconds: 1.0,
             pixels: 256 * 256,
         }
