@@ -52,6 +52,7 @@ def _make_widget_class():
         LineEdit,
         ProgressBar,
         PushButton,
+        SpinBox,
         create_widget,
     )
     from napari.layers import Image
@@ -76,6 +77,9 @@ def _make_widget_class():
             self.model = ComboBox(choices=["(method's own)"] + list(emccd.BUNDLED_MODELS), label="model")
             self.exposure = FloatSpinBox(value=0.01, min=1e-6, max=1e4, step=0.001, label="exposure (s)")
             self.units = ComboBox(choices=["dn", "electrons"], label="units")
+            self.window = SpinBox(value=2, min=0, max=16, label="window",
+                                  tooltip="Temporal methods on a time series: the frames before and after "
+                                          "each frame it also uses (0: each frame alone)")
             self.extrapolate = CheckBox(value=False, text="outside the calibrated exposures")
             self.run_button = PushButton(text="Denoise")
             self.cancel_button = PushButton(text="Cancel", enabled=False)
@@ -83,7 +87,7 @@ def _make_widget_class():
             self.status = Label(value="")
             super().__init__(widgets=[
                 self.image, self.profile, self.method, self.model, self.exposure, self.units,
-                self.extrapolate, self.run_button, self.cancel_button, self.bar, self.status,
+                self.window, self.extrapolate, self.run_button, self.cancel_button, self.bar, self.status,
             ])
             self.status.native.setWordWrap(True)  # long messages wrap instead of widening the dock
             self._relay = _Relay()
@@ -113,14 +117,19 @@ def _make_widget_class():
             """The emccd.denoise arguments the widget's fields say."""
             method = self.method.value
             model = self.model.value
-            return {
+            method = None if method.startswith("(") else method
+            req = {
                 "profile": self.profile.value.strip() or "default",
-                "method": None if method.startswith("(") else method,
+                "method": method,
                 "model": None if model.startswith("(") else model,
                 "exposure_s": float(self.exposure.value),
                 "units": self.units.value,
                 "extrapolate": bool(self.extrapolate.value),
             }
+            # The window is the temporal methods' (the default's too, when it is one).
+            if (method or emccd.DEFAULT_METHOD).startswith("temporal"):
+                req["window"] = int(self.window.value)
+            return req
 
         def run(self):
             layer = self.image.value

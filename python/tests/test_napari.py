@@ -73,3 +73,23 @@ def test_cancel_stops_the_worker_and_adds_nothing(profile, scene, tmp_path, make
     qtbot.waitUntil(lambda: widget.worker is None, timeout=120_000)
     assert widget.status.value == "cancelled" and len(viewer.layers) == 1
     assert widget.run_button.enabled and not widget.cancel_button.enabled
+
+
+def test_a_time_series_is_denoised_with_its_neighbours(profile, scene, tmp_path, make_napari_viewer, qtbot):
+    raw, _ = emccd.simulate_pairs(scene, profile=profile, mean_electrons=2.0, exposure_s=0.01, frames=3, seed=5)
+    h, w = scene.shape
+    profile.crop(0, 0, w, h).save(tmp_path / "profile")
+    viewer = make_napari_viewer()
+    viewer.add_image(raw, name="movie", metadata={"emccd": {"exposure_s": 0.01}})
+    _, widget = viewer.window.add_plugin_dock_widget("emccd", "Denoise EMCCD")
+    widget.profile.value = str(tmp_path / "profile")
+    widget.method.value = "temporal"
+    widget.window.value = 1
+    assert widget.request()["window"] == 1
+    widget.run_button.clicked()
+    qtbot.waitUntil(lambda: len(viewer.layers) == 2, timeout=300_000)
+    expected = emccd.denoise(raw, profile=str(tmp_path / "profile"), method="temporal", window=1, exposure_s=0.01)
+    np.testing.assert_array_equal(viewer.layers[-1].data, expected)
+    # A method that denoises frames alone is not given the window.
+    widget.method.value = "bm3d"
+    assert "window" not in widget.request()
