@@ -213,7 +213,8 @@ def main():
                     den = bm4d.bm4d(gat(pre, alpha, sigma), 1.0)
                     est = gat_inverse(np.asarray(den), alpha, sigma)
                     bm4d_rows[(motion, level)] = (psnr(est, truth),
-                                                  (time.perf_counter() - t) / a.frames * (512 * 512) / (n * n))
+                                                  (time.perf_counter() - t) / a.frames * (512 * 512) / (n * n),
+                                                  float(est.mean() / truth.mean()))
                 print(f"{cam_name} {stem}: made" + (f", bm4d {bm4d_rows[(motion, level)][0]:.2f} dB"
                                                       if (motion, level) in bm4d_rows else ""), file=sys.stderr)
         with open(mdir / "pairs.toml", "w") as f:
@@ -235,7 +236,7 @@ def main():
                         row["s_per_512"][sc["method"]] = sc["seconds"] / sc["pixels"] * 512 * 512
                         row["mean_ratio"][sc["method"]] = sc.get("mean_ratio")
                 if (motion, level) in bm4d_rows:
-                    row["psnr"]["bm4d"], row["s_per_512"]["bm4d"] = bm4d_rows[(motion, level)]
+                    row["psnr"]["bm4d"], row["s_per_512"]["bm4d"], row["mean_ratio"]["bm4d"] = bm4d_rows[(motion, level)]
                 rows.append(row)
                 print(json.dumps(row), file=sys.stderr)
         (a.out / "results.json").write_text(json.dumps(rows, indent=1))
