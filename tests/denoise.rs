@@ -312,7 +312,8 @@ fn the_default_method_is_the_blend_of_ivst_and_lowlight() {
 /// `--method temporal` through the binary: a cropped 4-frame stack is denoised with its
 /// neighbours (frame count and size kept, the window in the Zarr provenance), `--window 0`
 /// gives `ivst`'s frames, and a window asked of a per-frame method is refused before anything
-/// is written.
+/// is written. With no method, a stack runs `temporal` (and says so), `--window 0` the
+/// per-frame default, `blend`.
 #[test]
 fn temporal_denoises_a_stack_with_its_neighbours() {
     let dir = tempfile::tempdir().unwrap();
@@ -358,7 +359,23 @@ fn temporal_denoises_a_stack_with_its_neighbours() {
     assert_ne!(t, ivst);
     ok(&run(&["-o", "t.zarr", "--method", "temporal"]));
     let attrs = std::fs::read_to_string(d.join("t.zarr/zarr.json")).unwrap();
-    assert!(attrs.contains("\"window\": 2"), "{attrs}");
+    assert!(attrs.contains("\"window\": 4"), "{attrs}");
+    let o = run(&["-o", "default.tif"]);
+    ok(&o);
+    let note = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        note.contains("4 frames: each estimated with the 4 before and after"),
+        "{note}"
+    );
+    ok(&run(&["-o", "t4.tif", "--method", "temporal"]));
+    let (_, default) = emccd_io::read_all(d.join("default.tif")).unwrap();
+    assert_eq!(default, emccd_io::read_all(d.join("t4.tif")).unwrap().1);
+    ok(&run(&["-o", "default0.tif", "--window", "0"]));
+    ok(&run(&["-o", "blend.tif", "--method", "blend"]));
+    assert_eq!(
+        emccd_io::read_all(d.join("default0.tif")).unwrap().1,
+        emccd_io::read_all(d.join("blend.tif")).unwrap().1
+    );
     let o = run(&["-o", "b.tif", "--method", "bm3d", "--window", "1"]);
     assert_eq!(o.status.code(), Some(2));
     let err = String::from_utf8_lossy(&o.stderr);

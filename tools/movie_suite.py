@@ -22,7 +22,7 @@ Scenes: McMaster 1 and 7 and FMD field 5 (never trained on: the low-light suite'
 motion in turn; particles and jitter make their own.
 
 Usage: python3 tools/movie_suite.py [OUT] [--cameras lowlight-a,lowlight-b] [--levels 0.5,1,4,16]
-           [--motions static,drift,...] [--frames 16] [--size 256] [--methods bm3d,blend,temporal,temporal-blend]
+           [--motions static,drift,...] [--frames 16] [--size 256] [--methods bm3d,blend,temporal]
            [--no-bm4d]
 Needs: python3 with emccd-detect, bm4d, scipy, tifffile, pillow (pip install emccd-detect bm4d
 scipy tifffile pillow) and the release binary (built if missing). Each camera's movies and their
@@ -155,7 +155,7 @@ def main():
     ap.add_argument("--motions", default=",".join(MOTIONS))
     ap.add_argument("--frames", type=int, default=16)
     ap.add_argument("--size", type=int, default=256)
-    ap.add_argument("--methods", default="bm3d,blend,temporal,temporal-blend")
+    ap.add_argument("--methods", default="bm3d,blend,temporal")
     ap.add_argument("--no-bm4d", action="store_true")
     ap.add_argument("--seed", type=int, default=11)
     a = ap.parse_args()

@@ -29,6 +29,7 @@ __all__ = [
     "BUNDLED_MODELS",
     "METHODS",
     "DEFAULT_METHOD",
+    "DEFAULT_MOVIE_METHOD",
     "info",
     "read",
     "frames",
@@ -43,7 +44,7 @@ __all__ = [
 
 __version__ = _emccd.__version__
 
-BUNDLED_MODELS, METHODS, DEFAULT_METHOD = _emccd.catalog()
+BUNDLED_MODELS, METHODS, DEFAULT_METHOD, DEFAULT_MOVIE_METHOD = _emccd.catalog()
 BUNDLED_MODELS = tuple(BUNDLED_MODELS)
 METHODS = tuple(METHODS)
 
@@ -153,10 +154,11 @@ def denoise(
     profile, then the method runs. Returns float32 of the input's shape, in DN above bias
     (``units="dn"``) or photoelectrons (``"electrons"``).
 
-    ``method``: ``blend`` (the default with no model: iterative BM3D and the ``lowlight``
-    network averaged, the most accurate at low light), ``ivst`` (iterative BM3D), ``bm3d``, ``hybrid`` (BM3D refined by a network), ``net`` (a network alone, the
+    ``method``: ``blend`` (the default with no model on a single frame: iterative BM3D and the
+    ``lowlight`` network averaged, the most accurate at low light; a 3-D stack of more than one
+    frame runs ``temporal`` by default, unless ``window=0``), ``ivst`` (iterative BM3D), ``bm3d``, ``hybrid`` (BM3D refined by a network), ``net`` (a network alone, the
     fastest), ``temporal`` (each frame of a 3-D stack estimated from the ``window`` frames
-    before and after it too, 2 by default) or ``none`` (preprocessing only). ``model``: a bundled model (``default``,
+    before and after it too) or ``none`` (preprocessing only). ``model``: a bundled model (``default``,
     ``microscopy``, ``lowlight``, ``hybrid``) or a model file; a model alone picks the method it was trained
     for. ``exposure_s`` is required (arrays carry no header; :func:`read` returns it in the
     metadata). ``progress(done, total)`` is called after each frame; an exception it raises

@@ -73,7 +73,8 @@ def _make_widget_class():
             self.image = create_widget(annotation=Image, label="recording")
             self.profile = LineEdit(value="default", label="profile",
                                     tooltip="A profile folder from `emccd calibrate`, or `default` (bundled iXon 897)")
-            self.method = ComboBox(choices=["(default: " + emccd.DEFAULT_METHOD + ")"] + list(emccd.METHODS), label="method")
+            default = f"(default: {emccd.DEFAULT_METHOD}; {emccd.DEFAULT_MOVIE_METHOD} on a time series)"
+            self.method = ComboBox(choices=[default] + list(emccd.METHODS), label="method")
             self.model = ComboBox(choices=["(method's own)"] + list(emccd.BUNDLED_MODELS), label="model")
             self.exposure = FloatSpinBox(value=0.01, min=1e-6, max=1e4, step=0.001, label="exposure (s)")
             self.units = ComboBox(choices=["dn", "electrons"], label="units")
@@ -126,8 +127,8 @@ def _make_widget_class():
                 "units": self.units.value,
                 "extrapolate": bool(self.extrapolate.value),
             }
-            # The window is the temporal methods' (the default's too, when it is one).
-            if (method or emccd.DEFAULT_METHOD).startswith("temporal"):
+            # The window is the temporal methods' (the default's too: it runs one on a time series).
+            if method is None or method.startswith("temporal"):
                 req["window"] = int(self.window.value)
             return req
 

@@ -461,6 +461,7 @@ fn denoise<'py>(
         let window = r.window(window)?;
         let fd = r.denoiser(
             p,
+            f,
             emccd_nn::tile::Tiling { tile, overlap },
             ensemble,
             units,
@@ -469,7 +470,9 @@ fn denoise<'py>(
         if let Some(wn) = p.check_frames(w, h, exposure_s, "exposure_s", extrapolate)? {
             warnings.push(wn);
         }
-        warnings.extend(r.profile_warning(p));
+        if fd.model.is_some() {
+            warnings.extend(r.profile_warning(p));
+        }
         let mut out = Vec::with_capacity(raw.len());
         if fd.method.temporal() {
             let at = |k: usize| format!("frame {}", k + 1);
@@ -635,13 +638,20 @@ fn ssim(
     ))
 }
 
-/// The names of the bundled models and the denoising methods, and the default method.
+/// The names of the bundled models and the denoising methods, the default method, and the
+/// default on a movie (a 3-D stack of more than one frame).
 #[pyfunction]
-fn catalog() -> (Vec<&'static str>, Vec<&'static str>, &'static str) {
+fn catalog() -> (
+    Vec<&'static str>,
+    Vec<&'static str>,
+    &'static str,
+    &'static str,
+) {
     (
         bundled::BUNDLED.iter().map(|b| b.name).collect(),
         Method::ALL.iter().map(|m| m.name()).collect(),
         emccd_denoise::DEFAULT_METHOD.name(),
+        emccd_denoise::DEFAULT_MOVIE_METHOD.name(),
     )
 }
 

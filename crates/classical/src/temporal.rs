@@ -464,7 +464,8 @@ fn best_match(
 /// The estimate of `window[center]` (DN above bias, noise `p`) from its window: iterative BM3D
 /// of the motion-compensated mean at a mean's noise, falling back to `singles[center]` (the
 /// frame's own estimate) where fewer frames matched. `singles` are the window's single-frame
-/// estimates, [`single`] of each frame (a stack computes each once).
+/// estimates, [`single`] of each frame (a stack computes each once). One frame's worth of
+/// matches or fewer gives `singles[center]` unchanged.
 pub fn estimate(
     window: &[&[f32]],
     singles: &[&[f32]],
@@ -473,36 +474,14 @@ pub fn estimate(
     h: usize,
     p: PoissonGaussian,
 ) -> Vec<f32> {
-    let pooled = |mean: &[f32], frames: f64| {
-        Ok::<_, std::convert::Infallible>(bm3d_adaptive(mean, w, h, p.of_mean(frames)))
-    };
-    match estimate_with(window, singles, center, w, h, p, pooled) {
-        Ok(v) => v,
-        Err(never) => match never {},
-    }
-}
-
-/// [`estimate`] with another estimator of the motion-compensated mean: `pooled(mean, n)`
-/// denoises a mean of about `n` frames (its noise is `p.of_mean(n)`), and `singles` hold the
-/// same estimator's output on each frame alone, which tracking is guided by and the estimate
-/// falls back to. One frame's worth of matches or fewer gives `singles[center]` unchanged.
-pub fn estimate_with<E>(
-    window: &[&[f32]],
-    singles: &[&[f32]],
-    center: usize,
-    w: usize,
-    h: usize,
-    p: PoissonGaussian,
-    pooled: impl FnOnce(&[f32], f64) -> Result<Vec<f32>, E>,
-) -> Result<Vec<f32>, E> {
     let single = singles[center];
     let mm = motion_mean(window, singles, center, w, h, p);
     let typical = emccd_profile::median(mm.frames.iter().copied()).unwrap_or(1.0) as f64;
     if typical < 1.5 {
-        return Ok(single.to_vec());
+        return single.to_vec();
     }
-    let pooled = pooled(&mm.mean, typical)?;
-    Ok(pooled
+    let pooled = bm3d_adaptive(&mm.mean, w, h, p.of_mean(typical));
+    pooled
         .iter()
         .zip(single)
         .zip(&mm.frames)
@@ -510,7 +489,7 @@ pub fn estimate_with<E>(
             let wt = ((n as f64 - 1.0) / (typical - 1.0)).clamp(0.0, 1.0) as f32;
             wt * a + (1.0 - wt) * b
         })
-        .collect())
+        .collect()
 }
 
 /// A frame's single-frame estimate (DN above bias, noise `p`): iterative BM3D, what

@@ -4,9 +4,10 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context, Result};
 use emccd_denoise::stack::{denoise_to_zarr, ZarrOutput};
-use emccd_denoise::{Denoiser, Method, Units};
+use emccd_denoise::{Method, Resolved, Units};
 use emccd_io::zarr::Shard;
 use emccd_nn::tile::Tiling;
+use emccd_profile::CameraProfile;
 
 use crate::common::{load_profile, open_recording, progress};
 
@@ -17,8 +18,9 @@ use crate::common::{load_profile, open_recording, progress};
 /// BM3D + GAT, above it and above `ivst` at every light level); `--method ivst` is the
 /// classical half alone, `--method bm3d` one plain BM3D + GAT pass, `--method hybrid` refines BM3D's estimate with the bundled
 /// hybrid network (still in training), `--method net` runs a network alone (fastest), `--method
-/// temporal` estimates each frame of a stack from its neighbours too (`--window`), `--method
-/// none` only preprocesses. TIFF/BigTIFF, SIF, FITS and Zarr in (stacks are streamed frame by
+/// temporal` estimates each frame of a stack from its neighbours too (`--window`; blocks
+/// tracked along the motion, averaged, denoised by `ivst` at the mean's noise), `--method none`
+/// only preprocesses. TIFF/BigTIFF, SIF, FITS and Zarr in (stacks are streamed frame by
 /// frame); float32 TIFF, FITS or OME-Zarr out (by the output's extension), in DN above bias by
 /// default. The exposure comes from the file header (SIF, emccd TIFF) or --exposure-s.
 #[derive(clap::Args, Debug)]
@@ -62,8 +64,8 @@ pub struct Args {
     /// a geometric self-ensemble, slightly higher PSNR for proportionally more time.
     #[arg(long, default_value_t = 1, value_parser = parse_ensemble)]
     pub ensemble: usize,
-    /// --method temporal: the frames before and after each frame it uses (default 2: five
-    /// frames; 0: each frame alone, as --method ivst). A frame's window stays within its
+    /// --method temporal: the frames before and after each frame it uses (0: each frame alone,
+    /// as --method ivst, to the bit). A frame's window stays within its
     /// recording and is clipped at the recording's ends; at most 2·K + 1 frames are held.
     #[arg(long, value_name = "K", value_parser = clap::value_parser!(u16).range(0..=emccd_denoise::MAX_WINDOW as i64))]
     pub window: Option<u16>,
@@ -84,19 +86,16 @@ fn parse_ensemble(s: &str) -> std::result::Result<usize, String> {
 pub fn run(a: Args) -> Result<()> {
     let profile = load_profile(&a.profile)?;
     let r = emccd_denoise::resolve(a.method, a.model.as_deref(), crate::common::load_model)?;
-    if let Some(w) = r.profile_warning(&profile) {
-        eprintln!("warning: {w}");
-    }
     let window = r.window(a.window.map(usize::from))?;
-    let fd = r
-        .denoiser(&profile, a.tiling, a.ensemble, a.units, window)
+    // The profile's fitness for denoising, checked before anything is opened or written.
+    r.denoiser(&profile, 1, a.tiling, a.ensemble, a.units, window)
         .map_err(|e| anyhow::anyhow!("profile {}: {e}", a.profile))?;
     let zarr = emccd_io::Format::from_extension(&a.out) == Some(emccd_io::Format::Zarr);
     if a.shard.is_some() && !zarr {
         bail!("--shard needs a .zarr output (-o OUT.zarr): only a Zarr store is written by several processes at once");
     }
     if zarr {
-        return run_zarr(&a, &fd, r.model_name.as_deref());
+        return run_zarr(&a, &r, &profile, window);
     }
     let several = a.inputs.len() > 1;
     let outs = emccd_io::output_paths(&a.inputs, &a.out, several.then_some("_denoised.tif"))?;
@@ -105,6 +104,12 @@ pub fn run(a: Args) -> Result<()> {
     }
     for (input, out) in a.inputs.iter().zip(outs) {
         let rec = open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
+        let frames = rec.info.frames;
+        if let Some(n) = r.movie_note(frames, window) {
+            eprintln!("{}: {n}", input.display());
+        }
+        let fd = r.denoiser(&profile, frames, a.tiling, a.ensemble, a.units, window)?;
+        warn_profile(&r, &fd);
         let pb = progress(rec.info.frames as u64, "frames");
         let frames = emccd_denoise::stack::denoise_file(&fd, rec, &out, &mut || pb.inc(1))?;
         pb.finish_and_clear();
@@ -113,15 +118,25 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
+/// Warns, once a run, when the network that runs was trained for another camera profile.
+fn warn_profile(r: &Resolved, fd: &emccd_denoise::Denoiser) {
+    static WARNED: std::sync::Once = std::sync::Once::new();
+    if fd.model.is_some() {
+        if let Some(w) = r.profile_warning(fd.profile) {
+            WARNED.call_once(|| eprintln!("warning: {w}"));
+        }
+    }
+}
+
 /// Denoises the inputs, one logical stack in the order given, into one OME-Zarr store: this
 /// process's shard of the frames, skipping frames already complete.
-fn run_zarr(a: &Args, fd: &Denoiser, model_name: Option<&str>) -> Result<()> {
+fn run_zarr(a: &Args, r: &Resolved, profile: &CameraProfile, window: usize) -> Result<()> {
     let shard = a.shard.unwrap_or(Shard::ALL);
     let out = ZarrOutput {
         path: &a.out,
         shard,
         profile_arg: &a.profile,
-        model_name,
+        model_name: r.model_name.as_deref(),
         software: &format!("emccd {}", env!("CARGO_PKG_VERSION")),
     };
     // Before any input is opened: the store is never one of them.
@@ -129,8 +144,16 @@ fn run_zarr(a: &Args, fd: &Denoiser, model_name: Option<&str>) -> Result<()> {
     let inputs = a
         .inputs
         .iter()
-        .map(|p| open_recording(p, fd.profile, a.exposure_s, a.extrapolate))
+        .map(|p| open_recording(p, profile, a.exposure_s, a.extrapolate))
         .collect::<Result<Vec<_>>>()?;
+    // The store is one stack: the default runs temporally when any of its recordings is a
+    // movie (each frame's window stays within its own recording).
+    let longest = inputs.iter().map(|i| i.info.frames).max().unwrap_or(1);
+    if let Some(n) = r.movie_note(longest, window) {
+        eprintln!("{n}");
+    }
+    let fd = &r.denoiser(profile, longest, a.tiling, a.ensemble, a.units, window)?;
+    warn_profile(r, fd);
     let pb = progress(0, "frames");
     let r = denoise_to_zarr(
         fd,

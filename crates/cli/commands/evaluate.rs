@@ -34,9 +34,8 @@ pub struct Args {
     /// network's self-ensemble, `blend:MODEL` with another network), `ivst:λ/b,λ/b,…` (iterative BM3D with these passes: the data's weight and the
     /// bin side, e.g. `ivst:1/3,0.7/2,0.4/1`), `hybrid` (the bundled BM3D-refining network), or
     /// a model file (`default`, `microscopy`, `lowlight` = the bundled networks; a hybrid model file runs as
-    /// the hybrid method), `temporal` and `temporal-blend` (a movie's frames from their
-    /// neighbours, 2 each side or `temporal:K` K; on a still pair, `ivst` and `blend`);
-    /// repeatable. `MODEL@8` averages the model over 8 flips/transposes
+    /// the hybrid method), `temporal` (a movie's frames from their neighbours, the
+    /// default window each side or `temporal:K` K; on a still pair, `ivst`); repeatable. `MODEL@8` averages the model over 8 flips/transposes
     /// (self-ensemble; 2, 4, 8).
     #[arg(long = "method", required = true, num_args = 1..)]
     pub methods: Vec<String>,

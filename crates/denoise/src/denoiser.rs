@@ -7,7 +7,7 @@ use emccd_nn::tile::Tiling;
 use emccd_nn::{Classical, Error, Inference, Inputs, Model, Result};
 use emccd_profile::CameraProfile;
 
-use crate::method::{Method, Units, DEFAULT_METHOD};
+use crate::method::{Method, Units, DEFAULT_METHOD, DEFAULT_MOVIE_METHOD};
 
 /// What a request runs ([`resolve`]).
 pub struct Resolved {
@@ -18,6 +18,9 @@ pub struct Resolved {
     /// The model argument it was loaded from, as given or defaulted (a bundled name or a
     /// file): what provenance names and hashes.
     pub model_name: Option<String>,
+    /// Neither a method nor a model was asked: a recording of more than one frame then runs
+    /// [`DEFAULT_MOVIE_METHOD`] instead of `method` ([`Resolved::method_for`]).
+    pub defaulted: bool,
 }
 
 impl Resolved {
@@ -29,41 +32,67 @@ impl Resolved {
             .and_then(|m| profile_mismatch(m, profile))
     }
 
-    /// The frames each side this method uses: `asked`, or [`DEFAULT_WINDOW`] for a temporal
-    /// method and 0 for the others; an error when a window is asked of a method that denoises
-    /// each frame alone.
+    /// The method a recording of `frames` frames runs with `window` frames each side:
+    /// [`DEFAULT_MOVIE_METHOD`] on a movie when neither a method nor a model was asked (and the
+    /// window is not 0: `--window 0` is the frame-by-frame default), else the method.
+    pub fn method_for(&self, frames: usize, window: usize) -> Method {
+        if self.defaulted && frames > 1 && window > 0 {
+            DEFAULT_MOVIE_METHOD
+        } else {
+            self.method
+        }
+    }
+
+    /// The frames each side a temporal method uses: `asked`, or [`DEFAULT_WINDOW`] (0 for a
+    /// method that denoises each frame alone); an error when a window is asked of such a
+    /// method. The default method takes one for the movies it denoises temporally.
     pub fn window(&self, asked: Option<usize>) -> Result<usize> {
-        match (self.method.temporal(), asked) {
+        match (self.method.temporal() || self.defaulted, asked) {
             (true, w) => Ok(w.unwrap_or(DEFAULT_WINDOW)),
             (false, None | Some(0)) => Ok(0),
             (false, Some(_)) => Err(Error::Model(format!(
-                "--window: --method {} denoises each frame alone; --method temporal and \
-                 temporal-blend use the neighbouring frames",
+                "--window: --method {} denoises each frame alone; --method temporal uses the \
+                 neighbouring frames",
                 self.method.name()
             ))),
         }
     }
 
-    /// What runs this method and model on frames of `profile`'s camera, with `window` frames
-    /// each side for a temporal method ([`Resolved::window`]); an error when the profile lacks
-    /// what denoising needs (a gain-series calibration has no slope or bias maps).
+    /// What runs on a recording of `frames` frames of `profile`'s camera
+    /// ([`Resolved::method_for`]), with `window` frames each side for a temporal method
+    /// ([`Resolved::window`]); an error when the profile lacks what denoising needs (a
+    /// gain-series calibration has no slope or bias maps).
     pub fn denoiser<'a>(
         &'a self,
         profile: &'a CameraProfile,
+        frames: usize,
         tiling: Tiling,
         ensemble: usize,
         units: Units,
         window: usize,
     ) -> Result<Denoiser<'a>> {
         emccd_classical::frame::can_denoise(profile)?;
+        let method = self.method_for(frames, window);
         Ok(Denoiser {
             profile,
-            method: self.method,
-            model: self.model.as_ref(),
+            method,
+            model: self.model.as_ref().filter(|_| method.uses_model()),
             tiling,
             ensemble,
             units,
-            window,
+            window: if method.temporal() { window } else { 0 },
+        })
+    }
+
+    /// The note for running the default on a movie (`frames` frames) temporally, if it does.
+    pub fn movie_note(&self, frames: usize, window: usize) -> Option<String> {
+        (self.method_for(frames, window) != self.method).then(|| {
+            format!(
+                "{frames} frames: each estimated with the {window} before and after it too \
+                 (--method {}; --method {} denoises each frame alone)",
+                DEFAULT_MOVIE_METHOD.name(),
+                self.method.name()
+            )
         })
     }
 }
@@ -83,6 +112,7 @@ pub fn resolve(
         method,
         model: None,
         model_name: None,
+        defaulted: false,
     };
     match (method, model) {
         (None, None) if !DEFAULT_METHOD.uses_model() => Ok(classical(DEFAULT_METHOD)),
@@ -102,13 +132,15 @@ pub fn resolve(
                 method,
                 model: Some(m),
                 model_name: Some(name.to_string()),
+                defaulted: false,
             })
         }
         (method, name) => {
+            let defaulted = method.is_none() && name.is_none();
             let method = method.unwrap_or(DEFAULT_METHOD);
             let name = name.unwrap_or(match method {
                 Method::Hybrid => "hybrid",
-                Method::Blend | Method::TemporalBlend => "lowlight",
+                Method::Blend => "lowlight",
                 _ => "default",
             });
             let m = load(name)?;
@@ -126,6 +158,7 @@ pub fn resolve(
                 method,
                 model: Some(m),
                 model_name: Some(name.to_string()),
+                defaulted,
             })
         }
     }
@@ -162,10 +195,11 @@ pub struct Denoiser<'a> {
     pub window: usize,
 }
 
-/// The frames each side `--method temporal` uses when no window is given: 5 frames in all,
-/// where a still scene at 1 photoelectron per pixel gains about 2.6 dB over one frame and a
-/// drift of up to 2.5 px per frame is still followed (`emccd-classical`'s temporal tests).
-pub const DEFAULT_WINDOW: usize = 2;
+/// The frames each side `--method temporal` uses when no window is given: 9 frames in all.
+/// Chosen on the movie suite's validation camera (`tools/movie_suite.py --cameras tune`, README
+/// "Movies"): over 2 each side, +0.3 dB on average, more on still scenes, jittered stars and
+/// across cuts, −0.2 dB at most on a drift.
+pub const DEFAULT_WINDOW: usize = 4;
 
 /// The most frames each side a temporal method takes (33 frames held at a time).
 pub const MAX_WINDOW: usize = 16;
@@ -233,7 +267,7 @@ impl Denoiser<'_> {
         match (self.model, self.method.classical()) {
             (Some(m), _) => {
                 let net = self.inference(m).denoise_preprocessed(pre, exposure_s)?;
-                if self.method.blends() {
+                if self.method == Method::Blend {
                     let iv = Classical::Ivst.of_frame(self.profile, pre, exposure_s)?;
                     Ok(net.iter().zip(&iv).map(|(a, b)| 0.5 * (a + b)).collect())
                 } else {
@@ -242,34 +276,6 @@ impl Denoiser<'_> {
             }
             (None, Some(base)) => Ok(base.of_frame(self.profile, pre, exposure_s)?),
             (None, None) => Ok(pre.to_vec()),
-        }
-    }
-
-    /// A temporal method's estimate of a motion-compensated `mean` of about `frames` frames
-    /// (DN above bias) at noise `noise` of one frame: iterative BM3D at a mean's noise, and for
-    /// `temporal-blend` averaged with the network's estimate of the frames' sum (what the
-    /// network knows: one frame at `frames` times the light), divided back.
-    pub(crate) fn estimate_mean(
-        &self,
-        mean: &[f32],
-        frames: f64,
-        noise: emccd_profile::PoissonGaussian,
-        exposure_s: f64,
-    ) -> Result<Vec<f32>> {
-        let (w, h) = (self.profile.width, self.profile.height);
-        let iv = emccd_classical::vst::bm3d_adaptive(mean, w, h, noise.of_mean(frames));
-        match self.model {
-            Some(m) if self.method.blends() => {
-                let sum: Vec<f32> = mean.iter().map(|v| v * frames as f32).collect();
-                let net = self.inference(m).denoise_preprocessed(&sum, exposure_s)?;
-                let back = 1.0 / frames as f32;
-                Ok(net
-                    .iter()
-                    .zip(&iv)
-                    .map(|(a, b)| 0.5 * (a * back + b))
-                    .collect())
-            }
-            _ => Ok(iv),
         }
     }
 }

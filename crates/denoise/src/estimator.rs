@@ -42,9 +42,9 @@ impl Estimator {
             "ivst" => Some(Method::Ivst),
             _ => None,
         };
-        // `temporal[:K]`, `temporal-blend[:K]`: K frames each side.
+        // `temporal[:K]`: K frames each side.
         let (stem, window) = match name.split_once(':') {
-            Some((m @ ("temporal" | "temporal-blend"), k)) => (
+            Some((m @ "temporal", k)) => (
                 m,
                 k.parse::<usize>()
                     .ok()
@@ -58,15 +58,10 @@ impl Estimator {
             ),
             _ => (name, crate::DEFAULT_WINDOW),
         };
-        let kind = if stem == "temporal" || stem == "temporal-blend" {
-            let blend = stem == "temporal-blend";
+        let kind = if stem == "temporal" {
             Kind::Denoise {
-                method: if blend {
-                    Method::TemporalBlend
-                } else {
-                    Method::Temporal
-                },
-                model: if blend { Some(load("lowlight")?) } else { None },
+                method: Method::Temporal,
+                model: None,
                 ensemble: 1,
                 window,
             }

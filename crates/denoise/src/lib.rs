@@ -42,4 +42,6 @@ pub mod stack;
 pub use denoiser::{profile_mismatch, resolve, Denoiser, Resolved, DEFAULT_WINDOW, MAX_WINDOW};
 pub use emccd_nn::{Error, Result};
 pub use estimator::Estimator;
-pub use method::{check_ensemble, ensemble_size, Method, ModelSpec, Units, DEFAULT_METHOD};
+pub use method::{
+    check_ensemble, ensemble_size, Method, ModelSpec, Units, DEFAULT_METHOD, DEFAULT_MOVIE_METHOD,
+};

@@ -37,12 +37,6 @@ pub enum Method {
     /// match (motion it cannot follow, a blink, a scene cut) each pixel falls back to `ivst` of
     /// the frame alone, as does a single frame. Two to three times `ivst`'s time.
     Temporal,
-    /// `temporal` with `blend` in place of `ivst`: the motion-compensated mean is denoised by
-    /// iterative BM3D and the network (bundled model `lowlight`, given the mean as the sum of
-    /// the frames it holds: a frame at that many times the light) averaged, and each pixel
-    /// falls back to `blend` of the frame alone where the neighbours do not match. About the
-    /// time of `temporal` and two `blend`s.
-    TemporalBlend,
     /// No denoising: blooming and the fixed pattern removed and the units converted, as every
     /// method does first (the preprocessed photo-signal, for one's own analysis).
     None,
@@ -54,16 +48,21 @@ pub enum Method {
 /// weight, ½, was chosen on the separate validation camera).
 pub const DEFAULT_METHOD: Method = Method::Blend;
 
+/// The method a recording of more than one frame runs when no method or model is asked: each
+/// frame from its neighbours too. On the movie suite's validation camera it is above `blend`
+/// on every kind of motion and light level (README, "Movies"); a single frame still runs
+/// [`DEFAULT_METHOD`].
+pub const DEFAULT_MOVIE_METHOD: Method = Method::Temporal;
+
 impl Method {
     /// Every method.
-    pub const ALL: [Method; 8] = [
+    pub const ALL: [Method; 7] = [
         Method::Hybrid,
         Method::Blend,
         Method::Net,
         Method::Bm3d,
         Method::Ivst,
         Method::Temporal,
-        Method::TemporalBlend,
         Method::None,
     ];
 
@@ -73,9 +72,7 @@ impl Method {
         match self {
             Method::Bm3d => Some(Classical::Bm3d),
             Method::Ivst | Method::Temporal => Some(Classical::Ivst),
-            Method::Hybrid | Method::Blend | Method::Net | Method::TemporalBlend | Method::None => {
-                None
-            }
+            Method::Hybrid | Method::Blend | Method::Net | Method::None => None,
         }
     }
 
@@ -88,28 +85,18 @@ impl Method {
             Method::Bm3d => "bm3d",
             Method::Ivst => "ivst",
             Method::Temporal => "temporal",
-            Method::TemporalBlend => "temporal-blend",
             Method::None => "none",
         }
     }
 
     /// Whether the method estimates a frame from its neighbours too (and so takes a window).
     pub fn temporal(self) -> bool {
-        matches!(self, Method::Temporal | Method::TemporalBlend)
-    }
-
-    /// Whether the method averages a network's estimate with iterative BM3D's (`blend`, and
-    /// `temporal-blend` on the frames and on their mean).
-    pub fn blends(self) -> bool {
-        matches!(self, Method::Blend | Method::TemporalBlend)
+        self == Method::Temporal
     }
 
     /// Whether the method runs a network (and so takes a model).
     pub fn uses_model(self) -> bool {
-        matches!(
-            self,
-            Method::Hybrid | Method::Blend | Method::Net | Method::TemporalBlend
-        )
+        matches!(self, Method::Hybrid | Method::Blend | Method::Net)
     }
 }
 

@@ -64,16 +64,9 @@ pub fn denoise_frames(
             let center = due - held.front().expect("the frame itself is held").index;
             let frames: Vec<&[f32]> = held.iter().map(|h| h.frame.as_slice()).collect();
             let singles: Vec<&[f32]> = held.iter().map(|h| h.single.as_slice()).collect();
-            let mut out = emccd_classical::temporal::estimate_with(
-                &frames,
-                &singles,
-                center,
-                p.width,
-                p.height,
-                noise,
-                |mean, n| fd.estimate_mean(mean, n, noise, exposure_s),
-            )
-            .map_err(|e| e.at(at(due)))?;
+            let mut out = emccd_classical::temporal::estimate(
+                &frames, &singles, center, p.width, p.height, noise,
+            );
             if to_units != 1.0 {
                 out.iter_mut().for_each(|v| *v *= to_units);
             }

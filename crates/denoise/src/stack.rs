@@ -104,7 +104,7 @@ pub fn zarr_spec(
         notes: json!({
             "inputs": inputs.iter().map(|i| i.path.display().to_string()).collect::<Vec<_>>(),
             "profile": out.profile_arg,
-            "model": out.model_name,
+            "model": out.model_name.filter(|_| fd.model.is_some()),
         }),
     })
 }
