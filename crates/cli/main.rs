@@ -76,8 +76,9 @@ enum Command {
     Simulate(commands::simulate::Cmd),
     /// Add noise from one of the noise models to clean images (training-pair synthesis).
     Synthesize(commands::synthesize::Args),
-    /// Denoise raw EMCCD frames: profile preprocessing, then iterative BM3D averaged with a
-    /// network (default), iterative BM3D, one BM3D pass, a network, or BM3D refined by one.
+    /// Denoise raw EMCCD frames: profile preprocessing, then a movie's frames from their
+    /// neighbours (default on stacks), iterative BM3D averaged with a network (default on single
+    /// frames), iterative BM3D, one BM3D pass, a network, or BM3D refined by one.
     Denoise(commands::denoise::Args),
     /// PSNR/SSIM of denoisers (input, BM3D, models) on virtual-camera pairs.
     Evaluate(commands::evaluate::Args),

@@ -12,7 +12,10 @@ use emccd_profile::CameraProfile;
 use crate::common::{load_profile, open_recording, progress};
 
 /// Denoise raw EMCCD frames: remove blooming and the fixed pattern with the camera profile (paper
-/// eq. 4), then denoise — by default with `blend`: BM3D with iterative variance stabilization
+/// eq. 4), then denoise. By default a recording of several frames (a movie) runs `temporal`:
+/// each frame estimated from the 4 before and after it too (blocks tracked along the motion,
+/// averaged, denoised at the mean's noise; above `blend` on every kind of motion of the movie
+/// suite, README "Movies"). A single frame runs `blend`: BM3D with iterative variance stabilization
 /// (`ivst`) and the bundled `lowlight` network, averaged, the most accurate method this build
 /// ships at low light (measured on the low-light suite, see the README: +0.48 dB over plain
 /// BM3D + GAT, above it and above `ivst` at every light level); `--method ivst` is the
@@ -44,7 +47,8 @@ pub struct Args {
     /// `hybrid` for --method hybrid, `default` for --method net.
     #[arg(long)]
     pub model: Option<String>,
-    /// Denoiser. Default: blend, or the method --model was trained for when one is given.
+    /// Denoiser. Default: temporal on a movie, blend on a single frame, or the method --model was
+    /// trained for when one is given.
     #[arg(long, value_enum)]
     pub method: Option<Method>,
     /// Exposure in seconds, where the file header does not record it (overrides the header).
@@ -64,8 +68,9 @@ pub struct Args {
     /// a geometric self-ensemble, slightly higher PSNR for proportionally more time.
     #[arg(long, default_value_t = 1, value_parser = parse_ensemble)]
     pub ensemble: usize,
-    /// --method temporal: the frames before and after each frame it uses (0: each frame alone,
-    /// as --method ivst, to the bit). A frame's window stays within its
+    /// --method temporal, and the default on a movie: the frames before and after each frame it
+    /// uses (default 4: nine frames; 0: each frame alone, as --method ivst, or as the default
+    /// does on a single frame, to the bit). A frame's window stays within its
     /// recording and is clipped at the recording's ends; at most 2·K + 1 frames are held.
     #[arg(long, value_name = "K", value_parser = clap::value_parser!(u16).range(0..=emccd_denoise::MAX_WINDOW as i64))]
     pub window: Option<u16>,
