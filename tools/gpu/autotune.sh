@@ -25,6 +25,8 @@ left() { echo $((secs - ($(date +%s) - T0))); }
 # vulkan_env, stamp
 . tools/gpu/common.sh
 vulkan_env
+# The bundled models travel in .gpu/models when models/ is left behind (the 64 MiB carry).
+[ -d .gpu/models ] && export EMCCD_MODELS=$PWD/.gpu/models
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader | tee -a "$OUT/autotune.log"
 for b in emccd emccd-autotune emccd-checks; do
     [ -f ".gpu/$b.xz" ] && xz -dc ".gpu/$b.xz" >"$R/$b" && chmod +x "$R/$b"

@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
 # Before a GPU loan (issue 39): everything `tools/gpu/autotune.sh` needs on the lent machine, in
 # ignored folders of the work tree that `device run` carries (`carry: [".gl", ".gpu"]`, 64 MiB
-# at most; this makes about 45 MB):
+# at most with the tracked files, so models/, profiles/default/maps.safetensors and, unless (b)
+# needs it, emccd-checks.xz are moved aside for the call):
 #   .gl/                    the Vulkan loader and glvnd packages (the device README's recipe)
 #   .gpu/emccd.xz           (a) today's GPU build: --features vulkan (direct convolution kernels)
 #   .gpu/emccd-autotune.xz  (b) --features vulkan-autotune (burn's autotuner, no fusion)
 #   .gpu/emccd-checks.xz    (b) with burn's autotune-checks, for a run of (b) that goes to NaN
 #   .gpu/data/train, val    clean images: FMD confocal fields 1–4 and Kodak 1–8; BSD68 1–4
+#   .gpu/models             the bundled `default` network, for the inference timing
 # Run it from the repository root with ../shared beside it; a second run rebuilds only what
 # changed. The first release build takes about 15 minutes on 2 cores, the other two less.
 set -euo pipefail
@@ -36,4 +38,6 @@ build() { # FEATURES NAME (one target folder: cargo keeps each feature set's bur
 build vulkan emccd
 build vulkan-autotune emccd-autotune
 build autotune-checks emccd-checks
+# The model the inference timing runs (models/ itself stays behind: the carry is 64 MiB in all).
+mkdir -p .gpu/models && cp models/default-unet.safetensors .gpu/models/
 du -sh .gl .gpu
