@@ -3,6 +3,7 @@
 # .gpu):
 #
 #     bash tools/gpu/autotune.sh [SECONDS]        # default 540: the whole measurement
+#     ONLY=fps bash tools/gpu/autotune.sh         # the inference timing alone
 #
 # Side by side on the same card: training crops per second and the loss over the first 200
 # steps (batch 16, 128² crops, the default U-Net, the low-light recipe's noise) for
@@ -58,16 +59,26 @@ losses() { # first and last logged loss, and whether any was not a number
          END { printf "%s → %s%s", f, l, bad ? " (NaN)" : "" }' "$1"
 }
 
-# fps BINARY: 512² frames per second of the bundled default network on 20 frames.
+# fps BINARY: 512² frames per second of the bundled default network on 20 frames (FMD field 1,
+# 512²), timed on a second run: the first compiles the shaders and, for (b), tunes and persists
+# its kernel choices.
 fps() {
     local bin=$1
-    [ -f "$R/stack/noisy/kodim01_p20.tif" ] || "$R/$bin" simulate pairs --clean .gpu/data/train/kodim01.png \
-        --frames 20 --crop 512x512 -o "$R/stack" >/dev/null 2>&1
+    [ -f "$R/stack/noisy/field1-avg50_p20.tif" ] || "$R/$bin" simulate pairs --clean .gpu/data/train/field1-avg50.png \
+        --frames 20 -o "$R/stack" >/dev/null 2>>"$OUT/fps.log"
+    local run=("$R/$bin" denoise "$R/stack/noisy/field1-avg50_p20.tif" -o "$R/$bin.den.tif" --method net
+        --model default --profile default)
+    "${run[@]}" >/dev/null 2>>"$OUT/fps.log" || { echo "–"; return; }
+    rm -f "$R/$bin.den.tif"
     local t=$(date +%s.%N)
-    "$R/$bin" denoise "$R/stack/noisy/kodim01_p20.tif" -o "$R/$bin.den.tif" --method net --model default \
-        --profile default >/dev/null 2>>"$OUT/fps.log" || { echo "–"; return; }
+    "${run[@]}" >/dev/null 2>>"$OUT/fps.log" || { echo "–"; return; }
     python3 -c "import sys; print(f'{20 / (float(sys.argv[2]) - float(sys.argv[1])):.1f}')" "$t" "$(date +%s.%N)"
 }
+
+if [ "${ONLY:-}" = fps ]; then # the inference timing alone
+    echo "(a) vulkan: $(fps emccd) frames/s; (b) vulkan-autotune: $(fps emccd-autotune) frames/s" | tee "$OUT/fps.md"
+    exit 0
+fi
 
 train a emccd
 train b emccd-autotune
