@@ -7,8 +7,8 @@
 #
 # Side by side on the same card: training crops per second and the loss over the first 200
 # steps (batch 16, 128² crops, the default U-Net, the low-light recipe's noise) for
-#   (a) the `vulkan` build (burn's direct convolution kernels),
-#   (b) the `vulkan-autotune` build (burn's autotuner picks im2col/implicit-GEMM kernels; the
+#   (a) the `vulkan-direct` build (burn's direct convolution kernels),
+#   (b) the `vulkan` build (burn's autotuner picks im2col/implicit-GEMM kernels; the
 #       choices persist under ~/.cache/burn, so the first steps include the tuning),
 #   (c) the same U-Net in PyTorch (tools/gpu/torch_unet.py, the yardstick);
 # and inference frames per second on 512² frames (`emccd denoise --method net`, 20 frames) for
@@ -76,7 +76,7 @@ fps() {
 }
 
 if [ "${ONLY:-}" = fps ]; then # the inference timing alone
-    echo "(a) vulkan: $(fps emccd) frames/s; (b) vulkan-autotune: $(fps emccd-autotune) frames/s" | tee "$OUT/fps.md"
+    echo "(a) vulkan-direct: $(fps emccd) frames/s; (b) vulkan: $(fps emccd-autotune) frames/s" | tee "$OUT/fps.md"
     exit 0
 fi
 
@@ -95,8 +95,8 @@ torch_loss=$(python3 -c "import json; d = json.load(open('$OUT/torch.json')); pr
 {
     echo "| build | training crops/s (batch 16, 128²) | loss, first → last logged | inference 512² frames/s |"
     echo "|---|---|---|---|"
-    echo "| (a) vulkan | $(rate "$OUT/a.train.log") | $(losses "$OUT/a.train.log") | $fa |"
-    echo "| (b) vulkan-autotune | $(rate "$OUT/b.train.log") | $(losses "$OUT/b.train.log") | $fb |"
+    echo "| (a) vulkan-direct | $(rate "$OUT/a.train.log") | $(losses "$OUT/a.train.log") | $fa |"
+    echo "| (b) vulkan (autotune) | $(rate "$OUT/b.train.log") | $(losses "$OUT/b.train.log") | $fb |"
     echo "| (c) PyTorch | $torch_rate | $torch_loss | – |"
     echo
     echo "$(nvidia-smi --query-gpu=name --format=csv,noheader | head -1), $(date -u +%F)"

@@ -4,8 +4,8 @@
 # at most with the tracked files, so models/, profiles/default/maps.safetensors and, unless (b)
 # needs it, emccd-checks.xz are moved aside for the call):
 #   .gl/                    the Vulkan loader and glvnd packages (the device README's recipe)
-#   .gpu/emccd.xz           (a) today's GPU build: --features vulkan (direct convolution kernels)
-#   .gpu/emccd-autotune.xz  (b) --features vulkan-autotune (burn's autotuner, no fusion)
+#   .gpu/emccd.xz           (a) --features vulkan-direct (burn's direct convolution kernels)
+#   .gpu/emccd-autotune.xz  (b) --features vulkan (burn's autotuner, no fusion: the GPU build)
 #   .gpu/emccd-checks.xz    (b) with burn's autotune-checks, for a run of (b) that goes to NaN
 #   .gpu/data/train, val    clean images: FMD confocal fields 1–4 and Kodak 1–8; BSD68 1–4
 #   .gpu/models             the bundled `default` network, for the inference timing
@@ -35,8 +35,8 @@ build() { # FEATURES NAME (one target folder: cargo keeps each feature set's bur
     xz -9e -T2 -f ".gpu/$2"
     echo "built .gpu/$2.xz ($1): $(du -h ".gpu/$2.xz" | cut -f1)"
 }
-build vulkan emccd
-build vulkan-autotune emccd-autotune
+build vulkan-direct emccd
+build vulkan emccd-autotune
 build autotune-checks emccd-checks
 # The model the inference timing runs (models/ itself stays behind: the carry is 64 MiB in all).
 mkdir -p .gpu/models && cp models/default-unet.safetensors .gpu/models/
