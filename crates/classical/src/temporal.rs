@@ -184,69 +184,74 @@ pub fn motion_mean(
         }
     }
     let win = kaiser(N);
-    // Per row of reference blocks: Σ k·(the matched blocks' values), Σ k·m and Σ k, for the
-    // window weight k of each block and its m matched frames.
-    let zero = || (vec![0f64; w * h], vec![0f64; w * h], vec![0f64; w * h]);
-    let (num, den, cnt) = ys
-        .par_iter()
-        .zip(&tracks)
-        .fold(zero, |(mut num, mut den, mut cnt), (&y, row)| {
-            for (&x, steps) in xs.iter().zip(row) {
-                let kept = || {
-                    steps
-                        .iter()
-                        .filter(|s| (first..=last).contains(&s.frame))
-                        .map(|s| (s.frame, s.x, s.y, weight(s.d)))
-                };
-                let m: f64 = 1.0 + kept().map(|b| b.3).sum::<f64>();
-                for r in 0..N {
+    // Each output row gathers, in a fixed order (block rows, then blocks), Σ k·(the matched
+    // blocks' values), Σ k·m and Σ k, for the window weight k of each block and its m matched
+    // frames: the sums never depend on how the rows were shared among threads, so a frame's
+    // estimate is the same bits on every run (its decisions downstream hang on them).
+    let kept = |steps: &[Step]| -> Vec<(usize, usize, usize, f64)> {
+        steps
+            .iter()
+            .filter(|s| (first..=last).contains(&s.frame))
+            .map(|s| (s.frame, s.x, s.y, weight(s.d)))
+            .collect()
+    };
+    let kept: Vec<Vec<Vec<(usize, usize, usize, f64)>>> = tracks
+        .iter()
+        .map(|row| row.iter().map(|steps| kept(steps)).collect())
+        .collect();
+    let rows: Vec<(Vec<f32>, Vec<f32>)> = (0..h)
+        .into_par_iter()
+        .map(|yo| {
+            let (mut num, mut den, mut cnt) = (vec![0f64; w], vec![0f64; w], vec![0f64; w]);
+            for (bi, &y) in ys.iter().enumerate() {
+                if yo < y || yo >= y + N {
+                    continue;
+                }
+                let r = yo - y;
+                for (&x, blocks) in xs.iter().zip(&kept[bi]) {
+                    let m: f64 = 1.0 + blocks.iter().map(|b| b.3).sum::<f64>();
                     for q in 0..N {
                         let k = win[r * N + q];
-                        let i = (y + r) * w + x + q;
-                        let sum: f64 = frames[center][i] as f64
-                            + kept()
-                                .map(|(f, bx, by, wt)| wt * frames[f][(by + r) * w + bx + q] as f64)
+                        let sum: f64 = frames[center][yo * w + x + q] as f64
+                            + blocks
+                                .iter()
+                                .map(|&(f, bx, by, wt)| {
+                                    wt * frames[f][(by + r) * w + bx + q] as f64
+                                })
                                 .sum::<f64>();
-                        num[i] += k * sum;
-                        den[i] += k * m;
-                        cnt[i] += k;
+                        num[x + q] += k * sum;
+                        den[x + q] += k * m;
+                        cnt[x + q] += k;
                     }
                 }
             }
-            (num, den, cnt)
-        })
-        .reduce(zero, |mut a, b| {
-            for (x, y) in a.0.iter_mut().zip(&b.0) {
-                *x += y;
-            }
-            for (x, y) in a.1.iter_mut().zip(&b.1) {
-                *x += y;
-            }
-            for (x, y) in a.2.iter_mut().zip(&b.2) {
-                *x += y;
-            }
-            a
-        });
-    let mean = (0..w * h)
-        .map(|i| {
-            if den[i] > 0.0 {
-                (num[i] / den[i]) as f32
-            } else {
-                own[i]
-            }
-        })
-        .collect();
-    // The frames a pixel holds: the blocks' m, weighted as the blocks are.
-    let frames = (0..w * h)
-        .map(|i| {
-            if cnt[i] > 0.0 {
-                (den[i] / cnt[i]) as f32
-            } else {
-                1.0
-            }
+            let mean = (0..w)
+                .map(|q| {
+                    if den[q] > 0.0 {
+                        (num[q] / den[q]) as f32
+                    } else {
+                        own[yo * w + q]
+                    }
+                })
+                .collect();
+            // The frames a pixel holds: the blocks' m, weighted as the blocks are.
+            let held = (0..w)
+                .map(|q| {
+                    if cnt[q] > 0.0 {
+                        (den[q] / cnt[q]) as f32
+                    } else {
+                        1.0
+                    }
+                })
+                .collect();
+            (mean, held)
         })
         .collect();
-    MotionMean { mean, frames }
+    let (mean, frames): (Vec<Vec<f32>>, Vec<Vec<f32>>) = rows.into_iter().unzip();
+    MotionMean {
+        mean: mean.concat(),
+        frames: frames.concat(),
+    }
 }
 
 /// The first and last frames of the window that hold frame `center`'s scene: walking out from
@@ -354,7 +359,8 @@ fn global_shift(from: &[f32], to: &[f32], w: usize, h: usize) -> (isize, isize) 
     let mut best = (f64::INFINITY, (0, 0));
     for dy in -SEARCH..=SEARCH {
         for dx in -SEARCH..=SEARCH {
-            let d: f64 = (s..h - s)
+            // Row sums in parallel, added in row order: the same bits on every run.
+            let rows: Vec<f64> = (s..h - s)
                 .into_par_iter()
                 .map(|y| {
                     let a = &from[y * w + s..y * w + w - s];
@@ -366,7 +372,8 @@ fn global_shift(from: &[f32], to: &[f32], w: usize, h: usize) -> (isize, isize) 
                         .map(|(p, q)| ((p - q) as f64).powi(2))
                         .sum::<f64>()
                 })
-                .sum();
+                .collect();
+            let d: f64 = rows.iter().sum();
             // Ties go to the smaller move.
             let nearer = dx * dx + dy * dy < best.1 .0 * best.1 .0 + best.1 .1 * best.1 .1;
             if d < best.0 || (d == best.0 && nearer) {
