@@ -188,14 +188,16 @@ pub fn motion_mean(
     // blocks' values), Σ k·m and Σ k, for the window weight k of each block and its m matched
     // frames: the sums never depend on how the rows were shared among threads, so a frame's
     // estimate is the same bits on every run (its decisions downstream hang on them).
-    let kept = |steps: &[Step]| -> Vec<(usize, usize, usize, f64)> {
+    // A block's steps within the scene, as (frame, x, y, weight in the mean).
+    type Kept = Vec<(usize, usize, usize, f64)>;
+    let kept = |steps: &[Step]| -> Kept {
         steps
             .iter()
             .filter(|s| (first..=last).contains(&s.frame))
             .map(|s| (s.frame, s.x, s.y, weight(s.d)))
             .collect()
     };
-    let kept: Vec<Vec<Vec<(usize, usize, usize, f64)>>> = tracks
+    let kept: Vec<Vec<Kept>> = tracks
         .iter()
         .map(|row| row.iter().map(|steps| kept(steps)).collect())
         .collect();
