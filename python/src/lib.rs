@@ -474,42 +474,16 @@ fn denoise<'py>(
             warnings.extend(r.profile_warning(p));
         }
         let mut out = Vec::with_capacity(raw.len());
-        if fd.method.temporal() {
-            let at = |k: usize| format!("frame {}", k + 1);
-            emccd_denoise::movie::denoise_frames(
-                &fd,
-                exposure_s,
-                f,
-                0..f,
-                &at,
-                &mut |k, buf| {
-                    if let Some(buf) = buf {
-                        buf.copy_from_slice(&raw[k * w * h..(k + 1) * w * h]);
-                    }
-                    Ok(())
-                },
-                &mut |k, frame| {
-                    out.extend(frame);
-                    if !cb.advance(1) {
-                        return Err(emccd_nn::Error::Data(format!(
-                            "stopped after frame {}",
-                            k + 1
-                        )));
-                    }
-                    Ok(())
-                },
-            )?;
-            return Ok((out, warnings));
-        }
-        for (k, frame) in raw.chunks(w * h).enumerate() {
-            out.extend(
-                fd.run(frame, exposure_s)
-                    .map_err(|e| anyhow::anyhow!("frame {}: {e}", k + 1))?,
-            );
+        emccd_denoise::movie::denoise_slice(&fd, exposure_s, &raw, &mut |k, frame| {
+            out.extend(frame);
             if !cb.advance(1) {
-                anyhow::bail!("stopped after frame {}", k + 1);
+                return Err(emccd_nn::Error::Data(format!(
+                    "stopped after frame {}",
+                    k + 1
+                )));
             }
-        }
+            Ok(())
+        })?;
         Ok((out, warnings))
     });
     if let Some(e) = cb.take_error() {

@@ -1,30 +1,7 @@
 //! Streaming: reading a stack costs the same memory whatever its length. A counting allocator
 //! records the peak of live heap bytes while `accumulate` reads a 10-frame and a 400-frame stack.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering::SeqCst};
-
-struct Counting;
-static LIVE: AtomicUsize = AtomicUsize::new(0);
-static PEAK: AtomicUsize = AtomicUsize::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        let p = unsafe { System.alloc(l) };
-        if !p.is_null() {
-            let now = LIVE.fetch_add(l.size(), SeqCst) + l.size();
-            PEAK.fetch_max(now, SeqCst);
-        }
-        p
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        unsafe { System.dealloc(p, l) };
-        LIVE.fetch_sub(l.size(), SeqCst);
-    }
-}
-
-#[global_allocator]
-static A: Counting = Counting;
+mod counting;
 
 fn write_stack(path: &std::path::Path, frames: usize) {
     let (w, h) = (128, 128);
@@ -42,13 +19,10 @@ fn write_stack(path: &std::path::Path, frames: usize) {
 }
 
 fn peak_while_reading(path: &std::path::Path) -> usize {
-    let base = LIVE.load(SeqCst);
-    PEAK.store(base, SeqCst);
-    let (_, st) =
-        emccd_calib::stats::accumulate(path, None, 2, &[], None, &emccd_calib::Silent).unwrap();
-    let peak = PEAK.load(SeqCst) - base;
-    drop(st);
-    peak
+    counting::peak_during(|| {
+        emccd_calib::stats::accumulate(path, None, 2, &[], None, &emccd_calib::Silent).unwrap()
+    })
+    .1
 }
 
 #[test]

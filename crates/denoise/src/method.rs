@@ -31,7 +31,7 @@ pub enum Method {
     /// 2.3× its time.
     Ivst,
     /// A movie's frame from the frames around it (`--window K`: the K frames before and after
-    /// it, 2 by default): blocks tracked along the motion (the scene's drift, and each block's
+    /// it, 4 by default): blocks tracked along the motion (the scene's drift, and each block's
     /// own move) are averaged into a motion-compensated mean, brought to the frame's brightness
     /// (bleaching), which iterative BM3D denoises at a mean's noise; where the neighbours do not
     /// match (motion it cannot follow, a blink, a scene cut) each pixel falls back to `ivst` of

@@ -9,7 +9,8 @@ use std::collections::VecDeque;
 use std::ops::Range;
 
 use emccd_classical::frame::vst_params;
-use emccd_nn::Result;
+use emccd_nn::{Error, Result};
+use emccd_profile::CameraProfile;
 
 use crate::denoiser::Denoiser;
 
@@ -73,6 +74,53 @@ pub fn denoise_frames(
             emit(due, out)?;
             due += 1;
         }
+    }
+    Ok(())
+}
+
+/// The frames of `profile`'s size that `values` values make, one after another; an error when
+/// they are not whole frames.
+pub fn frame_count(profile: &CameraProfile, values: usize) -> Result<usize> {
+    let n = profile.len();
+    if n == 0 || values % n != 0 {
+        return Err(Error::Data(format!(
+            "{values} values are not frames of {}×{}",
+            profile.width, profile.height
+        )));
+    }
+    Ok(values / n)
+}
+
+/// A recording's raw frames held in memory (each the profile's size, one after another)
+/// denoised as `emccd denoise` denoises a file: by `fd`'s temporal method from each frame's
+/// window, by the others frame by frame. Each frame is handed to `emit(j, frame)`, in order, in
+/// `fd`'s units; errors about a frame name it as `frame J` (from 1).
+pub fn denoise_slice(
+    fd: &Denoiser,
+    exposure_s: f64,
+    raw: &[f32],
+    emit: &mut dyn FnMut(usize, Vec<f32>) -> Result<()>,
+) -> Result<()> {
+    let (n, count) = (fd.profile.len(), frame_count(fd.profile, raw.len())?);
+    let at = |j: usize| format!("frame {}", j + 1);
+    if fd.method.temporal() {
+        return denoise_frames(
+            fd,
+            exposure_s,
+            count,
+            0..count,
+            &at,
+            &mut |j, buf| {
+                if let Some(buf) = buf {
+                    buf.copy_from_slice(&raw[j * n..(j + 1) * n]);
+                }
+                Ok(())
+            },
+            emit,
+        );
+    }
+    for (j, frame) in raw.chunks(n).enumerate() {
+        emit(j, fd.run(frame, exposure_s).map_err(|e| e.at(at(j)))?)?;
     }
     Ok(())
 }

@@ -2,34 +2,12 @@
 //! records the peak of live heap bytes while `denoise_file` runs `--method temporal` over an
 //! 8-frame and a 64-frame stack.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering::SeqCst};
-
 use emccd_denoise::stack::denoise_file;
 use emccd_denoise::{Denoiser, Method, Units};
 use emccd_profile::Recording;
 
-struct Counting;
-static LIVE: AtomicUsize = AtomicUsize::new(0);
-static PEAK: AtomicUsize = AtomicUsize::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        let p = unsafe { System.alloc(l) };
-        if !p.is_null() {
-            let now = LIVE.fetch_add(l.size(), SeqCst) + l.size();
-            PEAK.fetch_max(now, SeqCst);
-        }
-        p
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        unsafe { System.dealloc(p, l) };
-        LIVE.fetch_sub(l.size(), SeqCst);
-    }
-}
-
-#[global_allocator]
-static A: Counting = Counting;
+#[path = "../../calib/tests/counting/mod.rs"]
+mod counting;
 
 const W: usize = 64;
 const H: usize = 64;
@@ -72,10 +50,7 @@ fn a_temporal_run_holds_its_window_not_the_recording() {
         write_stack(&input, frames);
         let out = dir.path().join(format!("out{frames}.tif"));
         let rec = Recording::open(&input, &p, None, "--exposure-s", false).unwrap();
-        let base = LIVE.load(SeqCst);
-        PEAK.store(base, SeqCst);
-        denoise_file(&fd, rec, &out, &mut || ()).unwrap();
-        PEAK.load(SeqCst) - base
+        counting::peak_during(|| denoise_file(&fd, rec, &out, &mut || ()).unwrap()).1
     };
     // One worker, so the peak does not depend on how the workers' buffers happen to overlap.
     let pool = rayon::ThreadPoolBuilder::new()
