@@ -30,6 +30,8 @@ __all__ = [
     "METHODS",
     "DEFAULT_METHOD",
     "DEFAULT_MOVIE_METHOD",
+    "DEFAULT_WINDOW",
+    "MAX_WINDOW",
     "info",
     "read",
     "frames",
@@ -43,6 +45,8 @@ __all__ = [
 ]
 
 __version__ = _emccd.__version__
+# A temporal method's frames each side when none is given, and the most it takes.
+DEFAULT_WINDOW, MAX_WINDOW = _emccd.DEFAULT_WINDOW, _emccd.MAX_WINDOW
 
 BUNDLED_MODELS, METHODS, DEFAULT_METHOD, DEFAULT_MOVIE_METHOD = _emccd.catalog()
 BUNDLED_MODELS = tuple(BUNDLED_MODELS)

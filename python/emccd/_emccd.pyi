@@ -7,6 +7,8 @@ import numpy as np
 import numpy.typing as npt
 
 __version__: str
+DEFAULT_WINDOW: int
+MAX_WINDOW: int
 
 class EmccdError(Exception):
     """Every error of the emccd libraries, with the message the command line prints."""

@@ -78,7 +78,7 @@ def _make_widget_class():
             self.model = ComboBox(choices=["(method's own)"] + list(emccd.BUNDLED_MODELS), label="model")
             self.exposure = FloatSpinBox(value=0.01, min=1e-6, max=1e4, step=0.001, label="exposure (s)")
             self.units = ComboBox(choices=["dn", "electrons"], label="units")
-            self.window = SpinBox(value=2, min=0, max=16, label="window",
+            self.window = SpinBox(value=emccd.DEFAULT_WINDOW, min=0, max=emccd.MAX_WINDOW, label="window",
                                   tooltip="Temporal methods on a time series: the frames before and after "
                                           "each frame it also uses (0: each frame alone)")
             self.extrapolate = CheckBox(value=False, text="outside the calibrated exposures")

@@ -633,6 +633,8 @@ fn catalog() -> (
 fn _emccd(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("EmccdError", m.py().get_type::<EmccdError>())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add("DEFAULT_WINDOW", emccd_denoise::DEFAULT_WINDOW)?;
+    m.add("MAX_WINDOW", emccd_denoise::MAX_WINDOW)?;
     m.add_class::<Frames>()?;
     m.add_class::<Profile>()?;
     m.add_function(wrap_pyfunction!(info, m)?)?;

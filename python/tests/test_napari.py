@@ -83,6 +83,7 @@ def test_a_time_series_is_denoised_with_its_neighbours(profile, scene, tmp_path,
     viewer.add_image(raw, name="movie", metadata={"emccd": {"exposure_s": 0.01}})
     _, widget = viewer.window.add_plugin_dock_widget("emccd", "Denoise EMCCD")
     widget.profile.value = str(tmp_path / "profile")
+    assert widget.window.value == emccd.DEFAULT_WINDOW  # the CLI's default
     widget.method.value = "temporal"
     widget.window.value = 1
     assert widget.request()["window"] == 1
