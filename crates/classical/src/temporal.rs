@@ -60,22 +60,24 @@ pub struct MotionMean {
 }
 
 /// A neighbour whose tracked blocks differ from frame `t`'s by more than this times the best
-/// neighbour's (the median summed squared difference of each frame's blocks) holds another
-/// scene: a cut, or motion too fast to follow. Below about a photon per pixel a block of
-/// another scene often passes the per-block threshold (the scenes' contrast is under the noise
-/// of 64 pixels), but over a whole frame's blocks the excess is plain: in the tests a still
-/// scene's neighbours' medians agree within 2 %, and a cut at 2 counts per pixel lifts its
-/// frames' 13–19 % above them.
+/// neighbour's (the median over each frame's blocks of their difference over its predicted
+/// noise) holds another scene: a cut, or motion too fast to follow. Below about a photon per
+/// pixel a block of another scene often passes the per-block threshold (the scenes' contrast is
+/// under the noise of 64 pixels), but over a whole frame's blocks the excess is plain: in the
+/// tests a still scene's neighbours' medians agree within 2 %, and a cut lifts its frames'
+/// well above them.
 const SCENE_GATE: f64 = 1.1;
 
-/// One step of a block's track: the frame, where the block was found, and the summed squared
-/// difference there (after the transform, noise 1).
+/// One step of a block's track: the frame, where the block was found, the summed squared
+/// difference there (after the transform, noise 1), and the same difference in the data's units
+/// over its expected noise ([`scaled_difference`]), which the scene gate compares.
 #[derive(Clone, Copy)]
 struct Step {
     frame: usize,
     x: usize,
     y: usize,
     d: f64,
+    chi: f64,
 }
 
 /// The motion-compensated mean of `window[center]` (frames `w × h` with noise `p`, in time
@@ -108,7 +110,22 @@ pub fn motion_mean(
     let mut frames = scaled(window, &scale);
     let to_gat =
         |f: &Vec<f32>| -> Vec<f32> { f.iter().map(|&z| forward(z as f64, p) as f32).collect() };
-    let guides: Vec<Vec<f32>> = scaled(guides, &scale).iter().map(to_gat).collect();
+    let guides = scaled(guides, &scale);
+    // Each pixel's noise variance, predicted from the frame's own estimate: a frame brought up
+    // by `s` has `s` times the shot noise variance of its new level and `s²` times the read
+    // noise's.
+    let variance: Vec<Vec<f32>> = guides
+        .iter()
+        .zip(&scale)
+        .map(|(g, &s)| {
+            g.iter()
+                .map(|&z| {
+                    (s * p.alpha * (z as f64 - p.mu).max(0.0) + s * s * p.sigma * p.sigma) as f32
+                })
+                .collect()
+        })
+        .collect();
+    let guides: Vec<Vec<f32>> = guides.iter().map(to_gat).collect();
     let gat: Vec<Vec<f32>> = frames.iter().map(to_gat).collect();
     let limit = threshold();
     let (xs, ys) = (positions(w, N, STEP), positions(h, N, STEP));
@@ -147,11 +164,19 @@ pub fn motion_mean(
                                 predicted,
                             ) {
                                 Some((d, bx, by)) if d <= limit => {
+                                    let chi = scaled_difference(
+                                        (&frames[center], &frames[fu]),
+                                        (&variance[center], &variance[fu]),
+                                        w,
+                                        (x, y),
+                                        (bx, by),
+                                    );
                                     steps.push(Step {
                                         frame: fu,
                                         x: bx,
                                         y: by,
                                         d,
+                                        chi,
                                     });
                                     (px, py) = (bx, by);
                                 }
@@ -246,12 +271,12 @@ pub fn motion_mean(
 }
 
 /// The first and last frames of the window that hold frame `center`'s scene: walking out from
-/// it, a frame whose tracked blocks' median difference is above [`SCENE_GATE`] times the
-/// best-matching neighbour's ends the scene on that side (it and every frame beyond). The
-/// best neighbour stands for noise alone because the transform's noise is 1 only above a few
-/// counts per pixel (measured: true matches at 0.84 of 2·N² near 2 counts, and EMCCD frames
-/// are not exactly Poisson–Gaussian), and a window rarely holds no frame of its own scene. A
-/// frame most blocks' tracks never reached is left to the blocks that did.
+/// it, a frame whose tracked blocks' median difference over their predicted noise
+/// ([`scaled_difference`]) is above [`SCENE_GATE`] times the best-matching neighbour's ends the
+/// scene on that side (it and every frame beyond). The best neighbour stands for noise alone
+/// because the predicted noise is only a model (EMCCD frames are not exactly Poisson–Gaussian,
+/// and the estimates it comes from are smoothed), and a window rarely holds no frame of its own
+/// scene. A frame most blocks' tracks never reached is left to the blocks that did.
 fn same_scene(tracks: &[Vec<Vec<Step>>], center: usize, len: usize) -> (usize, usize) {
     let blocks: usize = tracks.iter().map(Vec::len).sum();
     let medians: Vec<Option<f64>> = (0..len)
@@ -259,7 +284,7 @@ fn same_scene(tracks: &[Vec<Vec<Step>>], center: usize, len: usize) -> (usize, u
             let ds: Vec<f64> = tracks
                 .iter()
                 .flatten()
-                .flat_map(|steps| steps.iter().filter(|s| s.frame == f).map(|s| s.d))
+                .flat_map(|steps| steps.iter().filter(|s| s.frame == f).map(|s| s.chi))
                 .collect();
             if f == center || 2 * ds.len() < blocks {
                 None
@@ -404,6 +429,31 @@ fn track(
     let go = (gx, gy) != around && ssd(own_guide, other_guide, w, at, around) - moved > MOVE_GAIN;
     let (x, y) = if go { (gx, gy) } else { around };
     Some((ssd(own, other, w, at, (x, y)), x, y))
+}
+
+/// The summed squared difference of the blocks at `a` in `one` and at `b` in `other` (the data's
+/// units), each pixel's over the variance the two frames' noise gives it: about N² for blocks
+/// of the same content at any brightness. The transform's noise is 1 only above a few counts
+/// per pixel (below, a dim scene's blocks differ by a fifth of a bright one's), so a bright
+/// frame's neighbour from a dim scene would differ about as little after it as one of its own.
+fn scaled_difference(
+    (one, other): (&[f32], &[f32]),
+    (v_one, v_other): (&[f32], &[f32]),
+    w: usize,
+    a: (usize, usize),
+    b: (usize, usize),
+) -> f64 {
+    (0..N)
+        .map(|r| {
+            let (ia, ib) = ((a.1 + r) * w + a.0, (b.1 + r) * w + b.0);
+            (0..N)
+                .map(|q| {
+                    let diff = (one[ia + q] - other[ib + q]) as f64;
+                    diff * diff / (v_one[ia + q] + v_other[ib + q]) as f64
+                })
+                .sum::<f64>()
+        })
+        .sum()
 }
 
 /// The summed squared difference of the blocks at `a` in `one` and at `b` in `other`.
