@@ -14,7 +14,7 @@ use emccd_calib::manifest::Manifest;
 use emccd_camera::acquisition::CalibrationPlan;
 use emccd_camera::{PhysicalParams, VirtualCamera};
 use emccd_denoise::{Denoiser, Method, Units};
-use emccd_nn::{Adaptation, ModelMeta, TrainConfig};
+use emccd_nn::{Adaptation, ModelMeta, ModelSource, TrainConfig};
 use emccd_profile::CameraProfile;
 use emccd_train::adapt::{adapt, AdaptConfig, AdaptData, AdaptRun, Start};
 use emccd_train::train::{train, Image, Run, RunPaths, TrainImages};
@@ -68,7 +68,7 @@ fn main() -> Result<()> {
             .collect(),
     };
     // Fine-tuned from the bundled default model: its architecture, new metadata for this camera.
-    let init = emccd_denoise::bundled::model_path("default")?;
+    let init = emccd_denoise::bundled::source("default")?;
     let cfg = TrainConfig {
         steps: 12,
         batch: 2,
@@ -82,7 +82,7 @@ fn main() -> Result<()> {
     let meta = ModelMeta {
         profile_fingerprint: profile.fingerprint_hex(),
         recipe: "examples/library.rs: 12 steps on synthetic scenes".into(),
-        ..emccd_nn::Model::read_meta(&init)?
+        ..init.read_meta()?
     };
     let paths = RunPaths {
         out: dir.path().join("model.safetensors"),
@@ -151,7 +151,7 @@ fn main() -> Result<()> {
         AdaptData::Frames(set),
         AdaptRun {
             profile: &profile,
-            start: Start::Model(&paths.out),
+            start: Start::Model(&ModelSource::File(paths.out.clone())),
             cfg: &AdaptConfig {
                 method: AdaptMethod::Noise2noise,
                 steps: 10,

@@ -442,7 +442,7 @@ fn a_failed_simulation_leaves_nothing_and_says_why_once() {
 fn a_plain_denoiser_has_no_base_estimate() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let img = common::shared("clean/natural/Kodak24/kodim01.png");
+    let img = common::data("clean/natural/Kodak24/kodim01.png");
     let o = emccd(
         &[
             "train",
@@ -466,7 +466,7 @@ fn a_plain_denoiser_has_no_base_estimate() {
 #[cfg(unix)]
 #[test]
 fn an_interrupted_run_leaves_no_temporary_files() {
-    let img = common::shared("clean/natural/Kodak24/kodim01.png");
+    let img = common::data("clean/natural/Kodak24/kodim01.png");
     for signal in ["-INT", "-TERM"] {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();

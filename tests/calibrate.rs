@@ -208,7 +208,7 @@ fn gain_series_on_real_lanl_data_matches_the_lab() {
 fn real_ixon_bias_read_noise_matches_an_independent_estimate() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let sif = repo("../shared/data/emccd-real/andor-sif/ixon897_bias_truncated.sif");
+    let sif = repo("tests/data/emccd-real/andor-sif/ixon897_bias_truncated.sif");
     // The exposure is left out: the SIF header records it.
     std::fs::write(
         d.join("m.toml"),

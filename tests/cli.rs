@@ -4,7 +4,7 @@ mod common;
 
 use std::path::Path;
 
-use common::{emccd, ok, shared};
+use common::{data, emccd, ok};
 
 #[test]
 fn profile_show_json_has_the_documented_keys() {
@@ -122,7 +122,7 @@ fn simulate_calibration_writes_manifest_stacks_and_truth() {
 #[test]
 fn simulate_pairs_and_info() {
     let dir = tempfile::tempdir().unwrap();
-    let scene = shared("clean/microscopy/fmd-confocal-bpae/field2-avg50.png");
+    let scene = data("clean/microscopy/fmd-confocal-bpae/field2-avg50.png");
     let out = ok(&emccd(
         &[
             "simulate",
@@ -190,7 +190,7 @@ fn simulate_pairs_and_info() {
 #[test]
 fn exposure_ratio_pairs_and_their_evaluation() {
     let dir = tempfile::tempdir().unwrap();
-    let scene = shared("clean/microscopy/fmd-confocal-bpae/field3-avg50.png");
+    let scene = data("clean/microscopy/fmd-confocal-bpae/field3-avg50.png");
     ok(&emccd(
         &[
             "simulate",
@@ -239,7 +239,7 @@ fn exposure_ratio_pairs_and_their_evaluation() {
 #[test]
 fn info_json_on_real_sif_and_nulls_for_unknowns() {
     let dir = tempfile::tempdir().unwrap();
-    let sif = shared("emccd-real/andor-sif/ixon897_binned_gain56.sif");
+    let sif = data("emccd-real/andor-sif/ixon897_binned_gain56.sif");
     let v: serde_json::Value = serde_json::from_str(&ok(&emccd(
         &["info", sif.to_str().unwrap(), "--json"],
         dir.path(),
@@ -249,7 +249,7 @@ fn info_json_on_real_sif_and_nulls_for_unknowns() {
     assert_eq!(v["frames"], 1);
     assert_eq!(v["em_gain"], 56.0);
     assert_eq!(v["exposure_s"], 0.01457);
-    let png = shared("clean/natural/Kodak24/kodim03.png");
+    let png = data("clean/natural/Kodak24/kodim03.png");
     let v: serde_json::Value = serde_json::from_str(&ok(&emccd(
         &["info", png.to_str().unwrap(), "--json"],
         dir.path(),
@@ -292,7 +292,7 @@ fn bad_input_fails_clearly_and_writes_nothing() {
 #[test]
 fn synthesize_each_model() {
     let dir = tempfile::tempdir().unwrap();
-    let scene = shared("clean/natural/BSD68/test001.png");
+    let scene = data("clean/natural/BSD68/test001.png");
     for m in ["ours", "eld", "pgn"] {
         let out = format!("{m}.tif");
         ok(&emccd(
@@ -361,4 +361,100 @@ fn archive_bench_measures_each_command_and_cleans_up() {
         dir.path(),
     );
     assert!(!e.status.success());
+}
+
+/// The built binary copied into an empty folder, run from there, works: the bundled models and
+/// the default profile are part of it. It holds no path into the checkout it was built in (a
+/// crate's folder, as `env!("CARGO_MANIFEST_DIR")` would put there, or `models/` and `profiles/`
+/// relative to one), so it cannot be reading them from there; and no message names one.
+#[test]
+fn the_binary_works_copied_anywhere() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let exe = d.join("emccd");
+    std::fs::copy(env!("CARGO_BIN_EXE_emccd"), &exe).unwrap();
+    let checkout = std::fs::canonicalize(env!("CARGO_MANIFEST_DIR")).unwrap();
+    let needle = checkout.to_string_lossy().into_owned();
+    let bytes = std::fs::read(&exe).unwrap();
+    // (A debug build's line tables name the checkout itself as their directory: not a path
+    // into it.)
+    for path in [
+        format!("{needle}/crates"),
+        format!("{needle}/models"),
+        format!("{needle}/profiles"),
+        "../../models".to_string(),
+        "../../profiles".to_string(),
+    ] {
+        assert!(
+            !bytes.windows(path.len()).any(|w| w == path.as_bytes()),
+            "the binary names {path}"
+        );
+    }
+    let run = |args: &[&str]| {
+        std::process::Command::new(&exe)
+            .args(args)
+            .current_dir(d)
+            .env_remove("EMCCD_MODELS")
+            .output()
+            .unwrap()
+    };
+    // The default profile, cut to a small sensor so the networks run quickly.
+    ok(&run(&[
+        "profile", "crop", "default", "cam", "--roi", "64x48",
+    ]));
+    let mut w = emccd_io::StackWriter::create(
+        d.join("rec.tif"),
+        64,
+        48,
+        emccd_io::SampleFormat::U16,
+        Some(2),
+    )
+    .unwrap();
+    for k in 0..2 {
+        let frame: Vec<f32> = (0..64 * 48)
+            .map(|i| (180 + (i * 7919 + k * 104729) % 61) as f32)
+            .collect();
+        w.write_frame(&frame).unwrap();
+    }
+    w.finish().unwrap();
+    let denoise = |name: &str, extra: &[&str]| {
+        let out = format!("{name}.tif");
+        let mut args = vec![
+            "denoise",
+            "rec.tif",
+            "-o",
+            &out,
+            "--profile",
+            "cam",
+            "--exposure-s",
+            "0.01",
+        ];
+        args.extend_from_slice(extra);
+        ok(&run(&args));
+        let t = tiff::decoder::Decoder::new(std::fs::File::open(d.join(&out)).unwrap())
+            .unwrap()
+            .dimensions()
+            .unwrap();
+        assert_eq!(t, (64, 48), "{name}");
+    };
+    for model in ["hybrid", "default", "microscopy", "lowlight"] {
+        denoise(model, &["--model", model]);
+    }
+    denoise("net", &["--method", "net"]);
+    denoise("blend", &["--method", "blend"]);
+    denoise("temporal", &[]);
+    let o = run(&[
+        "denoise",
+        "rec.tif",
+        "-o",
+        "x.tif",
+        "--profile",
+        "cam",
+        "--model",
+        "nosuch",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("nosuch: model not found"), "{err}");
+    assert!(!err.contains(&needle), "{err}");
 }

@@ -3,13 +3,13 @@
 
 mod common;
 
-use common::{emccd, ok, shared};
+use common::{data, emccd, ok};
 
 #[test]
 fn train_then_denoise_a_stack_and_refuse_bad_input() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let clean = shared("clean/microscopy/fmd-confocal-bpae");
+    let clean = data("clean/microscopy/fmd-confocal-bpae");
     let o = emccd(
         &[
             "train",
@@ -318,7 +318,7 @@ fn the_default_method_is_the_blend_of_ivst_and_lowlight() {
 fn temporal_denoises_a_stack_with_its_neighbours() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let clean = shared("clean/microscopy/fmd-confocal-bpae/field1-avg50.png");
+    let clean = data("clean/microscopy/fmd-confocal-bpae/field1-avg50.png");
     ok(&emccd(
         &[
             "simulate",
@@ -381,4 +381,42 @@ fn temporal_denoises_a_stack_with_its_neighbours() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("--method temporal"), "{err}");
     assert!(!d.join("b.tif").exists());
+}
+
+/// The README's main-job command, run as written (from the repository root, on the image the
+/// repository ships), prints the PSNR before and after that the README states.
+#[test]
+fn the_readmes_main_job_prints_what_the_readme_says() {
+    let readme = std::fs::read_to_string(common::repo("README.md")).unwrap();
+    let command = readme
+        .lines()
+        .map(str::trim)
+        .find(|l| l.starts_with("cargo run --release -- simulate pairs"))
+        .expect("README: the main-job command");
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let mut args: Vec<String> = command
+        .split_whitespace()
+        .skip(4)
+        .map(String::from)
+        .collect();
+    // Its output folder goes to a temporary one; the rest runs as written from the root.
+    let o = args.iter().position(|a| a == "-o").expect("-o");
+    args[o + 1] = out.display().to_string();
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let printed = ok(&emccd(&args, &common::repo(".")));
+    let row = printed
+        .lines()
+        .find(|l| l.starts_with("noisy/"))
+        .unwrap_or_else(|| panic!("{printed}"));
+    let db: Vec<&str> = row.split_whitespace().skip(2).collect();
+    let stated = readme
+        .lines()
+        .find(|l| l.starts_with("It prints "))
+        .expect("README: what the main job prints");
+    let want = format!("It prints {} dB before and {} dB after", db[0], db[1]);
+    assert!(
+        stated.starts_with(&want),
+        "README: {stated:?}; printed: {row:?}"
+    );
 }

@@ -3,7 +3,10 @@
 //! `[dev-dependencies]` must be exactly those. A back-edge (a lower layer reaching up) or a
 //! README that no longer says what the manifests do fails this test. Inside every crate, the
 //! top-level modules must use each other without a cycle (read from their `crate::` paths,
-//! with the items the crate's root re-exports counted as their modules').
+//! with the items the crate's root re-exports counted as their modules'). The documentation's
+//! checks (`docs.rs`) run here too: one test binary for the repository's structure.
+
+mod docs;
 
 use std::collections::{BTreeMap, BTreeSet};
 

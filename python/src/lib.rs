@@ -6,7 +6,7 @@
 //! errors are `emccd.EmccdError` with the CLI's message. The friendly signatures (dtype
 //! conversion, 2-D or 3-D input, defaults) are in `emccd/__init__.py`.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Mutex;
 
 use numpy::ndarray::{Array2, Array3};
@@ -33,40 +33,15 @@ fn err(e: impl Into<anyhow::Error>) -> PyErr {
     EmccdError::new_err(emccd_io::error_lines(e.as_ref()).join("\n  caused by: "))
 }
 
-/// The bundled models, carried inside the module so an installed wheel needs no source tree.
-const EMBEDDED: [(&str, &[u8]); 4] = [
-    (
-        "hybrid",
-        include_bytes!("../../models/hybrid-unet.safetensors"),
-    ),
-    (
-        "default",
-        include_bytes!("../../models/default-unet.safetensors"),
-    ),
-    (
-        "microscopy",
-        include_bytes!("../../models/microscopy-unet.safetensors"),
-    ),
-    (
-        "lowlight",
-        include_bytes!("../../models/lowlight-unet.safetensors"),
-    ),
-];
-
-/// A model argument: a bundled model by name (from the bytes carried here), else a file.
 /// The device networks run on: `BURN_DEVICE` if set (the libraries take the device they are
 /// given), else the GPU of a GPU build, else the CPU.
 fn device() -> burn::prelude::Device {
     emccd_nn::device(std::env::var("BURN_DEVICE").ok().as_deref())
 }
 
+/// A model argument: a bundled model by name (built into the libraries), else a file.
 fn load_model(arg: &str) -> emccd_nn::Result<Model> {
-    match (bundled::bundled(arg), EMBEDDED.iter().find(|e| e.0 == arg)) {
-        (Some(b), Some((_, bytes))) => {
-            Model::from_bytes(bytes.to_vec(), Path::new(b.file), &device())
-        }
-        _ => bundled::load(arg, &device()),
-    }
+    bundled::load(arg, &device())
 }
 
 /// What a stack holds, as `emccd info --json` prints it (JSON text).

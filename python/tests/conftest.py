@@ -1,4 +1,4 @@
-"""Shared fixtures: the project's data folder (../shared/data beside the checkout) and scenes."""
+"""Shared fixtures: the test data folder (the repository's tests/data) and scenes."""
 
 import os
 from pathlib import Path
@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-DATA = Path(os.environ.get("EMCCD_DATA", ROOT.parent / "shared" / "data"))
+DATA = Path(os.environ.get("EMCCD_DATA", ROOT / "tests" / "data"))
 
 
 @pytest.fixture(scope="session")
 def data() -> Path:
     if not DATA.is_dir():
-        pytest.fail(f"{DATA}: the project's data folder is missing (set EMCCD_DATA)")
+        pytest.fail(f"{DATA}: the test data folder is missing (set EMCCD_DATA)")
     return DATA
 
 

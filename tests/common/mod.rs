@@ -30,7 +30,7 @@ pub fn repo(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(rel)
 }
 
-/// A path under ../shared/data.
-pub fn shared(rel: &str) -> PathBuf {
-    repo("../shared/data").join(rel)
+/// A path under `tests/data` (the real files the tests read, with their licences).
+pub fn data(rel: &str) -> PathBuf {
+    repo("tests/data").join(rel)
 }

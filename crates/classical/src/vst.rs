@@ -58,7 +58,7 @@ impl Schedule {
 
     /// The schedule for a frame with `counts` mean effective counts per pixel (mean signal over
     /// the gain α: half the photoelectrons for an EM register). Chosen on held-out validation
-    /// frames (an emccd-detect camera on scenes outside the low-light suite, README "Low light"):
+    /// frames (an emccd-detect camera on scenes outside the low-light suite, docs/results.md):
     /// binning pays below about one count and costs detail above, so the passes and bins shrink
     /// as the light grows, and from 4 counts one plain pass is as good.
     pub fn for_counts(counts: f64) -> Schedule {

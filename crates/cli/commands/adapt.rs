@@ -69,12 +69,14 @@ pub fn run(a: Args) -> Result<()> {
         ..a.cfg
     };
     cfg.check()?;
-    let init = emccd_denoise::bundled::model_path(&a.init)?;
+    let init = emccd_denoise::bundled::source(&a.init)?;
     for input in &a.inputs {
         emccd_io::refuse_overwrite(&a.out, input, "an input")?;
     }
-    emccd_io::refuse_overwrite(&a.out, &init, "the --init model")?;
-    let init_meta = emccd_nn::Model::read_meta(&init)?;
+    if let Some(file) = init.file() {
+        emccd_io::refuse_overwrite(&a.out, file, "the --init model")?;
+    }
+    let init_meta = init.read_meta()?;
     let mut rec = Recorded::new(
         cfg.method,
         &profile,

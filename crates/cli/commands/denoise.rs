@@ -15,12 +15,13 @@ use crate::common::{load_profile, open_recording, progress};
 /// eq. 4), then denoise. By default a recording of several frames (a movie) runs `temporal`:
 /// each frame estimated from the 4 before and after it too (blocks tracked along the motion,
 /// averaged, denoised at the mean's noise; above `blend` on every kind of motion of the movie
-/// suite, README "Movies"). A single frame runs `blend`: BM3D with iterative variance stabilization
+/// suite, docs/results.md). A single frame runs `blend`: BM3D with iterative variance stabilization
 /// (`ivst`) and the bundled `lowlight` network, averaged, the most accurate method this build
-/// ships at low light (measured on the low-light suite, see the README: +0.48 dB over plain
+/// ships at low light (measured on the low-light suite, docs/results.md: +0.48 dB over plain
 /// BM3D + GAT, above it and above `ivst` at every light level); `--method ivst` is the
-/// classical half alone, `--method bm3d` one plain BM3D + GAT pass, `--method hybrid` refines BM3D's estimate with the bundled
-/// hybrid network (still in training), `--method net` runs a network alone (fastest), `--method
+/// classical half alone, `--method bm3d` one plain BM3D + GAT pass, `--method hybrid` refines
+/// BM3D's estimate with the bundled `hybrid` network, `--method net` runs a network alone (the
+/// `lowlight` network unless --model names another; fastest), `--method
 /// temporal` estimates each frame of a stack from its neighbours too (`--window`; blocks
 /// tracked along the motion, averaged, denoised by `ivst` at the mean's noise), `--method none`
 /// only preprocesses. TIFF/BigTIFF, SIF, FITS and Zarr in (stacks are streamed frame by
@@ -43,8 +44,8 @@ pub struct Args {
     /// Model file, or a bundled model: `hybrid` (BM3D-refining), `default` (a network trained on
     /// natural images), `microscopy` (fine-tuned on fluorescence microscopy) or `lowlight`
     /// (trained for 0.3–30 mean photoelectrons per pixel on many cameras: the best network at
-    /// low light, README "Low light"). Default:
-    /// `hybrid` for --method hybrid, `default` for --method net.
+    /// low light, docs/results.md). All are built into the binary. Default: `hybrid` for
+    /// --method hybrid, `lowlight` for --method net and blend.
     #[arg(long)]
     pub model: Option<String>,
     /// Denoiser. Default: temporal on a movie, blend on a single frame, or the method --model was

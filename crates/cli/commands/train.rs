@@ -68,15 +68,12 @@ pub fn run(a: Args) -> Result<()> {
     let init = a
         .init
         .as_deref()
-        .map(emccd_denoise::bundled::model_path)
+        .map(emccd_denoise::bundled::source)
         .transpose()?;
-    if let Some(i) = &init {
+    if let Some(i) = init.as_ref().and_then(|i| i.file()) {
         emccd_io::refuse_overwrite(&a.out, i, "the --init model")?;
     }
-    let init_meta = init
-        .as_deref()
-        .map(emccd_nn::Model::read_meta)
-        .transpose()?;
+    let init_meta = init.as_ref().map(|i| i.read_meta()).transpose()?;
     let cfg = TrainConfig {
         base: classical_for_run(a.hybrid_base, a.inputs, init_meta.as_ref())?,
         scale: scale_for_run(a.scale, init_meta.as_ref()),
@@ -91,7 +88,7 @@ pub fn run(a: Args) -> Result<()> {
     let model = train(
         images,
         Run::new(&profile, cfg, meta, &paths, &crate::common::device())
-            .with_init(init.as_deref())
+            .with_init(init.as_ref())
             .resuming(a.resume),
         &mut report,
     )?;

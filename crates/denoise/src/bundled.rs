@@ -1,41 +1,44 @@
 //! The models that ship with emccd, by name, and model arguments (a bundled name or a file)
-//! turned into files and loaded models.
+//! turned into model sources and loaded models. The bundled models are built into the library
+//! (about 10 MB each), so a binary or a Python wheel works wherever it is copied; a directory
+//! in `EMCCD_MODELS` replaces them (a GPU run's own copies, a newer training).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use burn::prelude::Device;
-use emccd_nn::{Error, Model, Result};
+use emccd_nn::{Error, Model, ModelSource, Result};
 
 /// A model that ships with emccd, by the name `--model` (and `model=`) accepts.
 #[derive(Clone, Copy, Debug)]
 pub struct Bundled {
     /// The name.
     pub name: &'static str,
-    /// Its file in `models/`.
+    /// Its file name (in the repository's `models/`, and in an `EMCCD_MODELS` directory).
     pub file: &'static str,
+    /// The file's bytes, built in.
+    pub bytes: &'static [u8],
+}
+
+macro_rules! bundled_model {
+    ($name:literal, $file:literal) => {
+        Bundled {
+            name: $name,
+            file: $file,
+            bytes: include_bytes!(concat!("../../../models/", $file)),
+        }
+    };
 }
 
 /// The bundled models: `hybrid` (BM3D-refining), `default` (natural images, the default
 /// profile), `microscopy` (the default fine-tuned on fluorescence microscopy) and `lowlight`
-/// (the low-light run of README "Low light": 0.3–30 mean photoelectrons per pixel, many
-/// cameras' read noise and CIC, Charbonnier loss).
+/// (the low-light run: 0.3–30 mean photoelectrons per pixel, many cameras' read noise and CIC,
+/// Charbonnier loss; the best of them, which `--method net` runs). Their cards are in
+/// `models/README.md`.
 pub const BUNDLED: [Bundled; 4] = [
-    Bundled {
-        name: "hybrid",
-        file: "hybrid-unet.safetensors",
-    },
-    Bundled {
-        name: "default",
-        file: "default-unet.safetensors",
-    },
-    Bundled {
-        name: "microscopy",
-        file: "microscopy-unet.safetensors",
-    },
-    Bundled {
-        name: "lowlight",
-        file: "lowlight-unet.safetensors",
-    },
+    bundled_model!("hybrid", "hybrid-unet.safetensors"),
+    bundled_model!("default", "default-unet.safetensors"),
+    bundled_model!("microscopy", "microscopy-unet.safetensors"),
+    bundled_model!("lowlight", "lowlight-unet.safetensors"),
 ];
 
 /// The bundled model of this name, if it is one.
@@ -43,38 +46,42 @@ pub fn bundled(name: &str) -> Option<&'static Bundled> {
     BUNDLED.iter().find(|b| b.name == name)
 }
 
-/// Where the bundled model files are: `$EMCCD_MODELS` when set, else `models/` of the source
-/// tree this library was built from.
-pub fn models_dir() -> PathBuf {
-    match std::env::var_os("EMCCD_MODELS") {
-        Some(d) if !d.is_empty() => PathBuf::from(d),
-        _ => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models"),
-    }
+/// The directory `EMCCD_MODELS` names, if set: bundled names are read from files there.
+fn models_override() -> Option<PathBuf> {
+    std::env::var_os("EMCCD_MODELS")
+        .filter(|d| !d.is_empty())
+        .map(PathBuf::from)
 }
 
-/// The file of a model argument: a bundled model's by name, else the argument as a path; an
-/// error if it does not exist.
-pub fn model_path(arg: &str) -> Result<PathBuf> {
-    let b = bundled(arg);
-    let path = match b {
-        Some(b) => models_dir().join(b.file),
-        None => PathBuf::from(arg),
+/// The model a model argument stands for: a bundled model by name (built in, or its file in
+/// `EMCCD_MODELS` when that is set), else the argument as a file, which must exist.
+pub fn source(arg: &str) -> Result<ModelSource> {
+    let source = match (bundled(arg), models_override()) {
+        (Some(b), None) => {
+            return Ok(ModelSource::Embedded {
+                name: b.name,
+                bytes: b.bytes,
+            })
+        }
+        (Some(b), Some(dir)) => dir.join(b.file),
+        (None, _) => PathBuf::from(arg),
     };
-    if !path.is_file() {
+    if !source.is_file() {
         return Err(Error::Model(format!(
             "{}: model not found{}",
-            path.display(),
-            if b.is_some() {
-                " (bundled models ship in models/; train one with `emccd train`)"
+            source.display(),
+            if bundled(arg).is_some() {
+                " (EMCCD_MODELS names a directory without this bundled model's file; unset it \
+                 to use the built-in one)"
             } else {
-                ""
+                " (a bundled name — hybrid, default, microscopy, lowlight — or a model file)"
             }
         )));
     }
-    Ok(path)
+    Ok(ModelSource::File(source))
 }
 
 /// Loads a model file, or a bundled model by name, onto `device`.
 pub fn load(arg: &str, device: &Device) -> Result<Model> {
-    Model::load(&model_path(arg)?, device)
+    source(arg)?.load(device)
 }

@@ -98,10 +98,10 @@ impl Resolved {
 }
 
 /// The method and model a request runs: `method` and `model` as given (either may be absent),
-/// with `load` turning a model argument into a model ([`crate::bundled::load`], or a loader that also knows
-/// models embedded in a program). The model a method takes by default is `hybrid` for
-/// [`Method::Hybrid`], `lowlight` for [`Method::Blend`], `default` for [`Method::Net`]; a model alone picks the method it was
-/// trained for. An error where a model does not fit the method.
+/// with `load` turning a model argument into a model ([`crate::bundled::load`], or another
+/// loader). The model a method takes by default is `hybrid` for
+/// [`Method::Hybrid`], else `lowlight` (the best network); a model alone picks the method it
+/// was trained for. An error where a model does not fit the method.
 pub fn resolve(
     method: Option<Method>,
     model: Option<&str>,
@@ -140,8 +140,7 @@ pub fn resolve(
             let method = method.unwrap_or(DEFAULT_METHOD);
             let name = name.unwrap_or(match method {
                 Method::Hybrid => "hybrid",
-                Method::Blend => "lowlight",
-                _ => "default",
+                _ => "lowlight",
             });
             let m = load(name)?;
             if hybrid(&m) != (method == Method::Hybrid) {
@@ -196,8 +195,8 @@ pub struct Denoiser<'a> {
 }
 
 /// The frames each side `--method temporal` uses when no window is given: 9 frames in all.
-/// Chosen on the movie suite's validation camera (`tools/movie_suite.py --cameras tune`, README
-/// "Movies"): over 2 each side, +0.3 dB on average, more on still scenes, jittered stars and
+/// Chosen on the movie suite's validation camera (`tools/movie_suite.py --cameras tune`,
+/// docs/results.md): over 2 each side, +0.3 dB on average, more on still scenes, jittered stars and
 /// across cuts, −0.2 dB at most on a drift.
 pub const DEFAULT_WINDOW: usize = 4;
 

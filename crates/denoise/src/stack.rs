@@ -9,7 +9,6 @@ use emccd_io::zarr::ZarrStackWriter;
 use emccd_profile::Recording;
 use serde_json::{json, Value};
 
-use crate::bundled::model_path;
 use crate::denoiser::Denoiser;
 use emccd_nn::{Error, Result};
 
@@ -34,7 +33,10 @@ pub fn provenance(
         ids.push(stamp);
     }
     let model_hash = match model_name.filter(|_| fd.model.is_some()) {
-        Some(n) => Some(format!("{:016x}", emccd_io::content_hash(&model_path(n)?)?)),
+        Some(n) => Some(format!(
+            "{:016x}",
+            emccd_io::bytes_hash(&crate::bundled::source(n)?.bytes()?)
+        )),
         None => None,
     };
     let net = fd.model.is_some();

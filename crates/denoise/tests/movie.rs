@@ -285,7 +285,7 @@ fn evaluation_scores_a_movie_as_denoise_writes_it() {
 /// mean of the frames its window holds. The classical methods on a single frame are held to it
 /// from 2 e⁻ up: at 0.5 e⁻ one frame is too sparse for the transform's exact unbiased inverse,
 /// which assumes the denoised value is the transform's expectation (measured here: `bm3d`
-/// −3.4 %, `ivst` +1.4 %; the README says so); their temporal means and the network are not.
+/// −3.4 %, `ivst` +1.4 %; docs/evaluation.md says so); their temporal means and the network are not.
 #[test]
 fn every_method_keeps_a_uniform_regions_mean() {
     let (w, h) = (96, 96);

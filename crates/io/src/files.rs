@@ -160,6 +160,14 @@ impl FileStamp {
     }
 }
 
+/// FNV-1a over bytes: [`content_hash`] of bytes in memory (a built-in model's).
+pub fn bytes_hash(bytes: &[u8]) -> u64 {
+    use std::hash::Hasher;
+    let mut h = fnv::FnvHasher::default();
+    h.write(bytes);
+    h.finish()
+}
+
 /// FNV-1a over a file's bytes: which file (a model, say) an output was made with, whatever its
 /// name.
 pub fn content_hash(path: &Path) -> Result<u64> {

@@ -261,7 +261,7 @@ fn acquisition(line: &[u8]) -> Result<Acquisition> {
     // must be what its place says: a damaged byte that joins, splits or turns a field would
     // otherwise shift every later one (a wrong exposure, EM gain or temperature read without
     // complaint). The places and counts are those of Solis/SDK files of versions 65559, 65564
-    // and 65567 (`../shared/data/emccd-real/andor-sif`).
+    // and 65567 (`tests/data/emccd-real/andor-sif`).
     const BINARY: [usize; 8] = [6, 7, 8, 9, 10, 16, 27, 28];
     let binary = |t: &[u8]| t.len() == 1 && !t[0].is_ascii_graphic();
     let mut n = Vec::with_capacity(tokens.len());

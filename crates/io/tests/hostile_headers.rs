@@ -140,7 +140,7 @@ fn fits_axes_beyond_the_limit_are_refused() {
 #[test]
 fn a_damaged_sif_acquisition_line_is_an_error() {
     let src = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/emccd-real/andor-sif/ixon897_avg20.sif");
+        .join("../../tests/data/emccd-real/andor-sif/ixon897_avg20.sif");
     let mut bytes = std::fs::read(&src).unwrap();
     // The acquisition line (the third) holds "… 0 1 1.02968 …": 0, the exposure, the cycle time.
     let line3 = bytes
@@ -178,8 +178,7 @@ fn a_damaged_sif_acquisition_line_is_an_error() {
 /// number; a header without a checksum cannot tell, so those are not tried.)
 #[test]
 fn no_single_byte_change_of_the_sif_acquisition_line_shifts_its_fields() {
-    let dir =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/emccd-real/andor-sif");
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/emccd-real/andor-sif");
     let mut tried = 0;
     for name in [
         "ixon897_avg20.sif",

@@ -23,9 +23,9 @@ fn stack(path: &Path, w: usize, h: usize, frames: usize) {
     s.finish().unwrap();
 }
 
-fn shared(rel: &str) -> PathBuf {
+fn data(rel: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data")
+        .join("../../tests/data")
         .join(rel)
 }
 
@@ -44,7 +44,7 @@ fn every_format_reads_the_same_from_memory_as_from_its_file() {
     let ramp: Vec<f32> = (0..24 * 16).map(|i| (i % 256) as f32).collect();
     emccd_io::write_png_preview(&png, 24, 16, &ramp, 0.0, 255.0).unwrap();
     files.push(png);
-    files.push(shared("emccd-real/andor-sif/ixon897_binned_gain56.sif"));
+    files.push(data("emccd-real/andor-sif/ixon897_binned_gain56.sif"));
     for p in &files {
         let mut a = open(p).unwrap();
         let bytes = std::fs::read(p).unwrap();

@@ -1,4 +1,4 @@
-//! The readers against the real files in `../shared/data` (relative to the workspace root).
+//! The readers against the real files in `tests/data` of the repository.
 //! Expected values are what the files' own headers and names say, cross-checked with
 //! sif_parser where it reads the file.
 
@@ -7,13 +7,10 @@ use std::path::PathBuf;
 use emccd_io::{open, read_all, Format, PixelType};
 
 fn data(rel: &str) -> PathBuf {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
-    let p = root.join(rel);
-    assert!(
-        p.exists(),
-        "test data missing: {} (../shared must sit beside the checkout)",
-        p.display()
-    );
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/data")
+        .join(rel);
+    assert!(p.exists(), "test data missing: {}", p.display());
     p
 }
 
@@ -124,7 +121,17 @@ fn sif_corrupt_header_is_a_clear_error() {
 
 #[test]
 fn fits_roman_fpn_map() {
-    let p = data("emccd-real/roman-fpn/fpn_map.fits");
+    // 21 MB, not copied into the repository: the project's full data folder beside the checkout
+    // has it (CI), a clone alone skips this test.
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/emccd-real/roman-fpn/fpn_map.fits");
+    if !p.exists() {
+        eprintln!(
+            "skipped: the Roman coronagraph FPN map (optional data) is missing: {}",
+            p.display()
+        );
+        return;
+    }
     let (info, f) = read_all(&p).unwrap();
     assert_eq!((info.width, info.height, info.frames), (2200, 1200, 1));
     assert_eq!(info.pixel_type, PixelType::F64);

@@ -58,6 +58,6 @@ fn skipping_then_reading_is_reading_at_that_frame() {
         check(&written(dir.path(), name));
     }
     let sif = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/data/emccd-real/andor-sif/ixon897_bias_truncated.sif");
+        .join("../../tests/data/emccd-real/andor-sif/ixon897_bias_truncated.sif");
     check(&sif);
 }

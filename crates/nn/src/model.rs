@@ -2,8 +2,9 @@
 //! configuration, noise model, the profile it was trained for, the recipe and step count).
 //! Loading reads tensors and strings only; nothing in a model file is executed.
 
+use std::borrow::Cow;
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use burn::prelude::*;
 use burn_store::{ModuleSnapshot, SafetensorsStore};
@@ -366,7 +367,7 @@ impl Model {
     }
 
     /// Loads a model from the bytes of a model file (`path` names it in messages): for models
-    /// a program carries inside it, like the Python package's bundled ones.
+    /// a program carries inside it ([`ModelSource::Embedded`]).
     pub fn from_bytes(bytes: Vec<u8>, path: &Path, device: &Device) -> Result<Model> {
         let meta = meta_of(&bytes, path)?;
         let mut d = Model::new(meta, device)?;
@@ -383,6 +384,63 @@ impl Model {
             )));
         }
         Ok(d)
+    }
+}
+
+/// Where a model's bytes come from: a file, or bytes the program carries inside it (the
+/// bundled models, so that a binary copied anywhere has them).
+#[derive(Clone, Debug, PartialEq)]
+pub enum ModelSource {
+    /// A model file.
+    File(PathBuf),
+    /// A model built into the program, by its name.
+    Embedded {
+        /// The name it is asked for by (`lowlight`, …).
+        name: &'static str,
+        /// The model file's bytes.
+        bytes: &'static [u8],
+    },
+}
+
+impl ModelSource {
+    /// The model file's bytes.
+    pub fn bytes(&self) -> Result<Cow<'static, [u8]>> {
+        match self {
+            ModelSource::File(p) => Ok(Cow::Owned(std::fs::read(p).map_err(|e| Error::io(p, e))?)),
+            ModelSource::Embedded { bytes, .. } => Ok(Cow::Borrowed(bytes)),
+        }
+    }
+
+    /// The file, for a model read from one.
+    pub fn file(&self) -> Option<&Path> {
+        match self {
+            ModelSource::File(p) => Some(p),
+            ModelSource::Embedded { .. } => None,
+        }
+    }
+
+    /// How messages name it: the file's path, or `bundled model NAME`.
+    pub fn label(&self) -> PathBuf {
+        match self {
+            ModelSource::File(p) => p.clone(),
+            ModelSource::Embedded { name, .. } => PathBuf::from(format!("bundled model {name}")),
+        }
+    }
+
+    /// Reads only the model's metadata.
+    pub fn read_meta(&self) -> Result<ModelMeta> {
+        meta_of(&self.bytes()?, &self.label())
+    }
+
+    /// Loads the model onto `device`.
+    pub fn load(&self, device: &Device) -> Result<Model> {
+        Model::from_bytes(self.bytes()?.into_owned(), &self.label(), device)
+    }
+}
+
+impl std::fmt::Display for ModelSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.label().display())
     }
 }
 

@@ -13,15 +13,13 @@
 //! frames (SRDTrans, Neighbor2Neighbor); the latter, from a new network, is the paper's
 //! self-supervised baseline.
 
-use std::path::Path;
-
 use emccd_camera::{Ablation, NoiseModelKind};
 use emccd_profile::CameraProfile;
 
 use crate::recorded::{AdaptMethod, FrameMean, FrameSet, RecordedPairs};
 use crate::train::{train_from, Image, Run, RunPaths, Source, StepReport};
 use emccd_nn::norm::Scale;
-use emccd_nn::{Adaptation, Error, Loss, Model, ModelMeta, Result, TrainConfig};
+use emccd_nn::{Adaptation, Error, Loss, Model, ModelMeta, ModelSource, Result, TrainConfig};
 
 /// A recording's scene, estimated from its frames alone.
 #[derive(Clone, Debug)]
@@ -205,7 +203,7 @@ impl Default for AdaptConfig {
     /// 400 steps at a peak rate of 5·10⁻⁴, crops in the recording's own orientation: on
     /// held-out frames of emccd-detect's cameras A and B (never used to choose it) +0.53–1.21 dB
     /// over the bundled `lowlight` per stack, where the same steps with flips and transposes
-    /// gave +0.39–0.71 (README, "Adaptation to a recording").
+    /// gave +0.39–0.71 (docs/results.md).
     fn default() -> AdaptConfig {
         AdaptConfig {
             method: AdaptMethod::Resynthesis,
@@ -225,8 +223,8 @@ impl Default for AdaptConfig {
 /// The network an adaptation starts from.
 #[derive(Clone, Debug)]
 pub enum Start<'a> {
-    /// A model file, fine-tuned.
-    Model(&'a Path),
+    /// A model, fine-tuned.
+    Model(&'a ModelSource),
     /// A new network of this architecture, initialized from the seed: the self-supervised
     /// baseline trained on the recording alone.
     Scratch(ModelMeta),
@@ -495,7 +493,7 @@ pub fn adapt(
     } = run;
     cfg.check()?;
     let (init, start_meta) = match start {
-        Start::Model(p) => (Some(p), Model::read_meta(p)?),
+        Start::Model(p) => (Some(p), p.read_meta()?),
         Start::Scratch(m) => (None, ModelMeta { steps: 0, ..m }),
     };
     let multiple = start_meta.multiple();

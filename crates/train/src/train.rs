@@ -24,7 +24,9 @@ use serde::{Deserialize, Serialize};
 use crate::crops::{draw_orientation, orient, sub_image};
 use crate::recorded::RecordedPairs;
 use emccd_nn::norm::{prepare_hybrid, prepare_scaled, signal_scale};
-use emccd_nn::{Classical, Error, Inputs, Loss, Model, ModelMeta, Net, Result, Scale, TrainConfig};
+use emccd_nn::{
+    Classical, Error, Inputs, Loss, Model, ModelMeta, ModelSource, Net, Result, Scale, TrainConfig,
+};
 
 /// A clean training image, values in [0, 1].
 pub use emccd_io::Image;
@@ -520,7 +522,7 @@ pub struct Run<'a> {
     /// The output and the checkpoint directory.
     pub paths: &'a RunPaths,
     /// A model file to fine-tune, else a new network from the seed.
-    pub init: Option<&'a Path>,
+    pub init: Option<&'a ModelSource>,
     /// Continue from the checkpoint in `paths.checkpoint`.
     pub resume: bool,
     /// Where the network trains (the caller's choice: `emccd_nn::device`).
@@ -547,8 +549,8 @@ impl<'a> Run<'a> {
         }
     }
 
-    /// Fine-tunes the model file `init` (if given) instead.
-    pub fn with_init(mut self, init: Option<&'a Path>) -> Run<'a> {
+    /// Fine-tunes the model `init` (if given) instead.
+    pub fn with_init(mut self, init: Option<&'a ModelSource>) -> Run<'a> {
         self.init = init;
         self
     }
@@ -646,7 +648,7 @@ struct Start {
 fn start_model(
     checkpoint: &Path,
     resume: bool,
-    init: Option<&Path>,
+    init: Option<&ModelSource>,
     meta: &ModelMeta,
     cfg: &TrainConfig,
     device: &Device,
@@ -672,7 +674,7 @@ fn start_model(
     }
     let model = match init {
         Some(p) => {
-            let mut m = Model::load(p, device)?;
+            let mut m = p.load(device)?;
             // A refinement network moved onto another base estimate would apply its
             // corrections for the old base's errors: it restarts as the identity on the new
             // base (its output layer zeroed), keeping what its other layers learned.

@@ -144,7 +144,7 @@ fn adaptation_improves_held_out_frames_and_records_its_provenance() {
         AdaptData::Scene(est.clone()),
         AdaptRun {
             profile: &cam.profile,
-            start: Start::Model(&init),
+            start: Start::Model(&emccd_nn::ModelSource::File(init.clone())),
             cfg: &cfg,
             provenance: provenance.clone(),
             paths: &paths,

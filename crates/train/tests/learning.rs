@@ -132,7 +132,7 @@ fn a_hybrid_moved_onto_another_base_learns_again() {
             &paths,
             &emccd_nn::cpu(),
         )
-        .with_init(Some(&bundled)),
+        .with_init(Some(&emccd_nn::ModelSource::File(bundled.clone()))),
         &mut |_| true,
     )
     .unwrap();
