@@ -697,3 +697,125 @@ fn adapt_refuses_mismatched_recordings_and_writes_nothing() {
     );
     assert_eq!(files(d), before, "adapt wrote or removed files");
 }
+
+/// A profile, an acquisition or a set of pairs already in the output folder is not replaced
+/// without `--force`, and what is there stays as it was (these replaced them silently, exit 0);
+/// with `--force` it is replaced.
+#[test]
+fn earlier_results_are_replaced_only_with_force() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // A calibrated profile stands for any earlier one: a small crop of the default.
+    ok(&emccd(
+        &["profile", "crop", "default", "cam", "--roi", "16x12"],
+        d,
+    ));
+    let snapshot = |sub: &str| -> Vec<(String, Vec<u8>)> {
+        files(&d.join(sub))
+            .into_iter()
+            .map(|f| (f.clone(), std::fs::read(d.join(sub).join(&f)).unwrap()))
+            .collect()
+    };
+    let profile = snapshot("cam");
+    for args in [
+        vec!["profile", "init-default", "cam"],
+        vec!["profile", "crop", "default", "cam", "--roi", "8x8"],
+        vec!["calibrate", "missing.toml", "-o", "cam"],
+    ] {
+        fails_with(&emccd(&args, d), "already holds a camera profile");
+        assert_eq!(snapshot("cam"), profile, "{args:?} changed the profile");
+    }
+    let acquisition = [
+        "simulate",
+        "calibration",
+        "-o",
+        "acq",
+        "--crop",
+        "16x12",
+        "--frames",
+        "2",
+        "--bias-exposures",
+        "0.01",
+        "--flat-levels",
+        "100",
+        "--blooming-exposures",
+        "0.01",
+    ];
+    ok(&emccd(&acquisition, d));
+    let before = snapshot("acq");
+    fails_with(
+        &emccd(&acquisition, d),
+        "already holds a calibration acquisition",
+    );
+    assert_eq!(snapshot("acq"), before);
+    raw_frame(d, "scene.tif", None);
+    let pairs = [
+        "simulate",
+        "pairs",
+        "--clean",
+        "scene.tif",
+        "--crop",
+        "16x12",
+        "-o",
+        "p",
+    ];
+    ok(&emccd(&pairs, d));
+    let before = snapshot("p");
+    fails_with(&emccd(&pairs, d), "already holds test pairs");
+    assert_eq!(snapshot("p"), before);
+    // --force replaces.
+    ok(&emccd(&["profile", "init-default", "cam", "--force"], d));
+    let v: serde_json::Value =
+        serde_json::from_str(&ok(&emccd(&["profile", "show", "cam", "--json"], d))).unwrap();
+    assert_eq!(v["width"], 512);
+}
+
+/// Numbers no camera or scene has are refused by name before anything is written (these
+/// panicked in the virtual camera's sampler and left half an acquisition behind).
+#[test]
+fn simulations_refuse_numbers_no_camera_has() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    raw_frame(d, "scene.tif", None);
+    let cal = |extra: &[&str]| {
+        let mut a = vec!["simulate", "calibration", "-o", "acq", "--crop", "16x12"];
+        a.extend_from_slice(extra);
+        emccd(&a, d)
+    };
+    for (extra, want) in [
+        (&["--dark", "inf"][..], "dark"),
+        (&["--dark", "1e20"][..], "dark"),
+        (&["--cic", "1e30"][..], "cic"),
+        (&["--bias-exposures", "1e30"][..], "bias-exposures"),
+    ] {
+        fails_with(&cal(extra), want);
+    }
+    let pairs = |extra: &[&str]| {
+        let mut a = vec![
+            "simulate",
+            "pairs",
+            "--clean",
+            "scene.tif",
+            "--crop",
+            "16x12",
+            "-o",
+            "p",
+        ];
+        a.extend_from_slice(extra);
+        emccd(&a, d)
+    };
+    for (extra, want) in [
+        (&["--photons", "1e30"][..], "photons"),
+        (
+            &["--exposure-ratio", "10", "--reference-photons", "1e30"][..],
+            "reference-photons",
+        ),
+        (
+            &["--exposure-ratio", "10", "--reference-exposure-s", "1e30"][..],
+            "reference-exposure-s",
+        ),
+    ] {
+        fails_with(&pairs(extra), want);
+    }
+    assert_eq!(files(d), ["scene.tif"], "something was left behind");
+}

@@ -172,7 +172,7 @@ def main():
         if not (cdir / "profile/profile.toml").exists():
             subprocess.run([sys.executable, str(ROOT / "tools/unseen_camera.py"), str(cdir), "--camera", cam_name,
                             "--size", str(n), "--scenes", str(SCENES[0]), "--mean-electrons", "1"], check=True)
-            run([str(exe), "calibrate", str(cdir / "calibration.toml"), "-o", str(cdir / "profile")])
+            run([str(exe), "calibrate", str(cdir / "calibration.toml"), "-o", str(cdir / "profile"), "--force"])
         prof = json.loads(subprocess.run([str(exe), "profile", "show", str(cdir / "profile"), "--json"],
                                          check=True, capture_output=True, text=True).stdout)
         alpha = prof["ptc_slope_dn"]

@@ -93,3 +93,16 @@ pub fn open_recording(
     }
     Ok(r)
 }
+
+/// Refuses to write over an earlier result of `kind` in `dir` (known by its `marker` file)
+/// unless `force`: a calibrated profile, an acquisition or a set of pairs is a person's work,
+/// and a command run twice by mistake must not replace it.
+pub fn refuse_replacing(dir: &Path, marker: &str, kind: &str, force: bool) -> Result<()> {
+    if !force && dir.join(marker).exists() {
+        anyhow::bail!(
+            "{}: already holds {kind} ({marker}); pass --force to replace it",
+            dir.display()
+        );
+    }
+    Ok(())
+}

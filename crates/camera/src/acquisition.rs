@@ -83,6 +83,28 @@ pub fn frame_seed(seed: u64, k: usize) -> u64 {
     seed.wrapping_mul(1_000_003).wrapping_add(k as u64)
 }
 
+/// The most photons a scene's brightest pixel may get in one frame: beyond any pixel's full
+/// well (10⁵–10⁶ e⁻), where a simulation would only count numbers.
+pub const MAX_PHOTONS: f64 = 1e7;
+/// The highest flat level, DN above bias: beyond any ADC's range.
+pub const MAX_LEVEL_DN: f64 = 1e6;
+
+/// Every value of the flag `name` positive, finite and at most `max`.
+fn positive_up_to(name: &str, values: &[f64], max: f64) -> Result<(), Error> {
+    match values.iter().find(|x| !(**x > 0.0 && **x <= max)) {
+        Some(&x) => Err(Error::Parameter(format!(
+            "{name}: every value must be a positive number{}, got {}",
+            if max < f64::MAX {
+                format!(" up to {}", emccd_profile::number(max))
+            } else {
+                String::new()
+            },
+            emccd_profile::number(x)
+        ))),
+        None => Ok(()),
+    }
+}
+
 impl CalibrationPlan {
     /// Refuses a plan that cannot be calibrated from, naming the setting.
     pub fn check(&self) -> Result<(), Error> {
@@ -91,17 +113,14 @@ impl CalibrationPlan {
                 "frames must be at least 2 (temporal statistics need two frames)".into(),
             ));
         }
-        for (name, v) in [
-            ("bias-exposures", &self.bias_exposures_s),
-            ("flat-levels", &self.flat_levels_dn),
-            ("blooming-exposures", &self.blooming_exposures_s),
-            ("flat exposure", &vec![self.flat_exposure_s]),
+        let t_max = emccd_profile::MAX_EXPOSURE_S;
+        for (name, v, max) in [
+            ("bias-exposures", &self.bias_exposures_s, t_max),
+            ("flat-levels", &self.flat_levels_dn, MAX_LEVEL_DN),
+            ("blooming-exposures", &self.blooming_exposures_s, t_max),
+            ("flat exposure", &vec![self.flat_exposure_s], t_max),
         ] {
-            if let Some(x) = v.iter().find(|x| !(x.is_finite() && **x > 0.0)) {
-                return Err(Error::Parameter(format!(
-                    "{name}: every value must be a positive number, got {x}"
-                )));
-            }
+            positive_up_to(name, v, max)?;
         }
         Ok(())
     }
@@ -339,18 +358,15 @@ impl PairLevel {
         reference_exposure_s: f64,
         reference_photons: f64,
     ) -> Result<Vec<PairLevel>, Error> {
-        for (name, v) in [
-            ("photons", photons),
-            ("exposure-s", &[exposure_s][..]),
-            ("exposure-ratio", ratios),
-            ("reference-exposure-s", &[reference_exposure_s][..]),
-            ("reference-photons", &[reference_photons][..]),
+        let t_max = emccd_profile::MAX_EXPOSURE_S;
+        for (name, v, max) in [
+            ("photons", photons, MAX_PHOTONS),
+            ("exposure-s", &[exposure_s][..], t_max),
+            ("exposure-ratio", ratios, f64::MAX),
+            ("reference-exposure-s", &[reference_exposure_s][..], t_max),
+            ("reference-photons", &[reference_photons][..], MAX_PHOTONS),
         ] {
-            if let Some(x) = v.iter().find(|x| !(x.is_finite() && **x > 0.0)) {
-                return Err(Error::Parameter(format!(
-                    "{name}: every value must be a positive number, got {x}"
-                )));
-            }
+            positive_up_to(name, v, max)?;
         }
         Ok(if ratios.is_empty() {
             photons

@@ -108,16 +108,28 @@ impl VirtualCamera {
             .require_complete()
             .map_err(|e| Error::Parameter(format!("virtual camera: {e}")))?;
         let p = &physics;
-        if !(p.qe > 0.0
-            && p.qe <= 1.0
-            && p.dark_e_per_s >= 0.0
-            && p.cic_e >= 0.0
-            && (0.0..1.0).contains(&p.hot_fraction)
-            && p.hot_dark_e_per_s >= 0.0)
-        {
-            return Err(Error::Parameter(format!(
-                "virtual camera: invalid physics {p:?}"
-            )));
+        // Upper bounds too: a dark current of 10³⁰ e⁻/s is not a camera, and its Poisson draws
+        // have no sampler.
+        for (name, v, lo, hi) in [
+            ("qe", p.qe, f64::MIN_POSITIVE, 1.0),
+            ("dark (e⁻ per pixel per s)", p.dark_e_per_s, 0.0, 1e5),
+            ("cic (e⁻ per pixel per frame)", p.cic_e, 0.0, 10.0),
+            ("hot-fraction", p.hot_fraction, 0.0, 0.999),
+            (
+                "hot-dark (e⁻ per pixel per s)",
+                p.hot_dark_e_per_s,
+                0.0,
+                1e6,
+            ),
+        ] {
+            if !(v >= lo && v <= hi) {
+                return Err(Error::Parameter(format!(
+                    "virtual camera: {name} must be {} to {}, got {}",
+                    emccd_profile::number(lo.max(0.0)),
+                    emccd_profile::number(hi),
+                    emccd_profile::number(v)
+                )));
+            }
         }
         let g = profile.em_gain.max(1.0);
         let c = 2.0 * g

@@ -30,6 +30,9 @@ pub struct Args {
     /// Output profile directory (profile.toml + maps.safetensors).
     #[arg(short, long)]
     pub out: PathBuf,
+    /// Replace a profile already in the output directory.
+    #[arg(long)]
+    pub force: bool,
     /// Also write an HTML report (index.html, self-contained) and results.json here.
     #[arg(long)]
     pub report: Option<PathBuf>,
@@ -45,6 +48,7 @@ impl Progress for Bar {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    crate::common::refuse_replacing(&a.out, "profile.toml", "a camera profile", a.force)?;
     let m = Manifest::load(&a.manifest)?;
     let bar = Bar(progress(emccd_calib::total_frames(&m), "frames"));
     let cal = emccd_calib::calibrate(&m, &a.options, &bar);

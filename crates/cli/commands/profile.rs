@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use emccd_profile::Roi;
 
-use crate::common::load_profile;
+use crate::common::{load_profile, refuse_replacing};
 
 /// Show or create camera profiles.
 #[derive(clap::Subcommand, Debug)]
@@ -24,6 +24,9 @@ pub enum Cmd {
     InitDefault {
         /// Output directory.
         dir: PathBuf,
+        /// Replace a profile already in the directory.
+        #[arg(long)]
+        force: bool,
         /// EM gain of the variant (the default runs at 300): the photon-transfer slope scales with it.
         #[arg(long)]
         em_gain: Option<f64>,
@@ -43,6 +46,9 @@ pub enum Cmd {
         /// (WxH alone: at the top-left corner).
         #[arg(long)]
         roi: Roi,
+        /// Replace a profile already in the output directory.
+        #[arg(long)]
+        force: bool,
     },
 }
 
@@ -57,7 +63,13 @@ pub fn run(c: Cmd) -> Result<()> {
             }
             Ok(())
         }
-        Cmd::Crop { profile, out, roi } => {
+        Cmd::Crop {
+            profile,
+            out,
+            roi,
+            force,
+        } => {
+            refuse_replacing(&out, "profile.toml", "a camera profile", force)?;
             let p = load_profile(&profile)?;
             // `default` is the bundled profile, never a folder here.
             if profile != "default" {
@@ -84,9 +96,11 @@ pub fn run(c: Cmd) -> Result<()> {
         }
         Cmd::InitDefault {
             dir,
+            force,
             em_gain,
             read_noise_scale,
         } => {
+            refuse_replacing(&dir, "profile.toml", "a camera profile", force)?;
             let mut p = emccd_profile::default_profile();
             if em_gain.is_some() || read_noise_scale != 1.0 {
                 p = p.variant(em_gain.unwrap_or(p.em_gain), read_noise_scale)?;

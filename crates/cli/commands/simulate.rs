@@ -8,7 +8,7 @@ use emccd_camera::{PhysicalParams, VirtualCamera};
 use emccd_denoise::Estimator;
 use emccd_eval::virtual_pairs::{write_pairs, PairsPlan};
 
-use crate::common::{load_profile, progress};
+use crate::common::{load_profile, progress, refuse_replacing};
 use emccd_profile::Roi;
 
 /// The name acquisitions and pairs of the virtual camera record as their camera's.
@@ -60,6 +60,9 @@ pub enum Cmd {
         /// Output directory.
         #[arg(short, long)]
         out: PathBuf,
+        /// Replace an acquisition already in the output directory.
+        #[arg(long)]
+        force: bool,
         #[command(flatten)]
         plan: CalibrationPlan,
         #[command(flatten)]
@@ -99,6 +102,9 @@ pub enum Cmd {
         /// Output directory.
         #[arg(short, long)]
         out: PathBuf,
+        /// Replace pairs already in the output directory.
+        #[arg(long)]
+        force: bool,
         #[command(flatten)]
         camera: CameraOpts,
     },
@@ -106,7 +112,15 @@ pub enum Cmd {
 
 pub fn run(c: Cmd) -> Result<()> {
     match c {
-        Cmd::Calibration { out, plan, camera } => calibration(&out, &plan, &camera),
+        Cmd::Calibration {
+            out,
+            force,
+            plan,
+            camera,
+        } => {
+            refuse_replacing(&out, "calibration.toml", "a calibration acquisition", force)?;
+            calibration(&out, &plan, &camera)
+        }
         Cmd::Pairs {
             clean,
             photons,
@@ -117,8 +131,10 @@ pub fn run(c: Cmd) -> Result<()> {
             frames,
             denoise,
             out,
+            force,
             camera,
         } => {
+            refuse_replacing(&out, "pairs.toml", "test pairs", force)?;
             let levels = PairLevel::levels(
                 &photons,
                 exposure_s,

@@ -876,6 +876,25 @@ pub fn write_atomic(path: impl AsRef<Path>, bytes: &[u8]) -> Result<()> {
     persist(tmp, path)
 }
 
+/// Writes files that belong together (a profile's two files): every one in full beside its
+/// target first, then each renamed into place. A failure while writing (a full disk) leaves
+/// every earlier file as it was; only the renames, which need no space, come after it.
+pub fn write_atomic_together(files: &[(&Path, &[u8])]) -> Result<()> {
+    use std::io::Write;
+    let mut staged = Vec::with_capacity(files.len());
+    for &(path, bytes) in files {
+        let mut tmp = temp_beside(path).map_err(|e| Error::from(e).with_path(path))?;
+        tmp.write_all(bytes)
+            .and_then(|()| tmp.as_file().sync_all())
+            .map_err(|e| Error::from(e).with_path(path))?;
+        staged.push((tmp, path));
+    }
+    for (tmp, path) in staged {
+        persist(tmp, path)?;
+    }
+    Ok(())
+}
+
 /// Writes one frame as an 8-bit grayscale PNG, mapping `lo..=hi` to 0..=255 (for previews).
 pub fn write_png_preview(
     path: impl AsRef<Path>,

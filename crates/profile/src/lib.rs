@@ -126,8 +126,9 @@ pub struct BloomingFit {
 impl BloomingFit {
     /// The blooming factor at exposure `t` seconds.
     pub fn factor(&self, exposure_s: f64) -> f64 {
+        // max/min, not clamp: a range the profile's checks would refuse still gives a number.
         let t = match self.range_s {
-            Some([lo, hi]) => exposure_s.clamp(lo, hi),
+            Some([lo, hi]) => exposure_s.max(lo).min(hi),
             None => exposure_s,
         };
         self.a * t.powf(self.b)
@@ -274,6 +275,20 @@ pub struct ProfileSummary {
     pub provenance: Provenance,
     /// Content fingerprint (hex).
     pub fingerprint: String,
+}
+
+/// The largest EM gain a profile may hold (EMCCD registers reach about 1000; some modes more).
+pub const MAX_EM_GAIN: f64 = 1e4;
+/// The longest exposure a profile may hold, seconds (about 2.8 hours).
+pub const MAX_EXPOSURE_S: f64 = 1e4;
+
+/// A number for a message: short whatever its size (`1e308`, not three hundred digits).
+pub fn number(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-3..1e6).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
 }
 
 /// An exposure is a positive, finite number of seconds (a header or a flag can say anything).
@@ -732,30 +747,90 @@ impl CameraProfile {
         if n == 0 {
             return bad("the profile has no pixels".into());
         }
-        if let Some(s) = self.ptc_slope_dn {
-            if !(s > 0.0) {
-                return bad(format!("ptc_slope_dn must be positive, got {s}"));
+        // Every number within what a camera can have: a hand-edited or damaged file must not
+        // load and then turn every frame into zeros.
+        let within = |key: &str, v: f64, lo: f64, hi: f64, unit: &str| -> Result<()> {
+            if v >= lo && v <= hi {
+                return Ok(());
             }
+            bad(format!(
+                "{key} = {} is outside what a camera can have ({} to {}{unit})",
+                number(v),
+                number(lo),
+                number(hi)
+            ))
+        };
+        within("em_gain", self.em_gain, 0.0, MAX_EM_GAIN, "")?;
+        if let Some(s) = self.ptc_slope_dn {
+            within("ptc_slope_dn", s, 1e-4, 1e6, " DN per count")?;
         }
         if let Some(b) = self.blooming {
-            if !(b.a >= 0.0 && b.a.is_finite() && b.b.is_finite()) {
-                return bad(format!(
-                    "blooming fit must have a ≥ 0 and finite b, got a={} b={}",
-                    b.a, b.b
-                ));
+            within("[blooming] a", b.a, 0.0, 1.0, "")?;
+            within("[blooming] b", b.b, -3.0, 1.0, "")?;
+            if let Some([lo, hi]) = b.range_s {
+                within(
+                    "[blooming] range_s's first value",
+                    lo,
+                    1e-9,
+                    MAX_EXPOSURE_S,
+                    " s",
+                )?;
+                within(
+                    "[blooming] range_s's last value",
+                    hi,
+                    lo,
+                    MAX_EXPOSURE_S,
+                    " s",
+                )?;
+                for t in [lo, hi] {
+                    within(
+                        &format!("the blooming factor a·t^b at {} s", number(t)),
+                        b.factor(t),
+                        0.0,
+                        1.0,
+                        "",
+                    )?;
+                }
             }
         }
-        if !(self.f_range[0] >= 1.0 && self.f_range[1] >= self.f_range[0]) {
-            return bad(format!(
-                "f_range must satisfy 1 ≤ lo ≤ hi, got {:?}",
-                self.f_range
-            ));
+        within("f_range's first value", self.f_range[0], 1.0, 100.0, "")?;
+        within(
+            "f_range's last value",
+            self.f_range[1],
+            self.f_range[0],
+            100.0,
+            "",
+        )?;
+        within("quantization_dn", self.quantization_dn, 0.0, 1e4, " DN")?;
+        within("adc_max_dn", self.adc_max_dn, 1.0, 2f64.powi(32), " DN")?;
+        within(
+            "[fpn] base_exposure_s",
+            self.fpn.base_exposure_s,
+            1e-9,
+            MAX_EXPOSURE_S,
+            " s",
+        )?;
+        if let Some(e) = &self.eld {
+            within("[eld] k_dn", e.k_dn, 1e-4, 1e6, " DN per electron")?;
+            within("[eld] tukey_lambda", e.tukey_lambda, -1.0, 1.0, "")?;
+            within("[eld] tukey_scale_dn", e.tukey_scale_dn, 0.0, 1e5, " DN")?;
+            within("[eld] row_sigma_dn", e.row_sigma_dn, 0.0, 1e5, " DN")?;
         }
-        if !(self.quantization_dn >= 0.0) {
-            return bad("quantization_dn must be ≥ 0".into());
+        if let Some(g) = &self.pgn {
+            within("[pgn] em_gain", g.em_gain, 1.0, MAX_EM_GAIN, "")?;
+            within("[pgn] e_per_dn", g.e_per_dn, 1e-4, 1e4, " e⁻ per DN")?;
+            within("[pgn] cic_e", g.cic_e, 0.0, 10.0, " e⁻ per pixel")?;
+            within(
+                "[pgn] dark_e_per_s",
+                g.dark_e_per_s,
+                0.0,
+                1e6,
+                " e⁻ per pixel per s",
+            )?;
+            within("[pgn] read_sigma_dn", g.read_sigma_dn, 0.0, 1e5, " DN")?;
         }
-        if !(self.fpn.base_exposure_s > 0.0) {
-            return bad("fpn.base_exposure_s must be positive".into());
+        for &t in &self.exposures_s {
+            within("an exposure of exposures_s", t, 1e-9, MAX_EXPOSURE_S, " s")?;
         }
         let no_bias = self.exposures_s.is_empty() && self.maps.fpn_base.is_empty();
         if no_bias {
@@ -801,14 +876,23 @@ impl CameraProfile {
                     m.len()
                 ));
             }
-            if m.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
+            if m.iter().any(|v| !(*v >= 0.0 && *v <= 1e5)) {
                 return bad(format!(
-                    "read-noise map at {t} s holds a negative or non-finite value"
+                    "read-noise map at {} s holds a value outside 0 to 100000 DN",
+                    number(*t)
                 ));
             }
         }
-        if self.maps.fpn_base.iter().any(|v| !v.is_finite()) {
-            return bad("fpn_base holds a non-finite value".into());
+        if self
+            .maps
+            .fpn_base
+            .iter()
+            .any(|v| !(v.abs() <= 2f64.powi(32) as f32))
+        {
+            return bad("fpn_base holds a value beyond any ADC's range (or not a number)".into());
+        }
+        if self.maps.fpn_theta.iter().any(|v| !v.is_finite()) {
+            return bad("fpn_theta holds a non-finite value".into());
         }
         Ok(())
     }

@@ -148,8 +148,12 @@ impl Manifest {
                 }
             }
         }
-        if !(m.em_gain >= 1.0) {
-            return Err(bad(format!("em_gain must be ≥ 1, got {}", m.em_gain)));
+        if !(m.em_gain >= 1.0 && m.em_gain <= crate::MAX_EM_GAIN) {
+            return Err(bad(format!(
+                "em_gain must be 1 to {}, got {}",
+                crate::number(crate::MAX_EM_GAIN),
+                crate::number(m.em_gain)
+            )));
         }
         if m.bias.is_empty()
             && m.flat.is_empty()
@@ -160,10 +164,12 @@ impl Manifest {
         }
         for e in m.bias.iter().chain(&m.flat).chain(&m.blooming) {
             if let Some(t) = e.exposure_s {
-                if !(t > 0.0 && t.is_finite()) {
+                if !(t > 0.0 && t <= crate::MAX_EXPOSURE_S) {
                     return Err(bad(format!(
-                        "{}: exposure_s must be positive, got {t}",
-                        e.file.display()
+                        "{}: exposure_s must be positive and at most {} s, got {}",
+                        e.file.display(),
+                        crate::number(crate::MAX_EXPOSURE_S),
+                        crate::number(t)
                     )));
                 }
             }
@@ -175,10 +181,12 @@ impl Manifest {
                 ));
             }
             for s in &gs.settings {
-                if !(s.em_gain >= 1.0) {
+                if !(s.em_gain >= 1.0 && s.em_gain <= crate::MAX_EM_GAIN) {
                     return Err(bad(format!(
-                        "{}: gain-series em_gain must be ≥ 1",
-                        s.file.display()
+                        "{}: gain-series em_gain must be 1 to {}, got {}",
+                        s.file.display(),
+                        crate::number(crate::MAX_EM_GAIN),
+                        crate::number(s.em_gain)
                     )));
                 }
                 if s.no_signal.is_none() && (s.offset_map.is_none() || s.sigma_map.is_none()) {
@@ -265,5 +273,19 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.to_string().contains("positive"), "{e}");
+        // Numbers no acquisition has: refused here, before a profile claims them.
+        for (text, want) in [
+            (
+                "em_gain = 1e308\n[[flat]]\nfile = \"x\"\nexposure_s = 1\n",
+                "em_gain",
+            ),
+            (
+                "em_gain = 300\n[[flat]]\nfile = \"x\"\nexposure_s = 1e308\n",
+                "1e308",
+            ),
+        ] {
+            let e = Manifest::parse(text, m).unwrap_err().to_string();
+            assert!(e.contains(want) && e.len() < 200, "{e}");
+        }
     }
 }

@@ -117,11 +117,22 @@ impl CameraProfile {
         toml_text(&self.to_toml_struct())
     }
 
-    /// Writes `dir/profile.toml` and `dir/maps.safetensors`, each atomically.
+    /// Writes `dir/profile.toml` and `dir/maps.safetensors` together: both are written in full
+    /// before either replaces an earlier profile's, so a failure (a full disk) leaves the earlier
+    /// profile loading as it was, and a folder this call made is removed again.
     pub fn save(&self, dir: impl AsRef<Path>) -> Result<()> {
         let dir = dir.as_ref();
         self.validate()?;
+        let made = !dir.exists();
         std::fs::create_dir_all(dir).map_err(|e| Error::from(e).at(dir))?;
+        let saved = self.save_into(dir);
+        if saved.is_err() && made {
+            let _ = std::fs::remove_dir(dir); // only if empty
+        }
+        saved
+    }
+
+    fn save_into(&self, dir: &Path) -> Result<()> {
         let (h, w, e) = (self.height, self.width, self.exposures_s.len());
         let base = f32_bytes(&self.maps.fpn_base);
         let theta = f32_bytes(&self.maps.fpn_theta);
@@ -157,9 +168,11 @@ impl CameraProfile {
             maps_fnv1a64: Some(fnv1a64(&bytes)),
             ..self.to_toml_struct()
         };
-        write_atomic(&dir.join(MAPS_FILE), &bytes)?;
-        write_atomic(&dir.join(PROFILE_TOML), toml_text(&toml).as_bytes())?;
-        Ok(())
+        emccd_io::write_atomic_together(&[
+            (&dir.join(MAPS_FILE), &bytes),
+            (&dir.join(PROFILE_TOML), toml_text(&toml).as_bytes()),
+        ])
+        .map_err(|e| Error::Io(std::io::Error::other(e)))
     }
 
     /// Loads a profile by the argument `--profile` (and `profile=`) takes: a directory, or
@@ -270,9 +283,6 @@ fn st_err(e: safetensors::SafeTensorError) -> Error {
 }
 
 /// [`emccd_io::write_atomic`] (a temporary file renamed into place, removed on Ctrl-C).
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    emccd_io::write_atomic(path, bytes).map_err(|e| Error::Io(std::io::Error::other(e)))
-}
 
 #[cfg(test)]
 mod tests {
@@ -313,6 +323,61 @@ mod tests {
             );
         }
         assert_eq!(crate::CameraProfile::load(&first).unwrap(), p);
+    }
+
+    /// A hand-edited profile.toml with a number no camera has does not load, and the message
+    /// names the key and keeps the number short (these loaded before, and BM3D then wrote
+    /// zeros, or a reversed blooming range panicked).
+    #[test]
+    fn numbers_no_camera_has_are_refused_by_key() {
+        let p = default_profile().crop(crate::Roi::corner(8, 8)).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        p.save(dir.path()).unwrap();
+        let toml_path = dir.path().join(super::PROFILE_TOML);
+        let text = std::fs::read_to_string(&toml_path).unwrap();
+        let range = "range_s = [\n    0.001,\n    0.1,\n]";
+        assert!(text.contains(range), "{text}");
+        let cases = [
+            (
+                "ptc_slope_dn = 20.14",
+                "ptc_slope_dn = inf",
+                "ptc_slope_dn = inf",
+            ),
+            (
+                "ptc_slope_dn = 20.14",
+                "ptc_slope_dn = 1e308",
+                "ptc_slope_dn = 1e308",
+            ),
+            (
+                "ptc_slope_dn = 20.14",
+                "ptc_slope_dn = 1e-300",
+                "ptc_slope_dn = 1e-300",
+            ),
+            ("a = 0.00015", "a = 1e10", "[blooming] a = 1e10"),
+            (
+                range,
+                "range_s = [0.1, 0.001]",
+                "range_s's last value = 0.001",
+            ),
+            (range, "range_s = [nan, 0.1]", "range_s's first value = NaN"),
+            ("em_gain = 300.0", "em_gain = 1e308", "em_gain = 1e308"),
+            ("0.2,\n]\nmaps", "1e308,\n]\nmaps", "exposures_s = 1e308"),
+        ];
+        for (from, to, want) in cases {
+            assert!(text.contains(from), "{from}");
+            std::fs::write(&toml_path, text.replacen(from, to, 1)).unwrap();
+            let e = crate::CameraProfile::load(dir.path())
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains(want) && e.contains("outside what a camera"),
+                "{to}: {e}"
+            );
+        }
+        // A range the checks refuse still gives a number where a profile is made in code.
+        let mut b = p.blooming.unwrap();
+        b.range_s = Some([0.1, 0.001]);
+        assert!(b.factor(0.01).is_finite());
     }
 
     #[test]
