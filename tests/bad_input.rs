@@ -819,3 +819,90 @@ fn simulations_refuse_numbers_no_camera_has() {
     }
     assert_eq!(files(d), ["scene.tif"], "something was left behind");
 }
+
+/// `denoise A B C -o out/` is all or nothing: an input that is missing, or that fails halfway
+/// (truncated, a non-finite value), after good ones leaves no output written, earlier results
+/// in `out/` as they were, no temporary files, and no `out/` where there was none (the earlier
+/// inputs' outputs used to be written, and earlier results replaced, before the bad one failed).
+#[test]
+fn denoising_several_inputs_is_all_or_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    raw_frame(d, "a.tif", Some(0.01));
+    raw_frame(d, "b.tif", Some(0.01));
+    // Two frames, cut in the second.
+    let mut w = emccd_io::StackWriter::create(
+        d.join("cut.tif"),
+        512,
+        512,
+        emccd_io::SampleFormat::U16,
+        Some(2),
+    )
+    .unwrap();
+    w.set_metadata(&emccd_io::Metadata {
+        exposure_s: Some(0.01),
+        ..Default::default()
+    });
+    for _ in 0..2 {
+        w.write_frame(&vec![600.0; 512 * 512]).unwrap();
+    }
+    w.finish().unwrap();
+    let len = std::fs::metadata(d.join("cut.tif")).unwrap().len();
+    let f = std::fs::OpenOptions::new()
+        .write(true)
+        .open(d.join("cut.tif"))
+        .unwrap();
+    f.set_len(len * 3 / 4).unwrap();
+    drop(f);
+    // A float frame with a NaN in it.
+    let mut w = emccd_io::StackWriter::create(
+        d.join("nan.fits"),
+        512,
+        512,
+        emccd_io::SampleFormat::F32,
+        Some(1),
+    )
+    .unwrap();
+    w.write_frame(&vec![600.0; 512 * 512]).unwrap();
+    w.finish().unwrap();
+    let mut bytes = std::fs::read(d.join("nan.fits")).unwrap();
+    // FITS data start at 2880 bytes; big-endian float32 NaN.
+    bytes[2880 + 4000..2880 + 4004].copy_from_slice(&f32::NAN.to_be_bytes());
+    std::fs::write(d.join("nan.fits"), bytes).unwrap();
+    let denoise = |inputs: &[&str], out: &str| {
+        let mut args = vec!["denoise"];
+        args.extend_from_slice(inputs);
+        args.extend_from_slice(&["-o", out, "--method", "none", "--exposure-s", "0.01"]);
+        emccd(&args, d)
+    };
+    // A missing input: refused before anything, no folder made.
+    let o = denoise(&["a.tif", "missing.tif"], "new");
+    assert_eq!(o.status.code(), Some(2));
+    assert!(!d.join("new").exists(), "an empty output folder was left");
+    // Inputs failing halfway, after a good one: earlier results stay, nothing else appears.
+    raw_frame(d, "out/a_denoised.tif", Some(0.5));
+    let earlier = std::fs::read(d.join("out/a_denoised.tif")).unwrap();
+    for bad in ["cut.tif", "nan.fits"] {
+        let o = denoise(&["a.tif", "b.tif", bad], "out");
+        assert_eq!(
+            o.status.code(),
+            Some(2),
+            "{bad}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        assert_eq!(files(&d.join("out")), ["a_denoised.tif"], "{bad}");
+        assert!(
+            std::fs::read(d.join("out/a_denoised.tif")).unwrap() == earlier,
+            "{bad}"
+        );
+        let o = denoise(&["a.tif", bad], "fresh");
+        assert_eq!(o.status.code(), Some(2));
+        assert!(
+            !d.join("fresh").exists(),
+            "{bad}: an output folder was left"
+        );
+    }
+    // The good inputs alone are written.
+    ok(&denoise(&["a.tif", "b.tif"], "out"));
+    assert_eq!(files(&d.join("out")), ["a_denoised.tif", "b_denoised.tif"]);
+}

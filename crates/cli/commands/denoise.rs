@@ -105,20 +105,49 @@ pub fn run(a: Args) -> Result<()> {
     }
     let several = a.inputs.len() > 1;
     let outs = emccd_io::output_paths(&a.inputs, &a.out, several.then_some("_denoised.tif"))?;
+    // All or nothing: every input is opened and checked (its header, size and exposure) before
+    // anything is written, and the outputs are placed only once every input is denoised, so an
+    // input that fails halfway (truncated, a non-finite value) leaves every output as it was.
+    for input in &a.inputs {
+        open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
+    }
+    let made = several && !a.out.exists();
     if several {
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     }
+    let done = denoise_files(&a, &r, &profile, window, &outs);
+    if done.is_err() && made {
+        let _ = std::fs::remove_dir(&a.out); // only if empty: it was made for this run
+    }
+    done
+}
+
+/// Denoises each input to its output, staged beside it; places them all once every one is done.
+fn denoise_files(
+    a: &Args,
+    r: &Resolved,
+    profile: &CameraProfile,
+    window: usize,
+    outs: &[PathBuf],
+) -> Result<()> {
+    let mut staged = Vec::with_capacity(outs.len());
     for (input, out) in a.inputs.iter().zip(outs) {
-        let rec = open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
+        let rec = open_recording(input, profile, a.exposure_s, a.extrapolate)?;
         let frames = rec.info.frames;
         if let Some(n) = r.movie_note(frames, window) {
             eprintln!("{}: {n}", input.display());
         }
-        let fd = r.denoiser(&profile, frames, a.tiling, a.ensemble, a.units, window)?;
-        warn_profile(&r, &fd);
+        let fd = r.denoiser(profile, frames, a.tiling, a.ensemble, a.units, window)?;
+        warn_profile(r, &fd);
         let pb = progress(rec.info.frames as u64, "frames");
-        let frames = emccd_denoise::stack::denoise_file(&fd, rec, &out, &mut || pb.inc(1))?;
+        let done = emccd_denoise::stack::denoise_file_staged(&fd, rec, out, &mut || pb.inc(1));
         pb.finish_and_clear();
+        let (frames, file) = done?;
+        staged.push((input, frames, file));
+    }
+    for (input, frames, file) in staged {
+        let out = file.target().to_path_buf();
+        file.place()?;
         eprintln!("{} → {} ({frames} frames)", input.display(), out.display());
     }
     Ok(())

@@ -296,10 +296,23 @@ pub fn denoise_shard(
 /// before its header's frame count is one. Returns the frames written.
 pub fn denoise_file(
     fd: &Denoiser,
-    mut input: Recording,
+    input: Recording,
     out: &Path,
     on_frame: &mut dyn FnMut(),
 ) -> Result<usize> {
+    let (frames, staged) = denoise_file_staged(fd, input, out, on_frame)?;
+    staged.place()?;
+    Ok(frames)
+}
+
+/// [`denoise_file`], the finished stack left beside `out` for the caller to place: a run over
+/// several inputs places its outputs only once every input has been denoised.
+pub fn denoise_file_staged(
+    fd: &Denoiser,
+    mut input: Recording,
+    out: &Path,
+    on_frame: &mut dyn FnMut(),
+) -> Result<(usize, emccd_io::Staged)> {
     let (width, height, frames) = (input.info.width, input.info.height, input.info.frames);
     let mut w = emccd_io::StackWriter::create(
         out,
@@ -328,8 +341,7 @@ pub fn denoise_file(
                 Ok(())
             },
         )?;
-        w.finish()?;
-        return Ok(frames);
+        return Ok((frames, w.finish_staged()?));
     }
     let mut buf = vec![0f32; width * height];
     for j in 0..frames {
@@ -338,6 +350,5 @@ pub fn denoise_file(
         w.write_frame(&den)?;
         on_frame();
     }
-    w.finish()?;
-    Ok(frames)
+    Ok((frames, w.finish_staged()?))
 }

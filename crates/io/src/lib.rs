@@ -724,13 +724,38 @@ impl StackWriter {
 
     /// Completes the file and renames it into place.
     pub fn finish(self) -> Result<()> {
+        self.finish_staged()?.place()
+    }
+
+    /// Completes the file but leaves it beside its target ([`Staged`]): a command writing
+    /// several files places them only once every one is complete.
+    pub fn finish_staged(self) -> Result<Staged> {
         let target = self.target;
         let tmp = match self.inner {
             WriterKind::Tiff(w) => w.finish(),
             WriterKind::Fits(w) => w.finish(self.frames),
         }
         .map_err(|e| e.with_path(&target))?;
-        persist(tmp, &target)
+        Ok(Staged { tmp, target })
+    }
+}
+
+/// A complete output file not yet at its target: [`Staged::place`] renames it there; dropped
+/// instead, it is removed and the target stays as it was.
+pub struct Staged {
+    tmp: tempfile::NamedTempFile,
+    target: PathBuf,
+}
+
+impl Staged {
+    /// Renames the file to its target (replacing what was there).
+    pub fn place(self) -> Result<()> {
+        persist(self.tmp, &self.target)
+    }
+
+    /// Where it goes.
+    pub fn target(&self) -> &Path {
+        &self.target
     }
 }
 

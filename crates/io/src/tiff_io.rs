@@ -28,6 +28,8 @@ pub struct TiffReader<R: Read + Seek = File> {
     buf: DecodingResult,
     /// Samples per pixel: 1 (grayscale) or 3 (RGB, read as BT.601 luminance like PNG).
     channels: usize,
+    /// RGB stored as three separate planes (PlanarConfiguration 2), not interleaved.
+    planar: bool,
 }
 
 impl TiffReader {
@@ -59,6 +61,13 @@ impl<R: Read + Seek> TiffReader<R> {
             None => None,
         };
         let (pixel_type, channels) = page_pixel_type(&mut decoder, ct)?;
+        // PlanarConfiguration 2: the page's samples come plane after plane (all red, then all
+        // green, then all blue).
+        let planar = channels > 1
+            && decoder
+                .find_tag_unsigned::<u16>(Tag::PlanarConfiguration)?
+                .unwrap_or(1)
+                == 2;
         let compression = decoder
             .find_tag_unsigned::<u16>(Tag::Compression)?
             .unwrap_or(1);
@@ -100,10 +109,18 @@ impl<R: Read + Seek> TiffReader<R> {
             limits.stack(frames as u64)?;
         }
         decoder.seek_to_image(0)?;
-        let metadata = description
+        let mut metadata = description
             .as_deref()
             .map(parse_description)
             .unwrap_or_default();
+        if planar {
+            metadata.warnings.push(
+                "an RGB image with separate planes, read as its luminance (one frame); a stack \
+                 of 3 frames written by tifffile without photometric='minisblack' looks like \
+                 this: write it again with that option to read it as 3 frames"
+                    .into(),
+            );
+        }
         let info = StackInfo {
             width: w as usize,
             height: h as usize,
@@ -118,6 +135,7 @@ impl<R: Read + Seek> TiffReader<R> {
             next: 0,
             buf: DecodingResult::U16(Vec::new()),
             channels,
+            planar,
         })
     }
 }
@@ -219,7 +237,13 @@ impl<R: Read + Seek + Send> FrameReader for TiffReader<R> {
                         n * ch
                     )));
                 }
-                if ch == 3 {
+                if ch == 3 && self.planar {
+                    let (r, rest) = $v.split_at(n);
+                    let (g, b) = rest.split_at(n);
+                    for (i, o) in out.iter_mut().enumerate() {
+                        *o = 0.299 * r[i] as f32 + 0.587 * g[i] as f32 + 0.114 * b[i] as f32;
+                    }
+                } else if ch == 3 {
                     for (o, p) in out.iter_mut().zip($v.chunks_exact(3)) {
                         *o = 0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32;
                     }

@@ -207,3 +207,31 @@ fn rgb_tiff_reads_as_bt601_luminance() {
         );
     }
 }
+
+/// An RGB TIFF with separate planes (what tifffile writes for a `(3, H, W)` array unless told
+/// `photometric='minisblack'`; made by tifffile 2024) is read as the luminance a contiguous RGB
+/// TIFF gives, pixel by pixel, with a warning that says how a 3-frame stack would look like
+/// this; before, its rows were taken from the three planes in turn.
+#[test]
+fn planar_rgb_tiff_is_read_as_luminance_with_a_warning() {
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/planar_rgb_u16.tif");
+    let (info, f) = read_all(&p).unwrap();
+    assert_eq!((info.width, info.height, info.frames), (8, 6, 1));
+    for y in 0..6 {
+        for x in 0..8 {
+            let (r, g, b) = (
+                (100 + 10 * x + y) as f32,
+                (2000 + x * y) as f32,
+                (30000 - 100 * y) as f32,
+            );
+            let want = 0.299 * r + 0.587 * g + 0.114 * b;
+            let got = f[0][y * 8 + x];
+            assert!((got - want).abs() < 0.01, "({x}, {y}): {got} vs {want}");
+        }
+    }
+    let w = info.metadata.warnings.join(" ");
+    assert!(
+        w.contains("separate planes") && w.contains("minisblack"),
+        "{w}"
+    );
+}
