@@ -378,3 +378,64 @@ fn bad_input_is_a_clear_error_and_writes_nothing() {
         "truncated",
     );
 }
+
+/// A gain-series setting measured against another offset (the 5× setting's frames 500 DN below
+/// the offset map), or a reference e⁻/DN map of zeros, is refused naming the file, before any fit and
+/// without writing anything (the first was fitted at G = 1.000 ± 0.000 and moved e⁻/DN by half,
+/// the second was accepted).
+#[test]
+fn a_gain_series_with_a_wrong_offset_or_reference_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let data = repo("tests/data/emccd-real/lanl-calibration/gain-GS");
+    let text = std::fs::read_to_string(repo("examples/lanl-gain-series.toml"))
+        .unwrap()
+        .replace(
+            "../tests/data/emccd-real/lanl-calibration/gain-GS",
+            data.to_str().unwrap(),
+        );
+    let map = |name: &str, f: &dyn Fn(f32) -> f32| {
+        let (info, frames) = emccd_io::read_all(data.join(name)).unwrap();
+        let mut w = emccd_io::StackWriter::create(
+            d.join(name),
+            info.width,
+            info.height,
+            emccd_io::SampleFormat::F32,
+            Some(1),
+        )
+        .unwrap();
+        w.write_frame(&frames[0].iter().map(|&v| f(v)).collect::<Vec<f32>>())
+            .unwrap();
+        w.finish().unwrap();
+    };
+    // The 5× setting's signal is about 460 DN above its offset.
+    map("5x-gain_no-signal_S0.tif", &|v| v + 960.0);
+    map("ADU_map.tif", &|_| 0.0);
+    let local = |name: &str| format!("{}/{name}", data.display());
+    let cases = [
+        (
+            text.replace(
+                &local("5x-gain_no-signal_S0.tif"),
+                d.join("5x-gain_no-signal_S0.tif").to_str().unwrap(),
+            ),
+            "below their offset map",
+            "5x-gain.tif",
+        ),
+        (
+            text.replace(
+                &local("ADU_map.tif"),
+                d.join("ADU_map.tif").to_str().unwrap(),
+            ),
+            "reference_e_per_dn",
+            "ADU_map.tif",
+        ),
+    ];
+    for (manifest, want, file) in cases {
+        std::fs::write(d.join("m.toml"), manifest).unwrap();
+        let o = emccd(&["calibrate", "m.toml", "-o", "prof"], d);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{err}");
+        assert!(err.contains(want) && err.contains(file), "{err}");
+        assert!(!d.join("prof").exists());
+    }
+}

@@ -129,12 +129,14 @@ def calibrate(
     report: Optional[PathLike] = None,
     *,
     progress: Progress = None,
+    force: bool = False,
 ) -> Profile:
     """Calibrates a camera from a calibration manifest (the TOML ``emccd calibrate`` takes),
     writes the profile folder ``out`` (and a self-contained HTML report into ``report``) and
-    returns the profile. ``progress(frames_read, frames_total)`` is called as stacks are read."""
+    returns the profile. ``progress(frames_read, frames_total)`` is called as stacks are read.
+    A profile already in ``out`` is replaced only with ``force=True``."""
     return _emccd.calibrate(
-        os.fspath(manifest), os.fspath(out), None if report is None else os.fspath(report), progress
+        os.fspath(manifest), os.fspath(out), None if report is None else os.fspath(report), progress, force
     )
 
 

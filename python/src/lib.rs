@@ -369,16 +369,24 @@ impl emccd_calib::Progress for Callback {
 }
 
 /// Calibrates a camera from a calibration manifest (TOML, as `emccd calibrate` takes), writes
-/// the profile folder `out` (and the HTML report to `report`), and returns the profile.
+/// the profile folder `out` (and the HTML report to `report`), and returns the profile. A
+/// profile already in `out` is replaced only with `force`, as the CLI's `--force`.
 #[pyfunction]
-#[pyo3(signature = (manifest, out, report=None, progress=None))]
+#[pyo3(signature = (manifest, out, report=None, progress=None, force=false))]
 fn calibrate(
     py: Python<'_>,
     manifest: PathBuf,
     out: PathBuf,
     report: Option<PathBuf>,
     progress: Option<Py<PyAny>>,
+    force: bool,
 ) -> PyResult<Profile> {
+    if !force && out.join("profile.toml").exists() {
+        return Err(EmccdError::new_err(format!(
+            "{}: already holds a camera profile (profile.toml); pass force=True to replace it",
+            out.display()
+        )));
+    }
     let m = emccd_calib::Manifest::load(&manifest).map_err(err)?;
     let cb = Callback::new(progress, emccd_calib::total_frames(&m));
     let r = py.detach(|| -> anyhow::Result<CameraProfile> {

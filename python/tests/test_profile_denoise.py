@@ -175,6 +175,12 @@ def test_calibrate_recovers_the_virtual_cameras_slope(tmp_path, profile):
     with pytest.raises(emccd.EmccdError):
         emccd.calibrate(tmp_path / "missing.toml", tmp_path / "p2")
     assert not (tmp_path / "p2").exists()
+    # The profile just written is not replaced by a second run unless asked.
+    before = (tmp_path / "profile" / "profile.toml").read_bytes()
+    with pytest.raises(emccd.EmccdError, match="force=True"):
+        emccd.calibrate(tmp_path / "calibration.toml", tmp_path / "profile")
+    assert (tmp_path / "profile" / "profile.toml").read_bytes() == before
+    emccd.calibrate(tmp_path / "calibration.toml", tmp_path / "profile", force=True)
 
 
 def test_temporal_denoising_of_a_still_stack(pair):

@@ -679,7 +679,36 @@ fn run_gain_series(
                 format!("readout σ of pixel {:?} is not positive", pixels[bad]),
             ));
         }
-        let samples = st.probes.into_iter().map(|(_, v)| v).collect();
+        let samples: Vec<Vec<f32>> = st.probes.into_iter().map(|(_, v)| v).collect();
+        // EM-amplified signal only adds to the offset. A stack whose pixels sit, on average,
+        // clearly below their offsets was measured against another offset (the wrong map, or a
+        // bias that drifted): its gain would be fitted at the bound G = 1 and move e⁻/DN with it.
+        let below: Vec<f64> = samples
+            .iter()
+            .zip(&offset)
+            .zip(&sigma)
+            .map(|((v, &o), &g)| {
+                let m = v.iter().map(|&x| x as f64).sum::<f64>() / v.len().max(1) as f64;
+                (o - m) / (g / (v.len().max(1) as f64).sqrt())
+            })
+            .collect();
+        let typical = emccd_profile::median(below.iter().copied()).unwrap_or(0.0);
+        if typical > 5.0 {
+            let dn = samples
+                .iter()
+                .zip(&offset)
+                .map(|(v, &o)| o - v.iter().map(|&x| x as f64).sum::<f64>() / v.len().max(1) as f64)
+                .sum::<f64>()
+                / samples.len().max(1) as f64;
+            return Err(Error::input(
+                &s.file,
+                format!(
+                    "its frames sit {dn:.1} DN below their offset map on average (the median \
+                     pixel by {typical:.0} standard errors): the offset is not this stack's; \
+                     give the no-signal stack or maps recorded with it"
+                ),
+            ));
+        }
         data.push(SettingData {
             nominal: s.em_gain,
             file: s.file.clone(),
@@ -695,7 +724,18 @@ fn run_gain_series(
                 .iter()
                 .filter_map(|&(x, y)| rm.get(y * rw + x).map(|&v| v as f64))
                 .collect();
-            Some(vals.iter().sum::<f64>() / vals.len().max(1) as f64)
+            let mean = vals.iter().sum::<f64>() / vals.len().max(1) as f64;
+            if !(mean > 0.0 && mean.is_finite()) || vals.iter().any(|v| !(*v > 0.0)) {
+                return Err(Error::input(
+                    p,
+                    format!(
+                        "reference_e_per_dn: every fitted pixel's electrons per DN must be a \
+                         positive number (the map's mean there is {})",
+                        emccd_profile::number(mean)
+                    ),
+                ));
+            }
+            Some(mean)
         }
         None => None,
     };
