@@ -137,6 +137,25 @@ fn shards_equal_one_process_and_a_killed_shard_resumes() {
     );
     assert_eq!(bits(&frames(&d.join("sh.zarr"))), bits(&one));
 
+    // A marker is not trusted alone: a chunk deleted, or cut short, under its marker is
+    // written again, and files in the marker folder that name no frame are not counted (these
+    // said "12 of 12 frames complete" and "14 of 12" and left the frames unwritten).
+    std::fs::remove_file(d.join("sh.zarr/0/c/6/0/0")).unwrap();
+    std::fs::write(d.join("sh.zarr/0/c/7/0/0"), b"half").unwrap();
+    for stray in ["12", "x"] {
+        std::fs::write(d.join("sh.zarr/.emccd-done").join(stray), b"").unwrap();
+    }
+    let o = denoise(d, "sh.zarr", &["--shard", "1/3"]);
+    ok(&o);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("frames 5–8 (2 denoised now, 2 were already done); 12 of 12 frames"),
+        "{err}"
+    );
+    let info = ok(&emccd(&["info", "sh.zarr"], d));
+    assert!(!info.contains("frames written"), "{info}");
+    assert_eq!(bits(&frames(&d.join("sh.zarr"))), bits(&one));
+
     // A store made for other work is refused, saying what differs, and left as it was.
     let before = std::fs::read(d.join("sh.zarr/zarr.json")).unwrap();
     let o = denoise(d, "sh.zarr", &["--method", "none"]);

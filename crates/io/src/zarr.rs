@@ -173,7 +173,7 @@ impl ZarrReader {
             .find(|d| d.is_dir());
         let mut metadata = Metadata::default();
         if let Some(d) = &done {
-            let n = count_markers(d);
+            let n = count_markers(d, frames);
             if n < frames as usize {
                 metadata.warnings.push(format!(
                     "{n} of {frames} frames written; the run that makes this store has not finished (resume it, or run its missing shards)"
@@ -262,9 +262,19 @@ impl FrameReader for ZarrReader {
     }
 }
 
-fn count_markers(dir: &Path) -> usize {
+/// The completion markers in `dir` that name a frame of a `frames`-long stack.
+fn count_markers(dir: &Path, frames: u64) -> usize {
     std::fs::read_dir(dir)
-        .map(|r| r.filter(|e| e.is_ok()).count())
+        .map(|r| {
+            r.filter_map(|e| e.ok())
+                .filter(|e| {
+                    e.file_name()
+                        .to_str()
+                        .and_then(|n| n.parse::<u64>().ok())
+                        .is_some_and(|k| k < frames && e.path().is_file())
+                })
+                .count()
+        })
         .unwrap_or(0)
 }
 
@@ -437,14 +447,23 @@ impl ZarrStackWriter {
         &self.spec
     }
 
-    /// Whether frame `k` (from 0) is complete: its chunk stored and its marker written.
+    /// Whether frame `k` (from 0) is complete: its marker written and, under it, its chunk
+    /// whole (a marker is not trusted alone: a chunk deleted or cut short after its frame was
+    /// marked is written again).
     pub fn is_done(&self, k: usize) -> bool {
-        self.done.join(k.to_string()).is_file()
+        if k >= self.spec.frames || !self.done.join(k.to_string()).is_file() {
+            return false;
+        }
+        let key = self.staging.chunk_key(&[k as u64, 0, 0]);
+        // The store's chunks are uncompressed float32 frames (the array has no compressor).
+        let whole = (self.spec.width * self.spec.height * 4) as u64;
+        std::fs::metadata(self.path.join(key.as_str())).is_ok_and(|m| m.len() == whole)
     }
 
-    /// How many frames of the whole store are complete.
+    /// How many frames of the whole store are complete ([`ZarrStackWriter::is_done`]; files in
+    /// the marker folder that name no frame are not counted).
     pub fn done_count(&self) -> usize {
-        count_markers(&self.done)
+        (0..self.spec.frames).filter(|&k| self.is_done(k)).count()
     }
 
     /// Stores frame `k` (from 0), then its completion marker.
