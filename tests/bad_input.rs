@@ -906,3 +906,53 @@ fn denoising_several_inputs_is_all_or_nothing() {
     ok(&denoise(&["a.tif", "b.tif"], "out"));
     assert_eq!(files(&d.join("out")), ["a_denoised.tif", "b_denoised.tif"]);
 }
+
+/// Messages say what is wrong: a folder or device given as a model or as a manifest's stack is
+/// not "not found", a file given as the output folder of several inputs is named as such, a
+/// repeated simulation setting is refused (it wrote two stacks into one file), and huge or tiny
+/// exposures print short.
+#[test]
+fn messages_name_what_is_wrong() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    raw_frame(d, "a.tif", Some(0.01));
+    raw_frame(d, "b.tif", Some(0.01));
+    std::fs::create_dir(d.join("folder")).unwrap();
+    let run = |args: &[&str]| emccd(args, d);
+    for model in ["folder", "/dev/null"] {
+        let o = run(&["denoise", "a.tif", "-o", "x.tif", "--model", model]);
+        fails_with(&o, "not a model file");
+    }
+    std::fs::write(
+        d.join("m.toml"),
+        "em_gain = 300\n[[bias]]\nfile = \"folder\"\nexposure_s = 0.01\n",
+    )
+    .unwrap();
+    fails_with(
+        &run(&["calibrate", "m.toml", "-o", "p"]),
+        "a folder, not a stack",
+    );
+    fails_with(
+        &run(&[
+            "denoise", "a.tif", "b.tif", "-o", "a.tif", "--method", "none",
+        ]),
+        "is a file; several inputs",
+    );
+    fails_with(
+        &run(&[
+            "simulate",
+            "calibration",
+            "-o",
+            "acq",
+            "--crop",
+            "16x12",
+            "--bias-exposures",
+            "0.01,0.01",
+        ]),
+        "0.01 is given twice",
+    );
+    let o = run(&["denoise", "a.tif", "-o", "x.tif", "--exposure-s", "1e-300"]);
+    fails_with(&o, "exposure 1e-300 s");
+    assert!(String::from_utf8_lossy(&o.stderr).len() < 400);
+    assert!(!d.join("acq").exists() && !d.join("p").exists() && !d.join("x.tif").exists());
+}

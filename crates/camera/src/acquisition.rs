@@ -122,6 +122,24 @@ impl CalibrationPlan {
         ] {
             positive_up_to(name, v, max)?;
         }
+        // Each value names a file (`bias_0.01s.tif`): a repeated one would be written twice
+        // into one file and listed twice in a manifest `calibrate` refuses.
+        for (name, v) in [
+            ("bias-exposures", &self.bias_exposures_s),
+            ("flat-levels", &self.flat_levels_dn),
+            ("blooming-exposures", &self.blooming_exposures_s),
+        ] {
+            if let Some(x) = v
+                .iter()
+                .enumerate()
+                .find_map(|(i, x)| v[..i].contains(x).then_some(x))
+            {
+                return Err(Error::Parameter(format!(
+                    "{name}: {} is given twice; each value is one stack",
+                    emccd_profile::number(*x)
+                )));
+            }
+        }
         Ok(())
     }
 

@@ -104,6 +104,12 @@ pub fn run(a: Args) -> Result<()> {
         return run_zarr(&a, &r, &profile, window);
     }
     let several = a.inputs.len() > 1;
+    if several && a.out.exists() && !a.out.is_dir() {
+        bail!(
+            "{}: is a file; several inputs are written into a folder (-o FOLDER), one NAME_denoised.tif each",
+            a.out.display()
+        );
+    }
     let outs = emccd_io::output_paths(&a.inputs, &a.out, several.then_some("_denoised.tif"))?;
     // All or nothing: every input is opened and checked (its header, size and exposure) before
     // anything is written, and the outputs are placed only once every input is denoised, so an

@@ -295,7 +295,8 @@ pub fn number(v: f64) -> String {
 pub fn check_exposure(exposure_s: f64) -> Result<()> {
     if !(exposure_s.is_finite() && exposure_s > 0.0) {
         return Err(Error::Parameter(format!(
-            "exposure {exposure_s} s: it must be a positive number of seconds"
+            "exposure {} s: it must be a positive number of seconds",
+            number(exposure_s)
         )));
     }
     Ok(())
@@ -489,7 +490,10 @@ impl CameraProfile {
         }
         let (lo, hi) = self.exposure_range();
         let what = format!(
-            "exposure {exposure_s} s (from {source}) is outside the calibrated range {lo}–{hi} s"
+            "exposure {} s (from {source}) is outside the calibrated range {}–{} s",
+            number(exposure_s),
+            number(lo),
+            number(hi)
         );
         if (exposure_s < lo / 2.0 || exposure_s > hi * 2.0) && !extrapolate {
             return Err(Error::Parameter(format!("{what}; its fixed pattern would be extrapolated far from the calibration. Calibrate with bias frames at this exposure, or pass --extrapolate to use the model's extrapolation")));

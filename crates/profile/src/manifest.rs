@@ -198,6 +198,18 @@ impl Manifest {
             }
         }
         for p in m.files() {
+            if p.exists() && !p.is_file() {
+                return Err(Error::Format(format!(
+                    "named in {} but {}, not a stack",
+                    path.display(),
+                    if p.is_dir() {
+                        "a folder"
+                    } else {
+                        "a device or other special file"
+                    }
+                ))
+                .at(&p));
+            }
             if !p.is_file() {
                 return Err(
                     Error::Format(format!("named in {} but not found", path.display())).at(&p),
