@@ -127,7 +127,7 @@ const LAYERS: [&[&str]; 7] = [
     &["camera", "calib"],
     &["eval"],
     &["classical"],
-    &["nn"],
+    &["nn", "count"],
     &["train", "denoise"],
 ];
 

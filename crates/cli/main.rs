@@ -80,6 +80,9 @@ enum Command {
     /// neighbours (default on stacks), iterative BM3D averaged with a network (default on single
     /// frames), iterative BM3D, one BM3D pass, a network, or BM3D refined by one.
     Denoise(commands::denoise::Args),
+    /// Count photons below a few tenths of a photo-electron per pixel per frame: per-pixel
+    /// thresholds, coincidences and false events corrected, an uncertainty per pixel.
+    Count(commands::count::Args),
     /// PSNR/SSIM of denoisers (input, BM3D, models) on virtual-camera pairs.
     Evaluate(commands::evaluate::Args),
     /// Train or fine-tune a denoising network on pairs synthesized on the fly.
@@ -111,6 +114,7 @@ fn main() {
         Command::Train(a) => commands::train::run(a),
         Command::Adapt(a) => commands::adapt::run(a),
         Command::Denoise(a) => commands::denoise::run(a),
+        Command::Count(a) => commands::count::run(a),
         Command::Evaluate(a) => commands::evaluate::run(a),
         Command::Bench(a) => commands::bench::run(a),
     };

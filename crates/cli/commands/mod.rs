@@ -3,6 +3,7 @@
 pub mod adapt;
 pub mod bench;
 pub mod calibrate;
+pub mod count;
 pub mod denoise;
 pub mod evaluate;
 pub mod info;

@@ -303,6 +303,7 @@ pub(crate) struct FitsStackWriter {
     width: usize,
     height: usize,
     meta: Metadata,
+    notes: Vec<String>,
     header_written: bool,
     naxis_card: u64,
     bytes: Vec<u8>,
@@ -325,6 +326,7 @@ impl FitsStackWriter {
             width,
             height,
             meta: Metadata::default(),
+            notes: Vec::new(),
             header_written: false,
             naxis_card: 2,
             bytes: Vec::new(),
@@ -334,6 +336,10 @@ impl FitsStackWriter {
 
     pub(crate) fn set_metadata(&mut self, meta: &Metadata) {
         self.meta = meta.clone();
+    }
+
+    pub(crate) fn set_notes(&mut self, notes: &[String]) {
+        self.notes = notes.to_vec();
     }
 
     fn write_header(&mut self) -> Result<()> {
@@ -367,6 +373,25 @@ impl FitsStackWriter {
             cards.push(card("INSTRUME", &quoted(c), "camera"));
         }
         cards.push(card("ORIGIN", &quoted("emccd"), ""));
+        // Free text as HISTORY cards, 72 characters each (FITS headers are ASCII).
+        for note in &self.notes {
+            let ascii: String = note
+                .chars()
+                .map(|c| {
+                    if c.is_ascii() && !c.is_ascii_control() {
+                        c
+                    } else {
+                        '?'
+                    }
+                })
+                .collect();
+            for part in ascii.as_bytes().chunks(72) {
+                let mut c = [b' '; 80];
+                c[..8].copy_from_slice(b"HISTORY ");
+                c[8..8 + part.len()].copy_from_slice(part);
+                cards.push(c);
+            }
+        }
         cards.push(card("END", "", ""));
         let mut block = Vec::with_capacity(BLOCK);
         for c in &cards {

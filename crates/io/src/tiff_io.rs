@@ -402,6 +402,28 @@ impl crate::StackWriter {
             crate::WriterKind::Fits(w) => w.set_metadata(meta),
         }
     }
+
+    /// Records `key=value` lines about how the stack was made (a TIFF's description lines, a
+    /// FITS header's HISTORY cards); call before the first frame.
+    pub fn set_notes(&mut self, notes: &[String]) {
+        match &mut self.inner {
+            crate::WriterKind::Tiff(w) => {
+                // The description is an ASCII tag: other characters would make the file
+                // unreadable.
+                let text: String = notes
+                    .iter()
+                    .map(|n| {
+                        n.chars()
+                            .map(|c| if c.is_ascii() { c } else { '?' })
+                            .collect::<String>()
+                            + "\n"
+                    })
+                    .collect();
+                w.set_extra(&text)
+            }
+            crate::WriterKind::Fits(w) => w.set_notes(notes),
+        }
+    }
 }
 
 #[cfg(test)]

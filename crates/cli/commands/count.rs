@@ -1,0 +1,299 @@
+//! `emccd count`: photon counting.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use emccd_count::{choose_k, Camera, Plan, Threshold};
+use emccd_profile::CameraProfile;
+
+use crate::common::{load_profile, open_recording, progress};
+
+/// Count photons: below about 0.2 photo-electrons per pixel per frame (faint sources, single
+/// molecules at high frame rates), threshold every preprocessed pixel of every frame into an
+/// event or none, and turn the events over N frames into photo-electrons per pixel per frame.
+/// This removes the EM register's excess noise (√2 in SNR) where the light is faintest. Each
+/// pixel's threshold comes from the profile (k times its read noise, k chosen for the stack's
+/// own light level by default); the rate inverts the exact probability of an event at that
+/// threshold — the register's output for 1, 2, … electrons plus read noise, coincidences,
+/// clock-induced charge and dark current — with its small-sample bias removed, so it is
+/// unbiased, and its standard error can be written beside it (--uncertainty). Frames are
+/// preprocessed as `denoise` does (blooming and the fixed pattern at the exposure removed).
+/// Above about half a photo-electron per pixel per frame the analog mean (--analog) is as good
+/// or better: the command says which regime the stack is in.
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Raw stacks (TIFF/BigTIFF, SIF, FITS, Zarr).
+    #[arg(required = true, num_args = 1..)]
+    pub inputs: Vec<PathBuf>,
+    /// Output file (one input; .tif, .btf or .fits) or directory (several: NAME_count.tif each).
+    #[arg(short, long)]
+    pub out: PathBuf,
+    /// Camera profile (`default` = the bundled iXon 897 model).
+    #[arg(long, default_value = "default")]
+    pub profile: String,
+    /// Exposure in seconds, where the file header does not record it (overrides the header).
+    #[arg(long)]
+    pub exposure_s: Option<f64>,
+    /// Accept an exposure far outside the profile's calibrated range (its fixed pattern is the
+    /// model's extrapolation).
+    #[arg(long)]
+    pub extrapolate: bool,
+    /// Threshold: `auto` (k times each pixel's read noise, k chosen to make the rate's error
+    /// smallest at the stack's own light level), `<k>sigma` (e.g. 3sigma) or `<n>DN` (the same
+    /// DN above bias for every pixel).
+    #[arg(long, default_value = "auto")]
+    pub threshold: Threshold,
+    /// One output frame per N input frames (the last one from what is left).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..), conflicts_with = "all")]
+    pub per: Option<u32>,
+    /// One output frame from the whole stack (the default).
+    #[arg(long)]
+    pub all: bool,
+    /// Also write each output frame's standard error per pixel here (one input only).
+    #[arg(long, value_name = "FILE")]
+    pub uncertainty: Option<PathBuf>,
+    /// Write the analog estimate instead (each pixel's mean signal over the register's gain,
+    /// less the spurious electrons), to compare with counting.
+    #[arg(long)]
+    pub analog: bool,
+}
+
+/// One input, checked and ready.
+struct Job {
+    input: PathBuf,
+    out: PathBuf,
+    frames: usize,
+    exposure: f64,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let profile = load_profile(&a.profile)?;
+    let several = a.inputs.len() > 1;
+    if several && a.uncertainty.is_some() {
+        bail!("--uncertainty names one file: give one input");
+    }
+    if several && a.out.exists() && !a.out.is_dir() {
+        bail!(
+            "{}: is a file; several inputs are written into a folder (-o FOLDER), one NAME_count.tif each",
+            a.out.display()
+        );
+    }
+    let outs = emccd_io::output_paths(&a.inputs, &a.out, several.then_some("_count.tif"))?;
+    if let Some(u) = &a.uncertainty {
+        for p in a.inputs.iter().chain([&a.out]) {
+            emccd_io::refuse_overwrite(u, p, "an input or the output")?;
+        }
+    }
+    // Every input checked before anything is written: its header, size, exposure, the
+    // profile's numbers at that exposure, and --per against its length.
+    let mut jobs = Vec::with_capacity(a.inputs.len());
+    for (input, out) in a.inputs.iter().zip(outs) {
+        let rec = open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
+        Camera::from_profile(&profile, rec.exposure)
+            .map_err(|e| anyhow::anyhow!("profile {}: {e}", a.profile))?;
+        if let Some(n) = a.per {
+            if n as usize > rec.info.frames {
+                bail!(
+                    "{}: --per {n} is more than the stack's {} frames",
+                    input.display(),
+                    rec.info.frames
+                );
+            }
+        }
+        jobs.push(Job {
+            input: input.clone(),
+            out,
+            frames: rec.info.frames,
+            exposure: rec.exposure,
+        });
+    }
+    let made = several && !a.out.exists();
+    if several {
+        std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    }
+    let done = count_all(&a, &profile, &jobs);
+    if done.is_err() && made {
+        let _ = std::fs::remove_dir(&a.out); // only if empty: it was made for this run
+    }
+    done
+}
+
+/// Counts every job into staged files; places them all once every one is done.
+fn count_all(a: &Args, profile: &CameraProfile, jobs: &[Job]) -> Result<()> {
+    let mut staged = Vec::new();
+    let mut summaries = Vec::new();
+    for job in jobs {
+        let (files, summary) = count_one(a, profile, job)?;
+        staged.extend(files);
+        summaries.push(summary);
+    }
+    for file in staged {
+        file.place()?;
+    }
+    for s in summaries {
+        eprintln!("{s}");
+    }
+    Ok(())
+}
+
+fn count_one(
+    a: &Args,
+    profile: &CameraProfile,
+    job: &Job,
+) -> Result<(Vec<emccd_io::Staged>, String)> {
+    let cam = Camera::from_profile(profile, job.exposure)?;
+    let per = a.per.map_or(job.frames, |n| n as usize);
+    let outputs = job.frames.div_ceil(per);
+    let open = || open_recording(&job.input, profile, a.exposure_s, a.extrapolate);
+    // The stack's own light level: the analog mean over every pixel and frame (a first pass,
+    // which `auto` needs before it can count).
+    let level = {
+        let mut rec = open()?;
+        let pb = progress(job.frames as u64, "frames (light level)");
+        let mut sum = 0.0;
+        emccd_count::preprocessed_frames(profile, &mut rec, |_, f| {
+            sum += f.iter().map(|&v| v as f64).sum::<f64>();
+            pb.inc(1);
+            Ok(())
+        })?;
+        pb.finish_and_clear();
+        sum / (job.frames * cam.width * cam.height) as f64 / cam.g - cam.spurious
+    };
+    let threshold = match a.threshold {
+        Threshold::Auto => Threshold::Sigma(choose_k(&cam, level, per as u32)),
+        t => t,
+    };
+    let plan = Plan::new(&cam, threshold);
+    let (false_events, missed) = plan.predicted();
+    let sigma = cam.median_sigma();
+    let below_3 = match threshold {
+        Threshold::Sigma(k) => k < 3.0,
+        Threshold::Dn(d) => d < 3.0 * sigma,
+        Threshold::Auto => false,
+    };
+    if below_3 && a.threshold != Threshold::Auto {
+        eprintln!(
+            "warning: {}: a threshold below 3 read-noise σ ({sigma:.2} DN) counts read noise: a predicted {} false events per pixel per frame (the events it subtracts as background)",
+            job.input.display(),
+            number(false_events)
+        );
+    }
+    let (described, ascii) = match (threshold, plan.k_sigma) {
+        (Threshold::Dn(d), _) => (format!("{} DN", number(d)), format!("{} DN", number(d))),
+        (_, Some(k)) => (
+            format!("{k:.2} σ (median {:.2} DN)", k * sigma),
+            format!("{k:.2} sigma (median {:.2} DN)", k * sigma),
+        ),
+        _ => unreachable!("a threshold is in σ or in DN"),
+    };
+    let notes = vec![
+        format!(
+            "units=photo-electrons per pixel per frame ({})",
+            if a.analog {
+                "analog mean"
+            } else {
+                "photon counting"
+            }
+        ),
+        format!("threshold={ascii}"),
+        format!("frames_per_output={per}"),
+        format!("false_events_per_frame={}", number(false_events)),
+        format!("single_electron_missed={:.4}", missed),
+        format!("em_dn_per_electron={}", number(cam.g)),
+        format!("spurious_electrons_per_frame={}", number(cam.spurious)),
+    ];
+    let create = |path: &Path| -> Result<emccd_io::StackWriter> {
+        let mut w = emccd_io::StackWriter::create(
+            path,
+            cam.width,
+            cam.height,
+            emccd_io::SampleFormat::F32,
+            Some(outputs),
+        )?;
+        w.set_metadata(&emccd_io::Metadata {
+            exposure_s: Some(job.exposure),
+            ..Default::default()
+        });
+        w.set_notes(&notes);
+        Ok(w)
+    };
+    let mut rate_w = create(&job.out)?;
+    let mut se_w = a.uncertainty.as_deref().map(create).transpose()?;
+    let mut rec = open()?;
+    let pb = progress(job.frames as u64, "frames");
+    let mut mean_rate = 0.0;
+    let r = emccd_count::count(profile, &mut rec, &plan, per, |tally| {
+        pb.inc(tally.frames as u64);
+        let (rate, se) = if a.analog {
+            let rate = tally.analog(&cam);
+            let sd = analog_error(tally, &cam);
+            (rate, sd)
+        } else {
+            plan.estimate(&tally.counts, tally.frames)
+        };
+        mean_rate += rate.iter().map(|&v| v as f64).sum::<f64>() / rate.len() as f64;
+        let io = |e: emccd_io::Error| emccd_count::Error(e.to_string());
+        rate_w.write_frame(&rate).map_err(io)?;
+        if let Some(w) = &mut se_w {
+            // A pixel with an event in every frame has no finite error: written as the
+            // largest float, so readers see a number.
+            let se: Vec<f32> = se
+                .iter()
+                .map(|&v| if v.is_finite() { v } else { f32::MAX })
+                .collect();
+            w.write_frame(&se).map_err(io)?;
+        }
+        Ok(())
+    });
+    pb.finish_and_clear();
+    r?;
+    let mut files = vec![rate_w.finish_staged()?];
+    if let Some(w) = se_w {
+        files.push(w.finish_staged()?);
+    }
+    let mean_rate = mean_rate / outputs as f64;
+    let regime = if level > 0.5 {
+        format!(" At {} e⁻ per pixel per frame the analog mean (--analog) is likely as good: counting pays below about 0.5.", number(level))
+    } else {
+        String::new()
+    };
+    let summary = format!(
+        "{} → {}: {} frames into {outputs} output frame{} of {per}; threshold {described}; predicted {} false events per pixel per frame, one photo-electron missed {:.0} % of the time; mean rate {} photo-electrons per pixel per frame ({}).{regime}",
+        job.input.display(),
+        job.out.display(),
+        job.frames,
+        if outputs == 1 { "" } else { "s" },
+        number(false_events),
+        100.0 * missed,
+        number(mean_rate),
+        if a.analog { "analog" } else { "counted" },
+    );
+    Ok((files, summary))
+}
+
+/// A rate or probability for a person: three significant digits.
+fn number(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        format!("{v}")
+    } else if v.abs() >= 0.01 && v.abs() < 1e4 {
+        format!("{}", (v * 1e3).round() / 1e3)
+    } else {
+        format!("{v:.2e}")
+    }
+}
+
+/// The analog estimate's standard error per pixel: the EM register doubles the photo-electrons'
+/// Poisson variance (f² = 2), read noise adds its own, over the frames averaged.
+fn analog_error(tally: &emccd_count::Tally, cam: &Camera) -> Vec<f32> {
+    let n = tally.frames.max(1) as f64;
+    tally
+        .sum
+        .iter()
+        .zip(&cam.sigma)
+        .map(|(&s, &sigma)| {
+            let mu = (s / n / cam.g).max(0.0);
+            let var_dn = 2.0 * cam.g * cam.g * mu + (sigma as f64).powi(2);
+            ((var_dn / n).sqrt() / cam.g) as f32
+        })
+        .collect()
+}

@@ -1,0 +1,220 @@
+//! Each pixel's threshold and model: the camera's numbers at an exposure ([`Camera`]), how the
+//! threshold is set ([`Threshold`], [`choose_k`]) and the per-pixel models that turn counts into
+//! rates ([`Plan`]).
+
+use rayon::prelude::*;
+
+use emccd_profile::CameraProfile;
+
+use crate::model::PixelModel;
+use crate::{Error, Result};
+
+/// How each pixel's threshold is set.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Threshold {
+    /// `k` times the pixel's read noise, `k` chosen to make the rate's error smallest at the
+    /// stack's own light level ([`choose_k`]).
+    Auto,
+    /// `k` times the pixel's read noise (`3sigma`).
+    Sigma(f64),
+    /// The same number of DN above bias for every pixel (`25DN`).
+    Dn(f64),
+}
+
+impl std::str::FromStr for Threshold {
+    type Err = String;
+
+    fn from_str(s: &str) -> std::result::Result<Threshold, String> {
+        let t = s.trim().to_ascii_lowercase();
+        let number = |v: &str| {
+            v.trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|v| *v > 0.0 && v.is_finite())
+        };
+        if t == "auto" {
+            Ok(Threshold::Auto)
+        } else if let Some(k) = t.strip_suffix("sigma").and_then(number) {
+            Ok(Threshold::Sigma(k))
+        } else if let Some(d) = t.strip_suffix("dn").and_then(number) {
+            Ok(Threshold::Dn(d))
+        } else {
+            Err(format!(
+                "'{s}': a threshold is `auto`, `<k>sigma` (k times each pixel's read noise, e.g. 3sigma) or `<n>DN` (e.g. 25DN), with a positive number"
+            ))
+        }
+    }
+}
+
+/// What counting needs to know of the camera at one exposure.
+#[derive(Clone, Debug)]
+pub struct Camera {
+    /// Frame width, px.
+    pub width: usize,
+    /// Frame height, px.
+    pub height: usize,
+    /// The register's mean output per electron, DN (K = s/2 of the profile).
+    pub g: f64,
+    /// Each pixel's read noise at this exposure, DN.
+    pub sigma: Vec<f32>,
+    /// Electrons per pixel per frame without light: clock-induced charge plus dark current.
+    pub spurious: f64,
+}
+
+impl Camera {
+    /// The camera of `profile` at `exposure_s`; an error naming what the profile lacks.
+    pub fn from_profile(profile: &CameraProfile, exposure_s: f64) -> Result<Camera> {
+        let g = profile.dn_per_electron().map_err(|_| {
+            Error(
+                "the profile has no photon-transfer slope (the EM register's DN per electron): \
+                 calibrate it with flat-field stacks"
+                    .into(),
+            )
+        })?;
+        if !profile.has_bias() {
+            return Err(Error(
+                "the profile has no read-noise maps: calibrate it with bias stacks".into(),
+            ));
+        }
+        let pgn = profile.pgn.as_ref().ok_or_else(|| {
+            Error(
+                "the profile has no clock-induced charge and dark current (its [pgn] section): \
+                 the false-event rate cannot be predicted without them"
+                    .into(),
+            )
+        })?;
+        Ok(Camera {
+            width: profile.width,
+            height: profile.height,
+            g,
+            sigma: profile.read_noise_near(exposure_s).to_vec(),
+            spurious: pgn.cic_e + pgn.dark_e_per_s * exposure_s,
+        })
+    }
+
+    /// The median read noise, DN.
+    pub fn median_sigma(&self) -> f64 {
+        emccd_profile::median(self.sigma.iter().copied()).unwrap_or(1.0)
+    }
+}
+
+/// The `k` (threshold in read-noise σ, from 0.5 to 8 in steps of 0.05) whose rate estimate from
+/// `frames` frames has the smallest variance at `lambda` photo-electrons per pixel per frame,
+/// for a pixel of the camera's median read noise: the per-camera choice (each pixel then uses
+/// `k` times its own σ).
+pub fn choose_k(camera: &Camera, lambda: f64, frames: u32) -> f64 {
+    let sigma = camera.median_sigma();
+    let lambda = lambda.max(1e-4);
+    (10..=160)
+        .map(|i| i as f64 * 0.05)
+        .map(|k| {
+            let m = PixelModel::new(k * sigma, camera.g, sigma, camera.spurious);
+            (k, m.variance(lambda, frames))
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map_or(3.0, |(k, _)| k)
+}
+
+/// Each pixel's threshold and its model. Pixels share models: each is given the model of the
+/// nearest of a log-spaced grid of read-noise values (0.2 % apart), which moves its predicted
+/// false-event rate by far less than its counts' noise.
+#[derive(Clone, Debug)]
+pub struct Plan {
+    /// Each pixel's threshold, DN above bias.
+    pub thresholds: Vec<f32>,
+    /// `k` where the thresholds are `k` times each pixel's read noise.
+    pub k_sigma: Option<f64>,
+    models: Vec<PixelModel>,
+    index: Vec<u32>,
+}
+
+/// Relative spacing of the read-noise grid.
+const GRID_STEP: f64 = 0.002;
+
+impl Plan {
+    /// The thresholds of `threshold` (`Auto` must be resolved first, by [`choose_k`]).
+    pub fn new(camera: &Camera, threshold: Threshold) -> Plan {
+        let k = match threshold {
+            Threshold::Auto => 3.0,
+            Threshold::Sigma(k) => k,
+            Threshold::Dn(_) => f64::NAN,
+        };
+        let lo = camera
+            .sigma
+            .iter()
+            .copied()
+            .fold(f32::INFINITY, f32::min)
+            .max(1e-3) as f64;
+        let slot =
+            |s: f32| ((s.max(1e-3) as f64 / lo).ln() / (1.0 + GRID_STEP).ln()).round() as u32;
+        let slots = camera.sigma.iter().map(|&s| slot(s)).max().unwrap_or(0) + 1;
+        let sigma_of = |i: u32| lo * (1.0 + GRID_STEP).powi(i as i32);
+        let t_of = |s: f64| match threshold {
+            Threshold::Dn(d) => d,
+            _ => k * s,
+        };
+        let models: Vec<PixelModel> = (0..slots)
+            .into_par_iter()
+            .map(|i| {
+                let s = sigma_of(i);
+                PixelModel::new(t_of(s), camera.g, s, camera.spurious)
+            })
+            .collect();
+        let index: Vec<u32> = camera.sigma.iter().map(|&s| slot(s)).collect();
+        Plan {
+            thresholds: camera
+                .sigma
+                .iter()
+                .map(|&s| t_of(s as f64) as f32)
+                .collect(),
+            k_sigma: (!matches!(threshold, Threshold::Dn(_))).then_some(k),
+            models,
+            index,
+        }
+    }
+
+    /// The model pixel `i` is counted with.
+    pub fn model(&self, i: usize) -> &PixelModel {
+        &self.models[self.index[i] as usize]
+    }
+
+    /// The median over pixels of the false-event rate (events per frame without light) and of
+    /// the probability that one photo-electron is missed.
+    pub fn predicted(&self) -> (f64, f64) {
+        let f = emccd_profile::median(
+            self.index
+                .iter()
+                .map(|&i| self.models[i as usize].false_events()),
+        );
+        let m = emccd_profile::median(self.index.iter().map(|&i| self.models[i as usize].missed()));
+        (f.unwrap_or(f64::NAN), m.unwrap_or(f64::NAN))
+    }
+
+    /// The rate and its standard error at every pixel from `counts` events in `frames` frames.
+    /// Pixels that share a model and a count share the computation.
+    pub fn estimate(&self, counts: &[u32], frames: u32) -> (Vec<f32>, Vec<f32>) {
+        let k_max = counts.iter().copied().max().unwrap_or(0) as usize;
+        // Which (model, count) pairs occur, then each computed once.
+        let mut needed = vec![false; self.models.len() * (k_max + 1)];
+        for (i, &c) in counts.iter().enumerate() {
+            needed[self.index[i] as usize * (k_max + 1) + c as usize] = true;
+        }
+        let table: Vec<(f32, f32)> = needed
+            .par_iter()
+            .enumerate()
+            .map(|(j, &need)| {
+                if !need {
+                    return (0.0, 0.0);
+                }
+                let (m, c) = (j / (k_max + 1), j % (k_max + 1));
+                let (r, se) = self.models[m].estimate(c as u32, frames);
+                (r as f32, se as f32)
+            })
+            .collect();
+        counts
+            .iter()
+            .enumerate()
+            .map(|(i, &c)| table[self.index[i] as usize * (k_max + 1) + c as usize])
+            .unzip()
+    }
+}
