@@ -97,7 +97,7 @@ log "SLURM is up: node $host, $cpus CPUs, partition main"
 
 # --- data: 64 raw frames in two files, and the single-process reference ---
 cd "$W"
-clean=$REPO/../shared/data/clean/microscopy/fmd-confocal-bpae
+clean=$REPO/tests/data/clean/microscopy/fmd-confocal-bpae
 "$EMCCD" profile crop default roi --roi 192,192,128x128 2>/dev/null
 "$EMCCD" simulate pairs --profile roi --clean "$clean/field1-avg50.png" "$clean/field2-avg50.png" \
     --frames 32 --photons 20 -o pairs >/dev/null 2>&1
