@@ -311,3 +311,62 @@ fn bad_requests_are_refused_and_write_nothing() {
         "{err}"
     );
 }
+
+/// `emccd info --profile` measures a stack's light level and says when it is in the counting
+/// regime; `emccd denoise` notes it too; a brighter stack gets no note.
+#[test]
+fn info_and_denoise_point_faint_stacks_to_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ok(&emccd(
+        &["profile", "crop", "default", "cam", "--roi", "32x32"],
+        d,
+    ));
+    flat_scene(&d.join("flat.tif"), 32);
+    for (photons, faint) in [("0.1", true), ("20", false)] {
+        let out = format!("s{photons}");
+        ok(&emccd(
+            &[
+                "simulate",
+                "pairs",
+                "--profile",
+                "cam",
+                "--clean",
+                "flat.tif",
+                "--photons",
+                photons,
+                "--frames",
+                "20",
+                "-o",
+                &out,
+            ],
+            d,
+        ));
+        let noisy = format!("{out}/noisy/flat_p{photons}.tif");
+        let v: serde_json::Value = serde_json::from_str(&ok(&emccd(
+            &["info", &noisy, "--profile", "cam", "--json"],
+            d,
+        )))
+        .unwrap();
+        let level = v["photo_electrons_per_pixel_per_frame"].as_f64().unwrap();
+        let truth = photons.parse::<f64>().unwrap() * 0.9;
+        assert!((level / truth - 1.0).abs() < 0.2, "{level} vs {truth}");
+        assert_eq!(v["counting_regime"].as_bool(), Some(faint));
+        let o = emccd(
+            &[
+                "denoise",
+                &noisy,
+                "-o",
+                &format!("{out}.tif"),
+                "--profile",
+                "cam",
+                "--method",
+                "none",
+            ],
+            d,
+        );
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{err}");
+        assert_eq!(err.contains("`emccd count`"), faint, "{err}");
+    }
+}

@@ -94,6 +94,22 @@ pub fn open_recording(
     Ok(r)
 }
 
+/// [`open_recording`] again, for a recording already opened (and its warnings printed) once.
+pub fn reopen_recording(
+    input: &Path,
+    profile: &CameraProfile,
+    exposure_arg: Option<f64>,
+    extrapolate: bool,
+) -> Result<Recording> {
+    Ok(Recording::open(
+        input,
+        profile,
+        exposure_arg,
+        "--exposure-s",
+        extrapolate,
+    )?)
+}
+
 /// Refuses to write over an earlier result of `kind` in `dir` (known by its `marker` file)
 /// unless `force`: a calibrated profile, an acquisition or a set of pairs is a person's work,
 /// and a command run twice by mistake must not replace it.
@@ -105,4 +121,37 @@ pub fn refuse_replacing(dir: &Path, marker: &str, kind: &str, force: bool) -> Re
         );
     }
     Ok(())
+}
+
+/// Below this many photo-electrons per pixel per frame a stack is in the photon-counting
+/// regime: `emccd count` removes the EM register's excess noise there.
+pub const COUNTING_LEVEL: f64 = 0.2;
+
+/// The recording's light level, photo-electrons per pixel per frame: the mean over its first
+/// `frames` frames (at most) after the profile's preprocessing, over the profile's DN per
+/// photo-electron. Reads only those frames.
+pub fn light_level(rec: &mut Recording, profile: &CameraProfile, frames: usize) -> Result<f64> {
+    let k = profile.dn_per_electron()?;
+    let mut raw = vec![0f32; rec.info.width * rec.info.height];
+    let (mut sum, mut n) = (0.0, 0usize);
+    for _ in 0..frames.min(rec.info.frames) {
+        if !rec.reader.read_frame(&mut raw)? {
+            break;
+        }
+        let f = emccd_classical::frame::preprocess(profile, &raw, rec.exposure)?;
+        sum += f.iter().map(|&v| v as f64).sum::<f64>();
+        n += f.len();
+    }
+    Ok(sum / n.max(1) as f64 / k)
+}
+
+/// The note for a recording at `level` photo-electrons per pixel per frame, if it is in the
+/// counting regime.
+pub fn counting_note(level: f64) -> Option<String> {
+    (level < COUNTING_LEVEL).then(|| {
+        format!(
+            "about {:.3} photo-electrons per pixel per frame: the photon-counting regime, where `emccd count` removes the EM register's excess noise (√2 in SNR)",
+            level
+        )
+    })
 }

@@ -6,7 +6,7 @@ use anyhow::{bail, Context, Result};
 use emccd_count::{choose_k, Camera, Plan, Threshold};
 use emccd_profile::CameraProfile;
 
-use crate::common::{load_profile, open_recording, progress};
+use crate::common::{load_profile, open_recording, progress, reopen_recording};
 
 /// Count photons: below about 0.2 photo-electrons per pixel per frame (faint sources, single
 /// molecules at high frame rates), threshold every preprocessed pixel of every frame into an
@@ -144,7 +144,7 @@ fn count_one(
     let cam = Camera::from_profile(profile, job.exposure)?;
     let per = a.per.map_or(job.frames, |n| n as usize);
     let outputs = job.frames.div_ceil(per);
-    let open = || open_recording(&job.input, profile, a.exposure_s, a.extrapolate);
+    let open = || reopen_recording(&job.input, profile, a.exposure_s, a.extrapolate);
     // The stack's own light level: the analog mean over every pixel and frame (a first pass,
     // which `auto` needs before it can count).
     let level = {

@@ -9,7 +9,7 @@ use emccd_io::zarr::Shard;
 use emccd_nn::tile::Tiling;
 use emccd_profile::CameraProfile;
 
-use crate::common::{load_profile, open_recording, progress};
+use crate::common::{load_profile, open_recording, progress, reopen_recording};
 
 /// Denoise raw EMCCD frames: remove blooming and the fixed pattern with the camera profile (paper
 /// eq. 4), then denoise. By default a recording of several frames (a movie) runs `temporal`:
@@ -138,7 +138,13 @@ fn denoise_files(
 ) -> Result<()> {
     let mut staged = Vec::with_capacity(outs.len());
     for (input, out) in a.inputs.iter().zip(outs) {
-        let rec = open_recording(input, profile, a.exposure_s, a.extrapolate)?;
+        // A note only: a profile that cannot say the level (no slope) denoises as before.
+        let mut probe = reopen_recording(input, profile, a.exposure_s, a.extrapolate)?;
+        let level = crate::common::light_level(&mut probe, profile, 4).ok();
+        if let Some(n) = level.and_then(crate::common::counting_note) {
+            eprintln!("note: {}: {n}", input.display());
+        }
+        let rec = reopen_recording(input, profile, a.exposure_s, a.extrapolate)?;
         let frames = rec.info.frames;
         if let Some(n) = r.movie_note(frames, window) {
             eprintln!("{}: {n}", input.display());
