@@ -477,6 +477,74 @@ fn denoise<'py>(
     Ok((arr.into_pyarray(py), warnings))
 }
 
+/// Photon counting of raw frames [frames, h, w] (DN as the camera wrote them) through
+/// `profile` at `exposure_s`, as `emccd count` does: returns the rate (photo-electrons per pixel
+/// per frame) and its standard error, each [outputs, h, w] (one output per `per` frames, or one
+/// for the whole stack), and notes (the threshold and what it predicts).
+#[pyfunction]
+#[pyo3(signature = (frames, profile, exposure_s, threshold="auto", per=None, analog=false, extrapolate=false))]
+#[allow(clippy::too_many_arguments)]
+#[allow(clippy::type_complexity)]
+fn count<'py>(
+    py: Python<'py>,
+    frames: PyReadonlyArray3<'py, f32>,
+    profile: &Profile,
+    exposure_s: f64,
+    threshold: &str,
+    per: Option<usize>,
+    analog: bool,
+    extrapolate: bool,
+) -> PyResult<(
+    Bound<'py, PyArray3<f32>>,
+    Bound<'py, PyArray3<f32>>,
+    Vec<String>,
+)> {
+    let p = &profile.inner;
+    let threshold: emccd_count::Threshold = threshold
+        .parse()
+        .map_err(|e: String| err(anyhow::anyhow!(e)))?;
+    let a = frames.as_array();
+    let (f, h, w) = a.dim();
+    let raw: Vec<f32> = a.iter().copied().collect();
+    let r = py.detach(|| -> anyhow::Result<(Vec<f32>, Vec<f32>, usize, Vec<String>)> {
+        let mut notes = Vec::new();
+        if let Some(wn) = p.check_frames(w, h, exposure_s, "exposure_s", extrapolate)? {
+            notes.push(wn);
+        }
+        let cam = emccd_count::Camera::from_profile(p, exposure_s)?;
+        let pre: Vec<Vec<f32>> = raw
+            .chunks(w * h)
+            .map(|fr| emccd_classical::frame::preprocess(p, fr, exposure_s))
+            .collect::<Result<_, _>>()?;
+        let level = pre.iter().flatten().map(|&v| v as f64).sum::<f64>()
+            / (f * w * h).max(1) as f64
+            / cam.g
+            - cam.spurious;
+        let per = per.unwrap_or(f);
+        let mut counter = emccd_count::Counter::new(cam, threshold, level, per, f, analog)?;
+        let (fe, missed) = counter.plan().predicted();
+        notes.push(match counter.plan().k_sigma {
+            Some(k) => format!("threshold {k:.2} sigma"),
+            None => format!("threshold {threshold:?}"),
+        });
+        notes.push(format!("predicted false events per pixel per frame {fe:.3e}, single photo-electron missed {:.1} %", 100.0 * missed));
+        let (mut rate, mut se, mut outputs) = (Vec::new(), Vec::new(), 0);
+        for fr in &pre {
+            if let Some((r, s)) = counter.add(fr) {
+                rate.extend(r);
+                se.extend(s);
+                outputs += 1;
+            }
+        }
+        Ok((rate, se, outputs, notes))
+    });
+    let (rate, se, outputs, notes) = r.map_err(err)?;
+    let shape = (outputs, h, w);
+    let rate = Array3::from_shape_vec(shape, rate).map_err(|e| err(anyhow::anyhow!("{e}")))?;
+    let se = Array3::from_shape_vec(shape, se).map_err(|e| err(anyhow::anyhow!("{e}")))?;
+    Ok((rate.into_pyarray(py), se.into_pyarray(py), notes))
+}
+
 /// Noisy/clean pairs from the virtual camera built on `profile`: `clean` (float32 [h, w], 0–1)
 /// scaled so its brightest value collects `photons` photons per exposure, or so that the mean
 /// pixel holds `mean_electrons` photoelectrons (through the camera's quantum efficiency); returns the raw
@@ -625,6 +693,7 @@ fn _emccd(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(write, m)?)?;
     m.add_function(wrap_pyfunction!(calibrate, m)?)?;
     m.add_function(wrap_pyfunction!(denoise, m)?)?;
+    m.add_function(wrap_pyfunction!(count, m)?)?;
     m.add_function(wrap_pyfunction!(simulate_pairs, m)?)?;
     m.add_function(wrap_pyfunction!(psnr, m)?)?;
     m.add_function(wrap_pyfunction!(ssim, m)?)?;

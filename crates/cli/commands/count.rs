@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use emccd_count::{choose_k, Camera, Plan, Threshold};
+use emccd_count::{Camera, Counter, Threshold};
 use emccd_profile::CameraProfile;
 
 use crate::common::{load_profile, open_recording, progress, reopen_recording};
@@ -159,13 +159,14 @@ fn count_one(
         pb.finish_and_clear();
         sum / (job.frames * cam.width * cam.height) as f64 / cam.g - cam.spurious
     };
-    let threshold = match a.threshold {
-        Threshold::Auto => Threshold::Sigma(choose_k(&cam, level, per as u32)),
-        t => t,
-    };
-    let plan = Plan::new(&cam, threshold);
+    let mut counter = Counter::new(cam.clone(), a.threshold, level, per, job.frames, a.analog)?;
+    let plan = counter.plan();
     let (false_events, missed) = plan.predicted();
     let sigma = cam.median_sigma();
+    let threshold = match plan.k_sigma {
+        Some(k) => Threshold::Sigma(k),
+        None => a.threshold,
+    };
     let below_3 = match threshold {
         Threshold::Sigma(k) => k < 3.0,
         Threshold::Dn(d) => d < 3.0 * sigma,
@@ -222,14 +223,10 @@ fn count_one(
     let mut rec = open()?;
     let pb = progress(job.frames as u64, "frames");
     let mut mean_rate = 0.0;
-    let r = emccd_count::count(profile, &mut rec, &plan, per, |tally| {
-        pb.inc(tally.frames as u64);
-        let (rate, se) = if a.analog {
-            let rate = tally.analog(&cam);
-            let sd = analog_error(tally, &cam);
-            (rate, sd)
-        } else {
-            plan.estimate(&tally.counts, tally.frames)
+    let r = emccd_count::preprocessed_frames(profile, &mut rec, |_, frame| {
+        pb.inc(1);
+        let Some((rate, se)) = counter.add(frame) else {
+            return Ok(());
         };
         mean_rate += rate.iter().map(|&v| v as f64).sum::<f64>() / rate.len() as f64;
         let io = |e: emccd_io::Error| emccd_count::Error(e.to_string());
@@ -280,20 +277,4 @@ fn number(v: f64) -> String {
     } else {
         format!("{v:.2e}")
     }
-}
-
-/// The analog estimate's standard error per pixel: the EM register doubles the photo-electrons'
-/// Poisson variance (f² = 2), read noise adds its own, over the frames averaged.
-fn analog_error(tally: &emccd_count::Tally, cam: &Camera) -> Vec<f32> {
-    let n = tally.frames.max(1) as f64;
-    tally
-        .sum
-        .iter()
-        .zip(&cam.sigma)
-        .map(|(&s, &sigma)| {
-            let mu = (s / n / cam.g).max(0.0);
-            let var_dn = 2.0 * cam.g * cam.g * mu + (sigma as f64).powi(2);
-            ((var_dn / n).sqrt() / cam.g) as f32
-        })
-        .collect()
 }

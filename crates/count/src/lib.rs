@@ -29,7 +29,7 @@ pub mod tally;
 
 pub use model::PixelModel;
 pub use plan::{choose_k, Camera, Plan, Threshold};
-pub use tally::{count, preprocessed_frames, Tally};
+pub use tally::{preprocessed_frames, Counter, Tally};
 
 /// Why a stack cannot be counted, in words.
 #[derive(Debug, thiserror::Error)]

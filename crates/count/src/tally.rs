@@ -99,27 +99,96 @@ pub fn preprocessed_frames(
     Ok(())
 }
 
-/// Counts `rec` at `plan`'s thresholds, emitting a [`Tally`] every `per` frames (the last one
-/// holds what is left, if the stack is not a multiple of `per`). Memory: one frame and one
-/// tally, whatever the stack's length.
-pub fn count(
-    profile: &CameraProfile,
-    rec: &mut emccd_profile::Recording,
-    plan: &Plan,
-    per: usize,
-    mut emit: impl FnMut(&Tally) -> Result<()>,
-) -> Result<()> {
-    let (frames, pixels) = (rec.info.frames, rec.info.width * rec.info.height);
-    if per == 0 {
-        return Err(Error("frames per output must be at least 1".into()));
+impl Tally {
+    /// The analog estimate's standard error per pixel: the EM register doubles the
+    /// photo-electrons' Poisson variance (f² = 2), read noise adds its own, over the frames.
+    pub fn analog_error(&self, camera: &Camera) -> Vec<f32> {
+        let n = self.frames.max(1) as f64;
+        self.sum
+            .iter()
+            .zip(&camera.sigma)
+            .map(|(&s, &sigma)| {
+                let mu = (s / n / camera.g).max(0.0);
+                let var_dn = 2.0 * camera.g * camera.g * mu + (sigma as f64).powi(2);
+                ((var_dn / n).sqrt() / camera.g) as f32
+            })
+            .collect()
     }
-    let mut tally = Tally::new(pixels);
-    preprocessed_frames(profile, rec, |j, frame| {
-        tally.add(frame, &plan.thresholds);
-        if tally.frames as usize == per || j + 1 == frames {
-            emit(&tally)?;
-            tally = Tally::new(pixels);
+}
+
+/// A stack counted frame by frame into output frames of `per` frames each: the rate (counted,
+/// or the analog mean) and its standard error per pixel. What `emccd count` and Python's
+/// `emccd.count` share; the frames come preprocessed (DN above bias), from a file or an array.
+pub struct Counter {
+    camera: Camera,
+    plan: Plan,
+    per: usize,
+    analog: bool,
+    tally: Tally,
+    seen: usize,
+    frames: usize,
+}
+
+impl Counter {
+    /// A counter for `frames` frames of `camera` in output frames of `per` (the last holds what
+    /// is left). `threshold` `Auto` is resolved at `level`, the stack's photo-electrons per
+    /// pixel per frame (its analog mean: [`Tally::mean_rate`] of a first pass).
+    pub fn new(
+        camera: Camera,
+        threshold: crate::Threshold,
+        level: f64,
+        per: usize,
+        frames: usize,
+        analog: bool,
+    ) -> Result<Counter> {
+        if per == 0 || per > frames {
+            return Err(Error(format!(
+                "frames per output must be 1 to the stack's {frames}, not {per}"
+            )));
         }
-        Ok(())
-    })
+        let threshold = match threshold {
+            crate::Threshold::Auto => {
+                crate::Threshold::Sigma(crate::choose_k(&camera, level, per as u32))
+            }
+            t => t,
+        };
+        let plan = Plan::new(&camera, threshold);
+        let pixels = camera.width * camera.height;
+        Ok(Counter {
+            camera,
+            plan,
+            per,
+            analog,
+            tally: Tally::new(pixels),
+            seen: 0,
+            frames,
+        })
+    }
+
+    /// The thresholds and what they predict.
+    pub fn plan(&self) -> &Plan {
+        &self.plan
+    }
+
+    /// The camera counted.
+    pub fn camera(&self) -> &Camera {
+        &self.camera
+    }
+
+    /// Adds the next preprocessed frame; returns an output frame (rate, standard error) when
+    /// this one completes it.
+    pub fn add(&mut self, frame: &[f32]) -> Option<(Vec<f32>, Vec<f32>)> {
+        self.tally.add(frame, &self.plan.thresholds);
+        self.seen += 1;
+        if self.tally.frames as usize == self.per || self.seen == self.frames {
+            let t = std::mem::replace(&mut self.tally, Tally::new(self.camera.sigma.len()));
+            Some(if self.analog {
+                (t.analog(&self.camera), t.analog_error(&self.camera))
+            } else {
+                self.plan.estimate(&t.counts, t.frames)
+            })
+        } else {
+            None
+        }
+    }
 }
