@@ -208,6 +208,8 @@ def count(
     per: Optional[int] = None,
     analog: bool = False,
     extrapolate: bool = False,
+    cic: Optional[float] = None,
+    dark: Optional[float] = None,
 ) -> Tuple[np.ndarray, np.ndarray]:
     """Photon counting of raw EMCCD frames (a 3-D stack in DN as the camera wrote them), as
     ``emccd count`` does: each frame preprocessed with the profile, each pixel thresholded, and
@@ -215,7 +217,8 @@ def count(
     error. Returns ``(rate, uncertainty)``: 2-D arrays for the whole stack, or 3-D with one frame
     per ``per`` input frames. ``threshold``: ``"auto"`` (k times each pixel's read noise, k
     chosen for the stack's light level), ``"<k>sigma"`` or ``"<n>DN"``. ``analog=True`` gives
-    the plain mean instead, to compare. The threshold chosen and what it predicts (false events,
+    the plain mean instead, to compare. ``cic`` (e⁻ per frame) and ``dark`` (e⁻/s), both or
+    neither, replace the profile's where its calibration did not measure them. The threshold chosen and what it predicts (false events,
     missed photo-electrons) are kept in ``emccd.count.last_notes``."""
     if exposure_s is None:
         raise EmccdError(
@@ -230,6 +233,8 @@ def count(
         None if per is None else int(per),
         bool(analog),
         bool(extrapolate),
+        None if cic is None else float(cic),
+        None if dark is None else float(dark),
     )
     count.last_notes = list(notes)
     if per is None:

@@ -482,7 +482,7 @@ fn denoise<'py>(
 /// per frame) and its standard error, each [outputs, h, w] (one output per `per` frames, or one
 /// for the whole stack), and notes (the threshold and what it predicts).
 #[pyfunction]
-#[pyo3(signature = (frames, profile, exposure_s, threshold="auto", per=None, analog=false, extrapolate=false))]
+#[pyo3(signature = (frames, profile, exposure_s, threshold="auto", per=None, analog=false, extrapolate=false, cic=None, dark=None))]
 #[allow(clippy::too_many_arguments)]
 #[allow(clippy::type_complexity)]
 fn count<'py>(
@@ -494,6 +494,8 @@ fn count<'py>(
     per: Option<usize>,
     analog: bool,
     extrapolate: bool,
+    cic: Option<f64>,
+    dark: Option<f64>,
 ) -> PyResult<(
     Bound<'py, PyArray3<f32>>,
     Bound<'py, PyArray3<f32>>,
@@ -511,7 +513,7 @@ fn count<'py>(
         if let Some(wn) = p.check_frames(w, h, exposure_s, "exposure_s", extrapolate)? {
             notes.push(wn);
         }
-        let cam = emccd_count::Camera::from_profile(p, exposure_s)?;
+        let cam = emccd_count::Camera::from_profile(p, exposure_s, cic.zip(dark))?;
         let pre: Vec<Vec<f32>> = raw
             .chunks(w * h)
             .map(|fr| emccd_classical::frame::preprocess(p, fr, exposure_s))

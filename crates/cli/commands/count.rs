@@ -52,6 +52,14 @@ pub struct Args {
     /// Also write each output frame's standard error per pixel here (one input only).
     #[arg(long, value_name = "FILE")]
     pub uncertainty: Option<PathBuf>,
+    /// Clock-induced charge, e⁻ per pixel per frame, where the profile does not record it (its
+    /// [pgn] section; `emccd calibrate` does not measure it): from the camera's data sheet.
+    /// Given with --dark; replaces the profile's.
+    #[arg(long, requires = "dark")]
+    pub cic: Option<f64>,
+    /// Dark current, e⁻ per pixel per second, with --cic.
+    #[arg(long, requires = "cic")]
+    pub dark: Option<f64>,
     /// Write the analog estimate instead (each pixel's mean signal over the register's gain,
     /// less the spurious electrons), to compare with counting.
     #[arg(long)]
@@ -89,7 +97,7 @@ pub fn run(a: Args) -> Result<()> {
     let mut jobs = Vec::with_capacity(a.inputs.len());
     for (input, out) in a.inputs.iter().zip(outs) {
         let rec = open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
-        Camera::from_profile(&profile, rec.exposure)
+        Camera::from_profile(&profile, rec.exposure, spurious(&a))
             .map_err(|e| anyhow::anyhow!("profile {}: {e}", a.profile))?;
         if let Some(n) = a.per {
             if n as usize > rec.info.frames {
@@ -141,7 +149,7 @@ fn count_one(
     profile: &CameraProfile,
     job: &Job,
 ) -> Result<(Vec<emccd_io::Staged>, String)> {
-    let cam = Camera::from_profile(profile, job.exposure)?;
+    let cam = Camera::from_profile(profile, job.exposure, spurious(a))?;
     let per = a.per.map_or(job.frames, |n| n as usize);
     let outputs = job.frames.div_ceil(per);
     let open = || reopen_recording(&job.input, profile, a.exposure_s, a.extrapolate);
@@ -277,4 +285,9 @@ fn number(v: f64) -> String {
     } else {
         format!("{v:.2e}")
     }
+}
+
+/// The spurious electrons' sources given on the command line, if they are.
+fn spurious(a: &Args) -> Option<(f64, f64)> {
+    a.cic.zip(a.dark)
 }

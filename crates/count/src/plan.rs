@@ -63,7 +63,14 @@ pub struct Camera {
 
 impl Camera {
     /// The camera of `profile` at `exposure_s`; an error naming what the profile lacks.
-    pub fn from_profile(profile: &CameraProfile, exposure_s: f64) -> Result<Camera> {
+    /// `spurious`, (clock-induced charge per frame, dark current per second), replaces the
+    /// profile's (its `[pgn]` section), for a camera whose calibration did not measure them
+    /// (they are on its data sheet).
+    pub fn from_profile(
+        profile: &CameraProfile,
+        exposure_s: f64,
+        spurious: Option<(f64, f64)>,
+    ) -> Result<Camera> {
         let g = profile.dn_per_electron().map_err(|_| {
             Error(
                 "the profile has no photon-transfer slope (the EM register's DN per electron): \
@@ -76,19 +83,29 @@ impl Camera {
                 "the profile has no read-noise maps: calibrate it with bias stacks".into(),
             ));
         }
-        let pgn = profile.pgn.as_ref().ok_or_else(|| {
-            Error(
-                "the profile has no clock-induced charge and dark current (its [pgn] section): \
-                 the false-event rate cannot be predicted without them"
-                    .into(),
-            )
-        })?;
+        let (cic, dark) = match (spurious, &profile.pgn) {
+            (Some(s), _) => s,
+            (None, Some(p)) => (p.cic_e, p.dark_e_per_s),
+            (None, None) => {
+                return Err(Error(
+                    "the profile has no clock-induced charge and dark current (its [pgn] \
+                     section): the false-event rate cannot be predicted without them; give \
+                     them (--cic, --dark) from the camera's data sheet"
+                        .into(),
+                ))
+            }
+        };
+        if !(cic >= 0.0 && cic <= 10.0 && dark >= 0.0 && dark <= 1e5) {
+            return Err(Error(format!(
+                "clock-induced charge {cic} e⁻ per frame and dark current {dark} e⁻/s must be 0–10 and 0–10⁵"
+            )));
+        }
         Ok(Camera {
             width: profile.width,
             height: profile.height,
             g,
             sigma: profile.read_noise_near(exposure_s).to_vec(),
-            spurious: pgn.cic_e + pgn.dark_e_per_s * exposure_s,
+            spurious: cic + dark * exposure_s,
         })
     }
 

@@ -119,14 +119,28 @@ impl Tally {
 /// A stack counted frame by frame into output frames of `per` frames each: the rate (counted,
 /// or the analog mean) and its standard error per pixel. What `emccd count` and Python's
 /// `emccd.count` share; the frames come preprocessed (DN above bias), from a file or an array.
+///
+/// With the automatic threshold each pixel takes the estimate whose predicted error is smaller
+/// at its analog rate: counting where light is faint, the analog mean where a pixel is bright
+/// enough that coincidences cost more than the register's excess noise (a bright spot in a
+/// faint field, which counting alone saturates).
 pub struct Counter {
     camera: Camera,
     plan: Plan,
     per: usize,
-    analog: bool,
+    mode: Mode,
     tally: Tally,
     seen: usize,
     frames: usize,
+    analog_share: f64,
+}
+
+/// Which estimate a [`Counter`] writes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Mode {
+    Counted,
+    Analog,
+    Best,
 }
 
 impl Counter {
@@ -146,6 +160,11 @@ impl Counter {
                 "frames per output must be 1 to the stack's {frames}, not {per}"
             )));
         }
+        let mode = match (analog, threshold) {
+            (true, _) => Mode::Analog,
+            (false, crate::Threshold::Auto) => Mode::Best,
+            _ => Mode::Counted,
+        };
         let threshold = match threshold {
             crate::Threshold::Auto => {
                 crate::Threshold::Sigma(crate::choose_k(&camera, level, per as u32))
@@ -158,10 +177,11 @@ impl Counter {
             camera,
             plan,
             per,
-            analog,
+            mode,
             tally: Tally::new(pixels),
             seen: 0,
             frames,
+            analog_share: 0.0,
         })
     }
 
@@ -175,6 +195,12 @@ impl Counter {
         &self.camera
     }
 
+    /// The share of the last output frame's pixels that took the analog estimate (0 unless
+    /// the threshold is automatic, 1 with `analog`).
+    pub fn analog_share(&self) -> f64 {
+        self.analog_share
+    }
+
     /// Adds the next preprocessed frame; returns an output frame (rate, standard error) when
     /// this one completes it.
     pub fn add(&mut self, frame: &[f32]) -> Option<(Vec<f32>, Vec<f32>)> {
@@ -182,10 +208,39 @@ impl Counter {
         self.seen += 1;
         if self.tally.frames as usize == self.per || self.seen == self.frames {
             let t = std::mem::replace(&mut self.tally, Tally::new(self.camera.sigma.len()));
-            Some(if self.analog {
-                (t.analog(&self.camera), t.analog_error(&self.camera))
-            } else {
-                self.plan.estimate(&t.counts, t.frames)
+            let cam = &self.camera;
+            Some(match self.mode {
+                Mode::Analog => {
+                    self.analog_share = 1.0;
+                    (t.analog(cam), t.analog_error(cam))
+                }
+                Mode::Counted => self.plan.estimate(&t.counts, t.frames),
+                Mode::Best => {
+                    let (mut rate, mut se) = self.plan.estimate(&t.counts, t.frames);
+                    let (ra, sa) = (t.analog(cam), t.analog_error(cam));
+                    // Both errors predicted at the analog rate, which does not depend on the
+                    // threshold: the choice is not made on the counts' own noise.
+                    let analog: Vec<bool> = (0..rate.len())
+                        .into_par_iter()
+                        .map(|i| {
+                            let v = self
+                                .plan
+                                .model(i)
+                                .variance((ra[i] as f64).max(0.0), t.frames);
+                            v > (sa[i] as f64).powi(2)
+                        })
+                        .collect();
+                    let mut taken = 0usize;
+                    for (i, &a) in analog.iter().enumerate() {
+                        if a {
+                            rate[i] = ra[i];
+                            se[i] = sa[i];
+                            taken += 1;
+                        }
+                    }
+                    self.analog_share = taken as f64 / rate.len().max(1) as f64;
+                    (rate, se)
+                }
             })
         } else {
             None
