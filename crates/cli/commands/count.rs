@@ -257,13 +257,22 @@ fn count_one(
         files.push(w.finish_staged()?);
     }
     let mean_rate = mean_rate / outputs as f64;
+    let share = counter.analog_share();
+    let mixed = if share > 0.0 && !a.analog {
+        format!(
+            "; {:.1} % of the pixels (of the last output frame) were bright enough that their analog mean is the better estimate, and took it",
+            100.0 * share
+        )
+    } else {
+        String::new()
+    };
     let regime = if level > 0.5 {
         format!(" At {} e⁻ per pixel per frame the analog mean (--analog) is likely as good: counting pays below about 0.5.", number(level))
     } else {
         String::new()
     };
     let summary = format!(
-        "{} → {}: {} frames into {outputs} output frame{} of {per}; threshold {described}; predicted {} false events per pixel per frame, one photo-electron missed {:.0} % of the time; mean rate {} photo-electrons per pixel per frame ({}).{regime}",
+        "{} → {}: {} frames into {outputs} output frame{} of {per}; threshold {described}; predicted {} false events per pixel per frame, one photo-electron missed {:.0} % of the time{mixed}; mean rate {} photo-electrons per pixel per frame ({}).{regime}",
         job.input.display(),
         job.out.display(),
         job.frames,
