@@ -16,6 +16,44 @@ fn flat_scene(path: &Path, n: usize) {
     w.finish().unwrap();
 }
 
+/// The bundled profile cut to `n`×`n` (`cam/`) and a uniform scene of that size (`flat.tif`).
+fn camera(d: &Path, n: usize) {
+    let roi = format!("{n}x{n}");
+    ok(&emccd(
+        &["profile", "crop", "default", "cam", "--roi", &roi],
+        d,
+    ));
+    flat_scene(&d.join("flat.tif"), n);
+}
+
+/// `frames` frames of the uniform scene at `photons` (its brightest, so every pixel's) from the
+/// virtual camera into `out/`; returns the noisy stack's path and the truth's.
+fn stack(d: &Path, photons: &str, frames: usize, seed: &str, out: &str) -> (String, String) {
+    ok(&emccd(
+        &[
+            "simulate",
+            "pairs",
+            "--profile",
+            "cam",
+            "--clean",
+            "flat.tif",
+            "--photons",
+            photons,
+            "--frames",
+            &frames.to_string(),
+            "--seed",
+            seed,
+            "-o",
+            out,
+        ],
+        d,
+    ));
+    (
+        format!("{out}/noisy/flat_p{photons}.tif"),
+        format!("{out}/clean/flat_p{photons}.tif"),
+    )
+}
+
 fn read(path: &Path) -> Vec<Vec<f32>> {
     emccd_io::read_all(path).unwrap().1
 }
@@ -32,37 +70,14 @@ fn mean(v: &[f32]) -> f64 {
 fn counting_recovers_the_rate_of_the_virtual_camera() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    ok(&emccd(
-        &["profile", "crop", "default", "cam", "--roi", "64x64"],
-        d,
-    ));
-    flat_scene(&d.join("flat.tif"), 64);
-    let k_dn = 20.14 / 2.0; // the default profile's DN per photo-electron
-                            // Photons at the (uniform) brightest pixel; 90 % of them become photo-electrons.
+    camera(d, 64);
+    // The default profile's DN per photo-electron; photons at the (uniform) brightest pixel, 90 %
+    // of which become photo-electrons.
+    let k_dn = 20.14 / 2.0;
     for (photons, seed) in [(0.0556, "1"), (0.2222, "2"), (1.1111, "3")] {
         let out = format!("p{photons}");
-        ok(&emccd(
-            &[
-                "simulate",
-                "pairs",
-                "--profile",
-                "cam",
-                "--clean",
-                "flat.tif",
-                "--photons",
-                &photons.to_string(),
-                "--frames",
-                "300",
-                "--seed",
-                seed,
-                "-o",
-                &out,
-            ],
-            d,
-        ));
-        let stem = format!("flat_p{photons}.tif");
-        let noisy = format!("{out}/noisy/{stem}");
-        let truth = mean(&read(&d.join(format!("{out}/clean/{stem}")))[0]) / k_dn;
+        let (noisy, truth) = stack(d, &photons.to_string(), 300, seed, &out);
+        let truth = mean(&read(&d.join(truth))[0]) / k_dn;
         ok(&emccd(
             &[
                 "count",
@@ -112,29 +127,9 @@ fn counting_recovers_the_rate_of_the_virtual_camera() {
 fn per_and_uncertainty_and_metadata() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    ok(&emccd(
-        &["profile", "crop", "default", "cam", "--roi", "32x32"],
-        d,
-    ));
-    flat_scene(&d.join("flat.tif"), 32);
-    ok(&emccd(
-        &[
-            "simulate",
-            "pairs",
-            "--profile",
-            "cam",
-            "--clean",
-            "flat.tif",
-            "--photons",
-            "0.3",
-            "--frames",
-            "50",
-            "-o",
-            "s",
-        ],
-        d,
-    ));
-    let noisy = "s/noisy/flat_p0.3.tif";
+    camera(d, 32);
+    let (noisy, _) = stack(d, "0.3", 50, "1", "s");
+    let noisy = noisy.as_str();
     ok(&emccd(
         &[
             "count",
@@ -188,28 +183,8 @@ fn per_and_uncertainty_and_metadata() {
 fn bad_requests_are_refused_and_write_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    ok(&emccd(
-        &["profile", "crop", "default", "cam", "--roi", "32x32"],
-        d,
-    ));
-    flat_scene(&d.join("flat.tif"), 32);
-    ok(&emccd(
-        &[
-            "simulate",
-            "pairs",
-            "--profile",
-            "cam",
-            "--clean",
-            "flat.tif",
-            "--photons",
-            "0.3",
-            "--frames",
-            "10",
-            "-o",
-            "s",
-        ],
-        d,
-    ));
+    camera(d, 32);
+    let (noisy, _) = stack(d, "0.3", 10, "1", "s");
     // A profile without CIC and dark current (no [pgn] section).
     let text = std::fs::read_to_string(d.join("cam/profile.toml")).unwrap();
     let i = text.find("\n[pgn]").expect("a [pgn] section");
@@ -226,7 +201,7 @@ fn bad_requests_are_refused_and_write_nothing() {
         d.join("nopgn/maps.safetensors"),
     )
     .unwrap();
-    let noisy = "s/noisy/flat_p0.3.tif";
+    let noisy = noisy.as_str();
     let fails = |args: &[&str], want: &str| {
         let o = emccd(args, d);
         let err = String::from_utf8_lossy(&o.stderr);
@@ -318,31 +293,10 @@ fn bad_requests_are_refused_and_write_nothing() {
 fn info_and_denoise_point_faint_stacks_to_count() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    ok(&emccd(
-        &["profile", "crop", "default", "cam", "--roi", "32x32"],
-        d,
-    ));
-    flat_scene(&d.join("flat.tif"), 32);
+    camera(d, 32);
     for (photons, faint) in [("0.1", true), ("20", false)] {
         let out = format!("s{photons}");
-        ok(&emccd(
-            &[
-                "simulate",
-                "pairs",
-                "--profile",
-                "cam",
-                "--clean",
-                "flat.tif",
-                "--photons",
-                photons,
-                "--frames",
-                "20",
-                "-o",
-                &out,
-            ],
-            d,
-        ));
-        let noisy = format!("{out}/noisy/flat_p{photons}.tif");
+        let (noisy, _) = stack(d, photons, 20, "1", &out);
         let v: serde_json::Value = serde_json::from_str(&ok(&emccd(
             &["info", &noisy, "--profile", "cam", "--json"],
             d,
