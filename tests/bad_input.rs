@@ -39,6 +39,21 @@ fn fails_with(o: &std::process::Output, want: &str) {
     assert!(!err.contains("panicked"), "{err}");
 }
 
+/// Two uniform `n`×`n` frames of 600 DN with an exposure of 0.01 s in the header.
+fn flat_stack(d: &Path, name: &str, n: usize) {
+    let mut w =
+        emccd_io::StackWriter::create(d.join(name), n, n, emccd_io::SampleFormat::U16, Some(2))
+            .unwrap();
+    w.set_metadata(&emccd_io::Metadata {
+        exposure_s: Some(0.01),
+        ..Default::default()
+    });
+    for _ in 0..2 {
+        w.write_frame(&vec![600.0; n * n]).unwrap();
+    }
+    w.finish().unwrap();
+}
+
 fn files(d: &Path) -> Vec<String> {
     let mut v: Vec<String> = walk(d)
         .into_iter()
@@ -609,22 +624,7 @@ fn adapt_refuses_mismatched_recordings_and_writes_nothing() {
     let d = dir.path();
     raw_frame(d, "good.tif", Some(0.01));
     raw_frame(d, "no-exposure.tif", None);
-    let mut w = emccd_io::StackWriter::create(
-        d.join("small.tif"),
-        256,
-        256,
-        emccd_io::SampleFormat::U16,
-        Some(2),
-    )
-    .unwrap();
-    w.set_metadata(&emccd_io::Metadata {
-        exposure_s: Some(0.01),
-        ..Default::default()
-    });
-    for _ in 0..2 {
-        w.write_frame(&vec![600.0; 256 * 256]).unwrap();
-    }
-    w.finish().unwrap();
+    flat_stack(d, "small.tif", 256);
     emccd_profile::default_profile()
         .crop(emccd_profile::Roi::corner(64, 64))
         .unwrap()
@@ -831,22 +831,7 @@ fn denoising_several_inputs_is_all_or_nothing() {
     raw_frame(d, "a.tif", Some(0.01));
     raw_frame(d, "b.tif", Some(0.01));
     // Two frames, cut in the second.
-    let mut w = emccd_io::StackWriter::create(
-        d.join("cut.tif"),
-        512,
-        512,
-        emccd_io::SampleFormat::U16,
-        Some(2),
-    )
-    .unwrap();
-    w.set_metadata(&emccd_io::Metadata {
-        exposure_s: Some(0.01),
-        ..Default::default()
-    });
-    for _ in 0..2 {
-        w.write_frame(&vec![600.0; 512 * 512]).unwrap();
-    }
-    w.finish().unwrap();
+    flat_stack(d, "cut.tif", 512);
     let len = std::fs::metadata(d.join("cut.tif")).unwrap().len();
     let f = std::fs::OpenOptions::new()
         .write(true)
