@@ -155,3 +155,31 @@ pub fn counting_note(level: f64) -> Option<String> {
         )
     })
 }
+
+/// How a recording is read through a camera profile: the flags `denoise` and `count` share.
+#[derive(clap::Args, Debug)]
+pub struct RecordingArgs {
+    /// Camera profile (`default` = the bundled iXon 897 model).
+    #[arg(long, default_value = "default")]
+    pub profile: String,
+    /// Exposure in seconds, where the file header does not record it (overrides the header).
+    #[arg(long, allow_negative_numbers = true)]
+    pub exposure_s: Option<f64>,
+    /// Accept exposures more than 2× outside the profile's calibrated range, with the fixed
+    /// pattern extrapolated from the calibration's model (otherwise an error: the pattern there
+    /// is a guess, and so is the output).
+    #[arg(long)]
+    pub extrapolate: bool,
+}
+
+impl RecordingArgs {
+    /// Opens `input` through `profile` ([`open_recording`]: its warnings printed).
+    pub fn open(&self, input: &Path, profile: &CameraProfile) -> Result<Recording> {
+        open_recording(input, profile, self.exposure_s, self.extrapolate)
+    }
+
+    /// Opens `input` again, quietly ([`reopen_recording`]).
+    pub fn reopen(&self, input: &Path, profile: &CameraProfile) -> Result<Recording> {
+        reopen_recording(input, profile, self.exposure_s, self.extrapolate)
+    }
+}

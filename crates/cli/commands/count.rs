@@ -6,7 +6,7 @@ use anyhow::{bail, Context, Result};
 use emccd_count::{Camera, Counter, Threshold};
 use emccd_profile::CameraProfile;
 
-use crate::common::{load_profile, open_recording, progress, reopen_recording};
+use crate::common::{load_profile, progress, RecordingArgs};
 
 /// Count photons: below about 0.2 photo-electrons per pixel per frame (faint sources, single
 /// molecules at high frame rates), threshold every preprocessed pixel of every frame into an
@@ -28,16 +28,8 @@ pub struct Args {
     /// Output file (one input; .tif, .btf or .fits) or directory (several: NAME_count.tif each).
     #[arg(short, long)]
     pub out: PathBuf,
-    /// Camera profile (`default` = the bundled iXon 897 model).
-    #[arg(long, default_value = "default")]
-    pub profile: String,
-    /// Exposure in seconds, where the file header does not record it (overrides the header).
-    #[arg(long)]
-    pub exposure_s: Option<f64>,
-    /// Accept an exposure far outside the profile's calibrated range (its fixed pattern is the
-    /// model's extrapolation).
-    #[arg(long)]
-    pub extrapolate: bool,
+    #[command(flatten)]
+    pub recording: RecordingArgs,
     /// Threshold: `auto` (k times each pixel's read noise, k chosen to make the rate's error
     /// smallest at the stack's own light level), `<k>sigma` (e.g. 3sigma) or `<n>DN` (the same
     /// DN above bias for every pixel).
@@ -75,7 +67,7 @@ struct Job {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let profile = load_profile(&a.profile)?;
+    let profile = load_profile(&a.recording.profile)?;
     let several = a.inputs.len() > 1;
     if several && a.uncertainty.is_some() {
         bail!("--uncertainty names one file: give one input");
@@ -96,9 +88,9 @@ pub fn run(a: Args) -> Result<()> {
     // profile's numbers at that exposure, and --per against its length.
     let mut jobs = Vec::with_capacity(a.inputs.len());
     for (input, out) in a.inputs.iter().zip(outs) {
-        let rec = open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
+        let rec = a.recording.open(input, &profile)?;
         Camera::from_profile(&profile, rec.exposure, spurious(&a))
-            .map_err(|e| anyhow::anyhow!("profile {}: {e}", a.profile))?;
+            .map_err(|e| anyhow::anyhow!("profile {}: {e}", a.recording.profile))?;
         if let Some(n) = a.per {
             if n as usize > rec.info.frames {
                 bail!(
@@ -152,7 +144,7 @@ fn count_one(
     let cam = Camera::from_profile(profile, job.exposure, spurious(a))?;
     let per = a.per.map_or(job.frames, |n| n as usize);
     let outputs = job.frames.div_ceil(per);
-    let open = || reopen_recording(&job.input, profile, a.exposure_s, a.extrapolate);
+    let open = || a.recording.reopen(&job.input, &profile);
     // The stack's own light level: the analog mean over every pixel and frame (a first pass,
     // which `auto` needs before it can count).
     let level = {

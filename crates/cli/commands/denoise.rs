@@ -9,7 +9,7 @@ use emccd_io::zarr::Shard;
 use emccd_nn::tile::Tiling;
 use emccd_profile::CameraProfile;
 
-use crate::common::{load_profile, open_recording, progress, reopen_recording};
+use crate::common::{load_profile, progress, RecordingArgs};
 
 /// Denoise raw EMCCD frames: remove blooming and the fixed pattern with the camera profile (paper
 /// eq. 4), then denoise. By default a recording of several frames (a movie) runs `temporal`:
@@ -38,9 +38,8 @@ pub struct Args {
     /// is resumed, one made by another is refused).
     #[arg(short, long)]
     pub out: PathBuf,
-    /// Camera profile (`default` = the bundled iXon 897 model).
-    #[arg(long, default_value = "default")]
-    pub profile: String,
+    #[command(flatten)]
+    pub recording: RecordingArgs,
     /// Model file, or a bundled model: `hybrid` (BM3D-refining), `default` (a network trained on
     /// natural images), `microscopy` (fine-tuned on fluorescence microscopy) or `lowlight`
     /// (trained for 0.3–30 mean photoelectrons per pixel on many cameras: the best network at
@@ -52,14 +51,6 @@ pub struct Args {
     /// trained for when one is given.
     #[arg(long, value_enum)]
     pub method: Option<Method>,
-    /// Exposure in seconds, where the file header does not record it (overrides the header).
-    #[arg(long, allow_negative_numbers = true)]
-    pub exposure_s: Option<f64>,
-    /// Denoise exposures more than 2× outside the profile's calibrated range, with the fixed
-    /// pattern extrapolated from the calibration's model (otherwise an error: the pattern there
-    /// is a guess, and so is the output).
-    #[arg(long)]
-    pub extrapolate: bool,
     /// Output units.
     #[arg(long, value_enum, default_value = "dn")]
     pub units: Units,
@@ -90,12 +81,12 @@ fn parse_ensemble(s: &str) -> std::result::Result<usize, String> {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let profile = load_profile(&a.profile)?;
+    let profile = load_profile(&a.recording.profile)?;
     let r = emccd_denoise::resolve(a.method, a.model.as_deref(), crate::common::load_model)?;
     let window = r.window(a.window.map(usize::from))?;
     // The profile's fitness for denoising, checked before anything is opened or written.
     r.denoiser(&profile, 1, a.tiling, a.ensemble, a.units, window)
-        .map_err(|e| anyhow::anyhow!("profile {}: {e}", a.profile))?;
+        .map_err(|e| anyhow::anyhow!("profile {}: {e}", a.recording.profile))?;
     let zarr = emccd_io::Format::from_extension(&a.out) == Some(emccd_io::Format::Zarr);
     if a.shard.is_some() && !zarr {
         bail!("--shard needs a .zarr output (-o OUT.zarr): only a Zarr store is written by several processes at once");
@@ -115,7 +106,7 @@ pub fn run(a: Args) -> Result<()> {
     // anything is written, and the outputs are placed only once every input is denoised, so an
     // input that fails halfway (truncated, a non-finite value) leaves every output as it was.
     for input in &a.inputs {
-        open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
+        a.recording.open(input, &profile)?;
     }
     let made = several && !a.out.exists();
     if several {
@@ -139,12 +130,12 @@ fn denoise_files(
     let mut staged = Vec::with_capacity(outs.len());
     for (input, out) in a.inputs.iter().zip(outs) {
         // A note only: a profile that cannot say the level (no slope) denoises as before.
-        let mut probe = reopen_recording(input, profile, a.exposure_s, a.extrapolate)?;
+        let mut probe = a.recording.reopen(input, &profile)?;
         let level = crate::common::light_level(&mut probe, profile, 4).ok();
         if let Some(n) = level.and_then(crate::common::counting_note) {
             eprintln!("note: {}: {n}", input.display());
         }
-        let rec = reopen_recording(input, profile, a.exposure_s, a.extrapolate)?;
+        let rec = a.recording.reopen(input, &profile)?;
         let frames = rec.info.frames;
         if let Some(n) = r.movie_note(frames, window) {
             eprintln!("{}: {n}", input.display());
@@ -182,7 +173,7 @@ fn run_zarr(a: &Args, r: &Resolved, profile: &CameraProfile, window: usize) -> R
     let out = ZarrOutput {
         path: &a.out,
         shard,
-        profile_arg: &a.profile,
+        profile_arg: &a.recording.profile,
         model_name: r.model_name.as_deref(),
         software: &format!("emccd {}", env!("CARGO_PKG_VERSION")),
     };
@@ -191,7 +182,7 @@ fn run_zarr(a: &Args, r: &Resolved, profile: &CameraProfile, window: usize) -> R
     let inputs = a
         .inputs
         .iter()
-        .map(|p| open_recording(p, profile, a.exposure_s, a.extrapolate))
+        .map(|p| a.recording.open(p, &profile))
         .collect::<Result<Vec<_>>>()?;
     // The store is one stack: the default runs temporally when any of its recordings is a
     // movie (each frame's window stays within its own recording).
