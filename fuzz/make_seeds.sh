@@ -25,7 +25,8 @@ open("seeds/fits/i16.fits", "wb").write(fits(["SIMPLE  =                    T", 
 open("seeds/fits/f32-cube.fits", "wb").write(fits(["SIMPLE  =                    T", card("BITPIX", -32), card("NAXIS", 3), card("NAXIS1", 8), card("NAXIS2", 8), card("NAXIS3", 2), "END"], np.arange(128, dtype=">f4").tobytes()))
 PY
 cp ../examples/*.toml seeds/manifest/
-cp ../profiles/default/profile.toml seeds/profile/default.toml
+cargo run -q --release --manifest-path ../Cargo.toml -- profile init-default "$PWD/seeds/profile/dflt" --force 2>/dev/null
+mv seeds/profile/dflt/profile.toml seeds/profile/default.toml && rm -r seeds/profile/dflt
 # A 557-parameter U-Net (2 channels, 1 level), one training step.
 F=../../shared/data/clean/microscopy/fmd-confocal-bpae
 cargo run -q --release --manifest-path ../Cargo.toml -- train --clean "$F/field1-avg50.png" --val "$F/field2-avg50.png" \

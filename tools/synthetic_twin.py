@@ -22,6 +22,7 @@ import json
 import os
 import re
 import shutil
+import subprocess
 import struct
 import subprocess
 from pathlib import Path
@@ -38,7 +39,8 @@ def flat_profile(out: Path):
     """The bundled default profile with FPN = FLAT_DN everywhere and no blooming."""
     if out.exists():
         shutil.rmtree(out)
-    shutil.copytree(ROOT / "profiles/default", out)
+    subprocess.run([str(ROOT / "target/release/emccd"), "profile", "init-default", str(out)], check=True,
+                   capture_output=True)
     t = (out / "profile.toml").read_text()
     t = re.sub(r'\nmaps_fnv1a64 = "[0-9a-f]+"', "", t)  # the maps change below
     t = re.sub(r"\n\[blooming\]\n(?:[^\[\n][^\n]*\n|\[\n(?:    [^\n]*\n)*\]\n)*", "\n", t)

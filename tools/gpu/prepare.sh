@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Before a GPU loan (issue 39): everything `tools/gpu/autotune.sh` needs on the lent machine, in
 # ignored folders of the work tree that `device run` carries (`carry: [".gl", ".gpu"]`, 64 MiB
-# at most with the tracked files, so models/, profiles/default/maps.safetensors and, unless (b)
-# needs it, emccd-checks.xz are moved aside for the call):
+# at most with the tracked files; the bundled models are built into the binary from models/, so
+# the build needs them: move tests/data and, unless (b) needs it, emccd-checks.xz aside for the
+# call):
 #   .gl/                    the Vulkan loader and glvnd packages (the device README's recipe)
 #   .gpu/emccd.xz           (a) --features vulkan-direct (burn's direct convolution kernels)
 #   .gpu/emccd-autotune.xz  (b) --features vulkan (burn's autotuner, no fusion: the GPU build)

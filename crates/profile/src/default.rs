@@ -172,8 +172,8 @@ mod tests {
         assert_eq!(q.fpn.form, FpnForm::Constant);
     }
 
-    /// The generator is pinned: the profile it builds is the one the bundled `profiles/default`
-    /// files hold and the bundled models were trained for (their metadata records this
+    /// The generator is pinned: the profile it builds is the one the repository's
+    /// `profiles/default` files held and the bundled models were trained for (their metadata records this
     /// fingerprint). A change to the generator, its seed or the random streams shows up here.
     #[test]
     fn default_profile_is_pinned() {

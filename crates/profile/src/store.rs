@@ -177,7 +177,7 @@ impl CameraProfile {
 
     /// Loads a profile by the argument `--profile` (and `profile=`) takes: a directory, or
     /// `default` for the bundled profile, made from its seed (in a third of a second; bit for
-    /// bit the repository's `profiles/default`, which a test checks), so it is part of every
+    /// bit the files the repository once shipped, which a test checks), so it is part of every
     /// build wherever it runs.
     pub fn load_arg(arg: &str) -> Result<CameraProfile> {
         if arg == "default" {
