@@ -63,17 +63,25 @@ impl Tally {
     }
 }
 
-/// The recording's frames in order, each preprocessed through `profile` as `emccd denoise`
-/// does (blooming and the fixed pattern at the recording's exposure removed: DN above bias),
-/// passed to `each` with its number (from 0). Errors name the file and the frame.
+/// The recording's first `limit` frames in order (all of them with `usize::MAX`), each
+/// preprocessed through `profile` as `emccd denoise` does (blooming and the fixed pattern at
+/// the recording's exposure removed: DN above bias), passed to `each` with its number (from 0).
+/// The fixed pattern is modelled once for the stack. Errors name the file and the frame.
 pub fn preprocessed_frames(
     profile: &CameraProfile,
     rec: &mut emccd_profile::Recording,
+    limit: usize,
     mut each: impl FnMut(usize, &[f32]) -> Result<()>,
 ) -> Result<()> {
     let name = rec.path.display().to_string();
-    let mut raw = vec![0f32; rec.info.width * rec.info.height];
-    for j in 0..rec.info.frames {
+    let pixels = rec.info.width * rec.info.height;
+    emccd_classical::frame::usable(profile, pixels, rec.exposure)
+        .map_err(|e| Error(format!("{name}: {e}")))?;
+    let mut fpn = vec![0f32; pixels];
+    profile.fpn_at(rec.exposure, &mut fpn);
+    let bloom = profile.blooming_factor(rec.exposure);
+    let mut raw = vec![0f32; pixels];
+    for j in 0..rec.info.frames.min(limit) {
         let at = |e: String| Error(format!("{name}: frame {}: {e}", j + 1));
         match rec.reader.read_frame(&mut raw) {
             Ok(true) => {}
@@ -92,9 +100,8 @@ pub fn preprocessed_frames(
                 i / rec.info.width
             )));
         }
-        let frame = emccd_classical::frame::preprocess(profile, &raw, rec.exposure)
-            .map_err(|e| at(e.to_string()))?;
-        each(j, &frame)?;
+        emccd_profile::preprocess(&mut raw, rec.info.width, bloom, &fpn);
+        each(j, &raw)?;
     }
     Ok(())
 }
