@@ -941,3 +941,44 @@ fn messages_name_what_is_wrong() {
     assert!(String::from_utf8_lossy(&o.stderr).len() < 400);
     assert!(!d.join("acq").exists() && !d.join("p").exists() && !d.join("x.tif").exists());
 }
+
+/// A calibration whose profile cannot be written (its folder's parent is a file) leaves no
+/// report folder behind either.
+#[test]
+fn a_failed_calibration_leaves_no_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ok(&emccd(
+        &[
+            "simulate",
+            "calibration",
+            "-o",
+            "cal",
+            "--crop",
+            "64x48",
+            "--frames",
+            "4",
+            "--bias-exposures",
+            "1e-5,0.01,0.1",
+            "--flat-levels",
+            "100,300,1000",
+        ],
+        d,
+    ));
+    std::fs::write(d.join("file"), b"not a folder").unwrap();
+    let o = emccd(
+        &[
+            "calibrate",
+            "cal/calibration.toml",
+            "-o",
+            "file/profile",
+            "--report",
+            "rep",
+        ],
+        d,
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("the profile to file/profile"), "{err}");
+    assert!(!d.join("rep").exists(), "the report folder was left");
+}

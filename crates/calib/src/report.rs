@@ -15,19 +15,34 @@ use crate::{Calibration, Error, Result};
 
 impl Calibration {
     /// Writes the outputs of `emccd calibrate` (and of Python's `calibrate`): the HTML report
-    /// into `report` where asked, then the profile folder `out`; returns the profile.
+    /// into `report` where asked, then the profile folder `out`; returns the profile. A report
+    /// folder this call made is removed again if the profile cannot be written (the profile
+    /// leaves nothing behind itself): a failed run leaves nothing it created.
     pub fn save(&self, out: &Path, report: Option<&Path>) -> Result<CameraProfile> {
         let profile = self.profile()?;
+        let made = report.filter(|d| !d.exists());
         if let Some(dir) = report {
-            write(self, dir).map_err(|e| Error::Write {
+            let written = write(self, dir).map_err(|e| Error::Write {
                 what: format!("the report to {}", dir.display()),
                 source: Box::new(e),
-            })?;
+            });
+            if written.is_err() {
+                if let Some(d) = made {
+                    let _ = std::fs::remove_dir_all(d);
+                }
+            }
+            written?;
         }
-        profile.save(out).map_err(|e| Error::Write {
+        let saved = profile.save(out).map_err(|e| Error::Write {
             what: format!("the profile to {}", out.display()),
             source: Box::new(e),
-        })?;
+        });
+        if saved.is_err() {
+            if let Some(d) = made {
+                let _ = std::fs::remove_dir_all(d);
+            }
+        }
+        saved?;
         Ok(profile)
     }
 }
