@@ -982,3 +982,48 @@ fn a_failed_calibration_leaves_no_report() {
     assert!(err.contains("the profile to file/profile"), "{err}");
     assert!(!d.join("rep").exists(), "the report folder was left");
 }
+
+/// Eight copies of one flat as eight levels: refused naming the flats and what is wrong with
+/// them (it was "ptc_slope_dn must be positive, got -16", from the profile's checks).
+#[test]
+fn identical_flats_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    ok(&emccd(
+        &[
+            "simulate",
+            "calibration",
+            "-o",
+            "cal",
+            "--crop",
+            "64x48",
+            "--frames",
+            "4",
+            "--bias-exposures",
+            "1e-5,0.01,0.1",
+            "--flat-levels",
+            "300",
+        ],
+        d,
+    ));
+    let manifest = std::fs::read_to_string(d.join("cal/calibration.toml")).unwrap();
+    let flat = manifest
+        .split("[[flat]]")
+        .nth(1)
+        .expect("a flat")
+        .split("[[")
+        .next()
+        .unwrap()
+        .to_string();
+    let head = manifest.split("[[flat]]").next().unwrap().to_string();
+    let eight: String = (0..8).map(|_| format!("[[flat]]{flat}")).collect();
+    std::fs::write(d.join("cal/eight.toml"), format!("{head}{eight}")).unwrap();
+    let o = emccd(&["calibrate", "cal/eight.toml", "-o", "p"], d);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("all hold one light level") && err.contains("flat_01.tif"),
+        "{err}"
+    );
+    assert!(!d.join("p").exists());
+}

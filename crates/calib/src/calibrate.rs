@@ -599,7 +599,38 @@ impl Stages<'_> {
                 status,
             });
         }
+        // A line through the levels needs levels: flats that all hold one light level (the same
+        // file given for each, say) would give any slope at all, with r² = 1.
+        let medians: Vec<f64> = levels.iter().map(|l| l.median_dn).collect();
+        let (lo, hi) = medians
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &m| {
+                (a.min(m), b.max(m))
+            });
+        if levels.len() > 1 && !(hi - lo > 0.05 * hi.abs().max(1e-9)) {
+            let files: Vec<String> = inputs
+                .iter()
+                .map(|c| c.file.display().to_string())
+                .collect();
+            return Err(Error::Fit(format!(
+                "the flats all hold one light level (medians {lo:.1} to {hi:.1} DN above the bias): the photon-transfer slope needs flats at several levels. The flats: {}",
+                files.join(", ")
+            )));
+        }
         let fit = ptc::fit(&mut levels)?;
+        // Shot noise makes a flat's variance rise with its signal; a slope that does not is
+        // not a camera's (the same frames given as every level, or stacks that are not flats).
+        if !(fit.slope > 0.0) {
+            let files: Vec<String> = inputs
+                .iter()
+                .map(|c| c.file.display().to_string())
+                .collect();
+            return Err(Error::Fit(format!(
+                "the flats' temporal variance does not rise with their signal (photon-transfer slope {:.3} DN): the same frames at every level, or stacks that are not flat fields? The flats: {}",
+                fit.slope,
+                files.join(", ")
+            )));
+        }
         Ok(PtcResult {
             levels,
             fit,
