@@ -1027,3 +1027,38 @@ fn identical_flats_are_named() {
     );
     assert!(!d.join("p").exists());
 }
+
+/// A float64 FITS frame with a finite 1e300 in it (beyond float32) is refused with the value
+/// and why it is not a number here, not as a bare "non-finite value".
+#[test]
+fn a_value_beyond_float32_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let card = |s: String| format!("{s:<80}");
+    let mut head: String = [
+        "SIMPLE  =                    T".to_string(),
+        "BITPIX  =                  -64".to_string(),
+        "NAXIS   =                    2".to_string(),
+        "NAXIS1  =                  512".to_string(),
+        "NAXIS2  =                  512".to_string(),
+        "EXPTIME =                 0.01".to_string(),
+        "END".to_string(),
+    ]
+    .into_iter()
+    .map(card)
+    .collect();
+    head.push_str(&" ".repeat((2880 - head.len() % 2880) % 2880));
+    let mut bytes = head.into_bytes();
+    for i in 0..512 * 512 {
+        let v: f64 = if i == 7 { 1e300 } else { 600.0 };
+        bytes.extend_from_slice(&v.to_be_bytes());
+    }
+    bytes.resize(bytes.len().div_ceil(2880) * 2880, 0);
+    std::fs::write(d.join("big.fits"), bytes).unwrap();
+    let o = emccd(
+        &["denoise", "big.fits", "-o", "x.tif", "--method", "none"],
+        d,
+    );
+    fails_with(&o, "pixel (7, 0) (inf; a float64 beyond float32");
+    assert!(!d.join("x.tif").exists());
+}

@@ -95,9 +95,10 @@ pub fn preprocessed_frames(
         }
         if let Some(i) = raw.iter().position(|v| !v.is_finite()) {
             return Err(at(format!(
-                "a non-finite value at pixel ({}, {})",
+                "a non-finite value at pixel ({}, {}) ({}; a float64 beyond float32's ±3.4e38 reads as ±inf)",
                 i % rec.info.width,
-                i / rec.info.width
+                i / rec.info.width,
+                raw[i]
             )));
         }
         emccd_profile::preprocess(&mut raw, rec.info.width, bloom, &fpn);

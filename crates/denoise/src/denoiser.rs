@@ -209,9 +209,10 @@ impl Denoiser<'_> {
         let width = self.profile.width.max(1);
         match raw.iter().position(|v| !v.is_finite()) {
             Some(i) => Err(Error::Data(format!(
-                "a non-finite value at pixel ({}, {})",
+                "a non-finite value at pixel ({}, {}) ({}; a float64 beyond float32's ±3.4e38 reads as ±inf)",
                 i % width,
-                i / width
+                i / width,
+                raw[i]
             ))),
             None => Ok(()),
         }
