@@ -54,6 +54,28 @@ fn flat_stack(d: &Path, name: &str, n: usize) {
     w.finish().unwrap();
 }
 
+/// A small virtual-camera acquisition in `cal/`: 64×48, 4 frames per stack, three bias
+/// exposures and flats at `flat_levels` (DN, comma-separated).
+fn small_acquisition(d: &Path, flat_levels: &str) {
+    ok(&emccd(
+        &[
+            "simulate",
+            "calibration",
+            "-o",
+            "cal",
+            "--crop",
+            "64x48",
+            "--frames",
+            "4",
+            "--bias-exposures",
+            "1e-5,0.01,0.1",
+            "--flat-levels",
+            flat_levels,
+        ],
+        d,
+    ));
+}
+
 fn files(d: &Path) -> Vec<String> {
     let mut v: Vec<String> = walk(d)
         .into_iter()
@@ -948,23 +970,7 @@ fn messages_name_what_is_wrong() {
 fn a_failed_calibration_leaves_no_report() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    ok(&emccd(
-        &[
-            "simulate",
-            "calibration",
-            "-o",
-            "cal",
-            "--crop",
-            "64x48",
-            "--frames",
-            "4",
-            "--bias-exposures",
-            "1e-5,0.01,0.1",
-            "--flat-levels",
-            "100,300,1000",
-        ],
-        d,
-    ));
+    small_acquisition(d, "100,300,1000");
     std::fs::write(d.join("file"), b"not a folder").unwrap();
     let o = emccd(
         &[
@@ -984,28 +990,13 @@ fn a_failed_calibration_leaves_no_report() {
 }
 
 /// Eight copies of one flat as eight levels: refused naming the flats and what is wrong with
-/// them (it was "ptc_slope_dn must be positive, got -16", from the profile's checks).
+/// them (they were fitted to a slope with r² = 1 here; the report that found it got
+/// "ptc_slope_dn must be positive, got -16" from the profile's checks).
 #[test]
 fn identical_flats_are_named() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    ok(&emccd(
-        &[
-            "simulate",
-            "calibration",
-            "-o",
-            "cal",
-            "--crop",
-            "64x48",
-            "--frames",
-            "4",
-            "--bias-exposures",
-            "1e-5,0.01,0.1",
-            "--flat-levels",
-            "300",
-        ],
-        d,
-    ));
+    small_acquisition(d, "300");
     let manifest = std::fs::read_to_string(d.join("cal/calibration.toml")).unwrap();
     let flat = manifest
         .split("[[flat]]")

@@ -127,24 +127,6 @@ pub fn refuse_replacing(dir: &Path, marker: &str, kind: &str, force: bool) -> Re
 /// regime: `emccd count` removes the EM register's excess noise there.
 pub const COUNTING_LEVEL: f64 = 0.2;
 
-/// The recording's light level, photo-electrons per pixel per frame: the mean over its first
-/// `frames` frames (at most) after the profile's preprocessing, over the profile's DN per
-/// photo-electron. Reads only those frames.
-pub fn light_level(rec: &mut Recording, profile: &CameraProfile, frames: usize) -> Result<f64> {
-    let k = profile.dn_per_electron()?;
-    let mut raw = vec![0f32; rec.info.width * rec.info.height];
-    let (mut sum, mut n) = (0.0, 0usize);
-    for _ in 0..frames.min(rec.info.frames) {
-        if !rec.reader.read_frame(&mut raw)? {
-            break;
-        }
-        let f = emccd_classical::frame::preprocess(profile, &raw, rec.exposure)?;
-        sum += f.iter().map(|&v| v as f64).sum::<f64>();
-        n += f.len();
-    }
-    Ok(sum / n.max(1) as f64 / k)
-}
-
 /// The note for a recording at `level` photo-electrons per pixel per frame, if it is in the
 /// counting regime.
 pub fn counting_note(level: f64) -> Option<String> {

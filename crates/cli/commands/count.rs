@@ -62,12 +62,16 @@ pub struct Args {
 /// percent at 0.01 e⁻ per pixel on a 128² sensor).
 const LEVEL_FRAMES: usize = 100;
 
-/// One input, checked and ready.
+/// One input, checked and ready: its camera at its exposure and its light level.
 struct Job {
     input: PathBuf,
     out: PathBuf,
     frames: usize,
     exposure: f64,
+    camera: Camera,
+    /// Photo-electrons per pixel per frame over the first frames (the analog mean, less the
+    /// spurious electrons): what `auto` chooses its threshold at.
+    level: f64,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -89,11 +93,12 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     // Every input checked before anything is written: its header, size, exposure, the
-    // profile's numbers at that exposure, and --per against its length.
+    // profile's numbers at that exposure, --per against its length, and its first frames (read
+    // for the light level).
     let mut jobs = Vec::with_capacity(a.inputs.len());
     for (input, out) in a.inputs.iter().zip(outs) {
-        let rec = a.recording.open(input, &profile)?;
-        Camera::from_profile(&profile, rec.exposure, spurious(&a))
+        let mut rec = a.recording.open(input, &profile)?;
+        let camera = Camera::from_profile(&profile, rec.exposure, spurious(&a))
             .map_err(|e| anyhow::anyhow!("profile {}: {e}", a.recording.profile))?;
         if let Some(n) = a.per {
             if n as usize > rec.info.frames {
@@ -104,11 +109,14 @@ pub fn run(a: Args) -> Result<()> {
                 );
             }
         }
+        let level = emccd_count::light_level(&profile, &mut rec, LEVEL_FRAMES)? - camera.spurious;
         jobs.push(Job {
             input: input.clone(),
             out,
             frames: rec.info.frames,
             exposure: rec.exposure,
+            camera,
+            level,
         });
     }
     let made = several && !a.out.exists();
@@ -145,22 +153,9 @@ fn count_one(
     profile: &CameraProfile,
     job: &Job,
 ) -> Result<(Vec<emccd_io::Staged>, String)> {
-    let cam = Camera::from_profile(profile, job.exposure, spurious(a))?;
+    let (cam, level) = (&job.camera, job.level);
     let per = a.per.map_or(job.frames, |n| n as usize);
     let outputs = job.frames.div_ceil(per);
-    let open = || a.recording.reopen(&job.input, &profile);
-    // The stack's own light level, which `auto` needs before it can count: the analog mean
-    // over the first frames (a first pass over at most LEVEL_FRAMES).
-    let level = {
-        let mut rec = open()?;
-        let n = job.frames.min(LEVEL_FRAMES);
-        let mut sum = 0.0;
-        emccd_count::preprocessed_frames(profile, &mut rec, n, |_, f| {
-            sum += f.iter().map(|&v| v as f64).sum::<f64>();
-            Ok(())
-        })?;
-        sum / (n * cam.width * cam.height) as f64 / cam.g - cam.spurious
-    };
     let mut counter = Counter::new(cam.clone(), a.threshold, level, per, job.frames, a.analog)?;
     let plan = counter.plan();
     let (false_events, missed) = plan.predicted();
@@ -222,7 +217,7 @@ fn count_one(
     };
     let mut rate_w = create(&job.out)?;
     let mut se_w = a.uncertainty.as_deref().map(create).transpose()?;
-    let mut rec = open()?;
+    let mut rec = a.recording.reopen(&job.input, profile)?;
     let pb = progress(job.frames as u64, "frames");
     let mut mean_rate = 0.0;
     let r = emccd_count::preprocessed_frames(profile, &mut rec, usize::MAX, |_, frame| {

@@ -105,34 +105,38 @@ pub fn run(a: Args) -> Result<()> {
     // All or nothing: every input is opened and checked (its header, size and exposure) before
     // anything is written, and the outputs are placed only once every input is denoised, so an
     // input that fails halfway (truncated, a non-finite value) leaves every output as it was.
+    // A light level in the counting regime is noted (only: a profile that cannot say the level,
+    // without a slope, denoises as before).
+    let mut notes = Vec::with_capacity(a.inputs.len());
     for input in &a.inputs {
-        a.recording.open(input, &profile)?;
+        let mut rec = a.recording.open(input, &profile)?;
+        let level = emccd_count::light_level(&profile, &mut rec, 4).ok();
+        notes.push(level.and_then(crate::common::counting_note));
     }
     let made = several && !a.out.exists();
     if several {
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     }
-    let done = denoise_files(&a, &r, &profile, window, &outs);
+    let done = denoise_files(&a, &r, &profile, window, &outs, &notes);
     if done.is_err() && made {
         let _ = std::fs::remove_dir(&a.out); // only if empty: it was made for this run
     }
     done
 }
 
-/// Denoises each input to its output, staged beside it; places them all once every one is done.
+/// Denoises each input to its output, staged beside it (after its counting-regime note, if
+/// any); places them all once every one is done.
 fn denoise_files(
     a: &Args,
     r: &Resolved,
     profile: &CameraProfile,
     window: usize,
     outs: &[PathBuf],
+    notes: &[Option<String>],
 ) -> Result<()> {
     let mut staged = Vec::with_capacity(outs.len());
-    for (input, out) in a.inputs.iter().zip(outs) {
-        // A note only: a profile that cannot say the level (no slope) denoises as before.
-        let mut probe = a.recording.reopen(input, &profile)?;
-        let level = crate::common::light_level(&mut probe, profile, 4).ok();
-        if let Some(n) = level.and_then(crate::common::counting_note) {
+    for ((input, out), note) in a.inputs.iter().zip(outs).zip(notes) {
+        if let Some(n) = note {
             eprintln!("note: {}: {n}", input.display());
         }
         let rec = a.recording.reopen(input, &profile)?;

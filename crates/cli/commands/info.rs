@@ -30,7 +30,7 @@ pub fn run(a: Args) -> Result<()> {
         Some(p) => {
             let profile = crate::common::load_profile(p)?;
             let mut rec = crate::common::open_recording(&a.file, &profile, a.exposure_s, true)?;
-            Some(crate::common::light_level(&mut rec, &profile, 20)?)
+            Some(emccd_count::light_level(&profile, &mut rec, 20)?)
         }
         None => None,
     };

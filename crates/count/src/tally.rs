@@ -124,6 +124,26 @@ impl Tally {
     }
 }
 
+/// The recording's light level: the mean of its first `frames` preprocessed frames (at most)
+/// over the profile's DN per photo-electron, in photo-electrons per pixel per frame as the analog
+/// mean sees them (spurious electrons included). Reads only those frames.
+pub fn light_level(
+    profile: &CameraProfile,
+    rec: &mut emccd_profile::Recording,
+    frames: usize,
+) -> Result<f64> {
+    let k = profile
+        .dn_per_electron()
+        .map_err(|e| Error(e.to_string()))?;
+    let (mut sum, mut n) = (0.0, 0usize);
+    preprocessed_frames(profile, rec, frames, |_, f| {
+        sum += f.iter().map(|&v| v as f64).sum::<f64>();
+        n += f.len();
+        Ok(())
+    })?;
+    Ok(sum / n.max(1) as f64 / k)
+}
+
 /// A stack counted frame by frame into output frames of `per` frames each: the rate (counted,
 /// or the analog mean) and its standard error per pixel. What `emccd count` and Python's
 /// `emccd.count` share; the frames come preprocessed (DN above bias), from a file or an array.

@@ -66,15 +66,10 @@ pub fn source(arg: &str) -> Result<ModelSource> {
         (Some(b), Some(dir)) => dir.join(b.file),
         (None, _) => PathBuf::from(arg),
     };
-    if source.exists() && !source.is_file() {
+    if let Some(kind) = emccd_io::not_a_file(&source) {
         return Err(Error::Model(format!(
-            "{}: not a model file ({}; a model is a .safetensors file)",
-            source.display(),
-            if source.is_dir() {
-                "a folder"
-            } else {
-                "a device or other special file"
-            }
+            "{}: not a model file ({kind}; a model is a .safetensors file)",
+            source.display()
         )));
     }
     if !source.is_file() {

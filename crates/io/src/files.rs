@@ -160,6 +160,16 @@ impl FileStamp {
     }
 }
 
+/// What `path` is when it exists but is not a regular file (`a folder`, `a device or other
+/// special file`), for a message that says so rather than "not found".
+pub fn not_a_file(path: &Path) -> Option<&'static str> {
+    match std::fs::metadata(path) {
+        Ok(m) if m.is_dir() => Some("a folder"),
+        Ok(m) if !m.is_file() => Some("a device or other special file"),
+        _ => None,
+    }
+}
+
 /// FNV-1a over bytes: [`content_hash`] of bytes in memory (a built-in model's).
 pub fn bytes_hash(bytes: &[u8]) -> u64 {
     use std::hash::Hasher;

@@ -198,15 +198,10 @@ impl Manifest {
             }
         }
         for p in m.files() {
-            if p.exists() && !p.is_file() {
+            if let Some(kind) = emccd_io::not_a_file(&p) {
                 return Err(Error::Format(format!(
-                    "named in {} but {}, not a stack",
-                    path.display(),
-                    if p.is_dir() {
-                        "a folder"
-                    } else {
-                        "a device or other special file"
-                    }
+                    "named in {} but {kind}, not a stack",
+                    path.display()
                 ))
                 .at(&p));
             }
