@@ -127,7 +127,7 @@ fn shards_equal_one_process_and_a_killed_shard_resumes() {
     // marker gone); running it again rewrites just that frame.
     let chunk = d.join("sh.zarr/0/c/5/0/0");
     std::fs::write(&chunk, b"half").unwrap();
-    std::fs::remove_file(d.join("sh.zarr/.emccd-done/5")).unwrap();
+    std::fs::remove_file(d.join("sh.zarr/0/.emccd-done/5")).unwrap();
     let o = denoise(d, "sh.zarr", &["--shard", "1/3"]);
     ok(&o);
     let err = String::from_utf8_lossy(&o.stderr);
@@ -141,9 +141,17 @@ fn shards_equal_one_process_and_a_killed_shard_resumes() {
     // written again, and files in the marker folder that name no frame are not counted (these
     // said "12 of 12 frames complete" and "14 of 12" and left the frames unwritten).
     std::fs::remove_file(d.join("sh.zarr/0/c/6/0/0")).unwrap();
+    // Read meanwhile, the frame is said to be missing, not "a non-finite value at (0, 0)".
+    let e = emccd_io::read_all(d.join("sh.zarr"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("frame 7: its data is missing from the store (no chunk 0/c/6/0/0)"),
+        "{e}"
+    );
     std::fs::write(d.join("sh.zarr/0/c/7/0/0"), b"half").unwrap();
     for stray in ["12", "x"] {
-        std::fs::write(d.join("sh.zarr/.emccd-done").join(stray), b"").unwrap();
+        std::fs::write(d.join("sh.zarr/0/.emccd-done").join(stray), b"").unwrap();
     }
     let o = denoise(d, "sh.zarr", &["--shard", "1/3"]);
     ok(&o);
@@ -204,6 +212,86 @@ fn shards_equal_one_process_and_a_killed_shard_resumes() {
     let p = emccd_profile::CameraProfile::load(d.join("prof")).unwrap();
     let want = emccd_classical::frame::preprocess(&p, &raw[0], 0.01).unwrap();
     assert_eq!(bits(&pre[..1]), bits(&[want]));
+}
+
+/// Sets the modification time of `path` and everything in it two hours back.
+fn age(path: &Path) {
+    let then = std::time::SystemTime::now() - std::time::Duration::from_secs(7200);
+    if path.is_dir() {
+        for e in std::fs::read_dir(path).unwrap() {
+            age(&e.unwrap().path());
+        }
+    }
+    std::fs::File::open(path)
+        .unwrap()
+        .set_modified(then)
+        .unwrap();
+}
+
+/// The names in folder `path`, sorted.
+fn names(path: &Path) -> Vec<String> {
+    let mut n: Vec<String> = std::fs::read_dir(path)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    n.sort();
+    n
+}
+
+/// The writer's bookkeeping (completion markers, staging) lives in the array's folder, where
+/// Zarr readers do not list it (in the group's folder zarr-python warns of it on every
+/// listing); a finished store holds nothing else; what killed processes left (a staging
+/// folder, a store's temporary folder beside it) is removed by a later run once stale, and a
+/// store of the earlier layout is resumed.
+#[test]
+fn bookkeeping_stays_out_of_readers_way() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    setup(d);
+    ok(&denoise(
+        d,
+        "s.zarr",
+        &["--method", "none", "--shard", "0/2"],
+    ));
+    assert_eq!(names(&d.join("s.zarr")), ["0", "zarr.json"]);
+    assert_eq!(
+        names(&d.join("s.zarr/0")),
+        [".emccd-done", "c", "zarr.json"]
+    );
+
+    // A writer killed long ago left its staging folder; a live one is staging now; a process
+    // killed while it built another store left that store's temporary folder.
+    let staging = d.join("s.zarr/0/.emccd-staging");
+    for w in ["wkilled", "wlive"] {
+        std::fs::create_dir_all(staging.join(w).join("0/c/3/0")).unwrap();
+        std::fs::write(staging.join(w).join("0/c/3/0/0"), b"part").unwrap();
+    }
+    age(&staging.join("wkilled"));
+    std::fs::create_dir_all(d.join(".t.zarr.x1y2.tmp/0")).unwrap();
+    age(&d.join(".t.zarr.x1y2.tmp"));
+    ok(&denoise(
+        d,
+        "s.zarr",
+        &["--method", "none", "--shard", "1/2"],
+    ));
+    assert_eq!(names(&staging), ["wlive"]);
+    std::fs::remove_dir_all(&staging).unwrap();
+    ok(&denoise(d, "t.zarr", &["--method", "none"]));
+    assert!(!d.join(".t.zarr.x1y2.tmp").exists());
+
+    // A store whose markers are at its top (written before they moved): resumed, and moved.
+    let want = bits(&frames(&d.join("s.zarr")));
+    std::fs::rename(d.join("s.zarr/0/.emccd-done"), d.join("s.zarr/.emccd-done")).unwrap();
+    std::fs::remove_file(d.join("s.zarr/.emccd-done/2")).unwrap();
+    let o = denoise(d, "s.zarr", &["--method", "none"]);
+    ok(&o);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("1 denoised now, 11 were already done"),
+        "{err}"
+    );
+    assert_eq!(names(&d.join("s.zarr")), ["0", "zarr.json"]);
+    assert_eq!(bits(&frames(&d.join("s.zarr"))), want);
 }
 
 #[test]
@@ -323,7 +411,17 @@ fn python_readers_and_writers_agree() {
     ok(&denoise(d, "out.zarr", &["--method", "none"]));
     ok(&denoise(d, "tifs", &["--method", "none"]));
     const SCRIPT: &str = r#"
-import json, numpy as np, tifffile, zarr
+import json, warnings, numpy as np, tifffile, zarr
+# Listing and consolidating the store warn of nothing (zarr-python warned of every entry of
+# the group's folder that is not a Zarr node); only zarr's own note that consolidated metadata
+# is not in the v3 specification is let through.
+with warnings.catch_warnings():
+    warnings.simplefilter("error")
+    warnings.filterwarnings("ignore", message="Consolidated metadata")
+    g = zarr.open_group("out.zarr", mode="r")
+    assert list(g.keys()) == ["0"] and [k for k, _ in g.members()] == ["0"], list(g.keys())
+    import shutil; shutil.copytree("out.zarr", "copy.zarr")
+    zarr.consolidate_metadata("copy.zarr")
 from ome_zarr.io import parse_url
 from ome_zarr.reader import Reader
 g = zarr.open_group("out.zarr", mode="r")

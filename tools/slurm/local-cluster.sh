@@ -118,7 +118,7 @@ wait_job() {
 }
 done_in() { # markers present among frames [$1, $2)
     local n=0 k
-    for ((k = $1; k < $2; k++)); do [ -e "array.zarr/.emccd-done/$k" ] && n=$((n + 1)); done
+    for ((k = $1; k < $2; k++)); do [ -e "array.zarr/0/.emccd-done/$k" ] && n=$((n + 1)); done
     echo $n
 }
 job=$(submit --array=0-3 "$SBATCH_SCRIPT" 4 array.zarr "${inputs[@]}" "${opts[@]}")

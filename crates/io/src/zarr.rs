@@ -4,8 +4,12 @@
 //!
 //! The writer stores one chunk per frame, so processes that write different frames never touch
 //! the same file. A chunk is encoded in the writer's own staging folder and renamed into place,
-//! then a completion marker (`OUT.zarr/.emccd-done/FRAME`) is created: a frame without its
-//! marker (its process was killed first) is written again by whoever resumes. The store itself is built
+//! then a completion marker (`OUT.zarr/0/.emccd-done/FRAME`) is created: a frame without its
+//! marker (its process was killed first) is written again by whoever resumes. Both folders are
+//! inside the array's own folder, where Zarr readers look only for the chunks they need (in the
+//! group's folder zarr-python warns of every entry that is not a Zarr node). Staging folders
+//! that killed processes left are removed by a later writer once they are [`STALE`], and a
+//! store's temporary folder left beside it likewise. The store itself is built
 //! in a temporary folder and renamed into place, so among processes that start together exactly
 //! one creates it and the others open it and check that it was made for the same work
 //! ([`ZarrStackWriter::create_or_open`]). Frames never written read as NaN (the fill value),
@@ -58,10 +62,18 @@ impl std::str::FromStr for Shard {
     }
 }
 
-/// The folder of completion markers inside a store written by [`ZarrStackWriter`].
+/// The folder of completion markers inside the array folder of a store written by
+/// [`ZarrStackWriter`] (stores written before 2026-11-27 kept it at the store's top; a writer
+/// moves it).
 pub const DONE_DIR: &str = ".emccd-done";
-/// Where each [`ZarrStackWriter`] stages its chunks before renaming them into place.
+/// Where each [`ZarrStackWriter`] stages its chunks before renaming them into place, inside
+/// the array folder.
 const STAGING_DIR: &str = ".emccd-staging";
+/// A writer's staging folder untouched for this long belongs to a process that was killed (a
+/// live writer stages a frame at least this often: the slowest frames take minutes), and a
+/// store's temporary folder this old to a process killed while it built the store (which
+/// takes milliseconds).
+pub const STALE: std::time::Duration = std::time::Duration::from_secs(3600);
 /// The array (multiscale level 0) inside a store written by [`ZarrStackWriter`].
 const LEVEL0: &str = "0";
 /// The group attribute that holds what the store's frames were made from.
@@ -164,13 +176,17 @@ impl ZarrReader {
         let too_big = |v: u64| usize::try_from(v).map_err(|_| zerr("shape beyond this machine"));
         let (width, height) = (too_big(w)?, too_big(h)?);
         limits.frame(width, height, pt.bytes())?;
-        // The markers live beside the array in a store we wrote; the array's own folder may
-        // have been given.
-        let done = [Some(dir), dir.parent()]
-            .into_iter()
-            .flatten()
-            .map(|d| d.join(DONE_DIR))
-            .find(|d| d.is_dir());
+        // The markers live in the array's folder of a store we wrote (at the store's top in
+        // stores written before 2026-11-27); the array's own folder may have been given.
+        let done = [
+            Some(dir.join(path.trim_start_matches('/'))),
+            Some(dir.to_path_buf()),
+            dir.parent().map(Path::to_path_buf),
+        ]
+        .into_iter()
+        .flatten()
+        .map(|d| d.join(DONE_DIR))
+        .find(|d| d.is_dir());
         let mut metadata = Metadata::default();
         if let Some(d) = &done {
             let n = count_markers(d, frames);
@@ -193,6 +209,18 @@ impl ZarrReader {
             lead,
             next: 0,
             done,
+        })
+    }
+
+    /// The key of the first chunk holding part of `subset` that the store does not have.
+    fn missing_chunk(&self, subset: &[std::ops::Range<u64>]) -> Option<String> {
+        use zarrs::storage::ReadableStorageTraits;
+        let subset = zarrs::array::ArraySubset::new_with_ranges(subset);
+        let chunks = self.array.chunks_in_array_subset(&subset).ok()??;
+        let storage = self.array.storage();
+        chunks.indices().into_iter().find_map(|idx| {
+            let key = self.array.chunk_key(&idx);
+            matches!(storage.size_key(&key), Ok(None)).then(|| key.to_string())
         })
     }
 
@@ -234,6 +262,14 @@ impl FrameReader for ZarrReader {
         subset.push(0..self.info.height as u64);
         subset.push(0..self.info.width as u64);
         let e = |e: zarrs::array::ArrayError| zerr(format!("frame {}: {e}", k + 1));
+        // A chunk the store lacks reads as the fill value (NaN in float stores): said as
+        // missing, not left to be refused later as a non-finite pixel.
+        if let Some(key) = self.missing_chunk(&subset) {
+            return Err(Error::Format(format!(
+                "frame {}: its data is missing from the store (no chunk {key}); the store is incomplete or damaged",
+                k + 1
+            )));
+        }
         macro_rules! conv {
             ($t:ty) => {{
                 let v: Vec<$t> = self.array.retrieve_array_subset(&subset).map_err(e)?;
@@ -323,6 +359,9 @@ impl ZarrStackWriter {
             ))));
         }
         let mut created = false;
+        if let Some(name) = path.file_name().and_then(|n| n.to_str()) {
+            remove_stale(crate::folder_of(path), &format!(".{name}."), ".tmp");
+        }
         if !path.exists() {
             let tmp = temp_dir_beside(path).map_err(|e| at(e.into()))?;
             Self::build(tmp.path(), spec).map_err(at)?;
@@ -382,7 +421,7 @@ impl ZarrStackWriter {
         .map_err(zerr)?
         .store_metadata()
         .map_err(zerr)?;
-        std::fs::create_dir(dir.join(DONE_DIR))?;
+        std::fs::create_dir(dir.join(LEVEL0).join(DONE_DIR))?;
         crate::readable_dir(dir)?;
         Ok(())
     }
@@ -417,15 +456,28 @@ impl ZarrStackWriter {
                 want
             )));
         }
-        let done = path.join(DONE_DIR);
-        if !done.is_dir() {
-            return Err(other(format!("no {DONE_DIR} folder")));
+        let level = path.join(LEVEL0);
+        let done = level.join(DONE_DIR);
+        // A store written before the markers moved into the array's folder: moved there (a
+        // rename, so a process that resumes it alongside finds one or the other).
+        let old = path.join(DONE_DIR);
+        if !done.is_dir() && old.is_dir() {
+            if let Err(e) = std::fs::rename(&old, &done) {
+                if !done.is_dir() {
+                    return Err(e.into());
+                }
+            }
         }
-        // Each writer stages its chunks in a folder of its own inside the store (same
-        // filesystem), holding the same array metadata, so the staged chunk's key is the
-        // store's key for that frame.
-        let area = path.join(STAGING_DIR);
+        let _ = std::fs::remove_dir(path.join(STAGING_DIR));
+        if !done.is_dir() {
+            return Err(other(format!("no {LEVEL0}/{DONE_DIR} folder")));
+        }
+        // Each writer stages its chunks in a folder of its own inside the array's folder (same
+        // filesystem), holding the same array metadata, so the staged chunk's key, under the
+        // staging folder, is the store's key for that frame.
+        let area = level.join(STAGING_DIR);
         std::fs::create_dir_all(&area)?;
+        remove_stale(&area, "w", "");
         let staging_dir = tempfile::Builder::new().prefix("w").tempdir_in(&area)?;
         let staging = Array::new_with_metadata(
             store(staging_dir.path())?,
@@ -509,6 +561,49 @@ impl ZarrStackWriter {
             .map_err(io)?;
         crate::sync_dir(&self.done);
         Ok(())
+    }
+}
+
+impl Drop for ZarrStackWriter {
+    /// The writer's staging folder goes, and the staging area with it once no other writer
+    /// stages there, so a finished store holds only the Zarr nodes and the markers.
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(self.staging_dir.path());
+        if let Some(area) = self.staging_dir.path().parent() {
+            let _ = std::fs::remove_dir(area);
+        }
+    }
+}
+
+/// Removes the entries of `dir` named `prefix…suffix` that nothing has touched for [`STALE`]
+/// (the newest modification time of anything inside counts): what killed processes left.
+fn remove_stale(dir: &Path, prefix: &str, suffix: &str) {
+    fn newest(p: &Path) -> Option<std::time::SystemTime> {
+        let m = std::fs::symlink_metadata(p).ok()?;
+        let mut t = m.modified().ok()?;
+        if m.is_dir() {
+            for e in std::fs::read_dir(p).ok()?.flatten() {
+                t = t.max(newest(&e.path())?);
+            }
+        }
+        Some(t)
+    }
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let Some(name) = name.to_str() else { continue };
+        if !(name.starts_with(prefix) && name.ends_with(suffix)) {
+            continue;
+        }
+        let p = e.path();
+        let old = newest(&p)
+            .and_then(|t| t.elapsed().ok())
+            .is_some_and(|age| age > STALE);
+        if old && p.is_dir() {
+            let _ = std::fs::remove_dir_all(&p);
+        }
     }
 }
 
