@@ -1053,3 +1053,93 @@ fn a_value_beyond_float32_says_so() {
     fails_with(&o, "pixel (7, 0) (inf; a float64 beyond float32");
     assert!(!d.join("x.tif").exists());
 }
+
+/// Runs `emccd ARGS` in `cwd`, killed after 60 s (a run waiting on a FIFO would wait forever).
+fn emccd_or_kill(args: &[&str], cwd: &Path) -> std::process::Output {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_emccd"))
+        .args(args)
+        .current_dir(cwd)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    for _ in 0..600 {
+        if child.try_wait().unwrap().is_some() {
+            return child.wait_with_output().unwrap();
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    child.kill().unwrap();
+    panic!("emccd {args:?} still ran after 60 s");
+}
+
+/// A FIFO or a device given as an image is refused by name before it is opened (opening a
+/// FIFO with no writer waited forever; /dev/zero read on), and nothing is written.
+#[test]
+fn special_files_are_refused_not_waited_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let made = Command::new("mkfifo").arg(d.join("f.tif")).status();
+    let mut inputs = vec!["/dev/zero"];
+    if made.is_ok_and(|s| s.success()) {
+        inputs.push("f.tif");
+    }
+    for input in inputs {
+        for args in [
+            &["info", input][..],
+            &["denoise", input, "-o", "o.tif", "--exposure-s", "0.01"][..],
+            &["count", input, "-o", "o.tif", "--exposure-s", "0.01"][..],
+        ] {
+            fails_with(
+                &emccd_or_kill(args, d),
+                "a device or other special file, not an image file",
+            );
+        }
+    }
+    assert!(!d.join("o.tif").exists());
+}
+
+/// `simulate calibration` checks the room its stacks need before writing one (it wrote on until
+/// the disk was full), and a run that fails part way removes the folders it made with the
+/// stacks in them (it left half an acquisition without a manifest); what was there before stays.
+#[test]
+fn a_simulated_acquisition_is_whole_or_absent() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = emccd(
+        &[
+            "simulate",
+            "calibration",
+            "-o",
+            "huge",
+            "--crop",
+            "64x48",
+            "--frames",
+            "1000000000000",
+        ],
+        d,
+    );
+    fails_with(&o, "GB free; make room, write elsewhere or ask for less");
+    assert!(!d.join("huge").exists());
+
+    // The flats' folder cannot be made (a file holds its name): the bias stacks were written
+    // first, and go with the folder made for them.
+    std::fs::create_dir(d.join("cal")).unwrap();
+    std::fs::write(d.join("cal/flat"), b"mine").unwrap();
+    let o = emccd(
+        &[
+            "simulate",
+            "calibration",
+            "-o",
+            "cal",
+            "--crop",
+            "64x48",
+            "--frames",
+            "4",
+        ],
+        d,
+    );
+    fails_with(&o, "flat");
+    assert_eq!(files(d), ["cal/flat"]);
+    assert_eq!(std::fs::read(d.join("cal/flat")).unwrap(), b"mine");
+}

@@ -215,14 +215,61 @@ impl CalibrationPlan {
         written_by: &str,
         mut tick: impl FnMut(),
     ) -> Result<Manifest, Error> {
+        let stacks = self.stacks(cam, seed)?;
+        // 16-bit frames; the headers are a few kB.
+        let bytes = (self.frames as u64)
+            .saturating_mul(cam.profile.len() as u64 * 2)
+            .saturating_add(1 << 16)
+            .saturating_mul(stacks.len() as u64);
+        emccd_io::check_room(dir, bytes)?;
+        // The folders this run makes, removed with all they hold if it fails: a half-written
+        // acquisition has no manifest and calibrates nothing.
+        let mut made: Vec<std::path::PathBuf> = Vec::new();
+        let r = self.record_stacks(
+            cam,
+            stacks,
+            dir,
+            camera_name,
+            written_by,
+            &mut made,
+            &mut tick,
+        );
+        emccd_io::untrack_new_dirs();
+        if r.is_err() {
+            for d in &made {
+                let _ = std::fs::remove_dir_all(d);
+            }
+        }
+        r
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn record_stacks(
+        &self,
+        cam: &VirtualCamera,
+        stacks: Vec<PlannedStack>,
+        dir: &Path,
+        camera_name: &str,
+        written_by: &str,
+        made: &mut Vec<std::path::PathBuf>,
+        tick: &mut impl FnMut(),
+    ) -> Result<Manifest, Error> {
         let mut manifest = Manifest {
             camera: camera_name.into(),
             em_gain: cam.em_gain,
             ..Default::default()
         };
-        for stack in self.stacks(cam, seed)? {
+        for stack in stacks {
             let path = dir.join(&stack.file);
             if let Some(parent) = path.parent() {
+                // Outermost first, so that removing them removes nothing made before.
+                let new: Vec<&Path> = parent
+                    .ancestors()
+                    .take_while(|a| !a.as_os_str().is_empty() && !a.exists())
+                    .collect();
+                if let Some(top) = new.last() {
+                    made.push(top.to_path_buf());
+                }
                 std::fs::create_dir_all(parent)
                     .map_err(|e| emccd_io::Error::from(e).with_path(parent))?;
             }

@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use emccd_camera::acquisition::{CalibrationPlan, PairLevel};
 use emccd_camera::{PhysicalParams, VirtualCamera};
 use emccd_denoise::Estimator;
@@ -152,18 +152,26 @@ fn calibration(out: &Path, plan: &CalibrationPlan, opts: &CameraOpts) -> Result<
     // The plan's own check, which names each setting as its flag does.
     plan.check().map_err(|e| anyhow::anyhow!("--{e}"))?;
     let cam = opts.camera()?;
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    // A folder this run makes goes again, with what it holds, if the run fails.
+    let existed = out.exists();
     let pb = progress(plan.total_frames(), "frames");
-    plan.record(
-        &cam,
-        opts.seed,
-        out,
-        CAMERA,
-        "`emccd simulate calibration`",
-        || pb.inc(1),
-    )?;
+    let recorded = plan
+        .record(
+            &cam,
+            opts.seed,
+            out,
+            CAMERA,
+            "`emccd simulate calibration`",
+            || pb.inc(1),
+        )
+        .and_then(|_| plan.write_truth(&cam, out));
     pb.finish_and_clear();
-    plan.write_truth(&cam, out)?;
+    if let Err(e) = recorded {
+        if !existed {
+            let _ = std::fs::remove_dir_all(out);
+        }
+        return Err(e.into());
+    }
     eprintln!(
         "wrote {} bias, {} flat and {} blooming stacks of {} frames ({}×{}) to {}",
         plan.bias_exposures_s.len(),

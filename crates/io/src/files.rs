@@ -160,6 +160,45 @@ impl FileStamp {
     }
 }
 
+/// Refuses a write of `bytes` into the folder `dir` (or the nearest existing folder above it)
+/// when its filesystem has less room, before anything is written: a run that would fill the
+/// disk fails at once, with the sizes, rather than after hours with half its outputs. Where the
+/// free space cannot be read (not Unix, a filesystem that does not say), nothing is refused.
+pub fn check_room(dir: &Path, bytes: u64) -> Result<()> {
+    let Some(free) = free_space(dir) else {
+        return Ok(());
+    };
+    if bytes > free {
+        let gb = |b: u64| b as f64 / 1e9;
+        return Err(Error::Usage(format!(
+            "needs {:.3} GB and its filesystem has {:.3} GB free; make room, write elsewhere or ask for less",
+            gb(bytes),
+            gb(free)
+        ))
+        .with_path(dir));
+    }
+    Ok(())
+}
+
+/// The bytes an unprivileged process may still write on the filesystem holding `dir` (or the
+/// nearest existing folder above it).
+fn free_space(dir: &Path) -> Option<u64> {
+    let at = dir
+        .ancestors()
+        .find(|a| !a.as_os_str().is_empty() && a.exists())
+        .unwrap_or(Path::new("."));
+    #[cfg(unix)]
+    {
+        let s = rustix::fs::statvfs(at).ok()?;
+        Some(s.f_bavail.saturating_mul(s.f_frsize))
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = at;
+        None
+    }
+}
+
 /// What `path` is when it exists but is not a regular file (`a folder`, `a device or other
 /// special file`), for a message that says so rather than "not found".
 pub fn not_a_file(path: &Path) -> Option<&'static str> {

@@ -53,7 +53,7 @@ use std::path::{Path, PathBuf};
 
 pub use error::{Error, Result};
 pub use files::{
-    bytes_hash, content_hash, input_among, not_a_file, output_paths, refuse_overwrite,
+    bytes_hash, check_room, content_hash, input_among, not_a_file, output_paths, refuse_overwrite,
     safetensors_sorted, FileId, FileStamp,
 };
 pub use image::{image_files, Image};
@@ -323,6 +323,11 @@ pub fn open_with(path: impl AsRef<Path>, limits: Limits) -> Result<Box<dyn Frame
         return zarr::ZarrReader::open(path, limits)
             .map(|r| Box::new(r) as Box<dyn FrameReader>)
             .map_err(|e| e.with_path(path));
+    }
+    // Opening a FIFO waits for a writer (forever, if none comes) and a device reads without
+    // end; neither is an image file, so neither is opened.
+    if let Some(what) = files::not_a_file(path) {
+        return Err(Error::Usage(format!("{what}, not an image file")).with_path(path));
     }
     File::open(path)
         .map_err(Error::from)

@@ -9,7 +9,7 @@
 //! inside the array's own folder, where Zarr readers look only for the chunks they need (in the
 //! group's folder zarr-python warns of every entry that is not a Zarr node). Staging folders
 //! that killed processes left are removed by a later writer once they are [`STALE`], and a
-//! store's temporary folder left beside it likewise. The store itself is built
+//! store's temporary folder left beside it after a minute. The store itself is built
 //! in a temporary folder and renamed into place, so among processes that start together exactly
 //! one creates it and the others open it and check that it was made for the same work
 //! ([`ZarrStackWriter::create_or_open`]). Frames never written read as NaN (the fill value),
@@ -70,10 +70,11 @@ pub const DONE_DIR: &str = ".emccd-done";
 /// the array folder.
 const STAGING_DIR: &str = ".emccd-staging";
 /// A writer's staging folder untouched for this long belongs to a process that was killed (a
-/// live writer stages a frame at least this often: the slowest frames take minutes), and a
-/// store's temporary folder this old to a process killed while it built the store (which
-/// takes milliseconds).
+/// live writer stages a frame at least this often: the slowest frames take minutes).
 pub const STALE: std::time::Duration = std::time::Duration::from_secs(3600);
+/// A store's temporary folder this old belongs to a process killed while it built the store
+/// (which takes milliseconds).
+const STALE_BUILD: std::time::Duration = std::time::Duration::from_secs(60);
 /// The array (multiscale level 0) inside a store written by [`ZarrStackWriter`].
 const LEVEL0: &str = "0";
 /// The group attribute that holds what the store's frames were made from.
@@ -360,7 +361,12 @@ impl ZarrStackWriter {
         }
         let mut created = false;
         if let Some(name) = path.file_name().and_then(|n| n.to_str()) {
-            remove_stale(crate::folder_of(path), &format!(".{name}."), ".tmp");
+            remove_stale(
+                crate::folder_of(path),
+                &format!(".{name}."),
+                ".tmp",
+                STALE_BUILD,
+            );
         }
         if !path.exists() {
             let tmp = temp_dir_beside(path).map_err(|e| at(e.into()))?;
@@ -477,7 +483,7 @@ impl ZarrStackWriter {
         // staging folder, is the store's key for that frame.
         let area = level.join(STAGING_DIR);
         std::fs::create_dir_all(&area)?;
-        remove_stale(&area, "w", "");
+        remove_stale(&area, "w", "", STALE);
         let staging_dir = tempfile::Builder::new().prefix("w").tempdir_in(&area)?;
         let staging = Array::new_with_metadata(
             store(staging_dir.path())?,
@@ -575,9 +581,9 @@ impl Drop for ZarrStackWriter {
     }
 }
 
-/// Removes the entries of `dir` named `prefix…suffix` that nothing has touched for [`STALE`]
-/// (the newest modification time of anything inside counts): what killed processes left.
-fn remove_stale(dir: &Path, prefix: &str, suffix: &str) {
+/// Removes the folders in `dir` named `prefix…suffix` that nothing has touched for `stale` (the
+/// newest modification time of anything inside counts): what killed processes left.
+fn remove_stale(dir: &Path, prefix: &str, suffix: &str, stale: std::time::Duration) {
     fn newest(p: &Path) -> Option<std::time::SystemTime> {
         let m = std::fs::symlink_metadata(p).ok()?;
         let mut t = m.modified().ok()?;
@@ -600,7 +606,7 @@ fn remove_stale(dir: &Path, prefix: &str, suffix: &str) {
         let p = e.path();
         let old = newest(&p)
             .and_then(|t| t.elapsed().ok())
-            .is_some_and(|age| age > STALE);
+            .is_some_and(|age| age > stale);
         if old && p.is_dir() {
             let _ = std::fs::remove_dir_all(&p);
         }
