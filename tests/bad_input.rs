@@ -1143,3 +1143,61 @@ fn a_simulated_acquisition_is_whole_or_absent() {
     assert_eq!(files(d), ["cal/flat"]);
     assert_eq!(std::fs::read(d.join("cal/flat")).unwrap(), b"mine");
 }
+
+/// `evaluate --out` checks every pair before any work and writes its panels and tables only
+/// when every pair is scored: a later pair at fault (a missing truth, a truth of another
+/// size) leaves no folder, and an earlier `--out` folder as it was (the first pairs' panels
+/// were written before the error).
+#[test]
+fn evaluate_writes_all_or_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    raw_frame(d, "scene.tif", None);
+    ok(&emccd(
+        &[
+            "simulate",
+            "pairs",
+            "--clean",
+            "scene.tif",
+            "--photons",
+            "20",
+            "--photons",
+            "40",
+            "--photons",
+            "80",
+            "-o",
+            "p",
+        ],
+        d,
+    ));
+    let truth = d.join("p/clean/scene_p80.tif");
+    let good = std::fs::read(&truth).unwrap();
+    std::fs::create_dir(d.join("earlier")).unwrap();
+    std::fs::write(d.join("earlier/results.csv"), b"mine").unwrap();
+    std::fs::remove_file(&truth).unwrap();
+    for out in ["ev", "earlier"] {
+        let o = emccd(&["evaluate", "p", "--method", "input", "--out", out], d);
+        fails_with(&o, "scene_p80.tif");
+    }
+    // A truth of another size is named with the pairs folder.
+    let mut w =
+        emccd_io::StackWriter::create(&truth, 8, 8, emccd_io::SampleFormat::U16, Some(1)).unwrap();
+    w.write_frame(&[1.0; 64]).unwrap();
+    w.finish().unwrap();
+    let o = emccd(&["evaluate", "p", "--method", "input", "--out", "ev"], d);
+    fails_with(&o, "noisy/scene_p80.tif: noisy 512×512 and clean 8×8");
+    assert!(String::from_utf8_lossy(&o.stderr)
+        .contains(&format!("p{}noisy", std::path::MAIN_SEPARATOR)));
+    assert!(!d.join("ev").exists());
+    assert_eq!(files(&d.join("earlier")), ["results.csv"]);
+    assert_eq!(
+        std::fs::read(d.join("earlier/results.csv")).unwrap(),
+        b"mine"
+    );
+    std::fs::write(&truth, good).unwrap();
+    ok(&emccd(
+        &["evaluate", "p", "--method", "input", "--out", "ev"],
+        d,
+    ));
+    assert_eq!(files(&d.join("ev")).len(), 5);
+}

@@ -106,9 +106,35 @@ pub fn evaluate(
     out: Option<&Path>,
     tick: &dyn Fn(),
 ) -> crate::Result<Evaluation> {
+    // Every pair's files first, from their headers: a pair at fault stops the run before any
+    // work and before anything is written.
+    for cam in cameras {
+        for p in &cam.manifest.pair {
+            p.check(&cam.dir)?;
+        }
+    }
+    let made = out.filter(|d| !d.exists());
     if let Some(dir) = out {
         std::fs::create_dir_all(dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
     }
+    let r = evaluate_into(cameras, methods, out, tick);
+    if r.is_err() {
+        if let Some(d) = made {
+            let _ = std::fs::remove_dir(d);
+        }
+    }
+    r
+}
+
+/// [`evaluate`] once its inputs are checked and `out` exists: its files are staged beside their
+/// targets and placed together at the end, so a failure part way leaves `out` as it was.
+fn evaluate_into(
+    cameras: &[PairsDir],
+    methods: &[Contender],
+    out: Option<&Path>,
+    tick: &dyn Fn(),
+) -> crate::Result<Evaluation> {
+    let mut staged: Vec<emccd_io::Staged> = Vec::new();
     let mut scores = Vec::new();
     for cam in cameras {
         for p in &cam.manifest.pair {
@@ -150,7 +176,7 @@ pub fn evaluate(
                 } else {
                     String::new()
                 };
-                write_panel(dir, &prefix, p, &frames, &outputs)?;
+                staged.push(write_panel(dir, &prefix, p, &frames, &outputs)?);
             }
         }
     }
@@ -161,13 +187,14 @@ pub fn evaluate(
         scores,
     };
     if let Some(dir) = out {
-        let write = |name: &str, bytes: &[u8]| {
-            emccd_io::write_atomic(dir.join(name), bytes)
-                .map_err(|e| emccd_io::error_lines(&e).join(": "))
-        };
+        let io = |e: emccd_io::Error| crate::Error(emccd_io::error_lines(&e).join(": "));
         let json = serde_json::to_string_pretty(&ev.json()).map_err(|e| e.to_string())?;
-        write("results.json", json.as_bytes())?;
-        write("results.csv", crate::scores::csv(&ev.scores).as_bytes())?;
+        staged.push(emccd_io::stage_bytes(&dir.join("results.json"), json.as_bytes()).map_err(io)?);
+        let csv = crate::scores::csv(&ev.scores);
+        staged.push(emccd_io::stage_bytes(&dir.join("results.csv"), csv.as_bytes()).map_err(io)?);
+        for s in staged {
+            s.place().map_err(io)?;
+        }
     }
     Ok(ev)
 }
@@ -181,7 +208,7 @@ fn write_panel(
     p: &crate::Pair,
     frames: &PairFrames,
     outs: &[Vec<f32>],
-) -> crate::Result<()> {
+) -> crate::Result<emccd_io::Staged> {
     // A movie's middle frame.
     let (w, h, k) = (frames.width, frames.height, frames.frames / 2);
     let truth = frames.clean_frame(k);
@@ -199,7 +226,7 @@ fn write_panel(
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_default();
     let path = dir.join(format!("{prefix}{stem}.png"));
-    emccd_io::write_png_preview(
+    emccd_io::stage_png_preview(
         &path,
         n * c,
         c,

@@ -101,40 +101,56 @@ impl PairFrames {
 }
 
 impl Pair {
-    /// Reads the pair's frames ([`PairFrames`]) from the folder `dir` of its manifest; an error
-    /// (naming the file) where a file is unreadable, the sizes differ, or a truth stack's
-    /// length is not the noisy stack's.
-    pub fn read(&self, dir: &Path) -> crate::Result<PairFrames> {
+    /// Checks the pair's files in the folder `dir` of its manifest from their headers, reading
+    /// no frame: both open, the truth holds a frame, the sizes agree, and a truth stack (a
+    /// movie's) is as long as the noisy stack. The error names the file at fault.
+    pub fn check(&self, dir: &Path) -> crate::Result<()> {
         let err = |e: emccd_io::Error| crate::Error(emccd_io::error_lines(&e).join(": "));
-        let (cinfo, clean) = emccd_io::read_all(dir.join(&self.clean)).map_err(err)?;
-        if clean.is_empty() {
+        let (clean, noisy) = (dir.join(&self.clean), dir.join(&self.noisy));
+        let c = emccd_io::open(&clean).map_err(err)?.info().clone();
+        let n = emccd_io::open(&noisy).map_err(err)?.info().clone();
+        if c.frames == 0 {
             return Err(crate::Error(format!(
                 "{}: the file holds no frame",
+                clean.display()
+            )));
+        }
+        if (n.width, n.height) != (c.width, c.height) {
+            return Err(crate::Error(format!(
+                "{}: noisy {}×{} and clean {}×{} ({}) differ",
+                noisy.display(),
+                n.width,
+                n.height,
+                c.width,
+                c.height,
                 self.clean
             )));
         }
+        if c.frames > 1 && n.frames != c.frames {
+            return Err(crate::Error(format!(
+                "{}: {} noisy frames and {} frames of truth in {}; a movie pair has one truth \
+                 per frame, a still pair one truth",
+                noisy.display(),
+                n.frames,
+                c.frames,
+                self.clean
+            )));
+        }
+        Ok(())
+    }
+
+    /// Reads the pair's frames ([`PairFrames`]) from the folder `dir` of its manifest, after
+    /// [`Pair::check`].
+    pub fn read(&self, dir: &Path) -> crate::Result<PairFrames> {
+        self.check(dir)?;
+        let err = |e: emccd_io::Error| crate::Error(emccd_io::error_lines(&e).join(": "));
+        let (_, clean) = emccd_io::read_all(dir.join(&self.clean)).map_err(err)?;
         let (info, noisy) = if clean.len() > 1 {
             emccd_io::read_all(dir.join(&self.noisy)).map_err(err)?
         } else {
             let (info, first) = emccd_io::read_first(dir.join(&self.noisy)).map_err(err)?;
             (info, vec![first])
         };
-        if (info.width, info.height) != (cinfo.width, cinfo.height) {
-            return Err(crate::Error(format!(
-                "{}: noisy {}×{} and clean {}×{} differ",
-                self.noisy, info.width, info.height, cinfo.width, cinfo.height
-            )));
-        }
-        if clean.len() > 1 && noisy.len() != clean.len() {
-            return Err(crate::Error(format!(
-                "{}: {} noisy frames and {} frames of truth in {}; a movie pair has one truth \
-                 per frame, a still pair one truth",
-                self.noisy,
-                noisy.len(),
-                clean.len(),
-                self.clean
-            )));
-        }
         Ok(PairFrames {
             width: info.width,
             height: info.height,

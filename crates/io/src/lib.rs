@@ -898,12 +898,20 @@ fn new_dirs() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
 
 /// Writes `bytes` to `path` atomically (temporary file, then rename).
 pub fn write_atomic(path: impl AsRef<Path>, bytes: &[u8]) -> Result<()> {
+    stage_bytes(path.as_ref(), bytes)?.place()
+}
+
+/// `bytes` written in full beside `path`, to be placed there with the other outputs of the run
+/// ([`Staged`]).
+pub fn stage_bytes(path: &Path, bytes: &[u8]) -> Result<Staged> {
     use std::io::Write;
-    let path = path.as_ref();
     let mut tmp = temp_beside(path).map_err(|e| Error::from(e).with_path(path))?;
     tmp.write_all(bytes)
         .map_err(|e| Error::from(e).with_path(path))?;
-    persist(tmp, path)
+    Ok(Staged {
+        tmp,
+        target: path.to_path_buf(),
+    })
 }
 
 /// Writes files that belong together (a profile's two files): every one in full beside its
@@ -934,7 +942,20 @@ pub fn write_png_preview(
     lo: f32,
     hi: f32,
 ) -> Result<()> {
-    png_io::write_gray8(path.as_ref(), width, height, data, lo, hi)
+    png_io::write_gray8(path.as_ref(), width, height, data, lo, hi)?.place()
+}
+
+/// [`write_png_preview`] written beside `path`, placed with the run's other outputs
+/// ([`Staged`]).
+pub fn stage_png_preview(
+    path: &Path,
+    width: usize,
+    height: usize,
+    data: &[f32],
+    lo: f32,
+    hi: f32,
+) -> Result<Staged> {
+    png_io::write_gray8(path, width, height, data, lo, hi)
 }
 
 /// Temporary folders are created owner-only; a finished store gets the usual 0755, so other

@@ -124,7 +124,7 @@ pub fn write_gray8(
     data: &[f32],
     lo: f32,
     hi: f32,
-) -> Result<()> {
+) -> Result<crate::Staged> {
     write_gray8_inner(path, width, height, data, lo, hi).map_err(|e| e.with_path(path))
 }
 
@@ -135,7 +135,7 @@ fn write_gray8_inner(
     data: &[f32],
     lo: f32,
     hi: f32,
-) -> Result<()> {
+) -> Result<crate::Staged> {
     if data.len() != width * height {
         return Err(Error::Usage(format!(
             "{} values for a {width}×{height} image",
@@ -161,7 +161,10 @@ fn write_gray8_inner(
         wr.finish()
             .map_err(|e| Error::Format(format!("PNG: {e}")))?;
     }
-    crate::persist(tmp, path)
+    Ok(crate::Staged {
+        tmp,
+        target: path.to_path_buf(),
+    })
 }
 
 #[cfg(test)]
@@ -171,7 +174,10 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("p.png");
         let data = [0.0, 50.0, 100.0, 200.0];
-        super::write_gray8(&p, 2, 2, &data, 0.0, 100.0).unwrap();
+        super::write_gray8(&p, 2, 2, &data, 0.0, 100.0)
+            .unwrap()
+            .place()
+            .unwrap();
         let (info, f) = crate::read_all(&p).unwrap();
         assert_eq!(
             (info.width, info.height, info.pixel_type),
