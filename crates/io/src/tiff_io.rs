@@ -154,10 +154,17 @@ fn page_pixel_type<R: Read + Seek>(
             )))
         }
     };
-    // SampleFormat: 1 = unsigned, 2 = signed, 3 = IEEE float.
-    let fmt = decoder
-        .find_tag_unsigned::<u16>(Tag::SampleFormat)?
-        .unwrap_or(1);
+    // SampleFormat: 1 = unsigned, 2 = signed, 3 = IEEE float; one value per channel (an RGB
+    // image has three, which must agree).
+    let fmts = decoder
+        .find_tag_unsigned_vec::<u16>(Tag::SampleFormat)?
+        .unwrap_or_default();
+    let fmt = fmts.first().copied().unwrap_or(1);
+    if fmts.iter().any(|&f| f != fmt) {
+        return Err(Error::Unsupported(format!(
+            "TIFF channels of different sample formats ({fmts:?})"
+        )));
+    }
     Ok((
         match (fmt, bits) {
             (1, 8) => PixelType::U8,

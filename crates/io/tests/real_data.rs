@@ -235,3 +235,26 @@ fn planar_rgb_tiff_is_read_as_luminance_with_a_warning() {
         "{w}"
     );
 }
+
+/// An RGB float32 TIFF (three SampleFormat values, one per channel), interleaved or in separate
+/// planes as tifffile writes them, is read as its luminance like an integer one; it was
+/// refused with "tag has invalid type".
+#[test]
+fn rgb_float_tiff_is_read_as_luminance() {
+    for name in ["rgb_f32.tif", "planar_rgb_f32.tif"] {
+        let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/fixtures")
+            .join(name);
+        let (info, f) = read_all(&p).unwrap();
+        assert_eq!((info.width, info.height, info.frames), (8, 6, 1), "{name}");
+        for y in 0..6 {
+            for x in 0..8 {
+                let (x, y) = (x as f32, y as f32);
+                let (r, g, b) = (0.5 + 0.25 * x + y, 3.0 + 0.125 * x * y, -2.0 + 0.5 * y);
+                let want = 0.299 * r + 0.587 * g + 0.114 * b;
+                let got = f[0][(y * 8.0 + x) as usize];
+                assert!((got - want).abs() < 1e-4, "{name} ({x}, {y}): {got} vs {want}");
+            }
+        }
+    }
+}
