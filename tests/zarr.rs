@@ -474,3 +474,62 @@ print("ok")
     let json = ok(&emccd(&["info", "--json", "v2.zarr"], d));
     assert!(json.contains("\"format\": \"zarr\""), "{json}");
 }
+
+/// A store that one process began and could not finish because an input frame is at fault (a
+/// NaN in the middle of the stack) is removed (it stayed, half written, and a rerun stopped at
+/// the same frame); a shard's store, which other processes fill too, stays.
+#[test]
+fn a_store_begun_alone_and_failed_is_removed() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    setup(d);
+    let (_, mut f) = emccd_io::read_all(d.join("b.tif")).unwrap();
+    f[1][100] = f32::NAN;
+    // Written by the tiff crate: emccd's own writer refuses a NaN.
+    let file = std::fs::File::create(d.join("nan.tif")).unwrap();
+    let mut enc = tiff::encoder::TiffEncoder::new(file).unwrap();
+    for frame in &f {
+        enc.write_image::<tiff::encoder::colortype::Gray32Float>(N as u32, N as u32, frame)
+            .unwrap();
+    }
+    for method in ["bm3d", "temporal"] {
+        let args = [
+            "denoise",
+            "nan.tif",
+            "--profile",
+            "prof",
+            "--exposure-s",
+            "0.01",
+            "--method",
+            method,
+            "-o",
+            "n.zarr",
+        ];
+        let o = emccd(&args, d);
+        assert_eq!(o.status.code(), Some(2));
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("frame 2"), "{err}");
+        assert!(!d.join("n.zarr").exists(), "{method}");
+        let o = emccd(&[&args[..], &["--shard", "0/1"][..]].concat(), d);
+        assert_eq!(o.status.code(), Some(2));
+    }
+    let o = emccd(
+        &[
+            "denoise",
+            "nan.tif",
+            "--profile",
+            "prof",
+            "--exposure-s",
+            "0.01",
+            "--method",
+            "bm3d",
+            "-o",
+            "s.zarr",
+            "--shard",
+            "0/2",
+        ],
+        d,
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(d.join("s.zarr/zarr.json").is_file());
+}

@@ -173,7 +173,33 @@ pub fn denoise_to_zarr(
     out.check_inputs(inputs.iter().map(|i| i.path.as_path()))?;
     let spec = zarr_spec(fd, &inputs, out)?;
     let frames = spec.frames;
-    let (store, _created) = ZarrStackWriter::create_or_open(out.path, &spec)?;
+    if !out.path.exists() {
+        // Float32 frames, one chunk each; the metadata is a few kB.
+        let bytes = (frames as u64).saturating_mul(fd.profile.len() as u64 * 4) + (1 << 16);
+        emccd_io::check_room(out.path, bytes)?;
+    }
+    let (store, created) = ZarrStackWriter::create_or_open(out.path, &spec)?;
+    let r = denoise_share(fd, inputs, out, &store, frames, pending, on_frame);
+    // A store this run began alone and could not finish (an input frame at fault, a full disk)
+    // goes: rerunning would stop at the same place. A killed run never gets here, and its
+    // store is resumed; a shard's store holds other processes' work.
+    if r.is_err() && created && out.shard == emccd_io::zarr::Shard::ALL {
+        drop(store);
+        let _ = std::fs::remove_dir_all(out.path);
+    }
+    r
+}
+
+/// [`denoise_to_zarr`]'s work once `store` is open.
+fn denoise_share(
+    fd: &Denoiser,
+    inputs: Vec<Recording>,
+    out: &ZarrOutput,
+    store: &ZarrStackWriter,
+    frames: usize,
+    pending: &mut dyn FnMut(usize),
+    on_frame: &mut dyn FnMut(),
+) -> Result<ZarrRun> {
     let range = out.shard.range(frames);
     if range.is_empty() {
         return Ok(ZarrRun {
@@ -187,7 +213,7 @@ pub fn denoise_to_zarr(
         });
     }
     pending(range.clone().filter(|&k| !store.is_done(k)).count());
-    let run = denoise_shard(fd, inputs, &store, range.clone(), on_frame)?;
+    let run = denoise_shard(fd, inputs, store, range.clone(), on_frame)?;
     Ok(ZarrRun {
         frames,
         range,
