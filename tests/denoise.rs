@@ -381,6 +381,58 @@ fn temporal_denoises_a_stack_with_its_neighbours() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("--method temporal"), "{err}");
     assert!(!d.join("b.tif").exists());
+
+    // One frame with a window asked: denoised alone, and said so (it was silent), by the
+    // default's per-frame method or temporal's single-frame estimate.
+    let one = "pairs/clean/field1-avg50_p20.tif";
+    for (method, said, same_as) in [
+        (None, "(--method blend)", "blend1.tif"),
+        (
+            Some("temporal"),
+            "(--method temporal, its single-frame estimate)",
+            "ivst1.tif",
+        ),
+    ] {
+        let out = format!("w3_{}.tif", method.unwrap_or("default"));
+        let mut args = vec!["denoise", one, "--profile", "prof", "--exposure-s", "0.01"];
+        args.extend(["-o", out.as_str(), "--window", "3"]);
+        if let Some(m) = method {
+            args.extend(["--method", m]);
+        }
+        let o = emccd(&args, d);
+        ok(&o);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            err.contains(
+                "one frame: --window 3 finds no neighbours, so the frame is denoised alone"
+            ) && err.contains(said),
+            "{err}"
+        );
+        let m = if same_as == "blend1.tif" {
+            "blend"
+        } else {
+            "ivst"
+        };
+        ok(&emccd(
+            &[
+                "denoise",
+                one,
+                "--profile",
+                "prof",
+                "--exposure-s",
+                "0.01",
+                "-o",
+                same_as,
+                "--method",
+                m,
+            ],
+            d,
+        ));
+        assert_eq!(
+            emccd_io::read_all(d.join(&out)).unwrap().1,
+            emccd_io::read_all(d.join(same_as)).unwrap().1
+        );
+    }
 }
 
 /// The README's main-job command, run as written (from the repository root, on the image the

@@ -141,7 +141,14 @@ fn denoise_files(
         }
         let rec = a.recording.reopen(input, &profile)?;
         let frames = rec.info.frames;
-        if let Some(n) = r.movie_note(frames, window) {
+        let asked = a.window.map(usize::from);
+        for n in [
+            r.movie_note(frames, window),
+            r.lone_frame_note(frames, asked),
+        ]
+        .into_iter()
+        .flatten()
+        {
             eprintln!("{}: {n}", input.display());
         }
         let fd = r.denoiser(profile, frames, a.tiling, a.ensemble, a.units, window)?;
@@ -191,7 +198,13 @@ fn run_zarr(a: &Args, r: &Resolved, profile: &CameraProfile, window: usize) -> R
     // The store is one stack: the default runs temporally when any of its recordings is a
     // movie (each frame's window stays within its own recording).
     let longest = inputs.iter().map(|i| i.info.frames).max().unwrap_or(1);
-    if let Some(n) = r.movie_note(longest, window) {
+    for n in [
+        r.movie_note(longest, window),
+        r.lone_frame_note(longest, a.window.map(usize::from)),
+    ]
+    .into_iter()
+    .flatten()
+    {
         eprintln!("{n}");
     }
     let fd = &r.denoiser(profile, longest, a.tiling, a.ensemble, a.units, window)?;

@@ -84,6 +84,23 @@ impl Resolved {
         })
     }
 
+    /// The note for a window asked (`--window`, `asked`) of a recording of one frame, which
+    /// has no neighbours: it is denoised alone, by the method that says.
+    pub fn lone_frame_note(&self, frames: usize, asked: Option<usize>) -> Option<String> {
+        let w = asked.filter(|&w| w > 0 && frames == 1)?;
+        let method = self.method_for(frames, w);
+        Some(format!(
+            "one frame: --window {w} finds no neighbours, so the frame is denoised alone \
+             (--method {}{})",
+            method.name(),
+            if method.temporal() {
+                ", its single-frame estimate"
+            } else {
+                ""
+            }
+        ))
+    }
+
     /// The note for running the default on a movie (`frames` frames) temporally, if it does.
     pub fn movie_note(&self, frames: usize, window: usize) -> Option<String> {
         (self.method_for(frames, window) != self.method).then(|| {

@@ -253,7 +253,10 @@ fn rgb_float_tiff_is_read_as_luminance() {
                 let (r, g, b) = (0.5 + 0.25 * x + y, 3.0 + 0.125 * x * y, -2.0 + 0.5 * y);
                 let want = 0.299 * r + 0.587 * g + 0.114 * b;
                 let got = f[0][(y * 8.0 + x) as usize];
-                assert!((got - want).abs() < 1e-4, "{name} ({x}, {y}): {got} vs {want}");
+                assert!(
+                    (got - want).abs() < 1e-4,
+                    "{name} ({x}, {y}): {got} vs {want}"
+                );
             }
         }
     }
