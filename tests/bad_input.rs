@@ -585,18 +585,22 @@ fn the_bad_input_corpus_is_refused_cleanly() {
         };
         let runs: Vec<Vec<&str>> = if name.starts_with("frames-") {
             let mut v = vec![vec!["denoise", name, "-o", "out.tif", "--method", "net"]];
-            // `info` describes a header (it marks a bad exposure, tested below), and an explicit
-            // exposure overrides the header's: the bad-exposure file is only wrong without one.
+            // `info` describes a header (it marks a bad exposure, tested below; it reads no
+            // frame), and an explicit exposure overrides the header's: the bad-exposure file is
+            // only wrong without one.
             if !name.contains("exposure") {
-                v.push(vec!["info", name]);
-                v.push(vec![
-                    "denoise",
-                    name,
-                    "-o",
-                    "out.tif",
-                    "--exposure-s",
-                    "0.01",
-                ]);
+                if !name.contains("nan") {
+                    v.push(vec!["info", name]);
+                }
+                let e = ["--exposure-s", "0.01"];
+                for (cmd, out, extra) in [
+                    ("denoise", "out.tif", &[][..]),
+                    ("denoise", "out.tif", &["--method", "temporal"][..]),
+                    ("denoise", "out.zarr", &[][..]),
+                    ("count", "out.tif", &[][..]),
+                ] {
+                    v.push([&[cmd, name, "-o", out][..], &e, extra].concat());
+                }
             }
             v
         } else if name.starts_with("manifest-") {
@@ -605,8 +609,9 @@ fn the_bad_input_corpus_is_refused_cleanly() {
             .into_iter()
             .find_map(|(prefix, flag)| name.starts_with(prefix).then_some(flag))
         {
-            // A good frame denoised with the damaged model or profile.
-            vec![vec![
+            // A good frame denoised (and, with a damaged profile, counted) with the damaged
+            // model or profile.
+            let mut v = vec![vec![
                 "denoise",
                 "good.tif",
                 "-o",
@@ -615,7 +620,20 @@ fn the_bad_input_corpus_is_refused_cleanly() {
                 "0.01",
                 flag,
                 name,
-            ]]
+            ]];
+            if flag == "--profile" {
+                v.push(vec![
+                    "count",
+                    "good.tif",
+                    "-o",
+                    "out.tif",
+                    "--exposure-s",
+                    "0.01",
+                    flag,
+                    name,
+                ]);
+            }
+            v
         } else {
             panic!("corpus file {name} has no known prefix");
         };
@@ -632,7 +650,7 @@ fn the_bad_input_corpus_is_refused_cleanly() {
             cases += 1;
         }
     }
-    assert!(cases >= 30, "only {cases} cases ran");
+    assert!(cases >= 70, "only {cases} cases ran");
     let o = emccd(&["info", "frames-negative-exposure.fits"], d);
     assert!(ok(&o).contains("-1 s  (not a positive number of seconds"));
 }

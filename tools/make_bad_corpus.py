@@ -4,13 +4,14 @@ every kind emccd reads. `tests/bad_input.rs` runs each through the commands that
 must exit 2 with a message naming the file, and leave no output and no temporary file.
 
 File names say what is wrong; the prefix says what reads it: `frames-` (TIFF/SIF/FITS given to
-`denoise` and `info`), `manifest-` (`calibrate`), `model-` (`denoise --model`), `profile-`
+`denoise` — frame by frame, temporally and into a Zarr store —, `count` and `info`), `manifest-` (`calibrate`), `model-` (`denoise --model`), `profile-`
 (a directory given to `denoise --profile`). Standard library only; rerun to regenerate.
 """
 import json
 import os
 import struct
 import sys
+import zlib
 
 OUT = sys.argv[1] if len(sys.argv) > 1 else os.path.join(os.path.dirname(__file__), "..", "tests", "corpus", "bad")
 os.makedirs(OUT, exist_ok=True)
@@ -39,6 +40,31 @@ def tiff(width, height, bits=16, fmt=1, strip_offset=None, strip_bytes=None, dat
     return b"II*\0" + struct.pack("<I", ifd_offset) + struct.pack("<H", n) + b"".join(entries) + struct.pack("<I", 0) + data
 
 
+def float_stack(width, height, pages):
+    """A little-endian multi-page float32 TIFF, each page one Deflate strip (constant frames
+    compress to a few hundred bytes); `pages` are lists of (pixel index, value) set on 500.0."""
+    out = bytearray(b"II*\0" + struct.pack("<I", 0))
+    last_link = 4
+    for changes in pages:
+        frame = [500.0] * (width * height)
+        for i, v in changes:
+            frame[i] = v
+        strip = zlib.compress(struct.pack(f"<{width * height}f", *frame), 9)
+        strip_at = len(out)
+        out += strip
+        out += b"\0" * (len(out) % 2)
+        ifd_at = len(out)
+        struct.pack_into("<I", out, last_link, ifd_at)
+        entries = [(256, 4, width), (257, 4, height), (258, 3, 32), (259, 3, 8), (262, 3, 1),
+                   (273, 4, strip_at), (277, 3, 1), (278, 4, height), (279, 4, len(strip)), (339, 3, 3)]
+        out += struct.pack("<H", len(entries))
+        for tag, typ, val in entries:
+            out += struct.pack("<HHII", tag, typ, 1, val) if typ == 4 else struct.pack("<HHIHH", tag, typ, 1, val, 0)
+        last_link = len(out)
+        out += struct.pack("<I", 0)
+    return bytes(out)
+
+
 def fits(cards, data=b""):
     h = b"".join(c.ljust(80).encode() for c in cards)
     h += b" " * (-len(h) % 2880)
@@ -59,6 +85,9 @@ put("frames-no-end-card.fits", fits(["SIMPLE  =                    T", "BITPIX  
 put("frames-huge-naxis.fits", fits(["SIMPLE  =                    T", "BITPIX  =                   16", "NAXIS   =                    2", "NAXIS1  =           2147483647", "NAXIS2  =           2147483647", "END"]))
 put("frames-truncated-data.fits", fits(["SIMPLE  =                    T", "BITPIX  =                   16", "NAXIS   =                    2", "NAXIS1  =                  512", "NAXIS2  =                  512", "EXPTIME =                 0.01", "END"], b"\0" * 2880))
 put("frames-negative-exposure.fits", fits(["SIMPLE  =                    T", "BITPIX  =                    8", "NAXIS   =                    2", "NAXIS1  =                  512", "NAXIS2  =                  512", "EXPTIME =                 -1.0", "END"], b"\0" * (512 * 512 + (-(512 * 512) % 2880))))
+# A movie whose second frame holds a NaN: found only once the frames are read, so every command
+# that reads a stack (temporal denoising, Zarr output, counting) must refuse it whole.
+put("frames-nan-in-the-second-frame.tif", float_stack(512, 512, [[], [(1000, float("nan"))], []]))
 
 # Calibration manifests
 put("manifest-not-toml.toml", b"[[bias]\nfile = \n")
