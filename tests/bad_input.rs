@@ -1219,3 +1219,22 @@ fn evaluate_writes_all_or_nothing() {
     ));
     assert_eq!(files(&d.join("ev")).len(), 5);
 }
+
+/// A recording binned on the chip (a real 2×2-binned iXon 897 SIF) given with an unbinned
+/// profile is told to calibrate a profile at that binning (it was told to crop the profile
+/// for a sub-array readout, which would not make one).
+#[test]
+fn a_binned_recording_asks_for_a_binned_calibration() {
+    let dir = tempfile::tempdir().unwrap();
+    let sif = common::data("emccd-real/andor-sif/ixon897_binned_gain56.sif");
+    for cmd in ["denoise", "count"] {
+        let o = emccd(&[cmd, sif.to_str().unwrap(), "-o", "o.tif"], dir.path());
+        fails_with(&o, "binned 2×2 on the chip");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            err.contains("taken with the same binning") && !err.contains("cropped"),
+            "{err}"
+        );
+    }
+    assert!(files(dir.path()).is_empty());
+}

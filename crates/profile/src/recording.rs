@@ -43,6 +43,24 @@ impl Recording {
             ))),
         }
         .and_then(|(t, source)| {
+            // A crop cannot stand in for on-chip binning: binned pixels hold several pixels'
+            // charge, read out and amplified once.
+            let size = (info.width, info.height);
+            if let Some((bx, by)) = info.metadata.binning.filter(|&(x, y)| x * y > 1) {
+                if size != (profile.width, profile.height) {
+                    return Err(Error::Parameter(format!(
+                        "frames are {}×{}, binned {bx}×{by} on the chip; the profile's sensor is \
+                         {}×{} unbinned pixels. Binning sums {} pixels' charge before the EM \
+                         register, so its offset, gain and noise are not a crop's: calibrate a \
+                         profile from bias and flat stacks taken with the same binning",
+                        size.0,
+                        size.1,
+                        profile.width,
+                        profile.height,
+                        bx * by
+                    )));
+                }
+            }
             let w = profile.check_frames(info.width, info.height, t, source, extrapolate)?;
             Ok((t, w))
         });
