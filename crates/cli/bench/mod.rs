@@ -5,3 +5,4 @@ pub mod bsd68;
 pub mod calib;
 pub mod camera;
 pub mod denoise;
+pub mod movie;

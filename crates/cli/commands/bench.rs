@@ -6,7 +6,7 @@ use emccd_camera::VirtualCamera;
 /// Benchmarks. By default: synthesis throughput in Mpix/s on 512×512 frames of the default
 /// camera, and the same frames through the Python `emccd-detect` package
 /// (EMCCDDetect.sim_sub_frame) where it is installed, printing the ratio. --calibration,
-/// --denoise and --bm3d measure the other stages instead.
+/// --denoise, --movie, --bm3d and --archive measure the other stages instead.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Frames per measurement (after one warm-up frame).
@@ -28,11 +28,17 @@ pub struct Args {
     /// 10 ms) beside the input's and BM3D's (with the same VST).
     #[arg(long, value_delimiter = ',', value_name = "MODELS")]
     pub denoise: Vec<String>,
-    /// With --denoise: the virtual camera's truth profile, also used to denoise.
+    /// Instead, measure temporal denoising: this many frames of a scene (the first of
+    /// --scenes) drifting across the virtual camera (1 px right per frame, 1 px down every
+    /// second), at 20 and 200 photons at its peak, denoised frame by frame by BM3D + GAT and by
+    /// `--method temporal`: PSNR over the movie, seconds per frame and their ratio.
+    #[arg(long, value_name = "FRAMES")]
+    pub movie: Option<usize>,
+    /// With --denoise or --movie: the virtual camera's truth profile, also used to denoise.
     #[arg(long, default_value = "default")]
     pub profile: String,
-    /// With --denoise: test scenes (files or directories) the camera's size; default: the six
-    /// microscopy fields in DATA/clean/microscopy/fmd-confocal-bpae.
+    /// With --denoise or --movie: test scenes (files or directories) the camera's size;
+    /// default: the six microscopy fields in DATA/clean/microscopy/fmd-confocal-bpae.
     #[arg(long, num_args = 1..)]
     pub scenes: Vec<std::path::PathBuf>,
     /// Instead, validate BM3D on BSD68 with additive Gaussian noise of these σ (8-bit units,
@@ -138,11 +144,7 @@ fn denoise_bench(
 ) -> Result<()> {
     let models = crate::bench::denoise::models(model_args)?;
     let profile = crate::common::load_profile(profile_arg)?;
-    let scenes = if scene_args.is_empty() {
-        emccd_io::image_files(&[data_folder(data, "clean/microscopy/fmd-confocal-bpae")?])?
-    } else {
-        emccd_io::image_files(scene_args)?
-    };
+    let scenes = scenes_or_default(scene_args, data)?;
     println!(
         "camera: {} (slope {:.2} DN, read noise {:.2} DN), 10 ms",
         profile.camera,
@@ -167,6 +169,47 @@ fn denoise_bench(
     Ok(())
 }
 
+/// The test scenes: those given, else the six microscopy fields under the data folder.
+fn scenes_or_default(
+    scene_args: &[std::path::PathBuf],
+    data: &std::path::Path,
+) -> Result<Vec<std::path::PathBuf>> {
+    Ok(if scene_args.is_empty() {
+        emccd_io::image_files(&[data_folder(data, "clean/microscopy/fmd-confocal-bpae")?])?
+    } else {
+        emccd_io::image_files(scene_args)?
+    })
+}
+
+fn movie_bench(
+    frames: usize,
+    profile_arg: &str,
+    scene_args: &[std::path::PathBuf],
+    data: &std::path::Path,
+) -> Result<()> {
+    let profile = crate::common::load_profile(profile_arg)?;
+    let scenes = scenes_or_default(scene_args, data)?;
+    let scene = scenes
+        .first()
+        .ok_or_else(|| anyhow::anyhow!("--scenes: no image found"))?;
+    println!(
+        "camera: {} ({}×{}, slope {:.2} DN, read noise {:.2} DN), 10 ms; {frames} frames of {} drifting",
+        profile.camera,
+        profile.width,
+        profile.height,
+        profile.slope()?,
+        profile.read_noise_dn(),
+        scene.display()
+    );
+    println!("{}", crate::bench::movie::MovieRow::header());
+    crate::bench::movie::movie(&profile, scene, frames, &mut |r| println!("{r}"))?;
+    println!(
+        "(time ratio: temporal over BM3D per frame; {} CPU threads)",
+        rayon::current_num_threads()
+    );
+    Ok(())
+}
+
 fn calibration_bench(frames: usize) -> Result<()> {
     let dir = tempfile::tempdir()?;
     println!("{}", crate::bench::calib::streaming(dir.path(), frames)?);
@@ -182,6 +225,9 @@ pub fn run(a: Args) -> Result<()> {
     }
     if !a.bm3d.is_empty() {
         return bm3d_bench(&a.bm3d, a.images, &a.data);
+    }
+    if let Some(frames) = a.movie {
+        return movie_bench(frames, &a.profile, &a.scenes, &a.data);
     }
     if let Some(gb) = a.archive {
         return archive_bench(gb, &a.archive_dir, a.net_frames);
