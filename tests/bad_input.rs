@@ -1238,3 +1238,106 @@ fn a_binned_recording_asks_for_a_binned_calibration() {
     }
     assert!(files(dir.path()).is_empty());
 }
+
+/// An output in the way (a folder where a later input's output goes) or a folder of `count`'s
+/// outputs that is a Zarr store is found before any work: earlier outputs are not written or replaced
+/// (the first input's output replaced an earlier result before the second failed, and `count`
+/// put its TIFFs inside a store).
+#[test]
+fn outputs_in_the_way_are_found_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    raw_frame(d, "a.tif", Some(0.01));
+    raw_frame(d, "b.tif", Some(0.01));
+    std::fs::create_dir_all(d.join("o/b_denoised.tif")).unwrap();
+    std::fs::create_dir_all(d.join("o/b_count.tif")).unwrap();
+    for (out, name) in [("o/a_denoised.tif", "denoise"), ("o/a_count.tif", "count")] {
+        std::fs::write(d.join(out), b"earlier").unwrap();
+        let o = emccd(
+            &[name, "a.tif", "b.tif", "-o", "o", "--method", "none"]
+                [..if name == "count" { 5 } else { 7 }],
+            d,
+        );
+        fails_with(&o, "a folder is in the way of this output");
+        assert_eq!(std::fs::read(d.join(out)).unwrap(), b"earlier", "{name}");
+    }
+    std::fs::create_dir(d.join("s.zarr")).unwrap();
+    std::fs::write(
+        d.join("s.zarr/zarr.json"),
+        br#"{"zarr_format":3,"node_type":"group"}"#,
+    )
+    .unwrap();
+    // (`denoise` writes the inputs into one store there, and refuses one it did not make.)
+    fails_with(
+        &emccd(&["count", "a.tif", "b.tif", "-o", "s.zarr"], d),
+        "a Zarr store; several inputs' files go into a plain folder",
+    );
+    assert_eq!(files(&d.join("s.zarr")), ["zarr.json"]);
+}
+
+/// A manifest, profile file or pairs manifest that is a device or a FIFO is refused at once
+/// (`calibrate /dev/zero` filled memory, a FIFO waited forever).
+#[test]
+fn settings_files_that_are_devices_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let o = emccd_or_kill(&["calibrate", "/dev/zero", "-o", "p"], d);
+    fails_with(&o, "a device or other special file, not a regular file");
+    ok(&emccd(
+        &["profile", "crop", "default", "prof", "--roi", "16x16"],
+        d,
+    ));
+    for file in ["profile.toml", "maps.safetensors"] {
+        let bad = d.join(format!("bad-{file}"));
+        copy_tree(&d.join("prof"), &bad);
+        std::fs::remove_file(bad.join(file)).unwrap();
+        std::os::unix::fs::symlink("/dev/zero", bad.join(file)).unwrap();
+        let o = emccd_or_kill(&["profile", "show", bad.to_str().unwrap()], d);
+        fails_with(&o, "a device or other special file, not a regular file");
+    }
+    std::fs::create_dir(d.join("pairs")).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", d.join("pairs/pairs.toml")).unwrap();
+    let o = emccd_or_kill(&["evaluate", "pairs", "--method", "input"], d);
+    fails_with(&o, "a device or other special file, not a regular file");
+    assert!(!d.join("p").exists());
+}
+
+/// pairs.toml names its profile relative to itself, so `evaluate` run from another folder
+/// uses that profile, not one of the same name where it runs (it took the other, exit 0).
+#[test]
+fn pairs_name_their_profile_relative_to_themselves() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    raw_frame(d, "scene.tif", None);
+    ok(&emccd(
+        &["profile", "crop", "default", "P", "--roi", "32x32"],
+        d,
+    ));
+    ok(&emccd(
+        &[
+            "simulate",
+            "pairs",
+            "--clean",
+            "scene.tif",
+            "--crop",
+            "32x32",
+            "--profile",
+            "P",
+            "-o",
+            "pp",
+        ],
+        d,
+    ));
+    let m = std::fs::read_to_string(d.join("pp/pairs.toml")).unwrap();
+    assert!(m.contains("profile = \"../P\""), "{m}");
+    // Another folder with another profile called P, of another size.
+    std::fs::create_dir(d.join("wd")).unwrap();
+    ok(&emccd(
+        &["profile", "crop", "default", "wd/P", "--roi", "48x48"],
+        d,
+    ));
+    ok(&emccd(
+        &["evaluate", "../pp", "--method", "input"],
+        &d.join("wd"),
+    ));
+}

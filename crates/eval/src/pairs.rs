@@ -190,7 +190,7 @@ impl PairsManifest {
     /// Reads `dir/pairs.toml` and checks every exposure; the message names the file.
     pub fn load(dir: &Path) -> crate::Result<PairsManifest> {
         let path = dir.join(Self::FILE);
-        let text = std::fs::read_to_string(&path)
+        let text = emccd_io::read_regular_text(&path)
             .map_err(|e| format!("reading {}: {e}", path.display()))?;
         let m: PairsManifest =
             toml::from_str(&text).map_err(|e| format!("parsing {}: {e}", path.display()))?;
@@ -210,8 +210,9 @@ impl PairsManifest {
     }
 
     /// The profile the pairs name, as an argument for loading it: a folder relative to the
-    /// manifest's `dir` where one is there, else as written (`default`, or a path as `simulate
-    /// pairs` records it); `None` where none is named.
+    /// manifest's `dir` where one is there (as `simulate pairs` records it), else as written
+    /// (`default`, an absolute path, or a manifest written before 2026-11-27, which recorded
+    /// the path as typed, relative to where `simulate pairs` ran); `None` where none is named.
     pub fn profile_arg(&self, dir: &Path) -> Option<String> {
         self.profile.as_ref().map(|p| {
             let rel = dir.join(p);

@@ -132,6 +132,30 @@ fn db2(v: f64) -> f64 {
     (v * 100.0).round() / 100.0
 }
 
+/// The profile argument `profile` as the manifest in `out` records it: a folder as a path
+/// relative to `out` (the manifest's paths are relative to it, so the pairs and the profile
+/// can move together and `evaluate` finds this profile from anywhere), `default` and paths
+/// that cannot be made relative as given.
+fn relative_to(profile: &str, out: &Path) -> String {
+    let (Ok(p), Ok(o)) = (std::fs::canonicalize(profile), std::fs::canonicalize(out)) else {
+        return profile.to_string();
+    };
+    if profile == "default" || !p.is_dir() {
+        return profile.to_string();
+    }
+    let (pc, oc): (Vec<_>, Vec<_>) = (p.components().collect(), o.components().collect());
+    let common = pc.iter().zip(&oc).take_while(|(a, b)| a == b).count();
+    let mut rel = std::path::PathBuf::new();
+    for _ in common..oc.len() {
+        rel.push("..");
+    }
+    for c in &pc[common..] {
+        rel.push(c);
+    }
+    // Forward slashes, so a manifest written on one system reads on another.
+    rel.to_string_lossy().replace('\\', "/")
+}
+
 fn write_all(
     out: &Path,
     plan: &PairsPlan,
@@ -141,7 +165,7 @@ fn write_all(
 ) -> crate::Result<PairsManifest> {
     let mut manifest = PairsManifest {
         camera: Some(plan.camera_name.into()),
-        profile: Some(plan.profile.into()),
+        profile: Some(relative_to(plan.profile, out)),
         em_gain: Some(full.em_gain),
         k_dn_per_e: Some(full.k_dn()),
         qe: Some(full.physics.qe),

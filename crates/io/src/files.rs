@@ -87,8 +87,9 @@ pub fn input_among(outputs: &[PathBuf], inputs: &[PathBuf]) -> Option<(usize, us
 
 /// Where each input's result goes: `out` itself for one input without `suffix`, else
 /// `out/STEM{suffix}` (`x.tif` → `out/x_denoised.tif`). Refused before anything runs: an output
-/// that is one of the inputs (it would be replaced, or overwritten before it is read) and two
-/// inputs that would share an output.
+/// that is one of the inputs (it would be replaced, or overwritten before it is read), two
+/// inputs that would share an output, an output that is a folder, and a folder of outputs that
+/// is a Zarr store.
 pub fn output_paths(inputs: &[PathBuf], out: &Path, suffix: Option<&str>) -> Result<Vec<PathBuf>> {
     let outs: Vec<PathBuf> = inputs
         .iter()
@@ -116,6 +117,21 @@ pub fn output_paths(inputs: &[PathBuf], out: &Path, suffix: Option<&str>) -> Res
             )
         };
         return Err(overwrite_error(&outs[i], &what));
+    }
+    // A folder of outputs that is a Zarr store would get files that are no Zarr nodes (zarr
+    // readers then warn of each); an output that is a folder cannot be replaced by a file, and
+    // finding that after the earlier inputs' outputs were placed would leave them.
+    if suffix.is_some() && crate::zarr::is_zarr(out) {
+        return Err(Error::Usage(
+            "a Zarr store; several inputs' files go into a plain folder".into(),
+        )
+        .with_path(out));
+    }
+    if let Some(o) = outs.iter().find(|o| o.is_dir()) {
+        return Err(Error::Usage(
+            "a folder is in the way of this output; remove it or choose another -o".into(),
+        )
+        .with_path(o));
     }
     for (i, o) in outs.iter().enumerate() {
         if let Some(j) = outs[..i].iter().position(|p| p == o) {
@@ -197,6 +213,26 @@ fn free_space(dir: &Path) -> Option<u64> {
         let _ = at;
         None
     }
+}
+
+/// Reads a whole regular file. A FIFO (opening one waits for a writer, forever if none comes)
+/// or a device (`/dev/zero` reads without end, filling memory) is refused before it is opened,
+/// as an `InvalidInput` error saying what it is: for every settings, manifest, profile and model
+/// file read whole.
+pub fn read_regular(path: &Path) -> std::io::Result<Vec<u8>> {
+    if let Some(what) = not_a_file(path) {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("{what}, not a regular file"),
+        ));
+    }
+    std::fs::read(path)
+}
+
+/// [`read_regular`] of a text file.
+pub fn read_regular_text(path: &Path) -> std::io::Result<String> {
+    String::from_utf8(read_regular(path)?)
+        .map_err(|_| std::io::Error::new(std::io::ErrorKind::InvalidData, "not UTF-8 text"))
 }
 
 /// What `path` is when it exists but is not a regular file (`a folder`, `a device or other

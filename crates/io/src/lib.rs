@@ -53,8 +53,8 @@ use std::path::{Path, PathBuf};
 
 pub use error::{Error, Result};
 pub use files::{
-    bytes_hash, check_room, content_hash, input_among, not_a_file, output_paths, refuse_overwrite,
-    safetensors_sorted, FileId, FileStamp,
+    bytes_hash, check_room, content_hash, input_among, not_a_file, output_paths, read_regular,
+    read_regular_text, refuse_overwrite, safetensors_sorted, FileId, FileStamp,
 };
 pub use image::{image_files, Image};
 

@@ -356,13 +356,13 @@ impl Model {
 
     /// Reads only the metadata of a model file.
     pub fn read_meta(path: &Path) -> Result<ModelMeta> {
-        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let bytes = emccd_io::read_regular(path).map_err(|e| Error::io(path, e))?;
         meta_of(&bytes, path)
     }
 
     /// Loads a model onto `device`.
     pub fn load(path: &Path, device: &Device) -> Result<Model> {
-        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let bytes = emccd_io::read_regular(path).map_err(|e| Error::io(path, e))?;
         Model::from_bytes(bytes, path, device)
     }
 
@@ -406,7 +406,9 @@ impl ModelSource {
     /// The model file's bytes.
     pub fn bytes(&self) -> Result<Cow<'static, [u8]>> {
         match self {
-            ModelSource::File(p) => Ok(Cow::Owned(std::fs::read(p).map_err(|e| Error::io(p, e))?)),
+            ModelSource::File(p) => Ok(Cow::Owned(
+                emccd_io::read_regular(p).map_err(|e| Error::io(p, e))?,
+            )),
             ModelSource::Embedded { bytes, .. } => Ok(Cow::Borrowed(bytes)),
         }
     }

@@ -814,6 +814,27 @@ impl CameraProfile {
             MAX_EXPOSURE_S,
             " s",
         )?;
+        // The shared curve is ln(FPN) = θ0 + θ1 / (1 + e^(−θ2 (ln t − θ3))): the pattern's
+        // ratio to its base map changes by at most e^θ1 over every exposure; a thousandfold is
+        // beyond any dark current a cooled EMCCD gathers, and the midpoint lies within the
+        // exposures a profile may hold (e^±50 spans them with room).
+        let th = self.fpn.shared_theta;
+        within("[fpn] shared_theta's θ0 (ln DN)", th[0], -50.0, 50.0, "")?;
+        within(
+            "[fpn] shared_theta's θ1 (ln of a ratio)",
+            th[1],
+            -(1e3f64.ln()),
+            1e3f64.ln(),
+            "",
+        )?;
+        within(
+            "[fpn] shared_theta's θ2 (per e-fold of exposure)",
+            th[2],
+            -100.0,
+            100.0,
+            "",
+        )?;
+        within("[fpn] shared_theta's θ3 (ln s)", th[3], -50.0, 50.0, "")?;
         if let Some(e) = &self.eld {
             within("[eld] k_dn", e.k_dn, 1e-4, 1e6, " DN per electron")?;
             within("[eld] tukey_lambda", e.tukey_lambda, -1.0, 1.0, "")?;

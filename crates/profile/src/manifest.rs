@@ -110,7 +110,7 @@ impl Manifest {
     /// Reads a manifest and resolves its paths; checks that every named file exists.
     pub fn load(path: impl AsRef<Path>) -> Result<Manifest> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path)
+        let text = emccd_io::read_regular_text(path)
             .map_err(|e| Error::Format(format!("cannot read: {e}")).at(path))?;
         Manifest::parse(&text, path)
     }

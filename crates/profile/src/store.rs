@@ -197,7 +197,7 @@ impl CameraProfile {
             .at(dir));
         }
         let tpath = dir.join(PROFILE_TOML);
-        let text = std::fs::read_to_string(&tpath).map_err(|e| Error::from(e).at(&tpath))?;
+        let text = emccd_io::read_regular_text(&tpath).map_err(|e| Error::from(e).at(&tpath))?;
         let t: TomlProfile =
             toml::from_str(&text).map_err(|e| Error::Format(format!("{e}")).at(&tpath))?;
         if t.format_version != FORMAT_VERSION {
@@ -208,7 +208,7 @@ impl CameraProfile {
             .at(&tpath));
         }
         let mpath = dir.join(MAPS_FILE);
-        let bytes = std::fs::read(&mpath).map_err(|e| Error::from(e).at(&mpath))?;
+        let bytes = emccd_io::read_regular(&mpath).map_err(|e| Error::from(e).at(&mpath))?;
         if let Some(want) = &t.maps_fnv1a64 {
             if *want != fnv1a64(&bytes) {
                 return Err(Error::Format(format!(
@@ -361,6 +361,17 @@ mod tests {
             ),
             (range, "range_s = [nan, 0.1]", "range_s's first value = NaN"),
             ("em_gain = 300.0", "em_gain = 1e308", "em_gain = 1e308"),
+            // The shared FPN curve (it loaded, and moved the corrected mean by 18 %).
+            (
+                "    1.2,\n",
+                "    inf,\n",
+                "[fpn] shared_theta's θ2 (per e-fold of exposure) = inf",
+            ),
+            (
+                "    0.105,\n",
+                "    1e308,\n",
+                "[fpn] shared_theta's θ1 (ln of a ratio) = 1e308",
+            ),
             ("0.2,\n]\nmaps", "1e308,\n]\nmaps", "exposures_s = 1e308"),
         ];
         for (from, to, want) in cases {
