@@ -1140,8 +1140,9 @@ fn a_simulated_acquisition_is_whole_or_absent() {
     fails_with(&o, "GB free; make room, write elsewhere or ask for less");
     assert!(!d.join("huge").exists());
 
-    // The flats' folder cannot be made (a file holds its name): the bias stacks were written
-    // first, and go with the folder made for them.
+    // The flats' folder cannot be made (a file holds its name): the whole acquisition is
+    // written beside `cal` first, so the clash moves nothing into it (the bias stacks were
+    // written and left).
     std::fs::create_dir(d.join("cal")).unwrap();
     std::fs::write(d.join("cal/flat"), b"mine").unwrap();
     let o = emccd(
@@ -1157,7 +1158,10 @@ fn a_simulated_acquisition_is_whole_or_absent() {
         ],
         d,
     );
-    fails_with(&o, "flat");
+    fails_with(
+        &o,
+        "a file is in the way of what this run writes there; nothing was placed",
+    );
     assert_eq!(files(d), ["cal/flat"]);
     assert_eq!(std::fs::read(d.join("cal/flat")).unwrap(), b"mine");
 }
@@ -1340,4 +1344,51 @@ fn pairs_name_their_profile_relative_to_themselves() {
         &["evaluate", "../pp", "--method", "input"],
         &d.join("wd"),
     ));
+}
+
+/// `simulate calibration --force` stopped part way leaves the acquisition it was replacing as
+/// it was (half its stacks were new, and the old manifest named them), and nothing of its own.
+#[test]
+fn a_replacement_stopped_part_way_leaves_the_earlier_acquisition() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    small_acquisition(d, "600,1200");
+    let before = files(d);
+    let bytes = |f: &str| std::fs::read(d.join(f)).unwrap();
+    let was: Vec<Vec<u8>> = before.iter().map(|f| bytes(f)).collect();
+    let child = Command::new(env!("CARGO_BIN_EXE_emccd"))
+        .args([
+            "simulate",
+            "calibration",
+            "-o",
+            "cal",
+            "--force",
+            "--seed",
+            "7",
+        ])
+        .args(["--crop", "256x256", "--frames", "2000"])
+        .current_dir(d)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let staged = || {
+        files(d)
+            .iter()
+            .any(|f| f.contains("bias_") && f.starts_with(".cal."))
+    };
+    let t0 = std::time::Instant::now();
+    while !staged() && t0.elapsed().as_secs() < 60 {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert!(staged(), "the run never started writing");
+    assert!(Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap()
+        .success());
+    let out = child.wait_with_output().unwrap();
+    assert_eq!(out.status.code(), Some(130));
+    assert_eq!(files(d), before);
+    let now: Vec<Vec<u8>> = before.iter().map(|f| bytes(f)).collect();
+    assert!(now == was, "the earlier acquisition changed");
 }

@@ -152,26 +152,22 @@ fn calibration(out: &Path, plan: &CalibrationPlan, opts: &CameraOpts) -> Result<
     // The plan's own check, which names each setting as its flag does.
     plan.check().map_err(|e| anyhow::anyhow!("--{e}"))?;
     let cam = opts.camera()?;
-    // A folder this run makes goes again, with what it holds, if the run fails.
-    let existed = out.exists();
+    // Recorded in full (stacks, manifest, truth) beside `out` and moved there at the end: a run
+    // that fails or is stopped leaves `out` as it was, an acquisition it replaces (`--force`)
+    // included.
+    let stage = emccd_io::StagedDir::beside(out)?;
     let pb = progress(plan.total_frames(), "frames");
-    let recorded = plan
-        .record(
-            &cam,
-            opts.seed,
-            out,
-            CAMERA,
-            "`emccd simulate calibration`",
-            || pb.inc(1),
-        )
-        .and_then(|_| plan.write_truth(&cam, out));
+    plan.record(
+        &cam,
+        opts.seed,
+        stage.path(),
+        CAMERA,
+        "`emccd simulate calibration`",
+        || pb.inc(1),
+    )?;
+    plan.write_truth(&cam, stage.path())?;
     pb.finish_and_clear();
-    if let Err(e) = recorded {
-        if !existed {
-            let _ = std::fs::remove_dir_all(out);
-        }
-        return Err(e.into());
-    }
+    stage.place()?;
     eprintln!(
         "wrote {} bias, {} flat and {} blooming stacks of {} frames ({}×{}) to {}",
         plan.bias_exposures_s.len(),

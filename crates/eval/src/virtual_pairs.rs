@@ -69,26 +69,17 @@ pub fn write_pairs(
     }
     let dirs = subfolders(denoise.is_some());
     check_outputs(plan, dirs, out)?;
-    let mut created: Vec<PathBuf> = Vec::new();
-    for dir in std::iter::once(out.to_path_buf()).chain(dirs.iter().map(|d| out.join(d))) {
-        if !dir.exists() {
-            created.push(dir.clone());
-        }
+    // Written in full beside `out` and moved there at the end: a run that fails or is stopped
+    // leaves `out` as it was, an earlier set of pairs it replaces (`--force`) included.
+    let io = |e: emccd_io::Error| crate::Error(emccd_io::error_lines(&e).join(": "));
+    let stage = emccd_io::StagedDir::beside(out).map_err(io)?;
+    for d in dirs {
+        let dir = stage.path().join(d);
         std::fs::create_dir_all(&dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
     }
-    // Stopped by Ctrl-C, the run's own folders go too if nothing was finished in them.
-    for d in &created {
-        emccd_io::track_new_dir(d);
-    }
-    let r = write_all(out, plan, camera, denoise, &mut tick);
-    emccd_io::untrack_new_dirs();
-    if r.is_err() {
-        // `out` first if this run made it: everything under it is then this run's.
-        for d in &created {
-            let _ = std::fs::remove_dir_all(d);
-        }
-    }
-    r
+    let manifest = write_all(stage.path(), plan, camera, denoise, &mut tick)?;
+    stage.place().map_err(io)?;
+    Ok(manifest)
 }
 
 fn check_outputs(plan: &PairsPlan, dirs: &[&str], out: &Path) -> crate::Result<()> {
@@ -165,6 +156,8 @@ fn write_all(
 ) -> crate::Result<PairsManifest> {
     let mut manifest = PairsManifest {
         camera: Some(plan.camera_name.into()),
+        // `out` is the staging folder beside the pairs' folder: a path relative to one is
+        // relative to the other.
         profile: Some(relative_to(plan.profile, out)),
         em_gain: Some(full.em_gain),
         k_dn_per_e: Some(full.k_dn()),

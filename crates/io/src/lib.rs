@@ -764,6 +764,100 @@ impl Staged {
     }
 }
 
+/// A folder of outputs (an acquisition, a set of pairs) written in full in a temporary folder
+/// beside its target and moved there only when complete ([`StagedDir::place`]): a run that
+/// fails or is stopped part way leaves the target as it was, even when it replaces an earlier
+/// folder of the same kind (`--force`). Dropped unplaced, the temporary folder is removed.
+pub struct StagedDir {
+    tmp: tempfile::TempDir,
+    target: PathBuf,
+}
+
+impl StagedDir {
+    /// A new empty staging folder for `target` (on its filesystem, so placing it only renames).
+    pub fn beside(target: &Path) -> Result<StagedDir> {
+        let tmp = make_beside(target, |b, dir| b.tempdir_in(dir))
+            .map_err(|e| Error::from(e).with_path(target))?;
+        // Stopped by Ctrl-C or SIGTERM, the destructor does not run: removed by the handler.
+        live_temps().insert(tmp.path().to_path_buf());
+        Ok(StagedDir {
+            tmp,
+            target: target.to_path_buf(),
+        })
+    }
+
+    /// Where to write.
+    pub fn path(&self) -> &Path {
+        self.tmp.path()
+    }
+
+    /// Moves everything written into the target: the whole folder where there is none yet,
+    /// else entry by entry into it, files replacing same-named ones (subfolders first and the
+    /// top level's files last, so a manifest arrives after what it names). Renames only, so a
+    /// full disk cannot stop it part way.
+    pub fn place(self) -> Result<()> {
+        let at = |e: std::io::Error| Error::from(e).with_path(&self.target);
+        let src = self.tmp.path().to_path_buf();
+        if !self.target.exists() {
+            readable_dir(&src).map_err(at)?;
+            std::fs::rename(&src, &self.target).map_err(at)?;
+            let _ = self.tmp.keep();
+        } else {
+            // Every entry's place is checked first, so a clash moves nothing.
+            if let Some((dest, what)) = clash(&src, &self.target) {
+                return Err(Error::Usage(format!(
+                    "{what} is in the way of what this run writes there; nothing was placed"
+                ))
+                .with_path(&dest));
+            }
+            merge_into(&src, &self.target).map_err(at)?;
+        }
+        live_temps().remove(&src);
+        sync_parent(&self.target);
+        Ok(())
+    }
+}
+
+/// The first place in folder `to` where an entry of folder `from` cannot go (a folder where a
+/// file goes or the reverse), with what is there.
+fn clash(from: &Path, to: &Path) -> Option<(PathBuf, &'static str)> {
+    for e in std::fs::read_dir(from).ok()?.flatten() {
+        let (p, dest) = (e.path(), to.join(e.file_name()));
+        match (p.is_dir(), std::fs::symlink_metadata(&dest)) {
+            (true, Ok(m)) if m.is_dir() => {
+                if let Some(c) = clash(&p, &dest) {
+                    return Some(c);
+                }
+            }
+            (true, Ok(_)) => return Some((dest, "a file")),
+            (false, Ok(m)) if m.is_dir() => return Some((dest, "a folder")),
+            _ => {}
+        }
+    }
+    None
+}
+
+/// Moves the entries of folder `from` into folder `to` (see [`StagedDir::place`]).
+fn merge_into(from: &Path, to: &Path) -> std::io::Result<()> {
+    let mut entries: Vec<(bool, PathBuf)> = std::fs::read_dir(from)?
+        .map(|e| e.map(|e| (!e.path().is_dir(), e.path())))
+        .collect::<std::io::Result<_>>()?;
+    // Folders (false) before files (true), each in name order.
+    entries.sort();
+    for (is_file, p) in entries {
+        let dest = to.join(p.file_name().unwrap_or_default());
+        if !is_file && dest.is_dir() {
+            merge_into(&p, &dest)?;
+        } else {
+            if !is_file {
+                readable_dir(&p)?;
+            }
+            std::fs::rename(&p, &dest)?;
+        }
+    }
+    Ok(())
+}
+
 /// A temporary file in the target's directory, so the final rename stays on one filesystem.
 pub fn temp_beside(path: &Path) -> std::io::Result<tempfile::NamedTempFile> {
     let tmp = make_beside(path, |b, dir| b.tempfile_in(dir))?;
@@ -868,9 +962,10 @@ fn live_temps() -> std::sync::MutexGuard<'static, std::collections::BTreeSet<Pat
 /// removed.
 pub fn remove_live_temps() -> usize {
     let mut live = live_temps();
+    // Files, and staging folders ([`StagedDir`]) with all they hold.
     let n = live
         .iter()
-        .filter(|p| std::fs::remove_file(p).is_ok())
+        .filter(|p| std::fs::remove_file(p).is_ok() || std::fs::remove_dir_all(p).is_ok())
         .count();
     live.clear();
     // Deepest first: a run's subfolders before the folder that holds them.
