@@ -1392,3 +1392,53 @@ fn a_replacement_stopped_part_way_leaves_the_earlier_acquisition() {
     let now: Vec<Vec<u8>> = before.iter().map(|f| bytes(f)).collect();
     assert!(now == was, "the earlier acquisition changed");
 }
+
+/// Temporary outputs that a killed process left beside a target (SIGKILL runs no handler) are
+/// removed by the next run writing that target once an hour old; a recent one, maybe a live
+/// run's, stays.
+#[test]
+fn stale_temporary_outputs_are_swept() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    raw_frame(d, "a.tif", Some(0.01));
+    let then = std::time::SystemTime::now() - std::time::Duration::from_secs(7200);
+    for name in [
+        ".o.tif.old1.tmp",
+        ".o.tif.new1.tmp",
+        ".cal.old2.tmp/bias/x.tif",
+    ] {
+        let p = d.join(name);
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        std::fs::write(&p, b"left").unwrap();
+        if name.contains("old") {
+            std::fs::File::open(&p).unwrap().set_modified(then).unwrap();
+            for up in [p.parent().unwrap(), &d.join(".cal.old2.tmp")] {
+                if up != d && up.exists() {
+                    std::fs::File::open(up).unwrap().set_modified(then).unwrap();
+                }
+            }
+        }
+    }
+    ok(&emccd(
+        &["denoise", "a.tif", "-o", "o.tif", "--method", "none"],
+        d,
+    ));
+    ok(&emccd(
+        &[
+            "simulate",
+            "calibration",
+            "-o",
+            "cal",
+            "--crop",
+            "16x12",
+            "--frames",
+            "2",
+        ],
+        d,
+    ));
+    let left: Vec<String> = files(d)
+        .into_iter()
+        .filter(|f| f.contains(".tmp"))
+        .collect();
+    assert_eq!(left, [".o.tif.new1.tmp"]);
+}

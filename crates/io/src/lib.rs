@@ -776,6 +776,9 @@ pub struct StagedDir {
 impl StagedDir {
     /// A new empty staging folder for `target` (on its filesystem, so placing it only renames).
     pub fn beside(target: &Path) -> Result<StagedDir> {
+        if let Some(name) = target.file_name().and_then(|n| n.to_str()) {
+            remove_stale(folder_of(target), &format!(".{name}."), ".tmp", STALE_TEMP);
+        }
         let tmp = make_beside(target, |b, dir| b.tempdir_in(dir))
             .map_err(|e| Error::from(e).with_path(target))?;
         // Stopped by Ctrl-C or SIGTERM, the destructor does not run: removed by the handler.
@@ -858,8 +861,50 @@ fn merge_into(from: &Path, to: &Path) -> std::io::Result<()> {
     Ok(())
 }
 
+/// Removes the files and folders in `dir` named `prefix…suffix` that nothing has touched for
+/// `stale` (the newest modification time of anything inside counts): what processes killed
+/// beyond any handler (SIGKILL, a lost node) left.
+pub(crate) fn remove_stale(dir: &Path, prefix: &str, suffix: &str, stale: std::time::Duration) {
+    fn newest(p: &Path) -> Option<std::time::SystemTime> {
+        let m = std::fs::symlink_metadata(p).ok()?;
+        let mut t = m.modified().ok()?;
+        if m.is_dir() {
+            for e in std::fs::read_dir(p).ok()?.flatten() {
+                t = t.max(newest(&e.path())?);
+            }
+        }
+        Some(t)
+    }
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let Some(name) = name.to_str() else { continue };
+        if !(name.starts_with(prefix) && name.ends_with(suffix)) {
+            continue;
+        }
+        let p = e.path();
+        let old = newest(&p)
+            .and_then(|t| t.elapsed().ok())
+            .is_some_and(|age| age > stale);
+        if old {
+            let _ = std::fs::remove_file(&p).or_else(|_| std::fs::remove_dir_all(&p));
+        }
+    }
+}
+
+/// Temporary outputs beside a target untouched for this long were left by a killed process (a
+/// live one writes to its temporary file at least this often), and the next write of the same
+/// target removes them.
+const STALE_TEMP: std::time::Duration = std::time::Duration::from_secs(3600);
+
 /// A temporary file in the target's directory, so the final rename stays on one filesystem.
+/// Stale ones of the same target that killed processes left ([`STALE_TEMP`]) are removed.
 pub fn temp_beside(path: &Path) -> std::io::Result<tempfile::NamedTempFile> {
+    if let Some(name) = path.file_name().and_then(|n| n.to_str()) {
+        remove_stale(folder_of(path), &format!(".{name}."), ".tmp", STALE_TEMP);
+    }
     let tmp = make_beside(path, |b, dir| b.tempfile_in(dir))?;
     live_temps().insert(tmp.path().to_path_buf());
     Ok(tmp)

@@ -361,7 +361,7 @@ impl ZarrStackWriter {
         }
         let mut created = false;
         if let Some(name) = path.file_name().and_then(|n| n.to_str()) {
-            remove_stale(
+            crate::remove_stale(
                 crate::folder_of(path),
                 &format!(".{name}."),
                 ".tmp",
@@ -483,7 +483,7 @@ impl ZarrStackWriter {
         // staging folder, is the store's key for that frame.
         let area = level.join(STAGING_DIR);
         std::fs::create_dir_all(&area)?;
-        remove_stale(&area, "w", "", STALE);
+        crate::remove_stale(&area, "w", "", STALE);
         let staging_dir = tempfile::Builder::new().prefix("w").tempdir_in(&area)?;
         let staging = Array::new_with_metadata(
             store(staging_dir.path())?,
@@ -577,38 +577,6 @@ impl Drop for ZarrStackWriter {
         let _ = std::fs::remove_dir_all(self.staging_dir.path());
         if let Some(area) = self.staging_dir.path().parent() {
             let _ = std::fs::remove_dir(area);
-        }
-    }
-}
-
-/// Removes the folders in `dir` named `prefix…suffix` that nothing has touched for `stale` (the
-/// newest modification time of anything inside counts): what killed processes left.
-fn remove_stale(dir: &Path, prefix: &str, suffix: &str, stale: std::time::Duration) {
-    fn newest(p: &Path) -> Option<std::time::SystemTime> {
-        let m = std::fs::symlink_metadata(p).ok()?;
-        let mut t = m.modified().ok()?;
-        if m.is_dir() {
-            for e in std::fs::read_dir(p).ok()?.flatten() {
-                t = t.max(newest(&e.path())?);
-            }
-        }
-        Some(t)
-    }
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for e in entries.flatten() {
-        let name = e.file_name();
-        let Some(name) = name.to_str() else { continue };
-        if !(name.starts_with(prefix) && name.ends_with(suffix)) {
-            continue;
-        }
-        let p = e.path();
-        let old = newest(&p)
-            .and_then(|t| t.elapsed().ok())
-            .is_some_and(|age| age > stale);
-        if old && p.is_dir() {
-            let _ = std::fs::remove_dir_all(&p);
         }
     }
 }
