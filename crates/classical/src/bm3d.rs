@@ -356,8 +356,6 @@ fn bm3d_padded(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -
     (0..w * h).map(|i| d[(i / w) * pw + i % w]).collect()
 }
 
-thread_local!(pub(crate) static FORCE_HIGH: std::cell::Cell<bool> = const { std::cell::Cell::new(false) });
-
 /// Denoises `noisy` (`w × h`, row-major) with noise std `sigma`, in units where the image spans
 /// about `data_range` (the matching thresholds are defined for 8-bit data).
 pub fn bm3d(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -> Vec<f32> {
@@ -366,7 +364,7 @@ pub fn bm3d(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -> V
         return Vec::new();
     }
     assert_eq!(noisy.len(), w * h, "image size");
-    let high = sigma * 255.0 / data_range > 40.0 || FORCE_HIGH.with(|f| f.get());
+    let high = sigma * 255.0 / data_range > 40.0;
     let p1 = if high {
         StageParams {
             n: N1,

@@ -534,23 +534,12 @@ pub fn estimate(
     p: PoissonGaussian,
 ) -> Vec<f32> {
     let single = singles[center];
-    let t0 = std::time::Instant::now();
     let mm = motion_mean(window, singles, center, w, h, p);
-    let t1 = t0.elapsed().as_secs_f64();
     let typical = emccd_profile::median(mm.frames.iter().copied()).unwrap_or(1.0) as f64;
     if typical < 1.5 {
         return single.to_vec();
     }
-    let force = std::env::var_os("EMCCD_POOLED_HIGH").is_some();
-    crate::bm3d::FORCE_HIGH.with(|f| f.set(force));
     let pooled = bm3d_adaptive(&mm.mean, w, h, p.of_mean(typical));
-    crate::bm3d::FORCE_HIGH.with(|f| f.set(false));
-    if std::env::var_os("EMCCD_TIMING").is_some() {
-        eprintln!(
-            "motion_mean {t1:.2} s, pooled {:.2} s",
-            t0.elapsed().as_secs_f64() - t1
-        );
-    }
     pooled
         .iter()
         .zip(single)

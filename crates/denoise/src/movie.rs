@@ -130,11 +130,7 @@ pub fn denoise_slice(
 fn prepare(fd: &Denoiser, index: usize, raw: &[f32], exposure_s: f64) -> Result<Held> {
     fd.check_finite(raw)?;
     let frame = fd.preprocess(raw, exposure_s)?;
-    let t0 = std::time::Instant::now();
     let single = fd.estimate(&frame, exposure_s)?;
-    if std::env::var_os("EMCCD_TIMING").is_some() {
-        eprintln!("single {:.2} s", t0.elapsed().as_secs_f64());
-    }
     Ok(Held {
         index,
         frame,
