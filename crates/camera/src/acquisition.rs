@@ -205,7 +205,9 @@ impl CalibrationPlan {
     /// Records the acquisition with `cam` into `dir` (made if missing): every stack of
     /// [`CalibrationPlan::stacks`] as a 16-bit TIFF streamed frame by frame, then its manifest
     /// `calibration.toml` (written atomically, naming the camera `camera_name` and the writer
-    /// `written_by`), which is returned. `tick` is called after every frame.
+    /// `written_by`), which is returned. `tick` is called after every frame. The room the stacks
+    /// need is checked first; a run that fails leaves what it wrote, so a caller that wants all
+    /// or nothing records into an [`emccd_io::StagedDir`] (as `emccd simulate calibration` does).
     pub fn record(
         &self,
         cam: &VirtualCamera,
@@ -222,38 +224,6 @@ impl CalibrationPlan {
             .saturating_add(1 << 16)
             .saturating_mul(stacks.len() as u64);
         emccd_io::check_room(dir, bytes)?;
-        // The folders this run makes, removed with all they hold if it fails: a half-written
-        // acquisition has no manifest and calibrates nothing.
-        let mut made: Vec<std::path::PathBuf> = Vec::new();
-        let r = self.record_stacks(
-            cam,
-            stacks,
-            dir,
-            camera_name,
-            written_by,
-            &mut made,
-            &mut tick,
-        );
-        emccd_io::untrack_new_dirs();
-        if r.is_err() {
-            for d in &made {
-                let _ = std::fs::remove_dir_all(d);
-            }
-        }
-        r
-    }
-
-    #[allow(clippy::too_many_arguments)]
-    fn record_stacks(
-        &self,
-        cam: &VirtualCamera,
-        stacks: Vec<PlannedStack>,
-        dir: &Path,
-        camera_name: &str,
-        written_by: &str,
-        made: &mut Vec<std::path::PathBuf>,
-        tick: &mut impl FnMut(),
-    ) -> Result<Manifest, Error> {
         let mut manifest = Manifest {
             camera: camera_name.into(),
             em_gain: cam.em_gain,
@@ -262,14 +232,6 @@ impl CalibrationPlan {
         for stack in stacks {
             let path = dir.join(&stack.file);
             if let Some(parent) = path.parent() {
-                // Outermost first, so that removing them removes nothing made before.
-                let new: Vec<&Path> = parent
-                    .ancestors()
-                    .take_while(|a| !a.as_os_str().is_empty() && !a.exists())
-                    .collect();
-                if let Some(top) = new.last() {
-                    made.push(top.to_path_buf());
-                }
                 std::fs::create_dir_all(parent)
                     .map_err(|e| emccd_io::Error::from(e).with_path(parent))?;
             }

@@ -4,5 +4,6 @@
 pub mod bsd68;
 pub mod calib;
 pub mod camera;
+pub mod count;
 pub mod denoise;
 pub mod movie;

@@ -6,7 +6,7 @@ use emccd_camera::VirtualCamera;
 /// Benchmarks. By default: synthesis throughput in Mpix/s on 512×512 frames of the default
 /// camera, and the same frames through the Python `emccd-detect` package
 /// (EMCCDDetect.sim_sub_frame) where it is installed, printing the ratio. --calibration,
-/// --denoise, --movie, --bm3d and --archive measure the other stages instead.
+/// --denoise, --movie, --count, --bm3d and --archive measure the other stages instead.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Frames per measurement (after one warm-up frame).
@@ -30,11 +30,18 @@ pub struct Args {
     pub denoise: Vec<String>,
     /// Instead, measure temporal denoising: this many frames of a scene (the first of
     /// --scenes) drifting across the virtual camera (1 px right per frame, 1 px down every
-    /// second), at 20 and 200 photons at its peak, denoised frame by frame by BM3D + GAT and by
+    /// second frame), at 20 and 200 photons at its peak, denoised frame by frame by BM3D + GAT and by
     /// `--method temporal`: PSNR over the movie, seconds per frame and their ratio.
     #[arg(long, value_name = "FRAMES")]
     pub movie: Option<usize>,
-    /// With --denoise or --movie: the virtual camera's truth profile, also used to denoise.
+    /// Instead, measure photon counting: this many 512² frames of the virtual camera at 0.1
+    /// photo-electrons per pixel, held in memory, preprocessed and counted as `emccd count` does
+    /// (automatic threshold), beside the analog mean of the same frames (the reference) and the
+    /// preprocessing alone: megapixels per second.
+    #[arg(long, value_name = "FRAMES")]
+    pub count: Option<usize>,
+    /// With --denoise, --movie or --count: the virtual camera's truth profile, also used to
+    /// denoise and count.
     #[arg(long, default_value = "default")]
     pub profile: String,
     /// With --denoise or --movie: test scenes (files or directories) the camera's size;
@@ -225,6 +232,19 @@ pub fn run(a: Args) -> Result<()> {
     }
     if !a.bm3d.is_empty() {
         return bm3d_bench(&a.bm3d, a.images, &a.data);
+    }
+    if let Some(frames) = a.count {
+        let profile = crate::common::load_profile(&a.profile)?;
+        println!(
+            "camera: {} ({}×{}), {frames} frames at {} e⁻ per pixel, 10 ms",
+            profile.camera,
+            profile.width,
+            profile.height,
+            crate::bench::count::LEVEL
+        );
+        println!("{}", crate::bench::count::count(&profile, frames)?);
+        println!("({} CPU threads)", rayon::current_num_threads());
+        return Ok(());
     }
     if let Some(frames) = a.movie {
         return movie_bench(frames, &a.profile, &a.scenes, &a.data);

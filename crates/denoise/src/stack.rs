@@ -180,14 +180,35 @@ pub fn denoise_to_zarr(
     }
     let (store, created) = ZarrStackWriter::create_or_open(out.path, &spec)?;
     let r = denoise_share(fd, inputs, out, &store, frames, pending, on_frame);
-    // A store this run began alone and could not finish (an input frame at fault, a full disk)
-    // goes: rerunning would stop at the same place. A killed run never gets here, and its
-    // store is resumed; a shard's store holds other processes' work.
-    if r.is_err() && created && out.shard == emccd_io::zarr::Shard::ALL {
-        drop(store);
-        let _ = std::fs::remove_dir_all(out.path);
+    // A store this run began alone and could not finish because of what it read (a frame at
+    // fault) goes: rerunning would stop at the same place. One stopped by the system (a full
+    // disk, a failing filesystem) stays to be resumed once that is put right, as a killed
+    // run's does; a shard's store holds other processes' work.
+    if let Err(e) = &r {
+        if created && out.shard == emccd_io::zarr::Shard::ALL && !is_io(e) {
+            drop(store);
+            let _ = std::fs::remove_dir_all(out.path);
+        }
     }
     r
+}
+
+/// Whether `e` is the operating system's (a full disk, a failing filesystem) rather than about
+/// the data.
+fn is_io(e: &Error) -> bool {
+    fn io(e: &emccd_io::Error) -> bool {
+        match e {
+            emccd_io::Error::Io(_) => true,
+            emccd_io::Error::WithPath { source, .. } => io(source),
+            _ => false,
+        }
+    }
+    match e {
+        Error::Io { .. } => true,
+        Error::File(f) | Error::Frame { source: f, .. } => io(f),
+        Error::At { source, .. } => is_io(source),
+        _ => false,
+    }
 }
 
 /// [`denoise_to_zarr`]'s work once `store` is open.

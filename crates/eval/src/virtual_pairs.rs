@@ -77,7 +77,12 @@ pub fn write_pairs(
         let dir = stage.path().join(d);
         std::fs::create_dir_all(&dir).map_err(|e| format!("creating {}: {e}", dir.display()))?;
     }
-    let manifest = write_all(stage.path(), plan, camera, denoise, &mut tick)?;
+    let recorded = relative_to(plan.profile, out);
+    let plan = PairsPlan {
+        profile: &recorded,
+        ..*plan
+    };
+    let manifest = write_all(stage.path(), &plan, camera, denoise, &mut tick)?;
     stage.place().map_err(io)?;
     Ok(manifest)
 }
@@ -123,15 +128,26 @@ fn db2(v: f64) -> f64 {
     (v * 100.0).round() / 100.0
 }
 
-/// The profile argument `profile` as the manifest in `out` records it: a folder as a path
-/// relative to `out` (the manifest's paths are relative to it, so the pairs and the profile
-/// can move together and `evaluate` finds this profile from anywhere), `default` and paths
-/// that cannot be made relative as given.
+/// The profile argument `profile` as the manifest in `out` (which may not exist yet) records
+/// it: a folder given by a relative path as a path relative to `out` (the manifest's paths are
+/// relative to it, so the pairs and the profile can move together and `evaluate` finds this
+/// profile from anywhere); `default`, absolute paths and paths that cannot be made relative
+/// as given.
 fn relative_to(profile: &str, out: &Path) -> String {
-    let (Ok(p), Ok(o)) = (std::fs::canonicalize(profile), std::fs::canonicalize(out)) else {
+    let absolute = |p: &Path| {
+        std::fs::canonicalize(p).ok().or_else(|| {
+            let parent = p.parent().filter(|d| !d.as_os_str().is_empty());
+            let parent = std::fs::canonicalize(parent.unwrap_or(Path::new("."))).ok()?;
+            Some(parent.join(p.file_name()?))
+        })
+    };
+    if profile == "default" || Path::new(profile).is_absolute() {
+        return profile.to_string();
+    }
+    let (Some(p), Some(o)) = (absolute(Path::new(profile)), absolute(out)) else {
         return profile.to_string();
     };
-    if profile == "default" || !p.is_dir() {
+    if !p.is_dir() {
         return profile.to_string();
     }
     let (pc, oc): (Vec<_>, Vec<_>) = (p.components().collect(), o.components().collect());
@@ -156,9 +172,7 @@ fn write_all(
 ) -> crate::Result<PairsManifest> {
     let mut manifest = PairsManifest {
         camera: Some(plan.camera_name.into()),
-        // `out` is the staging folder beside the pairs' folder: a path relative to one is
-        // relative to the other.
-        profile: Some(relative_to(plan.profile, out)),
+        profile: Some(plan.profile.into()),
         em_gain: Some(full.em_gain),
         k_dn_per_e: Some(full.k_dn()),
         qe: Some(full.physics.qe),

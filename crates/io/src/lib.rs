@@ -776,9 +776,9 @@ pub struct StagedDir {
 impl StagedDir {
     /// A new empty staging folder for `target` (on its filesystem, so placing it only renames).
     pub fn beside(target: &Path) -> Result<StagedDir> {
-        if let Some(name) = target.file_name().and_then(|n| n.to_str()) {
-            remove_stale(folder_of(target), &format!(".{name}."), ".tmp", STALE_TEMP);
-        }
+        // Its folder is made if missing, as the target's would be.
+        let parent = folder_of(target);
+        std::fs::create_dir_all(parent).map_err(|e| Error::from(e).with_path(parent))?;
         let tmp = make_beside(target, |b, dir| b.tempdir_in(dir))
             .map_err(|e| Error::from(e).with_path(target))?;
         // Stopped by Ctrl-C or SIGTERM, the destructor does not run: removed by the handler.
@@ -801,6 +801,9 @@ impl StagedDir {
     pub fn place(self) -> Result<()> {
         let at = |e: std::io::Error| Error::from(e).with_path(&self.target);
         let src = self.tmp.path().to_path_buf();
+        // From here on a signal must not remove what is not yet moved: that would leave a mix
+        // of this run's entries and the target's earlier ones.
+        live_temps().remove(&src);
         if !self.target.exists() {
             readable_dir(&src).map_err(at)?;
             std::fs::rename(&src, &self.target).map_err(at)?;
@@ -815,7 +818,6 @@ impl StagedDir {
             }
             merge_into(&src, &self.target).map_err(at)?;
         }
-        live_temps().remove(&src);
         sync_parent(&self.target);
         Ok(())
     }
@@ -861,10 +863,21 @@ fn merge_into(from: &Path, to: &Path) -> std::io::Result<()> {
     Ok(())
 }
 
-/// Removes the files and folders in `dir` named `prefix…suffix` that nothing has touched for
-/// `stale` (the newest modification time of anything inside counts): what processes killed
-/// beyond any handler (SIGKILL, a lost node) left.
+/// Removes the files and folders in `dir` named `prefix`, six random letters or digits (as
+/// `tempfile` names them), then `suffix`, that nothing has touched for `stale` (the newest
+/// modification time of anything inside counts): what processes killed beyond any handler
+/// (SIGKILL, a lost node) left. Each folder and name pattern is swept once per process: the
+/// listing is not repeated for every file a run writes there.
 pub(crate) fn remove_stale(dir: &Path, prefix: &str, suffix: &str, stale: std::time::Duration) {
+    static SWEPT: std::sync::Mutex<Vec<(PathBuf, String)>> = std::sync::Mutex::new(Vec::new());
+    {
+        let mut swept = SWEPT.lock().unwrap_or_else(|e| e.into_inner());
+        let key = (dir.to_path_buf(), format!("{prefix}\0{suffix}"));
+        if swept.contains(&key) {
+            return;
+        }
+        swept.push(key);
+    }
     fn newest(p: &Path) -> Option<std::time::SystemTime> {
         let m = std::fs::symlink_metadata(p).ok()?;
         let mut t = m.modified().ok()?;
@@ -881,7 +894,11 @@ pub(crate) fn remove_stale(dir: &Path, prefix: &str, suffix: &str, stale: std::t
     for e in entries.flatten() {
         let name = e.file_name();
         let Some(name) = name.to_str() else { continue };
-        if !(name.starts_with(prefix) && name.ends_with(suffix)) {
+        let random = name
+            .strip_prefix(prefix)
+            .and_then(|r| r.strip_suffix(suffix))
+            .is_some_and(|r| r.len() == 6 && r.bytes().all(|b| b.is_ascii_alphanumeric()));
+        if !random {
             continue;
         }
         let p = e.path();
@@ -894,17 +911,16 @@ pub(crate) fn remove_stale(dir: &Path, prefix: &str, suffix: &str, stale: std::t
     }
 }
 
-/// Temporary outputs beside a target untouched for this long were left by a killed process (a
-/// live one writes to its temporary file at least this often), and the next write of the same
-/// target removes them.
-const STALE_TEMP: std::time::Duration = std::time::Duration::from_secs(3600);
+/// A temporary output (a file, a staging folder, a Zarr writer's staging folder) untouched for
+/// this long was left by a killed process, and the next run writing the same target removes it.
+/// A live run touches what it writes more often: a frame or a file takes minutes at most. (A
+/// finished output held back until the run's others are done is the exception: two runs that
+/// write the same target an hour apart while the first still holds it would lose the first's.)
+pub const STALE: std::time::Duration = std::time::Duration::from_secs(3600);
 
 /// A temporary file in the target's directory, so the final rename stays on one filesystem.
-/// Stale ones of the same target that killed processes left ([`STALE_TEMP`]) are removed.
+/// Stale ones of the same target that killed processes left are removed ([`make_beside`]).
 pub fn temp_beside(path: &Path) -> std::io::Result<tempfile::NamedTempFile> {
-    if let Some(name) = path.file_name().and_then(|n| n.to_str()) {
-        remove_stale(folder_of(path), &format!(".{name}."), ".tmp", STALE_TEMP);
-    }
     let tmp = make_beside(path, |b, dir| b.tempfile_in(dir))?;
     live_temps().insert(tmp.path().to_path_buf());
     Ok(tmp)
@@ -922,6 +938,8 @@ pub(crate) fn make_beside<T>(
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
     let prefix = format!(".{name}.");
+    // What killed processes left for this target, once stale ([`STALE`]).
+    remove_stale(dir, &prefix, ".tmp", STALE);
     let mut b = tempfile::Builder::new();
     b.prefix(&prefix).suffix(".tmp");
     make(&b, dir).map_err(|e| {
@@ -1001,10 +1019,9 @@ fn live_temps() -> std::sync::MutexGuard<'static, std::collections::BTreeSet<Pat
     LIVE.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// Removes every temporary output still being written, for a program that is being stopped
-/// (Ctrl-C, SIGTERM) and will not run the destructors that normally remove them, and then the
-/// folders registered with [`track_new_dir`] that are left empty. Returns how many files were
-/// removed.
+/// Removes every temporary output still being written (files, and [`StagedDir`]s with all they
+/// hold), for a program that is being stopped (Ctrl-C, SIGTERM) and will not run the
+/// destructors that normally remove them. Returns how many were removed.
 pub fn remove_live_temps() -> usize {
     let mut live = live_temps();
     // Files, and staging folders ([`StagedDir`]) with all they hold.
@@ -1013,27 +1030,7 @@ pub fn remove_live_temps() -> usize {
         .filter(|p| std::fs::remove_file(p).is_ok() || std::fs::remove_dir_all(p).is_ok())
         .count();
     live.clear();
-    // Deepest first: a run's subfolders before the folder that holds them.
-    for d in new_dirs().drain(..).rev() {
-        let _ = std::fs::remove_dir(d); // only if empty
-    }
     n
-}
-
-/// Folders a run created for its outputs, removed by [`remove_live_temps`] if it is stopped
-/// while they are still empty; register them in the order they were made.
-pub fn track_new_dir(dir: &Path) {
-    new_dirs().push(dir.to_path_buf());
-}
-
-/// Forgets the folders registered with [`track_new_dir`] (the run finished or cleaned up).
-pub fn untrack_new_dirs() {
-    new_dirs().clear();
-}
-
-fn new_dirs() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
-    static DIRS: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
-    DIRS.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// Writes `bytes` to `path` atomically (temporary file, then rename).

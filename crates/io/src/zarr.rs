@@ -8,12 +8,12 @@
 //! marker (its process was killed first) is written again by whoever resumes. Both folders are
 //! inside the array's own folder, where Zarr readers look only for the chunks they need (in the
 //! group's folder zarr-python warns of every entry that is not a Zarr node). Staging folders
-//! that killed processes left are removed by a later writer once they are [`STALE`], and a
+//! that killed processes left are removed by a later writer once they are [`crate::STALE`], and a
 //! store's temporary folder left beside it after a minute. The store itself is built
 //! in a temporary folder and renamed into place, so among processes that start together exactly
 //! one creates it and the others open it and check that it was made for the same work
-//! ([`ZarrStackWriter::create_or_open`]). Frames never written read as NaN (the fill value),
-//! and the reader refuses them by name.
+//! ([`ZarrStackWriter::create_or_open`]). Frames never written are refused by name by the
+//! reader (their chunks are missing; other readers see NaN, the fill value).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -69,9 +69,6 @@ pub const DONE_DIR: &str = ".emccd-done";
 /// Where each [`ZarrStackWriter`] stages its chunks before renaming them into place, inside
 /// the array folder.
 const STAGING_DIR: &str = ".emccd-staging";
-/// A writer's staging folder untouched for this long belongs to a process that was killed (a
-/// live writer stages a frame at least this often: the slowest frames take minutes).
-pub const STALE: std::time::Duration = std::time::Duration::from_secs(3600);
 /// A store's temporary folder this old belongs to a process killed while it built the store
 /// (which takes milliseconds).
 const STALE_BUILD: std::time::Duration = std::time::Duration::from_secs(60);
@@ -263,14 +260,7 @@ impl FrameReader for ZarrReader {
         subset.push(0..self.info.height as u64);
         subset.push(0..self.info.width as u64);
         let e = |e: zarrs::array::ArrayError| zerr(format!("frame {}: {e}", k + 1));
-        // A chunk the store lacks reads as the fill value (NaN in float stores): said as
-        // missing, not left to be refused later as a non-finite pixel.
-        if let Some(key) = self.missing_chunk(&subset) {
-            return Err(Error::Format(format!(
-                "frame {}: its data is missing from the store (no chunk {key}); the store is incomplete or damaged",
-                k + 1
-            )));
-        }
+
         macro_rules! conv {
             ($t:ty) => {{
                 let v: Vec<$t> = self.array.retrieve_array_subset(&subset).map_err(e)?;
@@ -285,6 +275,18 @@ impl FrameReader for ZarrReader {
             PixelType::I32 => conv!(i32),
             PixelType::F32 => conv!(f32),
             PixelType::F64 => conv!(f64),
+        }
+        // A chunk the store lacks reads as the fill value. Writers leave out chunks equal to
+        // it (zarr-python and zarrs do by default), so a missing chunk is data where the fill
+        // value is one; where it is NaN (our stores) it is said as missing, not left to be
+        // refused later as a non-finite pixel.
+        if out.iter().any(|v| !v.is_finite()) {
+            if let Some(key) = self.missing_chunk(&subset) {
+                return Err(Error::Format(format!(
+                    "frame {}: its data is missing from the store (no chunk {key}); the store is incomplete or damaged",
+                    k + 1
+                )));
+            }
         }
         self.next += 1;
         Ok(true)
@@ -474,7 +476,10 @@ impl ZarrStackWriter {
                 }
             }
         }
-        let _ = std::fs::remove_dir(path.join(STAGING_DIR));
+        // The staging area of that layout: what killed writers left there, once stale.
+        let old_area = path.join(STAGING_DIR);
+        crate::remove_stale(&old_area, "w", "", crate::STALE);
+        let _ = std::fs::remove_dir(&old_area);
         if !done.is_dir() {
             return Err(other(format!("no {LEVEL0}/{DONE_DIR} folder")));
         }
@@ -482,9 +487,16 @@ impl ZarrStackWriter {
         // filesystem), holding the same array metadata, so the staged chunk's key, under the
         // staging folder, is the store's key for that frame.
         let area = level.join(STAGING_DIR);
-        std::fs::create_dir_all(&area)?;
-        crate::remove_stale(&area, "w", "", STALE);
-        let staging_dir = tempfile::Builder::new().prefix("w").tempdir_in(&area)?;
+        crate::remove_stale(&area, "w", "", crate::STALE);
+        // A writer that ends removes the area when it is empty: made again if it went between.
+        let mut tries = 0;
+        let staging_dir = loop {
+            std::fs::create_dir_all(&area)?;
+            match tempfile::Builder::new().prefix("w").tempdir_in(&area) {
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound && tries < 5 => tries += 1,
+                r => break r?,
+            }
+        };
         let staging = Array::new_with_metadata(
             store(staging_dir.path())?,
             &format!("/{LEVEL0}"),

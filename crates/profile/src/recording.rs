@@ -49,10 +49,10 @@ impl Recording {
             if let Some((bx, by)) = info.metadata.binning.filter(|&(x, y)| x * y > 1) {
                 if size != (profile.width, profile.height) {
                     return Err(Error::Parameter(format!(
-                        "frames are {}×{}, binned {bx}×{by} on the chip; the profile's sensor is \
-                         {}×{} unbinned pixels. Binning sums {} pixels' charge before the EM \
-                         register, so its offset, gain and noise are not a crop's: calibrate a \
-                         profile from bias and flat stacks taken with the same binning",
+                        "frames are {}×{}, binned {bx}×{by} on the chip; the profile's frames are \
+                         {}×{}. Binning sums {} pixels' charge before the EM register, so a \
+                         binned pixel's offset, gain and noise are not a crop's: calibrate a \
+                         profile from bias and flat stacks taken with the same binning and region",
                         size.0,
                         size.1,
                         profile.width,

@@ -370,7 +370,12 @@ mod tests {
             (
                 "    0.105,\n",
                 "    1e308,\n",
-                "[fpn] shared_theta's θ1 (ln of a ratio) = 1e308",
+                "[fpn] shared_theta's θ1 = 1e308",
+            ),
+            (
+                "    0.105,\n",
+                "    30.0,\n",
+                "[fpn] shared_theta's change of the pattern from",
             ),
             ("0.2,\n]\nmaps", "1e308,\n]\nmaps", "exposures_s = 1e308"),
         ];
