@@ -1402,17 +1402,19 @@ fn stale_temporary_outputs_are_swept() {
     let d = dir.path();
     raw_frame(d, "a.tif", Some(0.01));
     let then = std::time::SystemTime::now() - std::time::Duration::from_secs(7200);
+    // Another target's temporary (`o.tif.tif`), old too, is not this one's.
     for name in [
-        ".o.tif.old1.tmp",
-        ".o.tif.new1.tmp",
-        ".cal.old2.tmp/bias/x.tif",
+        ".o.tif.old111.tmp",
+        ".o.tif.new111.tmp",
+        ".o.tif.tif.old333.tmp",
+        ".cal.old222.tmp/bias/x.tif",
     ] {
         let p = d.join(name);
         std::fs::create_dir_all(p.parent().unwrap()).unwrap();
         std::fs::write(&p, b"left").unwrap();
         if name.contains("old") {
             std::fs::File::open(&p).unwrap().set_modified(then).unwrap();
-            for up in [p.parent().unwrap(), &d.join(".cal.old2.tmp")] {
+            for up in [p.parent().unwrap(), &d.join(".cal.old222.tmp")] {
                 if up != d && up.exists() {
                     std::fs::File::open(up).unwrap().set_modified(then).unwrap();
                 }
@@ -1440,5 +1442,5 @@ fn stale_temporary_outputs_are_swept() {
         .into_iter()
         .filter(|f| f.contains(".tmp"))
         .collect();
-    assert_eq!(left, [".o.tif.new1.tmp"]);
+    assert_eq!(left, [".o.tif.new111.tmp", ".o.tif.tif.old333.tmp"]);
 }

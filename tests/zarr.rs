@@ -267,8 +267,8 @@ fn bookkeeping_stays_out_of_readers_way() {
         std::fs::write(staging.join(w).join("0/c/3/0/0"), b"part").unwrap();
     }
     age(&staging.join("wkilled"));
-    std::fs::create_dir_all(d.join(".t.zarr.x1y2.tmp/0")).unwrap();
-    age(&d.join(".t.zarr.x1y2.tmp"));
+    std::fs::create_dir_all(d.join(".t.zarr.x1y2z3.tmp/0")).unwrap();
+    age(&d.join(".t.zarr.x1y2z3.tmp"));
     ok(&denoise(
         d,
         "s.zarr",
@@ -277,7 +277,7 @@ fn bookkeeping_stays_out_of_readers_way() {
     assert_eq!(names(&staging), ["wlive"]);
     std::fs::remove_dir_all(&staging).unwrap();
     ok(&denoise(d, "t.zarr", &["--method", "none"]));
-    assert!(!d.join(".t.zarr.x1y2.tmp").exists());
+    assert!(!d.join(".t.zarr.x1y2z3.tmp").exists());
 
     // A store whose markers are at its top (written before they moved): resumed, and moved.
     let want = bits(&frames(&d.join("s.zarr")));
