@@ -1444,3 +1444,81 @@ fn stale_temporary_outputs_are_swept() {
         .collect();
     assert_eq!(left, [".o.tif.new111.tmp", ".o.tif.tif.old333.tmp"]);
 }
+
+/// `simulate pairs` checks the room its pairs need before writing one (it wrote on until the
+/// disk was full).
+#[test]
+fn simulated_pairs_check_their_room_first() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    raw_frame(d, "scene.tif", None);
+    let o = emccd(
+        &[
+            "simulate",
+            "pairs",
+            "--clean",
+            "scene.tif",
+            "--frames",
+            "100000000000",
+            "-o",
+            "p",
+        ],
+        d,
+    );
+    fails_with(&o, "GB free; make room, write elsewhere or ask for less");
+    assert_eq!(files(d), ["scene.tif"]);
+}
+
+/// `calibrate --report` stopped while it saves writes neither the profile's folder nor a
+/// report of a profile that was never written (it left an empty profile folder and a whole
+/// report).
+#[test]
+fn a_stopped_calibration_leaves_no_report_and_no_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    small_acquisition(d, "600,1200");
+    // Stopped at once, and again a little later: whenever it stops, never a report of a
+    // profile that is not there, nor a folder without its profile.
+    for wait_ms in [0u64, 150, 400] {
+        let child = Command::new(env!("CARGO_BIN_EXE_emccd"))
+            .args([
+                "calibrate",
+                "cal/calibration.toml",
+                "-o",
+                "prof",
+                "--report",
+                "rep",
+            ])
+            .current_dir(d)
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(wait_ms));
+        let _ = Command::new("kill")
+            .args(["-TERM", &child.id().to_string()])
+            .status();
+        let out = child.wait_with_output().unwrap();
+        let (p, r) = (
+            d.join("prof/profile.toml").exists(),
+            d.join("rep/index.html").exists(),
+        );
+        // (The profile is placed just before the report: a stop between them, a matter of
+        // microseconds, leaves the profile alone, which is whole.)
+        assert!(
+            p || !r,
+            "a report without its profile after {wait_ms} ms: {out:?}"
+        );
+        assert_eq!(
+            d.join("prof").exists(),
+            p,
+            "an empty profile folder after {wait_ms} ms"
+        );
+        let hidden: Vec<String> = files(d)
+            .into_iter()
+            .filter(|f| f.contains(".tmp"))
+            .collect();
+        assert!(hidden.is_empty(), "{hidden:?}");
+        let _ = std::fs::remove_dir_all(d.join("prof"));
+        let _ = std::fs::remove_dir_all(d.join("rep"));
+    }
+}

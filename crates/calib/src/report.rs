@@ -20,29 +20,32 @@ impl Calibration {
     /// leaves nothing behind itself): a failed run leaves nothing it created.
     pub fn save(&self, out: &Path, report: Option<&Path>) -> Result<CameraProfile> {
         let profile = self.profile()?;
-        let made = report.filter(|d| !d.exists());
-        if let Some(dir) = report {
-            let written = write(self, dir).map_err(|e| Error::Write {
-                what: format!("the report to {}", dir.display()),
-                source: Box::new(e),
-            });
-            if written.is_err() {
-                if let Some(d) = made {
-                    let _ = std::fs::remove_dir_all(d);
-                }
-            }
-            written?;
-        }
-        let saved = profile.save(out).map_err(|e| Error::Write {
+        // The report is written in full beside its folder, the profile saved, and only then the
+        // report moved into place: a run that fails or is stopped leaves neither a report of a
+        // profile that was never written nor a folder of its own.
+        let staged = report
+            .map(
+                |dir| -> std::result::Result<_, Box<dyn std::error::Error + Send + Sync>> {
+                    let stage = emccd_io::StagedDir::beside(dir)?;
+                    write(self, stage.path())?;
+                    Ok(stage)
+                },
+            )
+            .transpose()
+            .map_err(|source| Error::Write {
+                what: format!("the report to {}", report.unwrap_or(out).display()),
+                source,
+            })?;
+        profile.save(out).map_err(|e| Error::Write {
             what: format!("the profile to {}", out.display()),
             source: Box::new(e),
-        });
-        if saved.is_err() {
-            if let Some(d) = made {
-                let _ = std::fs::remove_dir_all(d);
-            }
+        })?;
+        if let (Some(stage), Some(dir)) = (staged, report) {
+            stage.place().map_err(|e| Error::Write {
+                what: format!("the report to {}", dir.display()),
+                source: Box::new(e),
+            })?;
         }
-        saved?;
         Ok(profile)
     }
 }

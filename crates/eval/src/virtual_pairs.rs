@@ -72,6 +72,14 @@ pub fn write_pairs(
     // Written in full beside `out` and moved there at the end: a run that fails or is stopped
     // leaves `out` as it was, an earlier set of pairs it replaces (`--force`) included.
     let io = |e: emccd_io::Error| crate::Error(emccd_io::error_lines(&e).join(": "));
+    // At most the camera's size per pair: the raw frames (16-bit), the truth and a denoised
+    // frame (float32), a preview and headers.
+    let px = (camera.width() * camera.height()) as u64;
+    let pair = (plan.frames as u64)
+        .saturating_mul(px * 2)
+        .saturating_add(px * 10 + (1 << 16));
+    let pairs = (plan.scenes.len() * plan.levels.len()) as u64;
+    emccd_io::check_room(out, pair.saturating_mul(pairs)).map_err(io)?;
     let stage = emccd_io::StagedDir::beside(out).map_err(io)?;
     for d in dirs {
         let dir = stage.path().join(d);

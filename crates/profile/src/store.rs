@@ -123,13 +123,15 @@ impl CameraProfile {
     pub fn save(&self, dir: impl AsRef<Path>) -> Result<()> {
         let dir = dir.as_ref();
         self.validate()?;
-        let made = !dir.exists();
-        std::fs::create_dir_all(dir).map_err(|e| Error::from(e).at(dir))?;
-        let saved = self.save_into(dir);
-        if saved.is_err() && made {
-            let _ = std::fs::remove_dir(dir); // only if empty
+        if dir.exists() {
+            // Its two files are replaced together (`write_atomic_together`).
+            return self.save_into(dir);
         }
-        saved
+        // A new profile folder is written beside its name and renamed into place: a run that
+        // fails or is stopped leaves no folder.
+        let stage = emccd_io::StagedDir::beside(dir).map_err(|e| Error::from(e).at(dir))?;
+        self.save_into(stage.path())?;
+        stage.place().map_err(|e| Error::from(e).at(dir))
     }
 
     fn save_into(&self, dir: &Path) -> Result<()> {
