@@ -1118,8 +1118,8 @@ fn special_files_are_refused_not_waited_on() {
 }
 
 /// `simulate calibration` checks the room its stacks need before writing one (it wrote on until
-/// the disk was full), and a run that fails part way removes the folders it made with the
-/// stacks in them (it left half an acquisition without a manifest); what was there before stays.
+/// the disk was full), and a run that fails part way moves nothing into its folder (it left
+/// half an acquisition without a manifest); what was there before stays.
 #[test]
 fn a_simulated_acquisition_is_whole_or_absent() {
     let dir = tempfile::tempdir().unwrap();
