@@ -509,7 +509,18 @@ fn an_interrupted_run_leaves_no_temporary_files() {
         let d = dir.path();
         let child = Command::new(env!("CARGO_BIN_EXE_emccd"))
             .args(["simulate", "pairs", "--clean", img.to_str().unwrap()])
-            .args(["--photons", "20", "--frames", "100000", "-o", "p"])
+            // Long enough to be stopped (2.6 GB, checked against free space first, written
+            // at most a little of).
+            .args([
+                "--photons",
+                "20",
+                "--frames",
+                "20000",
+                "--crop",
+                "256x256",
+                "-o",
+                "p",
+            ])
             .current_dir(d)
             .stderr(std::process::Stdio::piped())
             .spawn()
@@ -1366,7 +1377,7 @@ fn a_replacement_stopped_part_way_leaves_the_earlier_acquisition() {
             "--seed",
             "7",
         ])
-        .args(["--crop", "256x256", "--frames", "2000"])
+        .args(["--crop", "256x256", "--frames", "1000"])
         .current_dir(d)
         .stderr(std::process::Stdio::piped())
         .spawn()
