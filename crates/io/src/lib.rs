@@ -1011,8 +1011,9 @@ pub(crate) fn sync_dir(dir: &Path) {
     }
 }
 
-/// Temporary files made by [`temp_beside`] and not yet renamed into place.
-fn live_temps() -> std::sync::MutexGuard<'static, std::collections::BTreeSet<PathBuf>> {
+/// Temporary files made by [`temp_beside`] and not yet renamed into place, and staging folders
+/// ([`StagedDir`], a Zarr writer's).
+pub(crate) fn live_temps() -> std::sync::MutexGuard<'static, std::collections::BTreeSet<PathBuf>> {
     static LIVE: std::sync::Mutex<std::collections::BTreeSet<PathBuf>> =
         std::sync::Mutex::new(std::collections::BTreeSet::new());
     // A panic while the set was held leaves it usable: it only lists paths.
@@ -1024,10 +1025,30 @@ fn live_temps() -> std::sync::MutexGuard<'static, std::collections::BTreeSet<Pat
 /// destructors that normally remove them. Returns how many were removed.
 pub fn remove_live_temps() -> usize {
     let mut live = live_temps();
-    // Files, and staging folders ([`StagedDir`]) with all they hold.
+    // Files, and staging folders ([`StagedDir`]) with all they hold. The run goes on writing
+    // until the process exits, and may make a folder's subfolders again while it is removed:
+    // a folder is removed until it stays gone.
     let n = live
         .iter()
-        .filter(|p| std::fs::remove_file(p).is_ok() || std::fs::remove_dir_all(p).is_ok())
+        .filter(|p| {
+            if std::fs::remove_file(p).is_ok() {
+                return true;
+            }
+            let mut gone = false;
+            for _ in 0..50 {
+                let _ = std::fs::remove_dir_all(p);
+                std::thread::sleep(std::time::Duration::from_millis(2));
+                if !p.exists() {
+                    if gone {
+                        break;
+                    }
+                    gone = true;
+                } else {
+                    gone = false;
+                }
+            }
+            gone
+        })
         .count();
     live.clear();
     n

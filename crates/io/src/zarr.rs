@@ -497,6 +497,8 @@ impl ZarrStackWriter {
                 r => break r?,
             }
         };
+        // Stopped by Ctrl-C or SIGTERM, the destructor does not run: removed by the handler.
+        crate::live_temps().insert(staging_dir.path().to_path_buf());
         let staging = Array::new_with_metadata(
             store(staging_dir.path())?,
             &format!("/{LEVEL0}"),
@@ -586,6 +588,7 @@ impl Drop for ZarrStackWriter {
     /// The writer's staging folder goes, and the staging area with it once no other writer
     /// stages there, so a finished store holds only the Zarr nodes and the markers.
     fn drop(&mut self) {
+        crate::live_temps().remove(self.staging_dir.path());
         let _ = std::fs::remove_dir_all(self.staging_dir.path());
         if let Some(area) = self.staging_dir.path().parent() {
             let _ = std::fs::remove_dir(area);
