@@ -1412,7 +1412,6 @@ fn stale_temporary_outputs_are_swept() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     raw_frame(d, "a.tif", Some(0.01));
-    let then = std::time::SystemTime::now() - std::time::Duration::from_secs(7200);
     // Another target's temporary (`o.tif.tif`), old too, is not this one's.
     for name in [
         ".o.tif.old111.tmp",
@@ -1423,14 +1422,13 @@ fn stale_temporary_outputs_are_swept() {
         let p = d.join(name);
         std::fs::create_dir_all(p.parent().unwrap()).unwrap();
         std::fs::write(&p, b"left").unwrap();
-        if name.contains("old") {
-            std::fs::File::open(&p).unwrap().set_modified(then).unwrap();
-            for up in [p.parent().unwrap(), &d.join(".cal.old222.tmp")] {
-                if up != d && up.exists() {
-                    std::fs::File::open(up).unwrap().set_modified(then).unwrap();
-                }
-            }
-        }
+    }
+    for old in [
+        ".o.tif.old111.tmp",
+        ".o.tif.tif.old333.tmp",
+        ".cal.old222.tmp",
+    ] {
+        common::age(&d.join(old));
     }
     ok(&emccd(
         &["denoise", "a.tif", "-o", "o.tif", "--method", "none"],

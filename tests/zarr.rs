@@ -8,7 +8,7 @@ mod common;
 use std::path::Path;
 use std::process::Command;
 
-use common::{emccd, ok};
+use common::{age, emccd, ok};
 
 const N: usize = 64;
 
@@ -212,20 +212,6 @@ fn shards_equal_one_process_and_a_killed_shard_resumes() {
     let p = emccd_profile::CameraProfile::load(d.join("prof")).unwrap();
     let want = emccd_classical::frame::preprocess(&p, &raw[0], 0.01).unwrap();
     assert_eq!(bits(&pre[..1]), bits(&[want]));
-}
-
-/// Sets the modification time of `path` and everything in it two hours back.
-fn age(path: &Path) {
-    let then = std::time::SystemTime::now() - std::time::Duration::from_secs(7200);
-    if path.is_dir() {
-        for e in std::fs::read_dir(path).unwrap() {
-            age(&e.unwrap().path());
-        }
-    }
-    std::fs::File::open(path)
-        .unwrap()
-        .set_modified(then)
-        .unwrap();
 }
 
 /// The names in folder `path`, sorted.

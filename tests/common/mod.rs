@@ -34,3 +34,18 @@ pub fn repo(rel: &str) -> PathBuf {
 pub fn data(rel: &str) -> PathBuf {
     repo("tests/data").join(rel)
 }
+
+/// Sets the modification time of `path` and everything in it two hours back: what a killed
+/// run left an hour ago or more.
+pub fn age(path: &Path) {
+    let then = std::time::SystemTime::now() - std::time::Duration::from_secs(7200);
+    if path.is_dir() {
+        for e in std::fs::read_dir(path).unwrap() {
+            age(&e.unwrap().path());
+        }
+    }
+    std::fs::File::open(path)
+        .unwrap()
+        .set_modified(then)
+        .unwrap();
+}

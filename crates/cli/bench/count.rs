@@ -70,7 +70,6 @@ pub fn count(profile: &CameraProfile, frames: usize) -> Result<CountTimes> {
     let e = cam.exposure(exposure);
     let pixels = cam.width() * cam.height();
     let photons = vec![(LEVEL / cam.physics.qe) as f32; pixels];
-    let truth = LEVEL;
     let raw: Vec<Vec<f32>> = (0..frames)
         .map(|k| {
             let mut f = vec![0f32; pixels];
@@ -94,9 +93,8 @@ pub fn count(profile: &CameraProfile, frames: usize) -> Result<CountTimes> {
     };
     let preprocess_s = run(Box::new(|_| {}));
     let mean = |v: &[f32]| v.iter().map(|&x| x as f64).sum::<f64>() / v.len() as f64;
-    let mut ratios = (0.0, 0.0);
-    let mut times = [0.0; 2];
-    for (i, analog) in [false, true].into_iter().enumerate() {
+    // Seconds, and the output's mean rate over the truth's.
+    let measure = |analog: bool| -> Result<(f64, f64)> {
         let mut counter = Counter::new(
             camera.clone(),
             Threshold::Auto,
@@ -107,24 +105,24 @@ pub fn count(profile: &CameraProfile, frames: usize) -> Result<CountTimes> {
         )
         .map_err(|e| Error::Data(e.0))?;
         let mut rate = None;
-        times[i] = run(Box::new(|f| {
+        let s = run(Box::new(|f| {
             if let Some((r, _)) = counter.add(f) {
                 rate = Some(r);
             }
         }));
-        let r = mean(&rate.expect("the last frame completes the output")) / truth;
-        if analog {
-            ratios.1 = r;
-        } else {
-            ratios.0 = r;
-        }
-    }
+        Ok((
+            s,
+            mean(&rate.expect("the last frame completes the output")) / LEVEL,
+        ))
+    };
+    let (count_s, counted) = measure(false)?;
+    let (analog_s, analog) = measure(true)?;
     Ok(CountTimes {
         frames,
         pixels,
         preprocess_s,
-        count_s: times[0],
-        analog_s: times[1],
-        ratios,
+        count_s,
+        analog_s,
+        ratios: (counted, analog),
     })
 }

@@ -1059,12 +1059,13 @@ pub fn write_atomic(path: impl AsRef<Path>, bytes: &[u8]) -> Result<()> {
     stage_bytes(path.as_ref(), bytes)?.place()
 }
 
-/// `bytes` written in full beside `path`, to be placed there with the other outputs of the run
-/// ([`Staged`]).
+/// `bytes` written in full beside `path` and flushed to disk, to be placed there with the other
+/// outputs of the run ([`Staged`]): a full disk is met here, before any of them is placed.
 pub fn stage_bytes(path: &Path, bytes: &[u8]) -> Result<Staged> {
     use std::io::Write;
     let mut tmp = temp_beside(path).map_err(|e| Error::from(e).with_path(path))?;
     tmp.write_all(bytes)
+        .and_then(|()| tmp.as_file().sync_all())
         .map_err(|e| Error::from(e).with_path(path))?;
     Ok(Staged {
         tmp,
@@ -1076,19 +1077,11 @@ pub fn stage_bytes(path: &Path, bytes: &[u8]) -> Result<Staged> {
 /// target first, then each renamed into place. A failure while writing (a full disk) leaves
 /// every earlier file as it was; only the renames, which need no space, come after it.
 pub fn write_atomic_together(files: &[(&Path, &[u8])]) -> Result<()> {
-    use std::io::Write;
-    let mut staged = Vec::with_capacity(files.len());
-    for &(path, bytes) in files {
-        let mut tmp = temp_beside(path).map_err(|e| Error::from(e).with_path(path))?;
-        tmp.write_all(bytes)
-            .and_then(|()| tmp.as_file().sync_all())
-            .map_err(|e| Error::from(e).with_path(path))?;
-        staged.push((tmp, path));
-    }
-    for (tmp, path) in staged {
-        persist(tmp, path)?;
-    }
-    Ok(())
+    let staged = files
+        .iter()
+        .map(|&(path, bytes)| stage_bytes(path, bytes))
+        .collect::<Result<Vec<_>>>()?;
+    staged.into_iter().try_for_each(Staged::place)
 }
 
 /// Writes one frame as an 8-bit grayscale PNG, mapping `lo..=hi` to 0..=255 (for previews).
@@ -1100,7 +1093,7 @@ pub fn write_png_preview(
     lo: f32,
     hi: f32,
 ) -> Result<()> {
-    png_io::write_gray8(path.as_ref(), width, height, data, lo, hi)?.place()
+    stage_png_preview(path.as_ref(), width, height, data, lo, hi)?.place()
 }
 
 /// [`write_png_preview`] written beside `path`, placed with the run's other outputs
