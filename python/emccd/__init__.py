@@ -210,6 +210,7 @@ def count(
     extrapolate: bool = False,
     cic: Optional[float] = None,
     dark: Optional[float] = None,
+    read_noise: str = "camera",
 ) -> Tuple[np.ndarray, np.ndarray]:
     """Photon counting of raw EMCCD frames (a 3-D stack in DN as the camera wrote them), as
     ``emccd count`` does: each frame preprocessed with the profile, each pixel thresholded, and
@@ -218,8 +219,10 @@ def count(
     per ``per`` input frames. ``threshold``: ``"auto"`` (k times each pixel's read noise, k
     chosen for the stack's light level), ``"<k>sigma"`` or ``"<n>DN"``. ``analog=True`` gives
     the plain mean instead, to compare. ``cic`` (e⁻ per frame) and ``dark`` (e⁻/s), both or
-    neither, replace the profile's where its calibration did not measure them. The threshold chosen and what it predicts (false events,
-    missed photo-electrons) are kept in ``emccd.count.last_notes``."""
+    neither, replace the profile's where its calibration did not measure them. ``read_noise``:
+    ``"camera"`` (one read noise for every pixel, the calibration's fit beneath the spurious
+    charge) or ``"pixel"`` (each pixel's std map). The threshold chosen and what it predicts
+    (false events, missed photo-electrons) are kept in ``emccd.count.last_notes``."""
     if exposure_s is None:
         raise EmccdError(
             "the exposure is unknown: pass exposure_s (seconds; emccd.read returns the header's as meta['exposure_s'])"
@@ -235,6 +238,7 @@ def count(
         bool(extrapolate),
         None if cic is None else float(cic),
         None if dark is None else float(dark),
+        str(read_noise),
     )
     count.last_notes = list(notes)
     if per is None:

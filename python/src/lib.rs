@@ -482,7 +482,7 @@ fn denoise<'py>(
 /// per frame) and its standard error, each [outputs, h, w] (one output per `per` frames, or one
 /// for the whole stack), and notes (the threshold and what it predicts).
 #[pyfunction]
-#[pyo3(signature = (frames, profile, exposure_s, threshold="auto", per=None, analog=false, extrapolate=false, cic=None, dark=None))]
+#[pyo3(signature = (frames, profile, exposure_s, threshold="auto", per=None, analog=false, extrapolate=false, cic=None, dark=None, read_noise="camera"))]
 #[allow(clippy::too_many_arguments)]
 #[allow(clippy::type_complexity)]
 fn count<'py>(
@@ -496,6 +496,7 @@ fn count<'py>(
     extrapolate: bool,
     cic: Option<f64>,
     dark: Option<f64>,
+    read_noise: &str,
 ) -> PyResult<(
     Bound<'py, PyArray3<f32>>,
     Bound<'py, PyArray3<f32>>,
@@ -503,6 +504,9 @@ fn count<'py>(
 )> {
     let p = &profile.inner;
     let threshold: emccd_count::Threshold = threshold
+        .parse()
+        .map_err(|e: String| err(anyhow::anyhow!(e)))?;
+    let read_noise: emccd_count::ReadNoise = read_noise
         .parse()
         .map_err(|e: String| err(anyhow::anyhow!(e)))?;
     let a = frames.as_array();
@@ -513,7 +517,7 @@ fn count<'py>(
         if let Some(wn) = p.check_frames(w, h, exposure_s, "exposure_s", extrapolate)? {
             notes.push(wn);
         }
-        let cam = emccd_count::Camera::from_profile(p, exposure_s, cic.zip(dark))?;
+        let cam = emccd_count::Camera::from_profile(p, exposure_s, cic.zip(dark), read_noise)?;
         let pre: Vec<Vec<f32>> = raw
             .chunks(w * h)
             .map(|fr| emccd_classical::frame::preprocess(p, fr, exposure_s))
@@ -521,7 +525,7 @@ fn count<'py>(
         let level = pre.iter().flatten().map(|&v| v as f64).sum::<f64>()
             / (f * w * h).max(1) as f64
             / cam.g
-            - cam.spurious;
+            - cam.unremoved();
         let per = per.unwrap_or(f);
         let mut counter = emccd_count::Counter::new(cam, threshold, level, per, f, analog)?;
         let (fe, missed) = counter.plan().predicted();

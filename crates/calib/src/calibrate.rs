@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use emccd_profile::{CameraProfile, FpnFit, FpnForm, ProfileMaps, Provenance};
+use emccd_profile::{CameraProfile, FpnFit, FpnForm, PgnParams, ProfileMaps, Provenance};
 use serde::Serialize;
 
 use crate::blooming::{self, BloomLevel, BloomingResult};
@@ -12,6 +12,9 @@ use crate::gain_series::{self, GainSeriesResult, SettingData};
 use crate::manifest::{Entry, Manifest};
 use crate::normality::{normal_plot, NormalPlot};
 use crate::ptc::{self, FlatLevel, LevelStatus, PtcResult};
+use rayon::prelude::*;
+
+use crate::spurious::SpuriousFit;
 use crate::stats::{accumulate, Progress};
 use crate::{Error, Result};
 
@@ -74,6 +77,9 @@ pub struct BiasLevel {
     /// Pixel-wise std after removing the mean (read noise), DN.
     #[serde(skip)]
     pub std: Vec<f32>,
+    /// Differences of paired frames (the spurious-charge fit's data).
+    #[serde(skip)]
+    pub differences: Option<crate::spurious::Differences>,
 }
 
 /// Everything one calibration run measured.
@@ -103,6 +109,9 @@ pub struct Calibration {
     pub blooming: Option<BloomingResult>,
     /// Gain-series fit.
     pub gain_series: Option<GainSeriesResult>,
+    /// Clock-induced charge, dark current and the read noise beneath them, from the bias
+    /// stacks' paired-frame differences (needs the photon-transfer slope).
+    pub spurious: Option<SpuriousFit>,
     /// What could not be calibrated and why.
     pub missing: Vec<String>,
     /// Things a person should know (truncated files, header/manifest disagreements).
@@ -351,6 +360,11 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
         }
         _ => (width, height),
     };
+    let slope = ptc
+        .as_ref()
+        .map(|p| p.fit.slope)
+        .or_else(|| gain_series.as_ref().map(|g| g.slope_at(m.em_gain)));
+    let spurious = spurious_charge(&bias, slope, m.em_gain, &mut missing);
 
     Ok(Calibration {
         camera: m.camera.clone(),
@@ -365,9 +379,51 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
         ptc,
         blooming,
         gain_series,
+        spurious,
         missing,
         warnings,
     })
+}
+
+/// The spurious charge and read noise of every bias exposure (in parallel), and their fit
+/// over exposures; None, with the reason in `missing`, without bias stacks, a slope or gain.
+fn spurious_charge(
+    bias: &[BiasLevel],
+    slope: Option<f64>,
+    em_gain: f64,
+    missing: &mut Vec<String>,
+) -> Option<SpuriousFit> {
+    if bias.is_empty() {
+        return None;
+    }
+    let Some(slope) = slope else {
+        missing.push(
+            "clock-induced charge and dark current: need the photon-transfer slope (flat fields)"
+                .into(),
+        );
+        return None;
+    };
+    if em_gain < 2.0 {
+        missing.push(format!(
+            "clock-induced charge and dark current: not separable from read noise at EM gain {em_gain}"
+        ));
+        return None;
+    }
+    let levels: Vec<_> = bias
+        .par_iter()
+        .filter_map(|b| {
+            let d = b.differences.as_ref()?;
+            crate::spurious::fit_level(d, b.exposure_s, slope / 2.0, em_gain)
+        })
+        .collect();
+    let fit = crate::spurious::fit_exposures(levels);
+    if fit.is_none() {
+        missing.push(
+            "clock-induced charge and dark current: the bias stacks hold too few frame pairs"
+                .into(),
+        );
+    }
+    fit
 }
 
 /// What every stage of a calibration reads stacks with: the sensor's size, the options and
@@ -412,7 +468,7 @@ impl Stages<'_> {
         let mut levels: Vec<BiasLevel> = Vec::new();
         let mut best_probes: Vec<(usize, Vec<f32>)> = Vec::new();
         for c in inputs {
-            let (_, st) = accumulate(&c.file, self.dims, 2, &probes, None, self.progress)?;
+            let (_, st) = accumulate(&c.file, self.dims, 2, &probes, None, true, self.progress)?;
             let mean = st.mean();
             let std = st.std();
             if st.probes.first().map_or(0, |p| p.1.len())
@@ -431,6 +487,7 @@ impl Stages<'_> {
                     .sqrt(),
                 mean,
                 std,
+                differences: st.differences,
             });
         }
         let normality = best_probes
@@ -459,7 +516,7 @@ impl Stages<'_> {
         let (width, height) = (self.width, self.height);
         let mut means = Vec::new();
         for c in inputs {
-            let (_, st) = accumulate(&c.file, self.dims, 2, &[], None, self.progress)?;
+            let (_, st) = accumulate(&c.file, self.dims, 2, &[], None, false, self.progress)?;
             means.push((c, st.mean(), st.frames));
         }
         let measure_all = |pattern: &dyn Fn(f64) -> Option<Vec<f32>>| -> Result<BloomingResult> {
@@ -544,6 +601,7 @@ impl Stages<'_> {
                 2,
                 &[],
                 Some(adc_max as f32),
+                false,
                 self.progress,
             )?;
             let raw = st.mean();
@@ -660,7 +718,7 @@ fn run_gain_series(
     let idx: Vec<usize> = pixels.iter().map(|&(x, y)| y * w + x).collect();
     let mut data = Vec::new();
     for s in &gs.settings {
-        let (info, st) = accumulate(&s.file, Some((w, h)), 100, &idx, None, progress)?;
+        let (info, st) = accumulate(&s.file, Some((w, h)), 100, &idx, None, false, progress)?;
         if info.frames > crate::stats::PROBE_CAP {
             eprintln!(
                 "note: {}: fitting the first {} of {} frames",
@@ -690,7 +748,7 @@ fn run_gain_series(
                 )
             }
             (_, _, Some(ns)) => {
-                let (_, st0) = accumulate(ns, Some((w, h)), 2, &[], None, progress)?;
+                let (_, st0) = accumulate(ns, Some((w, h)), 2, &[], None, false, progress)?;
                 let (m0, s0) = (st0.mean(), st0.std());
                 (
                     idx.iter().map(|&i| m0[i] as f64).collect(),
@@ -774,6 +832,27 @@ fn run_gain_series(
 }
 
 impl Calibration {
+    /// The Poisson–Gamma–Normal parameters measured: EM gain, e⁻/DN from the slope, the
+    /// spurious charge and the read noise beneath it (the profile's fixed pattern, measured on
+    /// the same bias frames, holds the spurious charge's mean: see
+    /// [`CameraProfile::fpn_holds_spurious`]).
+    fn pgn(&self) -> Option<PgnParams> {
+        let s = self.spurious.as_ref()?;
+        let g = self
+            .ptc
+            .as_ref()
+            .map(|p| p.fit.slope)
+            .or_else(|| self.gain_series.as_ref().map(|g| g.slope_at(self.em_gain)))?
+            / 2.0;
+        Some(PgnParams {
+            em_gain: self.em_gain,
+            e_per_dn: self.em_gain / g,
+            cic_e: s.cic_e,
+            dark_e_per_s: s.dark_e_per_s,
+            read_sigma_dn: s.read_sigma_dn,
+        })
+    }
+
     /// The camera profile. Fails only when there is nothing to put in one (no bias, flats or
     /// blooming stacks: a gain series alone does not describe a sensor).
     pub fn profile(&self) -> Result<CameraProfile> {
@@ -869,7 +948,7 @@ impl Calibration {
             blooming: self.blooming.as_ref().map(|b| b.law()),
             exposures_s: self.bias.iter().map(|b| b.exposure_s).collect(),
             eld: None,
-            pgn: None,
+            pgn: self.pgn(),
             provenance: Provenance {
                 source: "calibrated".into(),
                 notes,

@@ -55,6 +55,7 @@ pub use emccd_profile::manifest;
 pub mod normality;
 pub mod ptc;
 pub mod report;
+pub mod spurious;
 pub mod stats;
 mod summary;
 

@@ -640,18 +640,36 @@ fn fpn_section(c: &Calibration, h: &mut String) {
     }
 }
 
-/// Read noise: the map, the normal Q–Q plot and the table per exposure.
+/// Read noise: the map, the normal Q–Q plot and the table per exposure, with the spurious
+/// charge and the read noise beneath it where they were fitted.
 fn read_noise_section(c: &Calibration, h: &mut String) {
     if let Some(b) = c.bias.first() {
-        let _ = write!(h, "<h2>Read noise (paper Fig. 4)</h2><div class=row><div><p>read-noise std at {} s</p>{}</div>{}</div><table><tr><th>exposure s</th><th>frames</th><th>FPN median DN</th><th>read-noise median DN</th><th>read-noise rms DN</th></tr>", b.exposure_s, heat_map(&b.std, c.width, c.height, "DN"), qq_plot(c));
+        let _ = write!(h, "<h2>Read noise (paper Fig. 4)</h2><div class=row><div><p>read-noise std at {} s</p>{}</div>{}</div><table><tr><th>exposure s</th><th>frames</th><th>FPN median DN</th><th>read-noise median DN</th><th>read-noise rms DN</th><th>spurious e⁻ per frame</th><th>read noise beneath DN</th></tr>", b.exposure_s, heat_map(&b.std, c.width, c.height, "DN"), qq_plot(c));
         for l in &c.bias {
+            let fit = c
+                .spurious
+                .as_ref()
+                .and_then(|s| s.levels.iter().find(|f| f.exposure_s == l.exposure_s));
+            let (e, r) = fit.map_or(("–".to_string(), "–".to_string()), |f| {
+                (
+                    format!("{:.5} ± {:.5}", f.electrons, f.electrons_se),
+                    format!("{:.3}", f.read_sigma_dn),
+                )
+            });
             let _ = write!(
                 h,
-                "<tr><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.3}</td><td>{:.3}</td></tr>",
+                "<tr><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.3}</td><td>{:.3}</td><td>{e}</td><td>{r}</td></tr>",
                 l.exposure_s, l.frames, l.median_dn, l.read_noise_median_dn, l.read_noise_rms_dn
             );
         }
         h.push_str("</table>");
+        if let Some(s) = &c.spurious {
+            let _ = write!(
+                h,
+                "<p>Spurious charge from paired-frame differences (CIC + dark·t): CIC {:.5} ± {:.5} e⁻ per pixel per frame, dark current {:.5} e⁻/s; the read noise beneath it {:.3} DN. The std maps hold both.</p>",
+                s.cic_e, s.cic_se, s.dark_e_per_s, s.read_sigma_dn
+            );
+        }
     }
 }
 

@@ -28,6 +28,8 @@ pub struct StackStats {
     pub saturated: u64,
     /// Values of the probe pixels, frame by frame (capped at [`PROBE_CAP`] per pixel).
     pub probes: Vec<(usize, Vec<f32>)>,
+    /// Differences of paired frames, pooled (bias stacks: the spurious-charge fit's data).
+    pub differences: Option<crate::spurious::Differences>,
     shift: Vec<f32>,
     s1: Vec<f64>,
     s2: Vec<f64>,
@@ -50,6 +52,7 @@ impl StackStats {
                 .filter(|&&i| i < n)
                 .map(|&i| (i, Vec::new()))
                 .collect(),
+            differences: None,
             shift: vec![0.0; n],
             s1: vec![0.0; n],
             s2: vec![0.0; n],
@@ -94,6 +97,9 @@ impl StackStats {
             return Err(i);
         }
         self.saturated += sat;
+        if let Some(d) = &mut self.differences {
+            d.push(frame);
+        }
         for (i, v) in &mut self.probes {
             if v.len() < PROBE_CAP {
                 v.push(frame[*i]);
@@ -144,8 +150,8 @@ impl Progress for Silent {
     fn advance(&self, _: u64) {}
 }
 
-/// Reads a whole stack frame by frame into [`StackStats`]. Errors (naming the file) for a
-/// stack of fewer than `min_frames` frames, frames of the wrong size, NaN or infinite samples,
+/// Reads a whole stack frame by frame into [`StackStats`] (with the paired-frame differences
+/// when `differences`). Errors (naming the file) for a stack of fewer than `min_frames` frames, frames of the wrong size, NaN or infinite samples,
 /// and unreadable or truncated files.
 pub fn accumulate(
     path: &Path,
@@ -153,6 +159,7 @@ pub fn accumulate(
     min_frames: usize,
     probes: &[usize],
     adc_max: Option<f32>,
+    differences: bool,
     progress: &dyn Progress,
 ) -> Result<(emccd_io::StackInfo, StackStats)> {
     let mut r = emccd_io::open(path).map_err(|e| Error::io(path, e))?;
@@ -178,6 +185,9 @@ pub fn accumulate(
         ));
     }
     let mut st = StackStats::new(info.width, info.height, probes);
+    if differences {
+        st.differences = Some(Default::default());
+    }
     let mut buf = vec![0f32; info.frame_len()];
     loop {
         let more = r.read_frame(&mut buf).map_err(|e| {

@@ -49,6 +49,23 @@ impl Calibration {
                 .sqrt();
             let _ = writeln!(out, "  read noise           {:.3} DN median std, {rms:.3} DN rms (over pixels and {} exposures)", emccd_profile::median(rn).unwrap_or(0.0), c.bias.len());
         }
+        if let Some(f) = &c.spurious {
+            let dark = if f.dark_se.is_finite() {
+                format!("{} ± {}", short(f.dark_e_per_s), short(f.dark_se))
+            } else {
+                format!(
+                    "{} (one exposure: not separated from CIC)",
+                    short(f.dark_e_per_s)
+                )
+            };
+            let _ = writeln!(
+                out,
+                "  spurious charge      CIC {} ± {} e⁻ per pixel per frame, dark {dark} e⁻/s; the read noise beneath them {:.3} DN",
+                short(f.cic_e),
+                short(f.cic_se),
+                f.read_sigma_dn
+            );
+        }
         if let Some(f) = &c.fpn {
             let mid: Vec<&crate::fpn::FpnError> = f
                 .errors
@@ -114,5 +131,15 @@ impl Calibration {
             let _ = writeln!(out, "  not calibrated: {m}");
         }
         out
+    }
+}
+
+/// A small rate for a person: four significant digits.
+fn short(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        format!("{v}")
+    } else {
+        let digits = (3 - v.abs().log10().floor() as i32).max(0) as usize;
+        format!("{v:.digits$}")
     }
 }

@@ -80,7 +80,8 @@ pub fn count(profile: &CameraProfile, frames: usize) -> Result<CountTimes> {
     let mut fpn = vec![0f32; pixels];
     profile.fpn_at(exposure, &mut fpn);
     let bloom = profile.blooming_factor(exposure);
-    let camera = Camera::from_profile(profile, exposure, None).map_err(|e| Error::Data(e.0))?;
+    let camera = Camera::from_profile(profile, exposure, None, Default::default())
+        .map_err(|e| Error::Data(e.0))?;
     let run = |mut take: Box<dyn FnMut(&[f32]) + '_>| -> f64 {
         let clock = Instant::now();
         let mut buf = vec![0f32; pixels];

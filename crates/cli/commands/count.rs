@@ -52,6 +52,12 @@ pub struct Args {
     /// Dark current, e⁻ per pixel per second, with --cic.
     #[arg(long, requires = "cic")]
     pub dark: Option<f64>,
+    /// Each pixel's read noise: `camera` (one for every pixel: the calibration's fit beneath the
+    /// spurious charge, as an EMCCD reads every pixel through one amplifier) or `pixel` (each
+    /// pixel's std map at the exposure, which also holds the few spurious events its bias
+    /// frames caught).
+    #[arg(long, default_value = "camera", value_name = "camera|pixel")]
+    pub read_noise: emccd_count::ReadNoise,
     /// Write the analog estimate instead (each pixel's mean signal over the register's gain,
     /// less the spurious electrons), to compare with counting.
     #[arg(long)]
@@ -98,7 +104,7 @@ pub fn run(a: Args) -> Result<()> {
     let mut jobs = Vec::with_capacity(a.inputs.len());
     for (input, out) in a.inputs.iter().zip(outs) {
         let mut rec = a.recording.open(input, &profile)?;
-        let camera = Camera::from_profile(&profile, rec.exposure, spurious(&a))
+        let camera = Camera::from_profile(&profile, rec.exposure, spurious(&a), a.read_noise)
             .map_err(|e| anyhow::anyhow!("profile {}: {e}", a.recording.profile))?;
         if let Some(n) = a.per {
             if n as usize > rec.info.frames {
@@ -109,7 +115,8 @@ pub fn run(a: Args) -> Result<()> {
                 );
             }
         }
-        let level = emccd_count::light_level(&profile, &mut rec, LEVEL_FRAMES)? - camera.spurious;
+        let level =
+            emccd_count::light_level(&profile, &mut rec, LEVEL_FRAMES)? - camera.unremoved();
         jobs.push(Job {
             input: input.clone(),
             out,

@@ -28,7 +28,7 @@ pub mod plan;
 pub mod tally;
 
 pub use model::PixelModel;
-pub use plan::{choose_k, Camera, Plan, Threshold};
+pub use plan::{choose_k, Camera, Plan, ReadNoise, Threshold};
 pub use tally::{light_level, preprocessed_frames, Counter, Tally};
 
 /// Why a stack cannot be counted, in words.

@@ -46,6 +46,33 @@ impl std::str::FromStr for Threshold {
     }
 }
 
+/// Which read noise a pixel's threshold and model use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum ReadNoise {
+    /// The camera's one read noise: the calibration's fit beneath the spurious charge
+    /// (`[pgn] read_sigma_dn`, with the ADC's rounding), else the median of the std map. An
+    /// EMCCD reads every pixel through one amplifier, and a bias stack's per-pixel std also
+    /// holds each pixel's few spurious events.
+    #[default]
+    Camera,
+    /// Each pixel's std map at the exposure, as measured.
+    Pixel,
+}
+
+impl std::str::FromStr for ReadNoise {
+    type Err = String;
+
+    fn from_str(s: &str) -> std::result::Result<ReadNoise, String> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "camera" => Ok(ReadNoise::Camera),
+            "pixel" => Ok(ReadNoise::Pixel),
+            _ => Err(format!(
+                "'{s}': the read noise is `camera` (one for every pixel) or `pixel` (each pixel's map)"
+            )),
+        }
+    }
+}
+
 /// What counting needs to know of the camera at one exposure.
 #[derive(Clone, Debug)]
 pub struct Camera {
@@ -59,6 +86,9 @@ pub struct Camera {
     pub sigma: Vec<f32>,
     /// Electrons per pixel per frame without light: clock-induced charge plus dark current.
     pub spurious: f64,
+    /// The part of `spurious` whose mean signal preprocessing already removed (all of it where
+    /// the fixed pattern was measured on dark frames).
+    pub removed: f64,
 }
 
 impl Camera {
@@ -70,6 +100,7 @@ impl Camera {
         profile: &CameraProfile,
         exposure_s: f64,
         spurious: Option<(f64, f64)>,
+        read_noise: ReadNoise,
     ) -> Result<Camera> {
         let g = profile.dn_per_electron().map_err(|_| {
             Error(
@@ -100,13 +131,39 @@ impl Camera {
                 "clock-induced charge {cic} e⁻ per frame and dark current {dark} e⁻/s must be 0–10 and 0–10⁵"
             )));
         }
+        let map = profile.read_noise_near(exposure_s);
+        let sigma = match read_noise {
+            ReadNoise::Pixel => map.to_vec(),
+            ReadNoise::Camera => {
+                let one = match &profile.pgn {
+                    // Measured beneath the spurious charge, before the ADC's rounding.
+                    Some(p) if profile.fpn_holds_spurious() => {
+                        (p.read_sigma_dn.powi(2) + profile.quantization_dn.powi(2) / 12.0).sqrt()
+                    }
+                    _ => emccd_profile::median(map.iter().copied()).unwrap_or(1.0),
+                };
+                vec![one as f32; map.len()]
+            }
+        };
+        let spurious = cic + dark * exposure_s;
         Ok(Camera {
             width: profile.width,
             height: profile.height,
             g,
-            sigma: profile.read_noise_near(exposure_s).to_vec(),
-            spurious: cic + dark * exposure_s,
+            sigma,
+            spurious,
+            removed: if profile.fpn_holds_spurious() {
+                spurious
+            } else {
+                0.0
+            },
         })
+    }
+
+    /// The spurious electrons per frame still in preprocessed frames' mean (not removed with
+    /// the fixed pattern): what the analog estimate subtracts.
+    pub fn unremoved(&self) -> f64 {
+        self.spurious - self.removed
     }
 
     /// The median read noise, DN.
@@ -125,7 +182,8 @@ pub fn choose_k(camera: &Camera, lambda: f64, frames: u32) -> f64 {
     (10..=160)
         .map(|i| i as f64 * 0.05)
         .map(|k| {
-            let m = PixelModel::new(k * sigma, camera.g, sigma, camera.spurious);
+            let shift = camera.removed * camera.g;
+            let m = PixelModel::new(k * sigma + shift, camera.g, sigma, camera.spurious);
             (k, m.variance(lambda, frames))
         })
         .min_by(|a, b| a.1.total_cmp(&b.1))
@@ -170,11 +228,14 @@ impl Plan {
             Threshold::Dn(d) => d,
             _ => k * s,
         };
+        // Preprocessing removed the spurious charge's mean signal with the fixed pattern, so a
+        // threshold T above the preprocessed zero is T + that mean above the true bias.
+        let shift = camera.removed * camera.g;
         let models: Vec<PixelModel> = (0..slots)
             .into_par_iter()
             .map(|i| {
                 let s = sigma_of(i);
-                PixelModel::new(t_of(s), camera.g, s, camera.spurious)
+                PixelModel::new(t_of(s) + shift, camera.g, s, camera.spurious)
             })
             .collect();
         let index: Vec<u32> = camera.sigma.iter().map(|&s| slot(s)).collect();

@@ -46,12 +46,12 @@ impl Tally {
     }
 
     /// The analog estimate: each pixel's mean signal over the register's gain, less the
-    /// spurious electrons (photo-electrons per pixel per frame).
+    /// spurious electrons preprocessing left (photo-electrons per pixel per frame).
     pub fn analog(&self, camera: &Camera) -> Vec<f32> {
         let n = self.frames.max(1) as f64;
         self.sum
             .iter()
-            .map(|&s| (s / n / camera.g - camera.spurious) as f32)
+            .map(|&s| (s / n / camera.g - camera.unremoved()) as f32)
             .collect()
     }
 
@@ -59,7 +59,7 @@ impl Tally {
     /// [`Threshold::Auto`] chooses its threshold at.
     pub fn mean_rate(&self, camera: &Camera) -> f64 {
         let n = (self.frames.max(1) as f64) * self.sum.len().max(1) as f64;
-        self.sum.iter().sum::<f64>() / n / camera.g - camera.spurious
+        self.sum.iter().sum::<f64>() / n / camera.g - camera.unremoved()
     }
 }
 
@@ -116,7 +116,7 @@ impl Tally {
             .iter()
             .zip(&camera.sigma)
             .map(|(&s, &sigma)| {
-                let mu = (s / n / camera.g).max(0.0);
+                let mu = (s / n / camera.g + camera.removed).max(0.0);
                 let var_dn = 2.0 * camera.g * camera.g * mu + (sigma as f64).powi(2);
                 ((var_dn / n).sqrt() / camera.g) as f32
             })
@@ -126,7 +126,8 @@ impl Tally {
 
 /// The recording's light level: the mean of its first `frames` preprocessed frames (at most)
 /// over the profile's DN per photo-electron, in photo-electrons per pixel per frame as the analog
-/// mean sees them (spurious electrons included). Reads only those frames.
+/// mean sees them (with the spurious electrons preprocessing left: [`Camera::unremoved`]).
+/// Reads only those frames.
 pub fn light_level(
     profile: &CameraProfile,
     rec: &mut emccd_profile::Recording,

@@ -375,6 +375,13 @@ impl CameraProfile {
         Ok(self.slope()? / 2.0)
     }
 
+    /// Whether the fixed pattern was measured on dark frames (a calibrated profile): it then
+    /// holds the mean signal of the clock-induced charge and dark current as well, which
+    /// preprocessing removes with it. A modeled profile's pattern is the bias alone.
+    pub fn fpn_holds_spurious(&self) -> bool {
+        self.provenance.source == "calibrated"
+    }
+
     /// Whether bias frames were calibrated (FPN and read-noise maps exist).
     pub fn has_bias(&self) -> bool {
         !self.exposures_s.is_empty()
