@@ -2,7 +2,6 @@
 
 mod common;
 
-
 use common::{data, emccd, ok};
 
 #[test]

@@ -178,6 +178,80 @@ fn per_and_uncertainty_and_metadata() {
     );
 }
 
+/// An OME-Zarr output equals the TIFF one frame for frame, rates and errors; three processes
+/// each counting their share (`--shard I/3`, output frames 1–2, 3–4, 5–7 of 7) make the same
+/// store as one process, and a shard run again finds its share done and writes nothing. The
+/// automatic threshold is the same in every shard: each measures the level on the stack's
+/// first frames.
+#[test]
+fn zarr_output_and_shards_equal_one_process() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    camera(d, 32);
+    let (noisy, _) = stack(d, "0.3", 70, "5", "s");
+    let noisy = noisy.as_str();
+    let count = |out: &str, se: &str, shard: Option<&str>| {
+        let mut args = vec![
+            "count",
+            noisy,
+            "-o",
+            out,
+            "--profile",
+            "cam",
+            "--per",
+            "10",
+            "--uncertainty",
+            se,
+        ];
+        if let Some(s) = shard {
+            args.extend(["--shard", s]);
+        }
+        let o = emccd(&args, d);
+        ok(&o);
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    count("one.tif", "one_se.tif", None);
+    count("one.zarr", "one_se.zarr", None);
+    for i in 0..3 {
+        count("sh.zarr", "sh_se.zarr", Some(&format!("{i}/3")));
+    }
+    let again = count("sh.zarr", "sh_se.zarr", Some("1/3"));
+    assert!(
+        again.contains("0 counted now, 2 were already done"),
+        "{again}"
+    );
+    let tif = read(&d.join("one.tif"));
+    assert_eq!(tif.len(), 7);
+    for (a, b) in [
+        ("one.tif", "one.zarr"),
+        ("one.zarr", "sh.zarr"),
+        ("one_se.tif", "one_se.zarr"),
+        ("one_se.zarr", "sh_se.zarr"),
+    ] {
+        assert_eq!(read(&d.join(a)), read(&d.join(b)), "{a} vs {b}");
+    }
+    // Not a store of another kind: a shard asked of a TIFF, several inputs into one store.
+    let out = emccd(
+        &[
+            "count",
+            noisy,
+            "-o",
+            "x.tif",
+            "--profile",
+            "cam",
+            "--shard",
+            "0/2",
+        ],
+        d,
+    );
+    assert!(!out.status.success() && !d.join("x.tif").exists());
+    let out = emccd(
+        &["count", noisy, noisy, "-o", "x.zarr", "--profile", "cam"],
+        d,
+    );
+    assert!(!out.status.success() && !d.join("x.zarr").exists());
+}
+
 /// Bad requests fail with a message naming the problem, and nothing is written.
 #[test]
 fn bad_requests_are_refused_and_write_nothing() {

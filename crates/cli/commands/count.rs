@@ -6,6 +6,9 @@ use anyhow::{bail, Context, Result};
 use emccd_count::{Camera, Counter, Threshold};
 use emccd_profile::CameraProfile;
 
+use emccd_io::zarr::{Shard, ZarrStackSpec, ZarrStackWriter};
+use serde_json::json;
+
 use crate::common::{load_profile, progress, RecordingArgs};
 
 /// Count photons: below about 0.2 photo-electrons per pixel per frame (faint sources, single
@@ -25,7 +28,8 @@ pub struct Args {
     /// Raw stacks (TIFF/BigTIFF, SIF, FITS, Zarr).
     #[arg(required = true, num_args = 1..)]
     pub inputs: Vec<PathBuf>,
-    /// Output file (one input; .tif, .btf or .fits) or directory (several: NAME_count.tif each).
+    /// Output file (one input; .tif, .btf, .fits, or an OME-Zarr store .zarr that several
+    /// processes can fill at once: --shard) or directory (several inputs: NAME_count.tif each).
     #[arg(short, long)]
     pub out: PathBuf,
     #[command(flatten)]
@@ -41,9 +45,16 @@ pub struct Args {
     /// One output frame from the whole stack (the default).
     #[arg(long)]
     pub all: bool,
-    /// Also write each output frame's standard error per pixel here (one input only).
+    /// Also write each output frame's standard error per pixel here (one input only; a .zarr
+    /// store beside a .zarr output).
     #[arg(long, value_name = "FILE")]
     pub uncertainty: Option<PathBuf>,
+    /// Count only share I of N of the output frames (I from 0) into a .zarr output that N
+    /// processes write at once (a SLURM array task: --shard $SLURM_ARRAY_TASK_ID/N). Output
+    /// frames already complete are skipped, so a killed shard is resumed by running it again;
+    /// every shard chooses the same threshold (from the stack's first frames).
+    #[arg(long, value_name = "I/N")]
+    pub shard: Option<Shard>,
     /// Clock-induced charge, e⁻ per pixel per frame, where the profile does not record it (its
     /// [pgn] section; `emccd calibrate` does not measure it): from the camera's data sheet.
     /// Given with --dark; replaces the profile's.
@@ -86,13 +97,45 @@ pub fn run(a: Args) -> Result<()> {
     if several && a.uncertainty.is_some() {
         bail!("--uncertainty names one file: give one input");
     }
+    let is_zarr = |p: &Path| emccd_io::Format::from_extension(p) == Some(emccd_io::Format::Zarr);
+    let zarr = is_zarr(&a.out);
+    if a.shard.is_some() && !zarr {
+        bail!("--shard needs a .zarr output (-o OUT.zarr): only a Zarr store is written by several processes at once");
+    }
+    if zarr && several {
+        bail!(
+            "{}: a .zarr output holds one counted stack: give one input (or a folder, -o DIR, for NAME_count.tif each)",
+            a.out.display()
+        );
+    }
+    if let Some(u) = &a.uncertainty {
+        if is_zarr(u) != zarr {
+            bail!(
+                "--uncertainty {}: {}",
+                u.display(),
+                if zarr {
+                    "beside a .zarr output it is a .zarr store too (each shard writes its share of both)"
+                } else {
+                    "a .zarr store goes beside a .zarr output (-o OUT.zarr); here give .tif, .btf or .fits"
+                }
+            );
+        }
+    }
     if several && a.out.exists() && !a.out.is_dir() {
         bail!(
             "{}: is a file; several inputs are written into a folder (-o FOLDER), one NAME_count.tif each",
             a.out.display()
         );
     }
-    let outs = emccd_io::output_paths(&a.inputs, &a.out, several.then_some("_count.tif"))?;
+    let outs = if zarr {
+        // A store is a folder, resumed or shared by design; it is never its input.
+        for i in &a.inputs {
+            emccd_io::refuse_overwrite(&a.out, i, "the input")?;
+        }
+        vec![a.out.clone()]
+    } else {
+        emccd_io::output_paths(&a.inputs, &a.out, several.then_some("_count.tif"))?
+    };
     if let Some(u) = &a.uncertainty {
         for p in a.inputs.iter().chain([&a.out]) {
             emccd_io::refuse_overwrite(u, p, "an input or the output")?;
@@ -126,6 +169,9 @@ pub fn run(a: Args) -> Result<()> {
             level,
         });
     }
+    if zarr {
+        return count_zarr(&a, &profile, &jobs[0]);
+    }
     let made = several && !a.out.exists();
     if several {
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
@@ -155,15 +201,21 @@ fn count_all(a: &Args, profile: &CameraProfile, jobs: &[Job]) -> Result<()> {
     Ok(())
 }
 
-fn count_one(
-    a: &Args,
-    profile: &CameraProfile,
-    job: &Job,
-) -> Result<(Vec<emccd_io::Staged>, String)> {
-    let (cam, level) = (&job.camera, job.level);
+/// What a run tells: the output's notes (units, threshold, predictions) and, for the summary,
+/// the threshold and the predicted false-event and missed-electron rates.
+struct Described {
+    notes: Vec<String>,
+    threshold: String,
+    false_events: f64,
+    missed: f64,
+    per: usize,
+    outputs: usize,
+}
+
+/// Describes `counter`'s plan for `job`, warning of a fixed threshold below 3σ.
+fn describe(a: &Args, job: &Job, counter: &Counter) -> Described {
+    let cam = &job.camera;
     let per = a.per.map_or(job.frames, |n| n as usize);
-    let outputs = job.frames.div_ceil(per);
-    let mut counter = Counter::new(cam.clone(), a.threshold, level, per, job.frames, a.analog)?;
     let plan = counter.plan();
     let (false_events, missed) = plan.predicted();
     let sigma = cam.median_sigma();
@@ -206,7 +258,48 @@ fn count_one(
         format!("single_electron_missed={:.4}", missed),
         format!("em_dn_per_electron={}", number(cam.g)),
         format!("spurious_electrons_per_frame={}", number(cam.spurious)),
+        format!("read_noise={:?}", a.read_noise).to_lowercase(),
     ];
+    Described {
+        notes,
+        threshold: described,
+        false_events,
+        missed,
+        per,
+        outputs: job.frames.div_ceil(per),
+    }
+}
+
+/// A counter for `job` as the arguments ask.
+fn counter(a: &Args, job: &Job) -> Result<Counter> {
+    let per = a.per.map_or(job.frames, |n| n as usize);
+    Ok(Counter::new(
+        job.camera.clone(),
+        a.threshold,
+        job.level,
+        per,
+        job.frames,
+        a.analog,
+    )?)
+}
+
+/// A standard error for a file: a pixel with an event in every frame has no finite error and
+/// is written as the largest float, so readers see a number.
+fn finite(se: &[f32]) -> Vec<f32> {
+    se.iter()
+        .map(|&v| if v.is_finite() { v } else { f32::MAX })
+        .collect()
+}
+
+fn count_one(
+    a: &Args,
+    profile: &CameraProfile,
+    job: &Job,
+) -> Result<(Vec<emccd_io::Staged>, String)> {
+    let (cam, level) = (&job.camera, job.level);
+    let mut counter = counter(a, job)?;
+    let d = describe(a, job, &counter);
+    let (per, outputs) = (d.per, d.outputs);
     let create = |path: &Path| -> Result<emccd_io::StackWriter> {
         let mut w = emccd_io::StackWriter::create(
             path,
@@ -219,7 +312,7 @@ fn count_one(
             exposure_s: Some(job.exposure),
             ..Default::default()
         });
-        w.set_notes(&notes);
+        w.set_notes(&d.notes);
         Ok(w)
     };
     let mut rate_w = create(&job.out)?;
@@ -227,25 +320,23 @@ fn count_one(
     let mut rec = a.recording.reopen(&job.input, profile)?;
     let pb = progress(job.frames as u64, "frames");
     let mut mean_rate = 0.0;
-    let r = emccd_count::preprocessed_frames(profile, &mut rec, usize::MAX, |_, frame| {
-        pb.inc(1);
-        let Some((rate, se)) = counter.add(frame) else {
-            return Ok(());
-        };
-        mean_rate += rate.iter().map(|&v| v as f64).sum::<f64>() / rate.len() as f64;
-        let io = |e: emccd_io::Error| emccd_count::Error(e.to_string());
-        rate_w.write_frame(&rate).map_err(io)?;
-        if let Some(w) = &mut se_w {
-            // A pixel with an event in every frame has no finite error: written as the
-            // largest float, so readers see a number.
-            let se: Vec<f32> = se
-                .iter()
-                .map(|&v| if v.is_finite() { v } else { f32::MAX })
-                .collect();
-            w.write_frame(&se).map_err(io)?;
-        }
-        Ok(())
-    });
+    let io = |e: emccd_io::Error| emccd_count::Error(e.to_string());
+    let r = emccd_count::count_outputs(
+        profile,
+        &mut rec,
+        &mut counter,
+        0..outputs,
+        |_| false,
+        |_, rate, se| {
+            mean_rate += rate.iter().map(|&v| v as f64).sum::<f64>() / rate.len() as f64;
+            rate_w.write_frame(rate).map_err(io)?;
+            if let Some(w) = &mut se_w {
+                w.write_frame(&finite(se)).map_err(io)?;
+            }
+            Ok(())
+        },
+        || pb.inc(1),
+    );
     pb.finish_and_clear();
     r?;
     let mut files = vec![rate_w.finish_staged()?];
@@ -262,23 +353,165 @@ fn count_one(
     } else {
         String::new()
     };
-    let regime = if level > 0.5 {
-        format!(" At {} e⁻ per pixel per frame the analog mean (--analog) is likely as good: counting pays below about 0.5.", number(level))
-    } else {
-        String::new()
-    };
     let summary = format!(
-        "{} → {}: {} frames into {outputs} output frame{} of {per}; threshold {described}; predicted {} false events per pixel per frame, one photo-electron missed {:.0} % of the time{mixed}; mean rate {} photo-electrons per pixel per frame ({}).{regime}",
+        "{} → {}: {} frames into {outputs} output frame{} of {per}; threshold {}; predicted {} false events per pixel per frame, one photo-electron missed {:.0} % of the time{mixed}; mean rate {} photo-electrons per pixel per frame ({}).{}",
         job.input.display(),
         job.out.display(),
         job.frames,
         if outputs == 1 { "" } else { "s" },
-        number(false_events),
-        100.0 * missed,
+        d.threshold,
+        number(d.false_events),
+        100.0 * d.missed,
         number(mean_rate),
         if a.analog { "analog" } else { "counted" },
+        regime(level),
     );
     Ok((files, summary))
+}
+
+/// A note where the light is bright enough that counting may not pay.
+fn regime(level: f64) -> String {
+    if level > 0.5 {
+        format!(" At {} e⁻ per pixel per frame the analog mean (--analog) is likely as good: counting pays below about 0.5.", number(level))
+    } else {
+        String::new()
+    }
+}
+
+/// Counts this process's share of the output frames into the OME-Zarr store `-o` (and the
+/// standard errors into `--uncertainty`'s), skipping output frames already complete there.
+/// A store this run made alone and could not finish because of the data is removed; one
+/// stopped while writing (a full disk) stays to be resumed, as a shard's does.
+fn count_zarr(a: &Args, profile: &CameraProfile, job: &Job) -> Result<()> {
+    let shard = a.shard.unwrap_or(Shard::ALL);
+    let mut counter = counter(a, job)?;
+    let d = describe(a, job, &counter);
+    let mut input = serde_json::to_value(emccd_io::FileStamp::of(&job.input)?)?;
+    input["frames"] = job.frames.into();
+    input["exposure_s"] = job.exposure.into();
+    let made_of = |what: &str| {
+        json!({
+            "software": format!("emccd {}", env!("CARGO_PKG_VERSION")),
+            "command": "count",
+            "values": what,
+            "input": input,
+            "profile_fingerprint": profile.fingerprint_hex(),
+            "threshold": format!("{:?}", a.threshold),
+            "frames_per_output": d.per,
+            "analog": a.analog,
+            "read_noise": format!("{:?}", a.read_noise),
+            "cic_e": a.cic,
+            "dark_e_per_s": a.dark,
+        })
+    };
+    let spec = |path: &Path, what: &str| ZarrStackSpec {
+        width: job.camera.width,
+        height: job.camera.height,
+        frames: d.outputs,
+        name: path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        provenance: made_of(what),
+        notes: json!({
+            "input": job.input.display().to_string(),
+            "profile": a.recording.profile,
+            "notes": d.notes,
+        }),
+    };
+    let open = |path: &Path, what: &str| -> Result<(ZarrStackWriter, bool)> {
+        if !path.exists() {
+            let bytes = (d.outputs as u64) * (job.camera.width * job.camera.height) as u64 * 4;
+            emccd_io::check_room(path, bytes + (1 << 16))?;
+        }
+        Ok(ZarrStackWriter::create_or_open(path, &spec(path, what))?)
+    };
+    let (rate_store, made_rate) = open(&a.out, "photo-electrons per pixel per frame")?;
+    let se_store = match &a.uncertainty {
+        Some(u) => Some(open(
+            u,
+            "standard error, photo-electrons per pixel per frame",
+        )?),
+        None => None,
+    };
+    let range = shard.range(d.outputs);
+    let mut rec = a.recording.reopen(&job.input, profile)?;
+    let pb = progress(
+        (range.end.min(d.outputs) * d.per).min(job.frames) as u64
+            - (range.start * d.per).min(job.frames) as u64,
+        "frames",
+    );
+    let mut wrote_failed = false;
+    let r = emccd_count::count_outputs(
+        profile,
+        &mut rec,
+        &mut counter,
+        range.clone(),
+        |k| rate_store.is_done(k) && se_store.as_ref().is_none_or(|s| s.0.is_done(k)),
+        |k, rate, se| {
+            let w = (|| {
+                if !rate_store.is_done(k) {
+                    rate_store.write_frame(k, rate)?;
+                }
+                if let Some((s, _)) = &se_store {
+                    if !s.is_done(k) {
+                        s.write_frame(k, &finite(se))?;
+                    }
+                }
+                Ok::<_, emccd_io::Error>(())
+            })();
+            wrote_failed |= w.is_err();
+            w.map_err(|e| emccd_count::Error(e.to_string()))
+        },
+        || pb.inc(1),
+    );
+    pb.finish_and_clear();
+    let written = match r {
+        Ok(n) => n,
+        Err(e) => {
+            if shard == Shard::ALL && !wrote_failed {
+                let made_se = se_store.as_ref().is_some_and(|s| s.1);
+                drop(se_store);
+                drop(rate_store);
+                if made_rate {
+                    let _ = std::fs::remove_dir_all(&a.out);
+                }
+                if let (true, Some(u)) = (made_se, &a.uncertainty) {
+                    let _ = std::fs::remove_dir_all(u);
+                }
+            }
+            return Err(e.into());
+        }
+    };
+    let share = if shard.count > 1 {
+        format!("shard {}/{}: ", shard.index, shard.count)
+    } else {
+        String::new()
+    };
+    if range.is_empty() {
+        eprintln!(
+            "{share}no output frames: {} shards for {} output frames leave this one empty",
+            shard.count, d.outputs
+        );
+        return Ok(());
+    }
+    let done = rate_store.done_count();
+    eprintln!(
+        "{share}{} → {}: output frames {}–{} of {} input frames each ({written} counted now, {} were already done); {done} of {} complete{}; threshold {}; predicted {} false events per pixel per frame, one photo-electron missed {:.0} % of the time.{}",
+        job.input.display(),
+        a.out.display(),
+        range.start + 1,
+        range.end,
+        d.per,
+        range.len() - written,
+        d.outputs,
+        if done < d.outputs { " (the other shards write the rest)" } else { "" },
+        d.threshold,
+        number(d.false_events),
+        100.0 * d.missed,
+        regime(job.level),
+    );
+    Ok(())
 }
 
 /// A rate or probability for a person: three significant digits.

@@ -29,7 +29,7 @@ pub mod tally;
 
 pub use model::PixelModel;
 pub use plan::{choose_k, Camera, Plan, ReadNoise, Threshold};
-pub use tally::{light_level, preprocessed_frames, Counter, Tally};
+pub use tally::{count_outputs, light_level, preprocessed_frames, Counter, Preprocessed, Tally};
 
 /// Why a stack cannot be counted, in words.
 #[derive(Debug, thiserror::Error)]

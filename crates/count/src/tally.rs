@@ -63,48 +63,141 @@ impl Tally {
     }
 }
 
-/// The recording's first `limit` frames in order (all of them with `usize::MAX`), each
-/// preprocessed through `profile` as `emccd denoise` does (blooming and the fixed pattern at
-/// the recording's exposure removed: DN above bias), passed to `each` with its number (from 0).
+/// A recording read in order, each frame preprocessed through a profile as `emccd denoise`
+/// does (blooming and the fixed pattern at the recording's exposure removed: DN above bias).
 /// The fixed pattern is modelled once for the stack. Errors name the file and the frame.
+pub struct Preprocessed<'a> {
+    rec: &'a mut emccd_profile::Recording,
+    name: String,
+    fpn: Vec<f32>,
+    bloom: f64,
+    raw: Vec<f32>,
+    /// The next frame's number, from 0.
+    next: usize,
+}
+
+impl<'a> Preprocessed<'a> {
+    /// The recording through `profile`, from its next frame (its first for a fresh one); an
+    /// error if the profile cannot preprocess it (size, exposure).
+    pub fn new(
+        profile: &CameraProfile,
+        rec: &'a mut emccd_profile::Recording,
+    ) -> Result<Preprocessed<'a>> {
+        let name = rec.path.display().to_string();
+        let pixels = rec.info.width * rec.info.height;
+        emccd_classical::frame::usable(profile, pixels, rec.exposure)
+            .map_err(|e| Error(format!("{name}: {e}")))?;
+        let mut fpn = vec![0f32; pixels];
+        profile.fpn_at(rec.exposure, &mut fpn);
+        let bloom = profile.blooming_factor(rec.exposure);
+        Ok(Preprocessed {
+            rec,
+            name,
+            fpn,
+            bloom,
+            raw: vec![0f32; pixels],
+            next: 0,
+        })
+    }
+
+    /// Frames in the recording.
+    pub fn frames(&self) -> usize {
+        self.rec.info.frames
+    }
+
+    fn at(&self, e: impl std::fmt::Display) -> Error {
+        Error(format!("{}: frame {}: {e}", self.name, self.next + 1))
+    }
+
+    /// Passes over frames unread until frame `j` (from 0) is the next.
+    pub fn skip_to(&mut self, j: usize) -> Result<()> {
+        while self.next < j {
+            self.rec.reader.skip_frame().map_err(|e| self.at(e))?;
+            self.next += 1;
+        }
+        Ok(())
+    }
+
+    /// The next frame, preprocessed.
+    pub fn next_frame(&mut self) -> Result<&[f32]> {
+        match self.rec.reader.read_frame(&mut self.raw) {
+            Ok(true) => {}
+            Ok(false) => {
+                return Err(self.at(format!(
+                    "the file ended before it (its header says {} frames)",
+                    self.rec.info.frames
+                )))
+            }
+            Err(e) => return Err(self.at(e)),
+        }
+        if let Some(i) = self.raw.iter().position(|v| !v.is_finite()) {
+            let w = self.rec.info.width;
+            return Err(self.at(format!(
+                "a non-finite value at pixel ({}, {}) ({}; a float64 beyond float32's ±3.4e38 reads as ±inf)",
+                i % w,
+                i / w,
+                self.raw[i]
+            )));
+        }
+        emccd_profile::preprocess(&mut self.raw, self.rec.info.width, self.bloom, &self.fpn);
+        self.next += 1;
+        Ok(&self.raw)
+    }
+}
+
+/// The recording's first `limit` frames in order (all of them with `usize::MAX`), each
+/// preprocessed ([`Preprocessed`]), passed to `each` with its number (from 0).
 pub fn preprocessed_frames(
     profile: &CameraProfile,
     rec: &mut emccd_profile::Recording,
     limit: usize,
     mut each: impl FnMut(usize, &[f32]) -> Result<()>,
 ) -> Result<()> {
-    let name = rec.path.display().to_string();
-    let pixels = rec.info.width * rec.info.height;
-    emccd_classical::frame::usable(profile, pixels, rec.exposure)
-        .map_err(|e| Error(format!("{name}: {e}")))?;
-    let mut fpn = vec![0f32; pixels];
-    profile.fpn_at(rec.exposure, &mut fpn);
-    let bloom = profile.blooming_factor(rec.exposure);
-    let mut raw = vec![0f32; pixels];
-    for j in 0..rec.info.frames.min(limit) {
-        let at = |e: String| Error(format!("{name}: frame {}: {e}", j + 1));
-        match rec.reader.read_frame(&mut raw) {
-            Ok(true) => {}
-            Ok(false) => {
-                return Err(at(format!(
-                    "the file ended before it (its header says {} frames)",
-                    rec.info.frames
-                )))
-            }
-            Err(e) => return Err(at(e.to_string())),
-        }
-        if let Some(i) = raw.iter().position(|v| !v.is_finite()) {
-            return Err(at(format!(
-                "a non-finite value at pixel ({}, {}) ({}; a float64 beyond float32's ±3.4e38 reads as ±inf)",
-                i % rec.info.width,
-                i / rec.info.width,
-                raw[i]
-            )));
-        }
-        emccd_profile::preprocess(&mut raw, rec.info.width, bloom, &fpn);
-        each(j, &raw)?;
+    let mut p = Preprocessed::new(profile, rec)?;
+    for j in 0..p.frames().min(limit) {
+        each(j, p.next_frame()?)?;
     }
     Ok(())
+}
+
+/// Counts output frames `outputs` (from 0) of the recording into `write(k, rate, error)`:
+/// output `k` from input frames `k·per …` as `counter` makes them. Outputs for which
+/// `done(k)` holds (complete in a store from an earlier run or another process) are passed
+/// over with their input frames unread. Returns how many were written.
+pub fn count_outputs(
+    profile: &CameraProfile,
+    rec: &mut emccd_profile::Recording,
+    counter: &mut Counter,
+    outputs: std::ops::Range<usize>,
+    done: impl Fn(usize) -> bool,
+    mut write: impl FnMut(usize, &[f32], &[f32]) -> Result<()>,
+    mut on_frame: impl FnMut(),
+) -> Result<usize> {
+    let (per, frames) = (counter.per, counter.frames);
+    let mut p = Preprocessed::new(profile, rec)?;
+    let mut written = 0;
+    for k in outputs {
+        if done(k) {
+            continue;
+        }
+        let first = k * per;
+        if first >= frames {
+            return Err(Error(format!(
+                "output frame {} asked of {frames} frames in outputs of {per}",
+                k + 1
+            )));
+        }
+        p.skip_to(first)?;
+        counter.restart_at(first);
+        for _ in first..(first + per).min(frames) {
+            on_frame();
+            if let Some((rate, se)) = counter.add(p.next_frame()?) {
+                write(k, &rate, &se)?;
+                written += 1;
+            }
+        }
+    }
+    Ok(written)
 }
 
 impl Tally {
@@ -212,6 +305,17 @@ impl Counter {
             frames,
             analog_share: 0.0,
         })
+    }
+
+    /// Starts a new output frame at input frame `frame` (from 0): what was added is dropped.
+    pub fn restart_at(&mut self, frame: usize) {
+        self.tally = Tally::new(self.camera.sigma.len());
+        self.seen = frame;
+    }
+
+    /// Input frames per output frame.
+    pub fn per(&self) -> usize {
+        self.per
     }
 
     /// The thresholds and what they predict.
