@@ -468,7 +468,21 @@ impl Stages<'_> {
         let mut levels: Vec<BiasLevel> = Vec::new();
         let mut best_probes: Vec<(usize, Vec<f32>)> = Vec::new();
         for c in inputs {
-            let (_, st) = accumulate(&c.file, self.dims, 2, &probes, None, true, self.progress)?;
+            // Ascending exposures: the shorter stack's std map names the hot pixels to leave
+            // out of this one's spurious-charge differences.
+            let differences = match levels.last() {
+                Some(l) => crate::spurious::Differences::leaving_out_noisy(&l.std),
+                None => Default::default(),
+            };
+            let (_, st) = accumulate(
+                &c.file,
+                self.dims,
+                2,
+                &probes,
+                None,
+                Some(differences),
+                self.progress,
+            )?;
             let mean = st.mean();
             let std = st.std();
             if st.probes.first().map_or(0, |p| p.1.len())
@@ -516,7 +530,7 @@ impl Stages<'_> {
         let (width, height) = (self.width, self.height);
         let mut means = Vec::new();
         for c in inputs {
-            let (_, st) = accumulate(&c.file, self.dims, 2, &[], None, false, self.progress)?;
+            let (_, st) = accumulate(&c.file, self.dims, 2, &[], None, None, self.progress)?;
             means.push((c, st.mean(), st.frames));
         }
         let measure_all = |pattern: &dyn Fn(f64) -> Option<Vec<f32>>| -> Result<BloomingResult> {
@@ -601,7 +615,7 @@ impl Stages<'_> {
                 2,
                 &[],
                 Some(adc_max as f32),
-                false,
+                None,
                 self.progress,
             )?;
             let raw = st.mean();
@@ -718,7 +732,7 @@ fn run_gain_series(
     let idx: Vec<usize> = pixels.iter().map(|&(x, y)| y * w + x).collect();
     let mut data = Vec::new();
     for s in &gs.settings {
-        let (info, st) = accumulate(&s.file, Some((w, h)), 100, &idx, None, false, progress)?;
+        let (info, st) = accumulate(&s.file, Some((w, h)), 100, &idx, None, None, progress)?;
         if info.frames > crate::stats::PROBE_CAP {
             eprintln!(
                 "note: {}: fitting the first {} of {} frames",
@@ -748,7 +762,7 @@ fn run_gain_series(
                 )
             }
             (_, _, Some(ns)) => {
-                let (_, st0) = accumulate(ns, Some((w, h)), 2, &[], None, false, progress)?;
+                let (_, st0) = accumulate(ns, Some((w, h)), 2, &[], None, None, progress)?;
                 let (m0, s0) = (st0.mean(), st0.std());
                 (
                     idx.iter().map(|&i| m0[i] as f64).collect(),

@@ -33,6 +33,8 @@ const CHUNK: usize = 16 * 1024;
 #[derive(Clone, Debug)]
 pub struct Differences {
     first: Option<Vec<f32>>,
+    /// Pixels left out (hot at a shorter exposure).
+    skip: Option<Vec<bool>>,
     /// Counts of `d = −HALF … HALF` (index `d + HALF`).
     bins: Vec<u64>,
     /// Differences beyond ±HALF.
@@ -45,6 +47,7 @@ impl Default for Differences {
     fn default() -> Differences {
         Differences {
             first: None,
+            skip: None,
             bins: vec![0; 2 * HALF + 1],
             beyond: 0,
             pairs: 0,
@@ -53,6 +56,19 @@ impl Default for Differences {
 }
 
 impl Differences {
+    /// An empty histogram that leaves out the pixels `noisy` at a shorter exposure (their std
+    /// there over 1.5 times the median): hot pixels, whose dark charge grows with the exposure
+    /// and is not the camera's spurious charge. The choice is made on other frames than these,
+    /// so for every other pixel it is independent of the differences kept, and leaves them
+    /// unbiased.
+    pub fn leaving_out_noisy(std_shorter: &[f32]) -> Differences {
+        let m = emccd_profile::median(std_shorter.iter().copied()).unwrap_or(f64::INFINITY);
+        Differences {
+            skip: Some(std_shorter.iter().map(|&s| s as f64 > 1.5 * m).collect()),
+            ..Default::default()
+        }
+    }
+
     /// Adds the next frame of the stack: the first of a pair is kept, the second differenced.
     pub fn push(&mut self, frame: &[f32]) {
         let Some(first) = self.first.take() else {
@@ -62,13 +78,20 @@ impl Differences {
         // Each work item counts into a small window around zero (where almost every
         // difference falls) and lists the rest.
         const LOCAL: i64 = 4096;
-        let parts: Vec<(Vec<u32>, Vec<i64>)> = first
+        let skip = self.skip.as_deref();
+        let parts: Vec<(Vec<u32>, Vec<i64>, u64)> = first
             .par_chunks(CHUNK)
             .zip(frame.par_chunks(CHUNK))
-            .map(|(a, b)| {
+            .enumerate()
+            .map(|(c, (a, b))| {
                 let mut near = vec![0u32; 2 * LOCAL as usize + 1];
                 let mut far = Vec::new();
-                for (&a, &b) in a.iter().zip(b) {
+                let mut used = 0u64;
+                for (j, (&a, &b)) in a.iter().zip(b).enumerate() {
+                    if skip.is_some_and(|s| s[c * CHUNK + j]) {
+                        continue;
+                    }
+                    used += 1;
                     let d = (b as f64 - a as f64).round() as i64;
                     if d.abs() <= LOCAL {
                         near[(d + LOCAL) as usize] += 1;
@@ -76,10 +99,11 @@ impl Differences {
                         far.push(d);
                     }
                 }
-                (near, far)
+                (near, far, used)
             })
             .collect();
-        for (near, far) in parts {
+        for (near, far, used) in parts {
+            self.pairs += used;
             for (i, &c) in near.iter().enumerate() {
                 self.bins[HALF + i - LOCAL as usize] += c as u64;
             }
@@ -91,7 +115,6 @@ impl Differences {
                 }
             }
         }
-        self.pairs += frame.len() as u64;
     }
 
     /// Count of difference `d` DN.
@@ -131,6 +154,8 @@ pub struct SpuriousLevel {
     pub read_sigma_se: f64,
     /// Frame pairs × pixels the fit used.
     pub pairs: u64,
+    /// The share of differences too wide for read noise and spurious charge (hot pixels).
+    pub outliers: f64,
 }
 
 /// Maximum-likelihood (σ, c) of one exposure's differences for a register of `g_dn` DN per
@@ -195,42 +220,64 @@ pub fn fit_level(
         out.iter().map(|v| v / n as f64).collect()
     };
     let at = |p: &[f64], k: i64| p[k.rem_euclid(n as i64) as usize].max(1e-300);
-    let nll_at = |sigma: f64, c: f64| -> f64 {
-        if !(sigma > 0.05 && (0.0..20.0).contains(&c)) {
+    // A share ε of the differences is spread evenly over the window: hot pixels, whose dark
+    // charge is many electrons a frame and whose differences are hundreds of DN wide, are not
+    // CIC and must not be read as it.
+    let width = (2 * w + 1) as f64;
+    let nll_at = |sigma: f64, c: f64, eps: f64| -> f64 {
+        if !(sigma > 0.05 && (0.0..20.0).contains(&c) && (0.0..0.5).contains(&eps)) {
             return f64::INFINITY;
         }
         let p = pmf(sigma, c);
         let mass: f64 = (-w..=w).map(|k| at(&p, k)).sum();
-        -(hist.iter().map(|&(k, h)| h * at(&p, k).ln()).sum::<f64>() - in_window * mass.ln())
+        -hist
+            .iter()
+            .map(|&(k, h)| h * ((1.0 - eps) * at(&p, k) / mass + eps / width).ln())
+            .sum::<f64>()
     };
-    let nll = |x: &[f64]| nll_at(x[0].exp(), x[1].exp());
-    let x0 = [s0.ln(), c0.ln()];
-    let first = nelder_mead(&nll, &x0, &[0.05, 0.3], 1e-6, 600);
-    let best = nelder_mead(&nll, &first.x, &[0.01, 0.05], 1e-7, 400);
+    let nll = |x: &[f64]| nll_at(x[0].exp(), x[1].exp(), x[2].exp());
+    let x0 = [s0.ln(), c0.ln(), (1e-4f64).ln()];
+    let first = nelder_mead(&nll, &x0, &[0.05, 0.3, 1.0], 1e-6, 900);
+    let best = nelder_mead(&nll, &first.x, &[0.01, 0.05, 0.3], 1e-7, 600);
     let best = if best.value < first.value {
         best
     } else {
         first
     };
-    let (sigma, c) = (best.x[0].exp(), best.x[1].exp());
+    let (sigma, c, eps) = (best.x[0].exp(), best.x[1].exp(), best.x[2].exp());
     if !(sigma.is_finite() && c.is_finite()) {
         return None;
     }
-    // Curvature in (σ, c), c linear so that a rate at zero keeps its error; the point moved
-    // off zero by one step where c is smaller than it.
-    let (hs, hc) = (1e-3 * sigma, (1e-2 * c).max(1e-6));
-    let c1 = c.max(hc);
-    let f0 = nll_at(sigma, c1);
-    let e = |ds: f64, dc: f64| nll_at(sigma + ds, c1 + dc);
-    let h00 = (e(hs, 0.0) - 2.0 * f0 + e(-hs, 0.0)) / (hs * hs);
-    let h11 = (e(0.0, hc) - 2.0 * f0 + e(0.0, -hc)) / (hc * hc);
-    let h01 = (e(hs, hc) - e(hs, -hc) - e(-hs, hc) + e(-hs, -hc)) / (4.0 * hs * hc);
+    // Curvature in (σ, c, ε), the rates linear so that one at zero keeps its error; the point
+    // moved off zero by one step where a rate is smaller than it.
+    let h = [1e-3 * sigma, (1e-2 * c).max(1e-6), (1e-2 * eps).max(1e-7)];
+    let x = [sigma, c.max(h[1]), eps.max(h[2])];
+    let f = |d: [f64; 3]| nll_at(x[0] + d[0], x[1] + d[1], x[2] + d[2]);
+    let f0 = f([0.0; 3]);
+    let mut hess = [0.0; 9];
+    for i in 0..3 {
+        for j in i..3 {
+            let step = |si: f64, sj: f64| {
+                let mut d = [0.0; 3];
+                d[i] += si * h[i];
+                d[j] += sj * h[j];
+                f(d)
+            };
+            let v = if i == j {
+                (step(1.0, 0.0) - 2.0 * f0 + step(-1.0, 0.0)) / (h[i] * h[i])
+            } else {
+                (step(1.0, 1.0) - step(1.0, -1.0) - step(-1.0, 1.0) + step(-1.0, -1.0))
+                    / (4.0 * h[i] * h[j])
+            };
+            hess[i * 3 + j] = v;
+            hess[j * 3 + i] = v;
+        }
+    }
     // Standard errors from the inverse curvature; NaN where it is not positive definite (a
-    // fit that did not settle, as with many hot pixels at a long exposure): such a level is
-    // left out of the fit over exposures.
-    let (var_s, var_c) = invert(&[h00, h01, h01, h11], 2)
-        .filter(|m| m[0] > 0.0 && m[3] > 0.0)
-        .map_or((f64::NAN, f64::NAN), |m| (m[0], m[3]));
+    // fit that did not settle): such a level is left out of the fit over exposures.
+    let (var_s, var_c) = invert(&hess, 3)
+        .filter(|m| m[0] > 0.0 && m[4] > 0.0 && m[8] > 0.0)
+        .map_or((f64::NAN, f64::NAN), |m| (m[0], m[4]));
     Some(SpuriousLevel {
         exposure_s,
         electrons: c,
@@ -238,6 +285,7 @@ pub fn fit_level(
         read_sigma_dn: sigma,
         read_sigma_se: var_s.sqrt(),
         pairs: d.pairs,
+        outliers: eps,
     })
 }
 
@@ -317,25 +365,88 @@ mod tests {
         pixels: usize,
         seed: u64,
     ) -> Differences {
+        stack(
+            sigma,
+            c,
+            None,
+            g,
+            frames,
+            pixels,
+            seed,
+            Differences::default(),
+        )
+        .1
+    }
+
+    /// The same with hot pixels (`hot`: every `.0`-th pixel holds `.1` more electrons a frame),
+    /// into `d`; also returns the per-pixel std.
+    #[allow(clippy::too_many_arguments)]
+    fn stack(
+        sigma: f64,
+        c: f64,
+        hot: Option<(usize, f64)>,
+        g: f64,
+        frames: usize,
+        pixels: usize,
+        seed: u64,
+        mut d: Differences,
+    ) -> (Vec<f32>, Differences) {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
         let a = 300.0 / 299.0;
         let gamma1 = Gamma::new(a, g / a).unwrap();
         let noise = Normal::new(0.0, sigma).unwrap();
         let pois = (c > 0.0).then(|| Poisson::new(c).unwrap());
+        let hot_pois = hot.map(|(every, e)| (every, Poisson::new(e).unwrap()));
         let pattern: Vec<f64> = (0..pixels).map(|i| 500.0 + (i % 97) as f64).collect();
-        let mut d = Differences::default();
+        let (mut s1, mut s2) = (vec![0f64; pixels], vec![0f64; pixels]);
         for _ in 0..frames {
             let frame: Vec<f32> = pattern
                 .iter()
-                .map(|&b| {
-                    let n = pois.map_or(0, |p| p.sample(&mut rng) as u32);
+                .enumerate()
+                .map(|(i, &b)| {
+                    let mut n = pois.map_or(0, |p| p.sample(&mut rng) as u32);
+                    if let Some((every, p)) = &hot_pois {
+                        if i % every == 0 {
+                            n += p.sample(&mut rng) as u32;
+                        }
+                    }
                     let em: f64 = (0..n).map(|_| gamma1.sample(&mut rng)).sum();
                     (b + em + noise.sample(&mut rng)).round() as f32
                 })
                 .collect();
+            for (i, &v) in frame.iter().enumerate() {
+                s1[i] += v as f64 - 500.0;
+                s2[i] += (v as f64 - 500.0).powi(2);
+            }
             d.push(&frame);
         }
-        d
+        let n = frames as f64;
+        let std = s1
+            .iter()
+            .zip(&s2)
+            .map(|(a, b)| ((b - a * a / n) / (n - 1.0)).max(0.0).sqrt() as f32)
+            .collect();
+        (std, d)
+    }
+
+    /// Hot pixels (one in 50, 0.5 e⁻ a frame at the shorter exposure and 3 at this one) would
+    /// be read as spurious charge; the shorter stack's std map leaves them out and the camera's
+    /// CIC comes back within four standard errors.
+    #[test]
+    fn hot_pixels_are_left_out() {
+        let (sigma, c, g, px) = (6.0, 0.02, 40.0, 30_000);
+        let (std, _) = stack(sigma, c, Some((50, 0.5)), g, 16, px, 21, Default::default());
+        let fit = |d: Differences| {
+            let (_, d) = stack(sigma, c, Some((50, 3.0)), g, 16, px, 22, d);
+            fit_level(&d, 0.01, g, 300.0).unwrap()
+        };
+        let kept = fit(Differences::default());
+        let left = fit(Differences::leaving_out_noisy(&std));
+        assert!(kept.electrons > c + 6.0 * kept.electrons_se, "{kept:?}");
+        assert!(
+            (left.electrons - c).abs() < 4.0 * left.electrons_se,
+            "{left:?}"
+        );
     }
 
     #[test]

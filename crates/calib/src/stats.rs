@@ -151,7 +151,7 @@ impl Progress for Silent {
 }
 
 /// Reads a whole stack frame by frame into [`StackStats`] (with the paired-frame differences
-/// when `differences`). Errors (naming the file) for a stack of fewer than `min_frames` frames, frames of the wrong size, NaN or infinite samples,
+/// into `differences` when given). Errors (naming the file) for a stack of fewer than `min_frames` frames, frames of the wrong size, NaN or infinite samples,
 /// and unreadable or truncated files.
 pub fn accumulate(
     path: &Path,
@@ -159,7 +159,7 @@ pub fn accumulate(
     min_frames: usize,
     probes: &[usize],
     adc_max: Option<f32>,
-    differences: bool,
+    differences: Option<crate::spurious::Differences>,
     progress: &dyn Progress,
 ) -> Result<(emccd_io::StackInfo, StackStats)> {
     let mut r = emccd_io::open(path).map_err(|e| Error::io(path, e))?;
@@ -185,9 +185,7 @@ pub fn accumulate(
         ));
     }
     let mut st = StackStats::new(info.width, info.height, probes);
-    if differences {
-        st.differences = Some(Default::default());
-    }
+    st.differences = differences;
     let mut buf = vec![0f32; info.frame_len()];
     loop {
         let more = r.read_frame(&mut buf).map_err(|e| {

@@ -20,7 +20,7 @@ fn write_stack(path: &std::path::Path, frames: usize) {
 
 fn peak_while_reading(path: &std::path::Path) -> usize {
     counting::peak_during(|| {
-        emccd_calib::stats::accumulate(path, None, 2, &[], None, false, &emccd_calib::Silent)
+        emccd_calib::stats::accumulate(path, None, 2, &[], None, None, &emccd_calib::Silent)
             .unwrap()
     })
     .1

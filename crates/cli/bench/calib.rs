@@ -125,7 +125,7 @@ pub fn streaming(dir: &Path, frames: usize) -> Result<Streaming> {
     std::hint::black_box(sink);
     let t = Instant::now();
     let (_, st) =
-        emccd_calib::stats::accumulate(&path, None, 2, &[], None, false, &emccd_calib::Silent)?;
+        emccd_calib::stats::accumulate(&path, None, 2, &[], None, None, &emccd_calib::Silent)?;
     let decode_s = t.elapsed().as_secs_f64();
     std::hint::black_box(st.mean());
     let _ = std::fs::remove_file(&path);

@@ -259,6 +259,7 @@ fn describe(a: &Args, job: &Job, counter: &Counter) -> Described {
         format!("em_dn_per_electron={}", number(cam.g)),
         format!("spurious_electrons_per_frame={}", number(cam.spurious)),
         format!("read_noise={:?}", a.read_noise).to_lowercase(),
+        format!("hot_pixels={}", cam.hot.len()),
     ];
     Described {
         notes,

@@ -86,10 +86,17 @@ pub struct Camera {
     pub sigma: Vec<f32>,
     /// Electrons per pixel per frame without light: clock-induced charge plus dark current.
     pub spurious: f64,
-    /// The part of `spurious` whose mean signal preprocessing already removed (all of it where
-    /// the fixed pattern was measured on dark frames).
-    pub removed: f64,
+    /// Whether preprocessing already removed the spurious charge's mean signal (the fixed
+    /// pattern was measured on dark frames: a calibrated profile).
+    pub removed: bool,
+    /// Hot pixels: whose dark charge is many times the camera's spurious charge, with their
+    /// own spurious electrons per frame at this exposure (pixel index, electrons), ascending.
+    pub hot: Vec<(u32, f64)>,
 }
+
+/// A pixel is hot when its bias frames' variance puts this many spurious electrons per frame in
+/// it beyond the camera's: more than one CIC event's variance in a few frames can mimic.
+const HOT_ELECTRONS: f64 = 0.25;
 
 impl Camera {
     /// The camera of `profile` at `exposure_s`; an error naming what the profile lacks.
@@ -132,38 +139,62 @@ impl Camera {
             )));
         }
         let map = profile.read_noise_near(exposure_s);
-        let sigma = match read_noise {
-            ReadNoise::Pixel => map.to_vec(),
-            ReadNoise::Camera => {
-                let one = match &profile.pgn {
-                    // Measured beneath the spurious charge, before the ADC's rounding.
-                    Some(p) if profile.fpn_holds_spurious() => {
-                        (p.read_sigma_dn.powi(2) + profile.quantization_dn.powi(2) / 12.0).sqrt()
-                    }
-                    _ => emccd_profile::median(map.iter().copied()).unwrap_or(1.0),
-                };
-                vec![one as f32; map.len()]
+        let one = match &profile.pgn {
+            // Measured beneath the spurious charge, before the ADC's rounding.
+            Some(p) if profile.fpn_holds_spurious() => {
+                (p.read_sigma_dn.powi(2) + profile.quantization_dn.powi(2) / 12.0).sqrt()
             }
+            _ => emccd_profile::median(map.iter().copied()).unwrap_or(1.0),
         };
         let spurious = cic + dark * exposure_s;
+        let (sigma, hot) = match read_noise {
+            ReadNoise::Pixel => (map.to_vec(), Vec::new()),
+            ReadNoise::Camera => {
+                // A pixel's bias variance beyond the read noise is its spurious electrons'
+                // (2g² each through the register); its dark part scales with the exposure
+                // from the map's.
+                let t_map = profile.exposure_near(exposure_s);
+                let hot = map
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, &s)| {
+                        let at_map = ((s as f64).powi(2) - one * one) / (2.0 * g * g);
+                        let beyond = at_map - (cic + dark * t_map);
+                        (beyond > HOT_ELECTRONS)
+                            .then(|| (i as u32, spurious + beyond * exposure_s / t_map))
+                    })
+                    .collect();
+                (vec![one as f32; map.len()], hot)
+            }
+        };
         Ok(Camera {
             width: profile.width,
             height: profile.height,
             g,
             sigma,
             spurious,
-            removed: if profile.fpn_holds_spurious() {
-                spurious
-            } else {
-                0.0
-            },
+            removed: profile.fpn_holds_spurious(),
+            hot,
         })
     }
 
     /// The spurious electrons per frame still in preprocessed frames' mean (not removed with
     /// the fixed pattern): what the analog estimate subtracts.
     pub fn unremoved(&self) -> f64 {
-        self.spurious - self.removed
+        if self.removed {
+            0.0
+        } else {
+            self.spurious
+        }
+    }
+
+    /// The electrons per frame whose mean signal preprocessing removed: none or all.
+    fn removed_of(&self, spurious: f64) -> f64 {
+        if self.removed {
+            spurious
+        } else {
+            0.0
+        }
     }
 
     /// The median read noise, DN.
@@ -182,7 +213,7 @@ pub fn choose_k(camera: &Camera, lambda: f64, frames: u32) -> f64 {
     (10..=160)
         .map(|i| i as f64 * 0.05)
         .map(|k| {
-            let shift = camera.removed * camera.g;
+            let shift = camera.removed_of(camera.spurious) * camera.g;
             let m = PixelModel::new(k * sigma + shift, camera.g, sigma, camera.spurious);
             (k, m.variance(lambda, frames))
         })
@@ -230,15 +261,28 @@ impl Plan {
         };
         // Preprocessing removed the spurious charge's mean signal with the fixed pattern, so a
         // threshold T above the preprocessed zero is T + that mean above the true bias.
-        let shift = camera.removed * camera.g;
-        let models: Vec<PixelModel> = (0..slots)
+        let shift = camera.removed_of(camera.spurious) * camera.g;
+        let mut models: Vec<PixelModel> = (0..slots)
             .into_par_iter()
             .map(|i| {
                 let s = sigma_of(i);
                 PixelModel::new(t_of(s) + shift, camera.g, s, camera.spurious)
             })
             .collect();
-        let index: Vec<u32> = camera.sigma.iter().map(|&s| slot(s)).collect();
+        let mut index: Vec<u32> = camera.sigma.iter().map(|&s| slot(s)).collect();
+        // Each hot pixel its own model, with its own dark charge.
+        let hot: Vec<PixelModel> = camera
+            .hot
+            .par_iter()
+            .map(|&(i, e)| {
+                let s = camera.sigma[i as usize] as f64;
+                PixelModel::new(t_of(s) + camera.removed_of(e) * camera.g, camera.g, s, e)
+            })
+            .collect();
+        for (&(i, _), m) in camera.hot.iter().zip(hot) {
+            index[i as usize] = models.len() as u32;
+            models.push(m);
+        }
         Plan {
             thresholds: camera
                 .sigma

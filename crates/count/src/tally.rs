@@ -49,10 +49,17 @@ impl Tally {
     /// spurious electrons preprocessing left (photo-electrons per pixel per frame).
     pub fn analog(&self, camera: &Camera) -> Vec<f32> {
         let n = self.frames.max(1) as f64;
-        self.sum
+        let mut rate: Vec<f32> = self
+            .sum
             .iter()
             .map(|&s| (s / n / camera.g - camera.unremoved()) as f32)
-            .collect()
+            .collect();
+        if !camera.removed {
+            for &(i, e) in &camera.hot {
+                rate[i as usize] = (self.sum[i as usize] / n / camera.g - e) as f32;
+            }
+        }
+        rate
     }
 
     /// The mean photo-electron rate over every pixel (the analog estimate's mean): the level
@@ -205,15 +212,25 @@ impl Tally {
     /// photo-electrons' Poisson variance (f² = 2), read noise adds its own, over the frames.
     pub fn analog_error(&self, camera: &Camera) -> Vec<f32> {
         let n = self.frames.max(1) as f64;
-        self.sum
+        let error = |s: f64, sigma: f32, removed: f64| {
+            let mu = (s / n / camera.g + removed).max(0.0);
+            let var_dn = 2.0 * camera.g * camera.g * mu + (sigma as f64).powi(2);
+            ((var_dn / n).sqrt() / camera.g) as f32
+        };
+        let removed = camera.spurious - camera.unremoved();
+        let mut se: Vec<f32> = self
+            .sum
             .iter()
             .zip(&camera.sigma)
-            .map(|(&s, &sigma)| {
-                let mu = (s / n / camera.g + camera.removed).max(0.0);
-                let var_dn = 2.0 * camera.g * camera.g * mu + (sigma as f64).powi(2);
-                ((var_dn / n).sqrt() / camera.g) as f32
-            })
-            .collect()
+            .map(|(&s, &sigma)| error(s, sigma, removed))
+            .collect();
+        if camera.removed {
+            for &(i, e) in &camera.hot {
+                let i = i as usize;
+                se[i] = error(self.sum[i], camera.sigma[i], e);
+            }
+        }
+        se
     }
 }
 

@@ -3,7 +3,7 @@
 //! give back the photo-electron rate without bias, with the error the model predicts, and the
 //! automatic threshold is the one the model's variance is smallest at.
 
-use emccd_count::{choose_k, Camera, Plan, Tally, Threshold};
+use emccd_count::{choose_k, Camera, Counter, Plan, Tally, Threshold};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Gamma, Normal, Poisson};
 use rand_pcg::Pcg64;
@@ -22,7 +22,8 @@ fn camera() -> Camera {
             .map(|i| 3.0 * (1.0 + 0.1 * ((i * 7919 % 101) as f32 / 50.0 - 1.0)))
             .collect(),
         spurious: 0.005,
-        removed: 0.0,
+        removed: false,
+        hot: Vec::new(),
     }
 }
 
@@ -86,13 +87,13 @@ fn the_rate_is_unbiased_and_its_error_is_the_predicted_one() {
 fn spurious_charge_removed_with_the_pattern_is_not_subtracted_twice() {
     let cam = Camera {
         spurious: 0.05,
-        removed: 0.05,
+        removed: true,
         ..camera()
     };
     let lambda = 0.05;
     let plan = Plan::new(&cam, Threshold::Sigma(3.0));
     let mut tally = Tally::new(W * H);
-    let shift = (cam.removed * cam.g) as f32;
+    let shift = (cam.spurious * cam.g) as f32;
     for mut f in frames(&cam, lambda, 600, 7) {
         f.iter_mut().for_each(|v| *v -= shift);
         tally.add(&f, &plan.thresholds);
@@ -104,6 +105,60 @@ fn spurious_charge_removed_with_the_pattern_is_not_subtracted_twice() {
     assert!((counted / lambda - 1.0).abs() < 0.02, "counted {counted}");
     assert!((analog / lambda - 1.0).abs() < 0.03, "analog {analog}");
     assert!((tally.mean_rate(&cam) / lambda - 1.0).abs() < 0.03);
+}
+
+/// Hot pixels (here one in 97, with 3 e⁻ of dark charge a frame whose mean the fixed pattern
+/// removed) are known to the camera: the automatic threshold gives them an unbiased estimate
+/// (their analog mean: counting them would see an event in most frames), within four standard
+/// errors of the hot pixels' mean (√(2·3.05/600)/√42 ≈ 0.016 e⁻), where a camera that does not
+/// know them puts them near 1 e⁻.
+#[test]
+fn hot_pixels_keep_an_unbiased_rate() {
+    let base = Camera {
+        spurious: 0.02,
+        removed: true,
+        ..camera()
+    };
+    let hot_e = 3.0;
+    let hot: Vec<(u32, f64)> = (0..(W * H) as u32)
+        .filter(|i| i % 97 == 5)
+        .map(|i| (i, base.spurious + hot_e))
+        .collect();
+    let lambda = 0.05;
+    let mut rng = Pcg64::seed_from_u64(11);
+    let frames: Vec<Vec<f32>> = frames(&base, lambda, 600, 3)
+        .into_iter()
+        .map(|mut f| {
+            for &(i, _) in &hot {
+                let n = Poisson::new(hot_e).unwrap().sample(&mut rng) as usize;
+                let em: f64 = (0..n)
+                    .map(|_| rand_distr::Exp::new(1.0 / base.g).unwrap().sample(&mut rng))
+                    .sum();
+                f[i as usize] += (em - hot_e * base.g) as f32;
+            }
+            let shift = (base.spurious * base.g) as f32;
+            f.iter_mut().for_each(|v| *v -= shift);
+            f
+        })
+        .collect();
+    let mean_hot = |cam: &Camera| {
+        let mut c = Counter::new(cam.clone(), Threshold::Auto, lambda, 600, 600, false).unwrap();
+        let (rate, _) = frames.iter().filter_map(|f| c.add(f)).last().unwrap();
+        hot.iter()
+            .map(|&(i, _)| rate[i as usize] as f64)
+            .sum::<f64>()
+            / hot.len() as f64
+    };
+    let known = mean_hot(&Camera {
+        hot: hot.clone(),
+        ..base.clone()
+    });
+    let unknown = mean_hot(&base);
+    assert!(
+        (known - lambda).abs() < 4.0 * 0.016,
+        "hot pixels known: {known}"
+    );
+    assert!(unknown > 0.5, "hot pixels unknown: {unknown}");
 }
 
 /// Where light is faint the automatic threshold is where the model's variance is least: for

@@ -429,8 +429,20 @@ impl CameraProfile {
 
     /// The read-noise map measured closest (in log exposure) to `exposure_s`.
     pub fn read_noise_near(&self, exposure_s: f64) -> &[f32] {
-        let i = self
-            .exposures_s
+        &self.maps.read_noise[self.exposure_index_near(exposure_s)]
+    }
+
+    /// The calibrated exposure nearest `exposure_s` (in log), s: that of
+    /// [`CameraProfile::read_noise_near`]'s map.
+    pub fn exposure_near(&self, exposure_s: f64) -> f64 {
+        self.exposures_s
+            .get(self.exposure_index_near(exposure_s))
+            .copied()
+            .unwrap_or(exposure_s)
+    }
+
+    fn exposure_index_near(&self, exposure_s: f64) -> usize {
+        self.exposures_s
             .iter()
             .enumerate()
             .min_by(|a, b| {
@@ -439,8 +451,7 @@ impl CameraProfile {
                 da.total_cmp(&db)
             })
             .map(|(i, _)| i)
-            .unwrap_or(0);
-        &self.maps.read_noise[i]
+            .unwrap_or(0)
     }
 
     /// The calibrated exposure range (shortest, longest), s.
