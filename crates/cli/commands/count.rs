@@ -348,7 +348,7 @@ fn count_one(
     let share = counter.analog_share();
     let mixed = if share > 0.0 && !a.analog {
         format!(
-            "; {:.1} % of the pixels (of the last output frame) were bright enough that their analog mean is the better estimate, and took it",
+            "; {:.1} % of the pixels (of the last output frame: bright or hot ones) took their analog mean, the better estimate there",
             100.0 * share
         )
     } else {

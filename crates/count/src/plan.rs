@@ -197,6 +197,28 @@ impl Camera {
         }
     }
 
+    /// Pixel `i`'s spurious electrons per frame: its own where it is hot, else the camera's.
+    pub fn spurious_at(&self, i: usize) -> f64 {
+        match self.hot.binary_search_by_key(&(i as u32), |h| h.0) {
+            Ok(k) => self.hot[k].1,
+            Err(_) => self.spurious,
+        }
+    }
+
+    /// Pixel `i`'s spurious electrons per frame still in preprocessed frames' mean.
+    pub fn unremoved_at(&self, i: usize) -> f64 {
+        let s = self.spurious_at(i);
+        s - self.removed_of(s)
+    }
+
+    /// The variance of pixel `i`'s analog estimate from `frames` frames at `rate`
+    /// photo-electrons per pixel per frame: the register doubles the Poisson variance of every
+    /// electron (f² = 2), spurious ones included, and read noise adds its own.
+    pub fn analog_variance(&self, i: usize, rate: f64, frames: f64) -> f64 {
+        let electrons = rate + self.spurious_at(i);
+        (2.0 * electrons + (self.sigma[i] as f64 / self.g).powi(2)) / frames
+    }
+
     /// The median read noise, DN.
     pub fn median_sigma(&self) -> f64 {
         emccd_profile::median(self.sigma.iter().copied()).unwrap_or(1.0)

@@ -49,17 +49,11 @@ impl Tally {
     /// spurious electrons preprocessing left (photo-electrons per pixel per frame).
     pub fn analog(&self, camera: &Camera) -> Vec<f32> {
         let n = self.frames.max(1) as f64;
-        let mut rate: Vec<f32> = self
-            .sum
+        self.sum
             .iter()
-            .map(|&s| (s / n / camera.g - camera.unremoved()) as f32)
-            .collect();
-        if !camera.removed {
-            for &(i, e) in &camera.hot {
-                rate[i as usize] = (self.sum[i as usize] / n / camera.g - e) as f32;
-            }
-        }
-        rate
+            .enumerate()
+            .map(|(i, &s)| (s / n / camera.g - camera.unremoved_at(i)) as f32)
+            .collect()
     }
 
     /// The mean photo-electron rate over every pixel (the analog estimate's mean): the level
@@ -212,25 +206,14 @@ impl Tally {
     /// photo-electrons' Poisson variance (f² = 2), read noise adds its own, over the frames.
     pub fn analog_error(&self, camera: &Camera) -> Vec<f32> {
         let n = self.frames.max(1) as f64;
-        let error = |s: f64, sigma: f32, removed: f64| {
-            let mu = (s / n / camera.g + removed).max(0.0);
-            let var_dn = 2.0 * camera.g * camera.g * mu + (sigma as f64).powi(2);
-            ((var_dn / n).sqrt() / camera.g) as f32
-        };
-        let removed = camera.spurious - camera.unremoved();
-        let mut se: Vec<f32> = self
-            .sum
+        self.sum
             .iter()
-            .zip(&camera.sigma)
-            .map(|(&s, &sigma)| error(s, sigma, removed))
-            .collect();
-        if camera.removed {
-            for &(i, e) in &camera.hot {
-                let i = i as usize;
-                se[i] = error(self.sum[i], camera.sigma[i], e);
-            }
-        }
-        se
+            .enumerate()
+            .map(|(i, &s)| {
+                let rate = s / n / camera.g - camera.unremoved_at(i);
+                camera.analog_variance(i, rate.max(0.0), n).sqrt() as f32
+            })
+            .collect()
     }
 }
 
@@ -368,16 +351,28 @@ impl Counter {
                 Mode::Best => {
                     let (mut rate, mut se) = self.plan.estimate(&t.counts, t.frames);
                     let (ra, sa) = (t.analog(cam), t.analog_error(cam));
-                    // Both errors predicted at the analog rate, which does not depend on the
-                    // threshold: the choice is not made on the counts' own noise.
+                    // Both errors predicted at the pixel's level as its eight neighbours' analog
+                    // mean shows it: not at its own, whose noise would then decide which of
+                    // its two estimates it takes (a faint pixel read low would take the analog
+                    // mean, and the stack's mean would run low).
+                    let (w, h) = (cam.width, cam.height);
+                    let n = t.frames as f64;
                     let analog: Vec<bool> = (0..rate.len())
                         .into_par_iter()
                         .map(|i| {
-                            let v = self
-                                .plan
-                                .model(i)
-                                .variance((ra[i] as f64).max(0.0), t.frames);
-                            v > (sa[i] as f64).powi(2)
+                            let (x, y) = (i % w, i / w);
+                            let (mut sum, mut k) = (0.0, 0);
+                            for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                                for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                                    if (xx, yy) != (x, y) {
+                                        sum += ra[yy * w + xx] as f64;
+                                        k += 1;
+                                    }
+                                }
+                            }
+                            let level = if k > 0 { sum / k as f64 } else { ra[i] as f64 }.max(0.0);
+                            let counted = self.plan.model(i).variance(level, t.frames);
+                            counted > cam.analog_variance(i, level, n)
                         })
                         .collect();
                     let mut taken = 0usize;
