@@ -252,6 +252,46 @@ fn zarr_output_and_shards_equal_one_process() {
     assert!(!out.status.success() && !d.join("x.zarr").exists());
 }
 
+/// `emccd evaluate` scores counting and the analog mean on a still pair's whole noisy stack
+/// (400 frames at 0.1 photons at the peak): counting is closer to the truth, and `count:100`
+/// (one estimate per 100 frames, a quarter of the light) is further from it than `count`.
+#[test]
+fn evaluate_scores_counting_and_the_analog_mean() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    camera(d, 32);
+    stack(d, "0.1", 400, "9", "p");
+    let out = ok(&emccd(
+        &[
+            "evaluate",
+            "p",
+            "--method",
+            "analog",
+            "count",
+            "count:100",
+            "--json",
+        ],
+        d,
+    ));
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let psnr = |m: &str| {
+        v["summary"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|r| r["method"] == m && r["photons"].is_null())
+            .unwrap()["psnr_db"]
+            .as_f64()
+            .unwrap()
+    };
+    let (analog, count, count100) = (psnr("analog"), psnr("count"), psnr("count:100"));
+    assert!(count > analog, "count {count} dB, analog {analog} dB");
+    assert!(
+        count > count100 + 3.0,
+        "count {count} dB, count:100 {count100} dB"
+    );
+}
+
 /// Bad requests fail with a message naming the problem, and nothing is written.
 #[test]
 fn bad_requests_are_refused_and_write_nothing() {

@@ -510,40 +510,26 @@ fn count<'py>(
         .parse()
         .map_err(|e: String| err(anyhow::anyhow!(e)))?;
     let a = frames.as_array();
-    let (f, h, w) = a.dim();
+    let (_, h, w) = a.dim();
     let raw: Vec<f32> = a.iter().copied().collect();
-    let r = py.detach(|| -> anyhow::Result<(Vec<f32>, Vec<f32>, usize, Vec<String>)> {
-        let mut notes = Vec::new();
-        if let Some(wn) = p.check_frames(w, h, exposure_s, "exposure_s", extrapolate)? {
-            notes.push(wn);
-        }
-        let cam = emccd_count::Camera::from_profile(p, exposure_s, cic.zip(dark), read_noise)?;
-        let pre: Vec<Vec<f32>> = raw
-            .chunks(w * h)
-            .map(|fr| emccd_classical::frame::preprocess(p, fr, exposure_s))
-            .collect::<Result<_, _>>()?;
-        let level = pre.iter().flatten().map(|&v| v as f64).sum::<f64>()
-            / (f * w * h).max(1) as f64
-            / cam.g
-            - cam.unremoved();
-        let per = per.unwrap_or(f);
-        let mut counter = emccd_count::Counter::new(cam, threshold, level, per, f, analog)?;
-        let (fe, missed) = counter.plan().predicted();
-        notes.push(match counter.plan().k_sigma {
-            Some(k) => format!("threshold {k:.2} sigma"),
-            None => format!("threshold {threshold:?}"),
-        });
-        notes.push(format!("predicted false events per pixel per frame {fe:.3e}, single photo-electron missed {:.1} %", 100.0 * missed));
-        let (mut rate, mut se, mut outputs) = (Vec::new(), Vec::new(), 0);
-        for fr in &pre {
-            if let Some((r, s)) = counter.add(fr) {
-                rate.extend(r);
-                se.extend(s);
-                outputs += 1;
+    let r = py.detach(
+        || -> anyhow::Result<(Vec<f32>, Vec<f32>, usize, Vec<String>)> {
+            let mut notes = Vec::new();
+            if let Some(wn) = p.check_frames(w, h, exposure_s, "exposure_s", extrapolate)? {
+                notes.push(wn);
             }
-        }
-        Ok((rate, se, outputs, notes))
-    });
+            let req = emccd_count::Request {
+                threshold,
+                per,
+                analog,
+                spurious: cic.zip(dark),
+                read_noise,
+            };
+            let c = emccd_count::count_stack(p, &raw, exposure_s, &req)?;
+            notes.extend(c.notes);
+            Ok((c.rate, c.error, c.outputs, notes))
+        },
+    );
     let (rate, se, outputs, notes) = r.map_err(err)?;
     let shape = (outputs, h, w);
     let rate = Array3::from_shape_vec(shape, rate).map_err(|e| err(anyhow::anyhow!("{e}")))?;

@@ -75,10 +75,6 @@ pub struct Args {
     pub analog: bool,
 }
 
-/// The frames the light level is measured on (enough for its mean to be known to a few
-/// percent at 0.01 e⁻ per pixel on a 128² sensor).
-const LEVEL_FRAMES: usize = 100;
-
 /// One input, checked and ready: its camera at its exposure and its light level.
 struct Job {
     input: PathBuf,
@@ -158,8 +154,8 @@ pub fn run(a: Args) -> Result<()> {
                 );
             }
         }
-        let level =
-            emccd_count::light_level(&profile, &mut rec, LEVEL_FRAMES)? - camera.unremoved();
+        let level = emccd_count::light_level(&profile, &mut rec, emccd_count::LEVEL_FRAMES)?
+            - camera.unremoved();
         jobs.push(Job {
             input: input.clone(),
             out,

@@ -35,7 +35,11 @@ pub struct Args {
     /// bin side, e.g. `ivst:1/3,0.7/2,0.4/1`), `hybrid` (the bundled BM3D-refining network), or
     /// a model file (`default`, `microscopy`, `lowlight` = the bundled networks; a hybrid model file runs as
     /// the hybrid method), `temporal` (a movie's frames from their neighbours, the
-    /// default window each side or `temporal:K` K; on a still pair, `ivst`); repeatable. `MODEL@8` averages the model over 8 flips/transposes
+    /// default window each side or `temporal:K` K; on a still pair, `ivst`), `count` (photon
+    /// counting as `emccd count` does it, the automatic threshold, one estimate of the whole
+    /// stack given to each of its frames; `count:N` one per N frames; on a still pair, from all
+    /// its noisy frames) and `analog` (the analog mean the same way; `analog:N`), for stacks of
+    /// a still or slow scene at a fraction of a photo-electron per pixel; repeatable. `MODEL@8` averages the model over 8 flips/transposes
     /// (self-ensemble; 2, 4, 8).
     #[arg(long = "method", required = true, num_args = 1..)]
     pub methods: Vec<String>,
@@ -53,12 +57,31 @@ pub fn run(a: Args) -> Result<()> {
         .iter()
         .map(|d| PairsDir::open(d, a.profile.as_deref()))
         .collect::<Result<Vec<_>, _>>()?;
+    // Counting and the analog mean are no denoisers: they come from emccd-count.
+    let counting: Vec<Option<emccd_count::Request>> = a
+        .methods
+        .iter()
+        .map(|m| counting(m))
+        .collect::<Result<_>>()?;
     let estimators = a
         .methods
         .iter()
-        .map(|m| Estimator::parse(m, crate::common::load_model))
+        .zip(&counting)
+        .filter(|(_, c)| c.is_none())
+        .map(|(m, _)| Estimator::parse(m, crate::common::load_model))
         .collect::<Result<Vec<_>, _>>()?;
-    let methods: Vec<Contender> = estimators.iter().map(Estimator::contender).collect();
+    let mut denoisers = estimators.iter().map(Estimator::contender);
+    let methods: Vec<Contender> = a
+        .methods
+        .iter()
+        .zip(counting)
+        .map(|(m, c)| match c {
+            Some(req) => count_contender(m, req),
+            None => denoisers
+                .next()
+                .expect("one estimator per denoising method"),
+        })
+        .collect();
     let total: usize = cameras.iter().map(|c| c.manifest.pair.len()).sum();
     let pb = progress((total * a.methods.len()) as u64, "evaluations");
     let ev = evaluate(&cameras, &methods, a.out.as_deref(), &|| pb.inc(1))?;
@@ -69,4 +92,47 @@ pub fn run(a: Args) -> Result<()> {
         print!("{}", ev.table.markdown());
     }
     Ok(())
+}
+
+/// `count[:N]` or `analog[:N]` as a counting request; None for any other method.
+fn counting(method: &str) -> Result<Option<emccd_count::Request>> {
+    let (stem, per) = match method.split_once(':') {
+        Some((s @ ("count" | "analog"), n)) => match n.parse::<usize>() {
+            Ok(n) if n > 0 => (s, Some(n)),
+            _ => anyhow::bail!("--method {method}: after `:`, the frames per estimate (1 or more)"),
+        },
+        _ => (method, None),
+    };
+    Ok(match stem {
+        "count" | "analog" => Some(emccd_count::Request {
+            per,
+            analog: stem == "analog",
+            ..Default::default()
+        }),
+        _ => None,
+    })
+}
+
+/// A counting method as a contender: each output frame (photo-electrons per pixel per frame)
+/// in DN above bias, given to each of the input frames it was counted from.
+fn count_contender(name: &str, req: emccd_count::Request) -> Contender<'_> {
+    Contender {
+        name,
+        run: Box::new(move |p, raw, t| {
+            let c = emccd_count::count_stack(p, raw, t, &req).map_err(|e| e.0)?;
+            let px = p.width * p.height;
+            let frames = raw.len() / px;
+            let mut out = Vec::with_capacity(raw.len());
+            for j in 0..frames {
+                let k = j / c.per;
+                out.extend(
+                    c.rate[k * px..(k + 1) * px]
+                        .iter()
+                        .map(|&r| (r as f64 * c.dn_per_electron) as f32),
+                );
+            }
+            Ok(out)
+        }),
+        whole_stack: true,
+    }
 }

@@ -25,10 +25,12 @@
 
 pub mod model;
 pub mod plan;
+pub mod stack;
 pub mod tally;
 
 pub use model::PixelModel;
 pub use plan::{choose_k, Camera, Plan, ReadNoise, Threshold};
+pub use stack::{count_stack, Counted, Request, LEVEL_FRAMES};
 pub use tally::{count_outputs, light_level, preprocessed_frames, Counter, Preprocessed, Tally};
 
 /// Why a stack cannot be counted, in words.

@@ -147,6 +147,7 @@ impl Estimator {
                 self.run_frames(p, raw, t)
                     .map_err(|e| emccd_io::error_lines(&e).join(": ").into())
             }),
+            whole_stack: false,
         }
     }
 

@@ -71,6 +71,9 @@ pub struct Contender<'a> {
     /// The denoiser: profile, raw frames (one, or a movie's) and exposure in, photo-signal in DN
     /// above bias out.
     pub run: Box<Denoise<'a>>,
+    /// It estimates from a stack (photon counting): a still pair's every noisy frame goes in,
+    /// and its first output frame is scored against the one truth.
+    pub whole_stack: bool,
 }
 
 /// What [`evaluate`] measured: every pair's scores and their summary table.
@@ -149,11 +152,24 @@ fn evaluate_into(
                 .profile
                 .top_left(*w, *h)
                 .map_err(|e| format!("{}: {e}", p.noisy))?;
+            // A still pair's whole noisy stack, for the methods that estimate from one.
+            let stack = if frames.frames == 1 && methods.iter().any(|m| m.whole_stack) {
+                Some(p.read_noisy_stack(&cam.dir)?)
+            } else {
+                None
+            };
             let mut outputs: Vec<Vec<f32>> = Vec::with_capacity(methods.len());
             for m in methods {
                 let t = std::time::Instant::now();
-                let denoised = (m.run)(&prof, raw, p.exposure_s)
+                let input = match (&stack, m.whole_stack) {
+                    (Some(s), true) => s.as_slice(),
+                    _ => raw.as_slice(),
+                };
+                let mut denoised = (m.run)(&prof, input, p.exposure_s)
                     .map_err(|e| format!("{} on {}: {e}", m.name, p.noisy))?;
+                if input.len() != raw.len() && denoised.len() == input.len() {
+                    denoised.truncate(raw.len());
+                }
                 if denoised.len() != raw.len() {
                     return Err(crate::Error(format!(
                         "{} on {}: {} values out for {} in",

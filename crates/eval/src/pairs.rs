@@ -161,6 +161,17 @@ impl Pair {
     }
 }
 
+impl Pair {
+    /// Every frame of the pair's noisy stack (DN), one after another, after [`Pair::check`].
+    pub fn read_noisy_stack(&self, dir: &Path) -> crate::Result<Vec<f32>> {
+        let err = |e: emccd_io::Error| crate::Error(emccd_io::error_lines(&e).join(": "));
+        Ok(emccd_io::read_all(dir.join(&self.noisy))
+            .map_err(err)?
+            .1
+            .concat())
+    }
+}
+
 impl PairsManifest {
     /// The manifest's file name in a pairs folder.
     pub const FILE: &'static str = "pairs.toml";
