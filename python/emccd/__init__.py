@@ -210,7 +210,7 @@ def count(
     extrapolate: bool = False,
     cic: Optional[float] = None,
     dark: Optional[float] = None,
-    read_noise: str = "camera",
+    read_noise: str = "auto",
 ) -> Tuple[np.ndarray, np.ndarray]:
     """Photon counting of raw EMCCD frames (a 3-D stack in DN as the camera wrote them), as
     ``emccd count`` does: each frame preprocessed with the profile, each pixel thresholded, and
@@ -221,7 +221,8 @@ def count(
     the plain mean instead, to compare. ``cic`` (e⁻ per frame) and ``dark`` (e⁻/s), both or
     neither, replace the profile's where its calibration did not measure them. ``read_noise``:
     ``"camera"`` (one read noise for every pixel, the calibration's fit beneath the spurious
-    charge) or ``"pixel"`` (each pixel's std map). The threshold chosen and what it predicts
+    charge), ``"pixel"`` (each pixel's std map) or ``"auto"`` (``"pixel"`` where the profile's
+    maps at two exposures agree pixel by pixel, else ``"camera"``). The threshold chosen and what it predicts
     (false events, missed photo-electrons) are kept in ``emccd.count.last_notes``."""
     if exposure_s is None:
         raise EmccdError(

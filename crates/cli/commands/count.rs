@@ -64,10 +64,11 @@ pub struct Args {
     #[arg(long, requires = "cic")]
     pub dark: Option<f64>,
     /// Each pixel's read noise: `camera` (one for every pixel: the calibration's fit beneath the
-    /// spurious charge, as an EMCCD reads every pixel through one amplifier) or `pixel` (each
+    /// spurious charge, as an EMCCD reads every pixel through one amplifier), `pixel` (each
     /// pixel's std map at the exposure, which also holds the few spurious events its bias
-    /// frames caught).
-    #[arg(long, default_value = "camera", value_name = "camera|pixel")]
+    /// frames caught) or `auto`: `pixel` where the profile's maps at two exposures agree pixel
+    /// by pixel (a sensor whose read noise has a texture of its own), else `camera`.
+    #[arg(long, default_value = "auto", value_name = "auto|camera|pixel")]
     pub read_noise: emccd_count::ReadNoise,
     /// Write the analog estimate instead (each pixel's mean signal over the register's gain,
     /// less the spurious electrons), to compare with counting.
@@ -254,7 +255,7 @@ fn describe(a: &Args, job: &Job, counter: &Counter) -> Described {
         format!("single_electron_missed={:.4}", missed),
         format!("em_dn_per_electron={}", number(cam.g)),
         format!("spurious_electrons_per_frame={}", number(cam.spurious)),
-        format!("read_noise={:?}", a.read_noise).to_lowercase(),
+        format!("read_noise={:?}", cam.read_noise).to_lowercase(),
         format!("hot_pixels={}", cam.hot.len()),
     ];
     Described {

@@ -49,14 +49,59 @@ impl std::str::FromStr for Threshold {
 /// Which read noise a pixel's threshold and model use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum ReadNoise {
+    /// `Pixel` where the profile's std maps at two exposures agree pixel by pixel (their
+    /// squares correlate over 0.5 once hot pixels are left out: the texture is the sensor's),
+    /// else `Camera` (what differs between two stacks is their sampling noise and spurious
+    /// events).
+    #[default]
+    Auto,
     /// The camera's one read noise: the calibration's fit beneath the spurious charge
     /// (`[pgn] read_sigma_dn`, with the ADC's rounding), else the median of the std map. An
     /// EMCCD reads every pixel through one amplifier, and a bias stack's per-pixel std also
     /// holds each pixel's few spurious events.
-    #[default]
     Camera,
     /// Each pixel's std map at the exposure, as measured.
     Pixel,
+}
+
+/// How much two of the profile's std maps agree: the correlation of their squares over the
+/// pixels neither holds as noisy (1.5 times its median); None with fewer than two maps. The
+/// maps nearest `exposure_s` are compared.
+pub fn texture_agreement(profile: &CameraProfile, exposure_s: f64) -> Option<f64> {
+    let maps = &profile.maps.read_noise;
+    if maps.len() < 2 {
+        return None;
+    }
+    let mut order: Vec<usize> = (0..maps.len()).collect();
+    order.sort_by(|&a, &b| {
+        let d = |i: usize| (profile.exposures_s[i].ln() - exposure_s.ln()).abs();
+        d(a).total_cmp(&d(b))
+    });
+    let (a, b) = (&maps[order[0]], &maps[order[1]]);
+    let limit = |m: &[f32]| 1.5 * emccd_profile::median(m.iter().copied()).unwrap_or(f64::INFINITY);
+    let (la, lb) = (limit(a), limit(b));
+    let pairs: Vec<(f64, f64)> = a
+        .iter()
+        .zip(b.iter())
+        .map(|(&x, &y)| (x as f64, y as f64))
+        .filter(|&(x, y)| x <= la && y <= lb)
+        .map(|(x, y)| (x * x, y * y))
+        .collect();
+    let n = pairs.len() as f64;
+    if n < 3.0 {
+        return None;
+    }
+    let (mx, my) = (
+        pairs.iter().map(|p| p.0).sum::<f64>() / n,
+        pairs.iter().map(|p| p.1).sum::<f64>() / n,
+    );
+    let (mut sxy, mut sxx, mut syy) = (0.0, 0.0, 0.0);
+    for &(x, y) in &pairs {
+        sxy += (x - mx) * (y - my);
+        sxx += (x - mx).powi(2);
+        syy += (y - my).powi(2);
+    }
+    (sxx > 0.0 && syy > 0.0).then(|| sxy / (sxx * syy).sqrt())
 }
 
 impl std::str::FromStr for ReadNoise {
@@ -64,10 +109,11 @@ impl std::str::FromStr for ReadNoise {
 
     fn from_str(s: &str) -> std::result::Result<ReadNoise, String> {
         match s.trim().to_ascii_lowercase().as_str() {
+            "auto" => Ok(ReadNoise::Auto),
             "camera" => Ok(ReadNoise::Camera),
             "pixel" => Ok(ReadNoise::Pixel),
             _ => Err(format!(
-                "'{s}': the read noise is `camera` (one for every pixel) or `pixel` (each pixel's map)"
+                "'{s}': the read noise is `auto`, `camera` (one for every pixel) or `pixel` (each pixel's map)"
             )),
         }
     }
@@ -92,6 +138,8 @@ pub struct Camera {
     /// Hot pixels: whose dark charge is many times the camera's spurious charge, with their
     /// own spurious electrons per frame at this exposure (pixel index, electrons), ascending.
     pub hot: Vec<(u32, f64)>,
+    /// The read noise used: `Camera` or `Pixel`.
+    pub read_noise: ReadNoise,
 }
 
 /// A pixel is hot when its bias frames' variance puts this many spurious electrons per frame in
@@ -147,7 +195,15 @@ impl Camera {
             _ => emccd_profile::median(map.iter().copied()).unwrap_or(1.0),
         };
         let spurious = cic + dark * exposure_s;
+        let read_noise = match read_noise {
+            ReadNoise::Auto => match texture_agreement(profile, exposure_s) {
+                Some(r) if r > 0.5 => ReadNoise::Pixel,
+                _ => ReadNoise::Camera,
+            },
+            r => r,
+        };
         let (sigma, hot) = match read_noise {
+            ReadNoise::Auto => unreachable!("resolved above"),
             ReadNoise::Pixel => (map.to_vec(), Vec::new()),
             ReadNoise::Camera => {
                 // A pixel's bias variance beyond the read noise is its spurious electrons'
@@ -175,6 +231,7 @@ impl Camera {
             spurious,
             removed: profile.fpn_holds_spurious(),
             hot,
+            read_noise,
         })
     }
 

@@ -34,7 +34,7 @@ impl Default for Request {
             per: None,
             analog: false,
             spurious: None,
-            read_noise: ReadNoise::Camera,
+            read_noise: ReadNoise::Auto,
         }
     }
 }

@@ -24,6 +24,7 @@ fn camera() -> Camera {
         spurious: 0.005,
         removed: false,
         hot: Vec::new(),
+        read_noise: emccd_count::ReadNoise::Pixel,
     }
 }
 
