@@ -178,6 +178,42 @@ fn per_and_uncertainty_and_metadata() {
     );
 }
 
+/// The command streams a file frame by frame; Python and `evaluate` count a stack held in
+/// memory (`emccd_count::count_stack`): the same rates and errors, bit for bit.
+#[test]
+fn streaming_equals_in_memory() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    camera(d, 32);
+    let (noisy, _) = stack(d, "0.3", 45, "4", "s");
+    ok(&emccd(
+        &[
+            "count",
+            &noisy,
+            "-o",
+            "r.tif",
+            "--profile",
+            "cam",
+            "--per",
+            "10",
+            "--uncertainty",
+            "e.tif",
+        ],
+        d,
+    ));
+    let profile = emccd_profile::CameraProfile::load(d.join("cam")).unwrap();
+    let (info, frames) = emccd_io::read_all(d.join(&noisy)).unwrap();
+    let req = emccd_count::Request {
+        per: Some(10),
+        ..Default::default()
+    };
+    let exposure = info.metadata.exposure_s.unwrap();
+    let c = emccd_count::count_stack(&profile, &frames.concat(), exposure, &req).unwrap();
+    assert_eq!(c.outputs, 5);
+    assert_eq!(read(&d.join("r.tif")).concat(), c.rate);
+    assert_eq!(read(&d.join("e.tif")).concat(), c.error);
+}
+
 /// An OME-Zarr output equals the TIFF one frame for frame, rates and errors; three processes
 /// each counting their share (`--shard I/3`, output frames 1–2, 3–4, 5–7 of 7) make the same
 /// store as one process, and a shard run again finds its share done and writes nothing. The
