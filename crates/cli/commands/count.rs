@@ -203,8 +203,8 @@ fn count_all(a: &Args, profile: &CameraProfile, jobs: &[Job]) -> Result<()> {
 struct Described {
     notes: Vec<String>,
     threshold: String,
-    false_events: f64,
-    missed: f64,
+    /// What the threshold predicts (false events, missed electrons), in words.
+    prediction: String,
     per: usize,
     outputs: usize,
 }
@@ -223,7 +223,7 @@ fn describe(a: &Args, job: &Job, counter: &Counter) -> Described {
     let below_3 = match threshold {
         Threshold::Sigma(k) => k < 3.0,
         Threshold::Dn(d) => d < 3.0 * sigma,
-        Threshold::Auto => false,
+        Threshold::Auto | Threshold::Likelihood => false,
     };
     if below_3 && a.threshold != Threshold::Auto {
         eprintln!(
@@ -233,6 +233,10 @@ fn describe(a: &Args, job: &Job, counter: &Counter) -> Described {
         );
     }
     let (described, ascii) = match (threshold, plan.k_sigma) {
+        (Threshold::Likelihood, _) => (
+            format!("none (each pixel's values in {} bins, the most likely rate)", emccd_count::likelihood::BINS),
+            "none (likelihood)".to_string(),
+        ),
         (Threshold::Dn(d), _) => (format!("{} DN", number(d)), format!("{} DN", number(d))),
         (_, Some(k)) => (
             format!("{k:.2} σ (median {:.2} DN)", k * sigma),
@@ -258,11 +262,19 @@ fn describe(a: &Args, job: &Job, counter: &Counter) -> Described {
         format!("read_noise={:?}", cam.read_noise).to_lowercase(),
         format!("hot_pixels={}", cam.hot.len()),
     ];
+    let prediction = if threshold == Threshold::Likelihood {
+        "every value weighed by the camera's model".to_string()
+    } else {
+        format!(
+            "predicted {} false events per pixel per frame, one photo-electron missed {:.0} % of the time",
+            number(false_events),
+            100.0 * missed
+        )
+    };
     Described {
         notes,
         threshold: described,
-        false_events,
-        missed,
+        prediction,
         per,
         outputs: job.frames.div_ceil(per),
     }
@@ -352,14 +364,13 @@ fn count_one(
         String::new()
     };
     let summary = format!(
-        "{} → {}: {} frames into {outputs} output frame{} of {per}; threshold {}; predicted {} false events per pixel per frame, one photo-electron missed {:.0} % of the time{mixed}; mean rate {} photo-electrons per pixel per frame ({}).{}",
+        "{} → {}: {} frames into {outputs} output frame{} of {per}; threshold {}; {}{mixed}; mean rate {} photo-electrons per pixel per frame ({}).{}",
         job.input.display(),
         job.out.display(),
         job.frames,
         if outputs == 1 { "" } else { "s" },
         d.threshold,
-        number(d.false_events),
-        100.0 * d.missed,
+        d.prediction,
         number(mean_rate),
         if a.analog { "analog" } else { "counted" },
         regime(level),
@@ -495,7 +506,7 @@ fn count_zarr(a: &Args, profile: &CameraProfile, job: &Job) -> Result<()> {
     }
     let done = rate_store.done_count();
     eprintln!(
-        "{share}{} → {}: output frames {}–{} of {} input frames each ({written} counted now, {} were already done); {done} of {} complete{}; threshold {}; predicted {} false events per pixel per frame, one photo-electron missed {:.0} % of the time.{}",
+        "{share}{} → {}: output frames {}–{} of {} input frames each ({written} counted now, {} were already done); {done} of {} complete{}; threshold {}; {}.{}",
         job.input.display(),
         a.out.display(),
         range.start + 1,
@@ -505,8 +516,7 @@ fn count_zarr(a: &Args, profile: &CameraProfile, job: &Job) -> Result<()> {
         d.outputs,
         if done < d.outputs { " (the other shards write the rest)" } else { "" },
         d.threshold,
-        number(d.false_events),
-        100.0 * d.missed,
+        d.prediction,
         regime(job.level),
     );
     Ok(())

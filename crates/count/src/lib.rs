@@ -23,6 +23,7 @@
 
 #![deny(missing_docs)]
 
+pub mod likelihood;
 pub mod model;
 pub mod plan;
 pub mod stack;

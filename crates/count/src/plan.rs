@@ -6,6 +6,7 @@ use rayon::prelude::*;
 
 use emccd_profile::CameraProfile;
 
+use crate::likelihood::{BinModel, Binning};
 use crate::model::PixelModel;
 use crate::{Error, Result};
 
@@ -19,6 +20,9 @@ pub enum Threshold {
     Sigma(f64),
     /// The same number of DN above bias for every pixel (`25DN`).
     Dn(f64),
+    /// No single threshold: each frame's value in one of [`crate::likelihood::BINS`] bins and
+    /// the rate the most likely under the exact model (`likelihood`).
+    Likelihood,
 }
 
 impl std::str::FromStr for Threshold {
@@ -34,13 +38,15 @@ impl std::str::FromStr for Threshold {
         };
         if t == "auto" {
             Ok(Threshold::Auto)
+        } else if t == "likelihood" {
+            Ok(Threshold::Likelihood)
         } else if let Some(k) = t.strip_suffix("sigma").and_then(number) {
             Ok(Threshold::Sigma(k))
         } else if let Some(d) = t.strip_suffix("dn").and_then(number) {
             Ok(Threshold::Dn(d))
         } else {
             Err(format!(
-                "'{s}': a threshold is `auto`, `<k>sigma` (k times each pixel's read noise, e.g. 3sigma) or `<n>DN` (e.g. 25DN), with a positive number"
+                "'{s}': a threshold is `auto`, `likelihood`, `<k>sigma` (k times each pixel's read noise, e.g. 3sigma) or `<n>DN` (e.g. 25DN), with a positive number"
             ))
         }
     }
@@ -311,6 +317,8 @@ pub struct Plan {
     pub k_sigma: Option<f64>,
     models: Vec<PixelModel>,
     index: Vec<u32>,
+    /// With [`Threshold::Likelihood`]: each model's bin probabilities, and each pixel's bins.
+    likelihood: Option<(Vec<BinModel>, Vec<Binning>)>,
 }
 
 /// Relative spacing of the read-noise grid.
@@ -320,7 +328,7 @@ impl Plan {
     /// The thresholds of `threshold` (`Auto` must be resolved first, by [`choose_k`]).
     pub fn new(camera: &Camera, threshold: Threshold) -> Plan {
         let k = match threshold {
-            Threshold::Auto => 3.0,
+            Threshold::Auto | Threshold::Likelihood => 3.0,
             Threshold::Sigma(k) => k,
             Threshold::Dn(_) => f64::NAN,
         };
@@ -362,21 +370,74 @@ impl Plan {
             index[i as usize] = models.len() as u32;
             models.push(m);
         }
+        let likelihood = (threshold == Threshold::Likelihood).then(|| {
+            // The same slots: the grid's read noise and the camera's spurious charge, then
+            // each hot pixel's own.
+            let mut bm: Vec<BinModel> = (0..slots)
+                .into_par_iter()
+                .map(|i| BinModel::new(sigma_of(i), camera.g, camera.spurious))
+                .collect();
+            bm.extend(
+                camera
+                    .hot
+                    .par_iter()
+                    .map(|&(i, e)| BinModel::new(camera.sigma[i as usize] as f64, camera.g, e))
+                    .collect::<Vec<_>>(),
+            );
+            let binning = (0..camera.sigma.len())
+                .map(|i| {
+                    let shift = camera.removed_of(camera.spurious_at(i)) * camera.g;
+                    Binning::new(camera.sigma[i] as f64, camera.g, shift)
+                })
+                .collect();
+            (bm, binning)
+        });
         Plan {
             thresholds: camera
                 .sigma
                 .iter()
                 .map(|&s| t_of(s as f64) as f32)
                 .collect(),
-            k_sigma: (!matches!(threshold, Threshold::Dn(_))).then_some(k),
+            k_sigma: matches!(threshold, Threshold::Auto | Threshold::Sigma(_)).then_some(k),
             models,
             index,
+            likelihood,
         }
     }
 
     /// The model pixel `i` is counted with.
     pub fn model(&self, i: usize) -> &PixelModel {
         &self.models[self.index[i] as usize]
+    }
+
+    /// Each pixel's bins, with [`Threshold::Likelihood`].
+    pub fn binning(&self) -> Option<&[Binning]> {
+        self.likelihood.as_ref().map(|l| l.1.as_slice())
+    }
+
+    /// The bin model pixel `i` is estimated with, with [`Threshold::Likelihood`].
+    pub fn bin_model(&self, i: usize) -> Option<&BinModel> {
+        self.likelihood
+            .as_ref()
+            .map(|l| &l.0[self.index[i] as usize])
+    }
+
+    /// The maximum-likelihood rate and its standard error at every pixel from its bin counts
+    /// (`BINS` a pixel, one after another) of `frames` frames; None without
+    /// [`Threshold::Likelihood`]. Pixels that share a model and counts share the work only by
+    /// chance: each is solved on its own, in parallel.
+    pub fn estimate_binned(&self, bins: &[u16], frames: u32) -> Option<(Vec<f32>, Vec<f32>)> {
+        let (models, _) = self.likelihood.as_ref()?;
+        let b = crate::likelihood::BINS;
+        Some(
+            bins.par_chunks(b)
+                .enumerate()
+                .map(|(i, h)| {
+                    let (r, se) = models[self.index[i] as usize].estimate(h, frames);
+                    (r as f32, se as f32)
+                })
+                .unzip(),
+        )
     }
 
     /// The median over pixels of the false-event rate (events per frame without light) and of

@@ -17,6 +17,8 @@ pub struct Tally {
     pub sum: Vec<f64>,
     /// Frames added.
     pub frames: u32,
+    /// With the likelihood: each pixel's bin counts ([`crate::likelihood::BINS`] a pixel).
+    pub bins: Vec<u16>,
 }
 
 impl Tally {
@@ -26,7 +28,31 @@ impl Tally {
             counts: vec![0; pixels],
             sum: vec![0.0; pixels],
             frames: 0,
+            bins: Vec::new(),
         }
+    }
+
+    /// An empty tally that also keeps each pixel's bin counts.
+    pub fn binned(pixels: usize) -> Tally {
+        Tally {
+            bins: vec![0; pixels * crate::likelihood::BINS],
+            ..Tally::new(pixels)
+        }
+    }
+
+    /// Adds one preprocessed frame's values to the pixels' bin counts (before [`Tally::add`],
+    /// which counts the frame).
+    pub fn add_bins(&mut self, frame: &[f32], binning: &[crate::likelihood::Binning]) {
+        const CHUNK: usize = 4096;
+        let b = crate::likelihood::BINS;
+        self.bins
+            .par_chunks_mut(CHUNK * b)
+            .zip(frame.par_chunks(CHUNK).zip(binning.par_chunks(CHUNK)))
+            .for_each(|(h, (f, bn))| {
+                for ((h, &v), bn) in h.chunks_mut(b).zip(f).zip(bn) {
+                    h[bn.bin(v)] += 1;
+                }
+            });
     }
 
     /// Adds one preprocessed frame (DN above bias) thresholded at `thresholds`.
@@ -263,6 +289,7 @@ enum Mode {
     Counted,
     Analog,
     Best,
+    Likelihood,
 }
 
 impl Counter {
@@ -285,8 +312,15 @@ impl Counter {
         let mode = match (analog, threshold) {
             (true, _) => Mode::Analog,
             (false, crate::Threshold::Auto) => Mode::Best,
+            (false, crate::Threshold::Likelihood) => Mode::Likelihood,
             _ => Mode::Counted,
         };
+        if mode == Mode::Likelihood && per > crate::likelihood::MAX_FRAMES {
+            return Err(Error(format!(
+                "the likelihood keeps 16-bit counts: at most {} frames per output, not {per} (--per)",
+                crate::likelihood::MAX_FRAMES
+            )));
+        }
         let threshold = match threshold {
             crate::Threshold::Auto => {
                 crate::Threshold::Sigma(crate::choose_k(&camera, level, per as u32))
@@ -300,7 +334,7 @@ impl Counter {
             plan,
             per,
             mode,
-            tally: Tally::new(pixels),
+            tally: Counter::empty(mode, pixels),
             seen: 0,
             frames,
             analog_share: 0.0,
@@ -309,8 +343,16 @@ impl Counter {
 
     /// Starts a new output frame at input frame `frame` (from 0): what was added is dropped.
     pub fn restart_at(&mut self, frame: usize) {
-        self.tally = Tally::new(self.camera.sigma.len());
+        self.tally = Counter::empty(self.mode, self.camera.sigma.len());
         self.seen = frame;
+    }
+
+    fn empty(mode: Mode, pixels: usize) -> Tally {
+        if mode == Mode::Likelihood {
+            Tally::binned(pixels)
+        } else {
+            Tally::new(pixels)
+        }
     }
 
     /// Input frames per output frame.
@@ -337,10 +379,16 @@ impl Counter {
     /// Adds the next preprocessed frame; returns an output frame (rate, standard error) when
     /// this one completes it.
     pub fn add(&mut self, frame: &[f32]) -> Option<(Vec<f32>, Vec<f32>)> {
+        if let Some(binning) = self.plan.binning() {
+            self.tally.add_bins(frame, binning);
+        }
         self.tally.add(frame, &self.plan.thresholds);
         self.seen += 1;
         if self.tally.frames as usize == self.per || self.seen == self.frames {
-            let t = std::mem::replace(&mut self.tally, Tally::new(self.camera.sigma.len()));
+            let t = std::mem::replace(
+                &mut self.tally,
+                Counter::empty(self.mode, self.camera.sigma.len()),
+            );
             let cam = &self.camera;
             Some(match self.mode {
                 Mode::Analog => {
@@ -348,8 +396,15 @@ impl Counter {
                     (t.analog(cam), t.analog_error(cam))
                 }
                 Mode::Counted => self.plan.estimate(&t.counts, t.frames),
-                Mode::Best => {
-                    let (mut rate, mut se) = self.plan.estimate(&t.counts, t.frames);
+                Mode::Best | Mode::Likelihood => {
+                    let likelihood = self.mode == Mode::Likelihood;
+                    let (mut rate, mut se) = if likelihood {
+                        self.plan
+                            .estimate_binned(&t.bins, t.frames)
+                            .expect("a likelihood plan")
+                    } else {
+                        self.plan.estimate(&t.counts, t.frames)
+                    };
                     let (ra, sa) = (t.analog(cam), t.analog_error(cam));
                     // Both errors predicted at the pixel's level as its eight neighbours' analog
                     // mean shows it: not at its own, whose noise would then decide which of
@@ -371,8 +426,11 @@ impl Counter {
                                 }
                             }
                             let level = if k > 0 { sum / k as f64 } else { ra[i] as f64 }.max(0.0);
-                            let counted = self.plan.model(i).variance(level, t.frames);
-                            counted > cam.analog_variance(i, level, n)
+                            let own = match self.plan.bin_model(i) {
+                                Some(m) => m.variance(level, t.frames),
+                                None => self.plan.model(i).variance(level, t.frames),
+                            };
+                            own > cam.analog_variance(i, level, n)
                         })
                         .collect();
                     let mut taken = 0usize;
