@@ -1,5 +1,5 @@
 """The photon-counting suite: stacks of known truth at 0.02–1 photo-electrons per pixel per frame,
-each counted (threshold `auto`), averaged with the analog estimate (the same preprocessing), and
+each counted (`--threshold`: the command's default, `likelihood`, unless given), averaged with the analog estimate (the same preprocessing), and
 beside them the ideal detector: a Poisson-limited one with no excess noise and no read noise (each
 frame's photo-electrons counted exactly, averaged). PSNR against the truth (its peak as range),
 dB, and the mean ratio (output mean over the truth's).
@@ -90,8 +90,9 @@ def emccd_detect_camera(a):
                 frames = np.stack([det.sim_sub_frame(flux, t) for _ in range(a.frames)]).astype(np.uint16)
                 tifffile.imwrite(stack, frames, imagej=True)
             res = {}
-            for name, extra in [("counting", []), ("analog", ["--analog"]), ("per-pixel", ["--read-noise", "pixel"])]:
-                dst = out / f"{path.stem}_{level:g}_{name}.tif"
+            for name, extra in [("counting", ["--threshold", a.threshold]), ("analog", ["--analog"]),
+                                ("per-pixel", ["--threshold", a.threshold, "--read-noise", "pixel"])]:
+                dst = out / f"{path.stem}_{level:g}_{name}_{a.threshold}.tif"
                 r = subprocess.run([exe, "count", str(stack), "-o", str(dst), "--profile", str(profile),
                                     "--exposure-s", str(t)] + extra, capture_output=True, text=True)
                 if r.returncode != 0:
@@ -125,6 +126,7 @@ def main():
     ap.add_argument("--bias-frames", type=int, default=200)
     ap.add_argument("--scenes", type=int, default=None, help="how many of the two scenes (emccd-detect: 1)")
     ap.add_argument("--seed", type=int, default=3)
+    ap.add_argument("--threshold", default="likelihood", help="what the counting column runs: likelihood (the default), auto, <k>sigma, <n>DN")
     a = ap.parse_args()
     if a.camera != "virtual":
         a.levels = a.levels or "0.02,0.05,0.1,0.2,0.5,1"
@@ -157,7 +159,7 @@ def main():
             raw, truth = emccd.simulate_pairs(scene, profile=prof, mean_electrons=level, exposure_s=0.01,
                                               frames=a.frames, seed=a.seed + 100 * si + li)
             want = truth.astype(np.float64) / k_dn
-            rate, _ = emccd.count(raw, prof, exposure_s=0.01)
+            rate, _ = emccd.count(raw, prof, exposure_s=0.01, threshold=a.threshold)
             threshold = next(t for t in emccd.count.last_notes if t.startswith("threshold"))
             analog, _ = emccd.count(raw, prof, exposure_s=0.01, analog=True)
             ideal = rng.poisson(np.broadcast_to(want, (a.frames,) + want.shape)).mean(axis=0)

@@ -204,7 +204,7 @@ def count(
     profile: ProfileLike = "default",
     exposure_s: Optional[float] = None,
     *,
-    threshold: str = "auto",
+    threshold: str = "likelihood",
     per: Optional[int] = None,
     analog: bool = False,
     extrapolate: bool = False,
@@ -216,8 +216,9 @@ def count(
     ``emccd count`` does: each frame preprocessed with the profile, each pixel thresholded, and
     the events turned into photo-electrons per pixel per frame, unbiased, with their standard
     error. Returns ``(rate, uncertainty)``: 2-D arrays for the whole stack, or 3-D with one frame
-    per ``per`` input frames. ``threshold``: ``"auto"`` (k times each pixel's read noise, k
-    chosen for the stack's light level), ``"<k>sigma"`` or ``"<n>DN"``. ``analog=True`` gives
+    per ``per`` input frames. ``threshold``: ``"likelihood"`` (no single threshold: each value
+    binned and the rate the most likely under the camera's model), ``"auto"`` (k times each
+    pixel's read noise, k chosen for the stack's light level), ``"<k>sigma"`` or ``"<n>DN"``. ``analog=True`` gives
     the plain mean instead, to compare. ``cic`` (e⁻ per frame) and ``dark`` (e⁻/s), both or
     neither, replace the profile's where its calibration did not measure them. ``read_noise``:
     ``"camera"`` (one read noise for every pixel, the calibration's fit beneath the spurious

@@ -482,7 +482,7 @@ fn denoise<'py>(
 /// per frame) and its standard error, each [outputs, h, w] (one output per `per` frames, or one
 /// for the whole stack), and notes (the threshold and what it predicts).
 #[pyfunction]
-#[pyo3(signature = (frames, profile, exposure_s, threshold="auto", per=None, analog=false, extrapolate=false, cic=None, dark=None, read_noise="auto"))]
+#[pyo3(signature = (frames, profile, exposure_s, threshold="likelihood", per=None, analog=false, extrapolate=false, cic=None, dark=None, read_noise="auto"))]
 #[allow(clippy::too_many_arguments)]
 #[allow(clippy::type_complexity)]
 fn count<'py>(

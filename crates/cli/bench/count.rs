@@ -25,10 +25,12 @@ pub struct CountTimes {
     pub preprocess_s: f64,
     /// Preprocessing and counting with the automatic threshold.
     pub count_s: f64,
+    /// Preprocessing and the likelihood (binned values, the most likely rate).
+    pub likelihood_s: f64,
     /// Preprocessing and the analog mean.
     pub analog_s: f64,
-    /// The counted mean rate over the truth's, and the analog one's.
-    pub ratios: (f64, f64),
+    /// The counted mean rate over the truth's, the likelihood's and the analog one's.
+    pub ratios: (f64, f64, f64),
 }
 
 impl std::fmt::Display for CountTimes {
@@ -43,6 +45,7 @@ impl std::fmt::Display for CountTimes {
             ("preprocessing alone", self.preprocess_s),
             ("preprocessing + analog mean (ref.)", self.analog_s),
             ("preprocessing + counting (auto)", self.count_s),
+            ("preprocessing + likelihood", self.likelihood_s),
         ] {
             writeln!(
                 f,
@@ -53,8 +56,8 @@ impl std::fmt::Display for CountTimes {
         }
         write!(
             f,
-            "mean rate over the truth's: counted {:.4}, analog {:.4}",
-            self.ratios.0, self.ratios.1
+            "mean rate over the truth's: counted {:.4}, likelihood {:.4}, analog {:.4}",
+            self.ratios.0, self.ratios.1, self.ratios.2
         )
     }
 }
@@ -95,10 +98,10 @@ pub fn count(profile: &CameraProfile, frames: usize) -> Result<CountTimes> {
     let preprocess_s = run(Box::new(|_| {}));
     let mean = |v: &[f32]| v.iter().map(|&x| x as f64).sum::<f64>() / v.len() as f64;
     // Seconds, and the output's mean rate over the truth's.
-    let measure = |analog: bool| -> Result<(f64, f64)> {
+    let measure = |threshold: Threshold, analog: bool| -> Result<(f64, f64)> {
         let mut counter = Counter::new(
             camera.clone(),
-            Threshold::Auto,
+            threshold,
             LEVEL,
             frames,
             frames,
@@ -116,14 +119,16 @@ pub fn count(profile: &CameraProfile, frames: usize) -> Result<CountTimes> {
             mean(&rate.expect("the last frame completes the output")) / LEVEL,
         ))
     };
-    let (count_s, counted) = measure(false)?;
-    let (analog_s, analog) = measure(true)?;
+    let (count_s, counted) = measure(Threshold::Auto, false)?;
+    let (likelihood_s, likely) = measure(Threshold::Likelihood, false)?;
+    let (analog_s, analog) = measure(Threshold::Auto, true)?;
     Ok(CountTimes {
         frames,
         pixels,
         preprocess_s,
         count_s,
+        likelihood_s,
         analog_s,
-        ratios: (counted, analog),
+        ratios: (counted, likely, analog),
     })
 }

@@ -114,75 +114,96 @@ impl BinModel {
         BinModel { q, spurious }
     }
 
-    /// Log-likelihood's first and second derivatives in μ (electrons a frame, spurious ones
-    /// included) for bin counts `h`, and the Fisher information of one frame.
-    fn derivatives(&self, h: &[u16], mu: f64) -> (f64, f64, f64) {
-        // Poisson weights; the terms stop once the rest of the mass is negligible.
-        let mut w = [0.0; N_MAX + 1];
+    /// The Poisson weights of 0, 1, 2, … electrons at mean `mu`, up to where the rest of the
+    /// mass is negligible; returns how many.
+    fn weights(mu: f64, w: &mut [f64; N_MAX + 1]) -> usize {
         let mut p = (-mu).exp();
         let mut mass = 0.0;
-        let mut last = 0;
-        for (n, wn) in w.iter_mut().enumerate() {
+        for n in 0..=N_MAX {
             if n > 0 {
                 p *= mu / n as f64;
             }
-            *wn = p;
+            w[n] = p;
             mass += p;
-            last = n;
             if n as f64 > mu && 1.0 - mass < 1e-13 {
-                break;
+                return n + 1;
             }
         }
-        let (mut d1, mut d2, mut info) = (0.0, 0.0, 0.0);
-        for b in 0..BINS {
-            let (mut pb, mut pb1, mut pb2) = (0.0, 0.0, 0.0);
-            for (n, &wn) in w.iter().enumerate().take(last + 1) {
-                let (q0, q1, q2) = (self.q[n][b], self.q[n + 1][b], self.q[n + 2][b]);
-                pb += wn * q0;
-                pb1 += wn * (q1 - q0);
-                pb2 += wn * (q2 - 2.0 * q1 + q0);
-            }
-            let pb = pb.max(1e-300);
-            info += pb1 * pb1 / pb;
-            if h[b] > 0 {
-                let c = h[b] as f64;
-                d1 += c * pb1 / pb;
-                d2 += c * (pb2 / pb - (pb1 / pb).powi(2));
-            }
+        N_MAX + 1
+    }
+
+    /// Bin `b`'s probability and its first two derivatives in μ, from the weights.
+    #[inline]
+    fn bin_terms(&self, b: usize, w: &[f64]) -> (f64, f64, f64) {
+        let (mut p0, mut p1, mut p2) = (0.0, 0.0, 0.0);
+        for (n, &wn) in w.iter().enumerate() {
+            let (q0, q1, q2) = (self.q[n][b], self.q[n + 1][b], self.q[n + 2][b]);
+            p0 += wn * q0;
+            p1 += wn * (q1 - q0);
+            p2 += wn * (q2 - 2.0 * q1 + q0);
         }
-        (d1, d2, info)
+        (p0.max(1e-300), p1, p2)
+    }
+
+    /// The log-likelihood's first and second derivatives in μ (electrons a frame, spurious
+    /// ones included) for the occupied bins `nz` (bin, count).
+    fn score(&self, nz: &[(usize, f64)], mu: f64) -> (f64, f64) {
+        let mut w = [0.0; N_MAX + 1];
+        let k = Self::weights(mu, &mut w);
+        let (mut d1, mut d2) = (0.0, 0.0);
+        for &(b, c) in nz {
+            let (p0, p1, p2) = self.bin_terms(b, &w[..k]);
+            d1 += c * p1 / p0;
+            d2 += c * (p2 / p0 - (p1 / p0).powi(2));
+        }
+        (d1, d2)
+    }
+
+    /// The Fisher information of one frame at μ.
+    fn information(&self, mu: f64) -> f64 {
+        let mut w = [0.0; N_MAX + 1];
+        let k = Self::weights(mu, &mut w);
+        (0..BINS)
+            .map(|b| {
+                let (p0, p1, _) = self.bin_terms(b, &w[..k]);
+                p1 * p1 / p0
+            })
+            .sum()
     }
 
     /// The maximum-likelihood photo-electron rate from bin counts `h` of `frames` frames, and
-    /// its standard error (from the Fisher information there). Where even no light is less
-    /// likely than the data say (fewer high values than the spurious charge makes), the line
-    /// through zero light is followed below it, as the threshold's inverse does: the mean over
-    /// pixels stays unbiased where light is absent.
-    pub fn estimate(&self, h: &[u16], frames: u32) -> (f64, f64) {
+    /// its standard error (from the Fisher information there), Newton's method started at
+    /// `start` (the analog rate, say). Where even no light is less likely than the data say
+    /// (fewer high values than the spurious charge makes), the line through zero light is
+    /// followed below it, as the threshold's inverse does: the mean over pixels stays unbiased
+    /// where light is absent.
+    pub fn estimate(&self, h: &[u16], frames: u32, start: f64) -> (f64, f64) {
         let n = frames.max(1) as f64;
         let c = self.spurious;
-        let se = |mu: f64| {
-            let (_, _, info) = self.derivatives(h, mu);
-            1.0 / (n * info).max(1e-300).sqrt()
-        };
-        let (g0, _, i0) = self.derivatives(h, c);
-        if g0 <= 0.0 {
-            // The score at zero light over its expected curvature: one Fisher-scoring step.
-            return (g0 / (n * i0).max(1e-300), se(c));
-        }
-        // The root of the score in μ, bracketed and found by safeguarded Newton steps.
-        let (mut lo, mut hi) = (c, (c + 1.0).max(2.0 * c));
-        while self.derivatives(h, hi).0 > 0.0 {
-            lo = hi;
-            hi *= 2.0;
-            if hi > N_MAX as f64 / 2.0 {
-                return (hi - c, f64::INFINITY);
+        let se = |mu: f64| 1.0 / (n * self.information(mu)).max(1e-300).sqrt();
+        let mut nz = [(0usize, 0f64); BINS];
+        let mut k = 0;
+        for (b, &v) in h.iter().enumerate() {
+            if v > 0 {
+                nz[k] = (b, v as f64);
+                k += 1;
             }
         }
-        let mut mu = 0.5 * (lo + hi);
+        let nz = &nz[..k];
+        let (g0, _) = self.score(nz, c);
+        if g0 <= 0.0 {
+            // The score at zero light over its expected curvature: one Fisher-scoring step.
+            let i0 = self.information(c);
+            return (g0 / (n * i0).max(1e-300), se(c));
+        }
+        // The root of the score in μ > c: safeguarded Newton steps inside a bracket that grows
+        // until it holds the root.
+        let limit = N_MAX as f64 / 2.0;
+        let (mut lo, mut hi) = (c, f64::INFINITY);
+        let mut mu = (c + start.max(0.0)).clamp(c + 1e-6, limit);
         for _ in 0..100 {
-            let (d1, d2, _) = self.derivatives(h, mu);
-            if d2 < 0.0 && (d1 / d2).abs() < 1e-12 * mu.max(1e-6) {
+            let (d1, d2) = self.score(nz, mu);
+            if d2 < 0.0 && (d1 / d2).abs() < 1e-9 * mu {
                 break;
             }
             if d1 > 0.0 {
@@ -190,23 +211,27 @@ impl BinModel {
             } else {
                 hi = mu;
             }
-            if hi - lo < 1e-12 * mu.max(1e-6) {
+            if hi - lo < 1e-9 * mu {
                 break;
             }
             let newton = mu - d1 / d2;
             mu = if d2 < 0.0 && newton > lo && newton < hi {
                 newton
-            } else {
+            } else if hi.is_finite() {
                 0.5 * (lo + hi)
+            } else {
+                2.0 * mu
             };
+            if mu > limit {
+                return (limit - c, f64::INFINITY);
+            }
         }
         (mu - c, se(mu))
     }
 
     /// The variance of the rate from `frames` frames at `lambda` photo-electrons a frame.
     pub fn variance(&self, lambda: f64, frames: u32) -> f64 {
-        let zero = [0u16; BINS];
-        let (_, _, info) = self.derivatives(&zero, (lambda + self.spurious).max(0.0));
+        let info = self.information((lambda + self.spurious).max(0.0));
         1.0 / (frames.max(1) as f64 * info).max(1e-300)
     }
 }
@@ -259,7 +284,7 @@ mod truth {
                     let em = if n == 0 { 0.0 } else { Gamma::new(n as f64, g).unwrap().sample(&mut rng) };
                     h[b.bin((em + noise.sample(&mut rng)) as f32)] += 1;
                 }
-                sum += m.estimate(&h, frames).0;
+                sum += m.estimate(&h, frames, lambda).0;
             }
             let mean = sum / pixels as f64;
             println!("λ {lambda}: {mean}");

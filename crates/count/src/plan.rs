@@ -423,17 +423,22 @@ impl Plan {
     }
 
     /// The maximum-likelihood rate and its standard error at every pixel from its bin counts
-    /// (`BINS` a pixel, one after another) of `frames` frames; None without
-    /// [`Threshold::Likelihood`]. Pixels that share a model and counts share the work only by
-    /// chance: each is solved on its own, in parallel.
-    pub fn estimate_binned(&self, bins: &[u16], frames: u32) -> Option<(Vec<f32>, Vec<f32>)> {
+    /// (`BINS` a pixel, one after another) of `frames` frames, each solved from `start` (its
+    /// analog rate, say), in parallel; None without [`Threshold::Likelihood`].
+    pub fn estimate_binned(
+        &self,
+        bins: &[u16],
+        frames: u32,
+        start: &[f32],
+    ) -> Option<(Vec<f32>, Vec<f32>)> {
         let (models, _) = self.likelihood.as_ref()?;
         let b = crate::likelihood::BINS;
         Some(
             bins.par_chunks(b)
+                .zip(start.par_iter())
                 .enumerate()
-                .map(|(i, h)| {
-                    let (r, se) = models[self.index[i] as usize].estimate(h, frames);
+                .map(|(i, (h, &s))| {
+                    let (r, se) = models[self.index[i] as usize].estimate(h, frames, s as f64);
                     (r as f32, se as f32)
                 })
                 .unzip(),

@@ -30,7 +30,7 @@ pub struct Request {
 impl Default for Request {
     fn default() -> Request {
         Request {
-            threshold: Threshold::Auto,
+            threshold: Threshold::Likelihood,
             per: None,
             analog: false,
             spurious: None,

@@ -397,15 +397,14 @@ impl Counter {
                 }
                 Mode::Counted => self.plan.estimate(&t.counts, t.frames),
                 Mode::Best | Mode::Likelihood => {
-                    let likelihood = self.mode == Mode::Likelihood;
-                    let (mut rate, mut se) = if likelihood {
+                    let (ra, sa) = (t.analog(cam), t.analog_error(cam));
+                    let (mut rate, mut se) = if self.mode == Mode::Likelihood {
                         self.plan
-                            .estimate_binned(&t.bins, t.frames)
+                            .estimate_binned(&t.bins, t.frames, &ra)
                             .expect("a likelihood plan")
                     } else {
                         self.plan.estimate(&t.counts, t.frames)
                     };
-                    let (ra, sa) = (t.analog(cam), t.analog_error(cam));
                     // Both errors predicted at the pixel's level as its eight neighbours' analog
                     // mean shows it: not at its own, whose noise would then decide which of
                     // its two estimates it takes (a faint pixel read low would take the analog
