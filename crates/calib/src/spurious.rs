@@ -166,7 +166,11 @@ pub fn fit_level(
     g_dn: f64,
     em_gain: f64,
 ) -> Option<SpuriousLevel> {
-    if d.pairs < 1000 || !(g_dn > 0.0) || !(em_gain > 1.0) {
+    // NaN fails both comparisons.
+    if d.pairs < 1000
+        || g_dn.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)
+        || em_gain.partial_cmp(&1.0) != Some(std::cmp::Ordering::Greater)
+    {
         return None;
     }
     let s0 = (d.central_sigma() / std::f64::consts::SQRT_2).max(0.3);

@@ -99,15 +99,8 @@ pub fn count(profile: &CameraProfile, frames: usize) -> Result<CountTimes> {
     let mean = |v: &[f32]| v.iter().map(|&x| x as f64).sum::<f64>() / v.len() as f64;
     // Seconds, and the output's mean rate over the truth's.
     let measure = |threshold: Threshold, analog: bool| -> Result<(f64, f64)> {
-        let mut counter = Counter::new(
-            camera.clone(),
-            threshold,
-            LEVEL,
-            frames,
-            frames,
-            analog,
-        )
-        .map_err(|e| Error::Data(e.0))?;
+        let mut counter = Counter::new(camera.clone(), threshold, LEVEL, frames, frames, analog)
+            .map_err(|e| Error::Data(e.0))?;
         let mut rate = None;
         let s = run(Box::new(|f| {
             if let Some((r, _)) = counter.add(f) {

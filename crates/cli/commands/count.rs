@@ -238,7 +238,10 @@ fn describe(a: &Args, job: &Job, counter: &Counter) -> Described {
     }
     let (described, ascii) = match (threshold, plan.k_sigma) {
         (Threshold::Likelihood, _) => (
-            format!("none (each pixel's values in {} bins, the most likely rate)", emccd_count::likelihood::BINS),
+            format!(
+                "none (each pixel's values in {} bins, the most likely rate)",
+                emccd_count::likelihood::BINS
+            ),
             "none (likelihood)".to_string(),
         ),
         (Threshold::Dn(d), _) => (format!("{} DN", number(d)), format!("{} DN", number(d))),

@@ -93,7 +93,9 @@ impl BinModel {
         let mut q = Vec::with_capacity(N_MAX + 3);
         for n in 0..=N_MAX + 2 {
             // Once n electrons' output is all above the last edge, so is more electrons'.
-            if q.last().is_some_and(|p: &[f64; BINS]| p[BINS - 1] > 1.0 - 1e-15) {
+            if q.last()
+                .is_some_and(|p: &[f64; BINS]| p[BINS - 1] > 1.0 - 1e-15)
+            {
                 let mut top = [0.0; BINS];
                 top[BINS - 1] = 1.0;
                 q.push(top);
@@ -281,7 +283,11 @@ mod truth {
                 let mut h = [0u16; BINS];
                 for _ in 0..frames {
                     let n = pois.sample(&mut rng) as usize;
-                    let em = if n == 0 { 0.0 } else { Gamma::new(n as f64, g).unwrap().sample(&mut rng) };
+                    let em = if n == 0 {
+                        0.0
+                    } else {
+                        Gamma::new(n as f64, g).unwrap().sample(&mut rng)
+                    };
                     h[b.bin((em + noise.sample(&mut rng)) as f32)] += 1;
                 }
                 sum += m.estimate(&h, frames, lambda).0;
