@@ -262,12 +262,14 @@ mod tests {
 }
 
 #[cfg(test)]
-mod truth {
+mod against_the_model {
     use super::*;
     use rand::SeedableRng;
     use rand_distr::{Distribution, Gamma, Normal, Poisson};
 
-    /// Frames from the exact model binned and estimated: the rate comes back unbiased.
+    /// Frames drawn from the exact model, binned and estimated: the mean rate over 8000 pixels
+    /// of 500 frames comes back within 2 % at 0.02, 0.1 and 0.5 e⁻ (its standard error is
+    /// under 0.6 % at 0.02 e⁻ and smaller above: 2 % is more than three of them).
     #[test]
     fn recovers_the_rate_of_the_model() {
         let (sigma, g, c) = (3.0, 10.0, 0.005);
@@ -275,7 +277,7 @@ mod truth {
         let b = Binning::new(sigma, g, 0.0);
         let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
         for lambda in [0.02, 0.1, 0.5] {
-            let (pixels, frames) = (2000, 500);
+            let (pixels, frames) = (8000, 500);
             let pois = Poisson::new(lambda + c).unwrap();
             let noise = Normal::new(0.0, sigma).unwrap();
             let mut sum = 0.0;
@@ -293,7 +295,6 @@ mod truth {
                 sum += m.estimate(&h, frames, lambda).0;
             }
             let mean = sum / pixels as f64;
-            println!("λ {lambda}: {mean}");
             assert!((mean / lambda - 1.0).abs() < 0.02, "λ {lambda}: {mean}");
         }
     }

@@ -213,6 +213,17 @@ fn the_automatic_choice_between_estimates_keeps_the_mean() {
     assert!((mean / truth - 1.0).abs() < 0.02, "{mean} vs {truth}");
 }
 
+/// The likelihood keeps 16-bit counts: an output frame of more than 65535 input frames is
+/// refused before any frame is read, naming --per.
+#[test]
+fn the_likelihood_refuses_more_frames_than_its_counters_hold() {
+    let e = Counter::new(camera(), Threshold::Likelihood, 0.1, 70_000, 70_000, false)
+        .err()
+        .expect("refused");
+    assert!(e.0.contains("65535") && e.0.contains("--per"), "{}", e.0);
+    assert!(Counter::new(camera(), Threshold::Likelihood, 0.1, 65_535, 70_000, false).is_ok());
+}
+
 /// Where light is faint the automatic threshold is where the model's variance is least: for
 /// a pixel of read noise σ, in the limit of rare events the rate's variance is proportional to
 /// (false(t) + λ·pass(t)) / pass′(t)² with false = Q(t/σ), pass = the one-electron detection
