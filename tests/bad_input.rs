@@ -1282,10 +1282,11 @@ fn outputs_in_the_way_are_found_before_any_work() {
         br#"{"zarr_format":3,"node_type":"group"}"#,
     )
     .unwrap();
-    // (`denoise` writes the inputs into one store there, and refuses one it did not make.)
+    // (`denoise` writes the inputs into one store there, and refuses one it did not make;
+    // `count` writes one counted stack into a store.)
     fails_with(
         &emccd(&["count", "a.tif", "b.tif", "-o", "s.zarr"], d),
-        "a Zarr store; several inputs' files go into a plain folder",
+        "a .zarr output holds one counted stack: give one input",
     );
     assert_eq!(files(&d.join("s.zarr")), ["zarr.json"]);
 }
