@@ -80,8 +80,9 @@ enum Command {
     /// neighbours (default on stacks), iterative BM3D averaged with a network (default on single
     /// frames), iterative BM3D, one BM3D pass, a network, or BM3D refined by one.
     Denoise(commands::denoise::Args),
-    /// Count photons below a few tenths of a photo-electron per pixel per frame: per-pixel
-    /// thresholds, coincidences and false events corrected, an uncertainty per pixel.
+    /// Count photons below a few tenths of a photo-electron per pixel per frame: each pixel's
+    /// most likely rate under the camera's model (or one threshold), coincidences and false
+    /// events corrected, an uncertainty per pixel.
     Count(commands::count::Args),
     /// PSNR/SSIM of denoisers (input, BM3D, models) on virtual-camera pairs.
     Evaluate(commands::evaluate::Args),

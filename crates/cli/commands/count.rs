@@ -11,18 +11,18 @@ use serde_json::json;
 
 use crate::common::{load_profile, progress, RecordingArgs};
 
-/// Count photons: below about 0.2 photo-electrons per pixel per frame (faint sources, single
-/// molecules at high frame rates), threshold every preprocessed pixel of every frame into an
-/// event or none, and turn the events over N frames into photo-electrons per pixel per frame.
-/// This removes the EM register's excess noise (√2 in SNR) where the light is faintest. Each
-/// pixel's threshold comes from the profile (k times its read noise, k chosen for the stack's
-/// own light level by default); the rate inverts the exact probability of an event at that
-/// threshold — the register's output for 1, 2, … electrons plus read noise, coincidences,
-/// clock-induced charge and dark current — with its small-sample bias removed, so it is
-/// unbiased, and its standard error can be written beside it (--uncertainty). Frames are
-/// preprocessed as `denoise` does (blooming and the fixed pattern at the exposure removed).
-/// Above about half a photo-electron per pixel per frame the analog mean (--analog) is as good
-/// or better: the command says which regime the stack is in.
+/// Count photons: below a few tenths of a photo-electron per pixel per frame (faint sources,
+/// single molecules at high frame rates), read every preprocessed pixel of every frame as a
+/// number of electrons rather than a signal, and turn N frames into photo-electrons per pixel
+/// per frame. This removes the EM register's excess noise (√2 in SNR) where the light is
+/// faintest. By default each value falls into one of 30 bins and each pixel's rate is the most
+/// likely one under the camera's exact model — the register's output for 0, 1, 2, … electrons
+/// plus read noise, coincidences, clock-induced charge and dark current (which `emccd calibrate`
+/// measures); `--threshold auto|<k>sigma|<n>DN` counts events above one threshold instead and
+/// inverts their probability, its small-sample bias removed. Either is unbiased, and its standard
+/// error can be written beside it (--uncertainty). Frames are preprocessed as `denoise` does
+/// (blooming and the fixed pattern at the exposure removed); bright and hot pixels take the
+/// analog mean (--analog), which the command also writes on its own, to compare.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Raw stacks (TIFF/BigTIFF, SIF, FITS, Zarr).
@@ -37,7 +37,7 @@ pub struct Args {
     /// How each frame's pixel is read: `likelihood` (the default: no single threshold — each
     /// value falls into one of 30 bins, half a read-noise σ wide near the bias and half the
     /// register's gain above, and the rate is the one that makes each pixel's bins most likely
-    /// under the camera's exact model; +0.1 to +0.8 dB over the best single threshold), `auto`
+    /// under the camera's exact model; +0.1 to +0.9 dB over the best single threshold), `auto`
     /// (one threshold, k times each pixel's read noise, k chosen to make the rate's error
     /// smallest at the stack's own light level), `<k>sigma` (e.g. 3sigma) or `<n>DN` (the same
     /// DN above bias for every pixel).
@@ -60,8 +60,8 @@ pub struct Args {
     #[arg(long, value_name = "I/N")]
     pub shard: Option<Shard>,
     /// Clock-induced charge, e⁻ per pixel per frame, where the profile does not record it (its
-    /// [pgn] section; `emccd calibrate` does not measure it): from the camera's data sheet.
-    /// Given with --dark; replaces the profile's.
+    /// [pgn] section, which `emccd calibrate` fills from bias and flat stacks): from the
+    /// camera's data sheet. Given with --dark; replaces the profile's.
     #[arg(long, requires = "dark")]
     pub cic: Option<f64>,
     /// Dark current, e⁻ per pixel per second, with --cic.
