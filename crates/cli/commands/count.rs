@@ -251,7 +251,7 @@ fn describe(a: &Args, job: &Job, counter: &Counter) -> Described {
         ),
         _ => unreachable!("a threshold is in σ or in DN"),
     };
-    let notes = vec![
+    let mut notes = vec![
         format!(
             "units=photo-electrons per pixel per frame ({})",
             if a.analog {
@@ -262,13 +262,18 @@ fn describe(a: &Args, job: &Job, counter: &Counter) -> Described {
         ),
         format!("threshold={ascii}"),
         format!("frames_per_output={per}"),
-        format!("false_events_per_frame={}", number(false_events)),
-        format!("single_electron_missed={:.4}", missed),
+    ];
+    // What one threshold predicts; the likelihood has none.
+    if threshold != Threshold::Likelihood {
+        notes.push(format!("false_events_per_frame={}", number(false_events)));
+        notes.push(format!("single_electron_missed={:.4}", missed));
+    }
+    notes.extend([
         format!("em_dn_per_electron={}", number(cam.g)),
         format!("spurious_electrons_per_frame={}", number(cam.spurious)),
         format!("read_noise={:?}", cam.read_noise).to_lowercase(),
         format!("hot_pixels={}", cam.hot.len()),
-    ];
+    ]);
     let prediction = if threshold == Threshold::Likelihood {
         "every value weighed by the camera's model".to_string()
     } else {
