@@ -266,6 +266,29 @@ fn zarr_output_and_shards_equal_one_process() {
     ] {
         assert_eq!(read(&d.join(a)), read(&d.join(b)), "{a} vs {b}");
     }
+    // An uncertainty store made for other work is refused, and the rate store this run had
+    // just made goes with it.
+    let o = emccd(
+        &[
+            "count",
+            noisy,
+            "-o",
+            "fresh.zarr",
+            "--profile",
+            "cam",
+            "--uncertainty",
+            "one_se.zarr",
+            "--per",
+            "7",
+        ],
+        d,
+    );
+    assert!(
+        !o.status.success(),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(!d.join("fresh.zarr").exists(), "the new store stays");
     // Not a store of another kind: a shard asked of a TIFF, several inputs into one store.
     let out = emccd(
         &[

@@ -92,11 +92,12 @@ impl Differences {
                         continue;
                     }
                     used += 1;
-                    let d = (b as f64 - a as f64).round() as i64;
-                    if d.abs() <= LOCAL {
-                        near[(d + LOCAL) as usize] += 1;
+                    let d = (b as f64 - a as f64).round();
+                    if d.abs() <= LOCAL as f64 {
+                        near[(d as i64 + LOCAL) as usize] += 1;
                     } else {
-                        far.push(d);
+                        // Saturating: beyond ±2⁶³ is as far as beyond the histogram.
+                        far.push(d as i64);
                     }
                 }
                 (near, far, used)
@@ -302,7 +303,7 @@ pub struct SpuriousFit {
     pub cic_se: f64,
     /// Dark current, e⁻ per pixel per second (0 from a single exposure).
     pub dark_e_per_s: f64,
-    /// Its standard error (NaN from fewer than three exposures).
+    /// Its standard error (from two exposures, the points' own errors; NaN from one).
     pub dark_se: f64,
     /// The read noise, DN: the median over exposures.
     pub read_sigma_dn: f64,
@@ -329,12 +330,15 @@ pub fn fit_exposures(levels: Vec<SpuriousLevel>) -> Option<SpuriousFit> {
         .collect();
     let (cic, cic_se, dark, dark_se) = match line(&x, &y, Some(&w)) {
         Some(f) if levels.len() >= 2 => {
-            // With two exposures the line has no scatter to scale its errors: the points' own.
+            // With two exposures the line has no scatter to scale its errors: the points' own,
+            // the intercept's variance 1/Σw + x̄²/Σw(x − x̄)² at t = 0.
             let (cs, ds) = if f.intercept_se.is_finite() {
                 (f.intercept_se, f.slope_se)
             } else {
                 let sw: f64 = w.iter().sum();
-                (sw.recip().sqrt(), f64::NAN)
+                let mx = x.iter().zip(&w).map(|(x, w)| x * w).sum::<f64>() / sw;
+                let sxx: f64 = x.iter().zip(&w).map(|(x, w)| w * (x - mx).powi(2)).sum();
+                ((1.0 / sw + mx * mx / sxx).sqrt(), (1.0 / sxx).sqrt())
             };
             (f.intercept, cs, f.slope, ds)
         }

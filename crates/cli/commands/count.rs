@@ -448,15 +448,31 @@ fn count_zarr(a: &Args, profile: &CameraProfile, job: &Job) -> Result<()> {
         Ok(ZarrStackWriter::create_or_open(path, &spec(path, what))?)
     };
     let (rate_store, made_rate) = open(&a.out, "photo-electrons per pixel per frame")?;
+    // A store made just now goes again if what follows cannot start.
+    let undo = |e: anyhow::Error| {
+        if made_rate && shard == Shard::ALL {
+            let _ = std::fs::remove_dir_all(&a.out);
+        }
+        e
+    };
     let se_store = match &a.uncertainty {
-        Some(u) => Some(open(
-            u,
-            "standard error, photo-electrons per pixel per frame",
-        )?),
+        Some(u) => {
+            Some(open(u, "standard error, photo-electrons per pixel per frame").map_err(undo)?)
+        }
         None => None,
     };
     let range = shard.range(d.outputs);
-    let mut rec = a.recording.reopen(&job.input, profile)?;
+    let mut rec = match a.recording.reopen(&job.input, profile) {
+        Ok(r) => r,
+        Err(e) => {
+            if let (Some((_, true)), Some(u), true) =
+                (&se_store, &a.uncertainty, shard == Shard::ALL)
+            {
+                let _ = std::fs::remove_dir_all(u);
+            }
+            return Err(undo(e));
+        }
+    };
     let pb = progress(
         (range.end.min(d.outputs) * d.per).min(job.frames) as u64
             - (range.start * d.per).min(job.frames) as u64,

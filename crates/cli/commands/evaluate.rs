@@ -36,7 +36,7 @@ pub struct Args {
     /// a model file (`default`, `microscopy`, `lowlight` = the bundled networks; a hybrid model file runs as
     /// the hybrid method), `temporal` (a movie's frames from their neighbours, the
     /// default window each side or `temporal:K` K; on a still pair, `ivst`), `count` (photon
-    /// counting as `emccd count` does it, the automatic threshold, one estimate of the whole
+    /// counting as `emccd count` does it by default, the likelihood, one estimate of the whole
     /// stack given to each of its frames; `count:N` one per N frames; on a still pair, from all
     /// its noisy frames) and `analog` (the analog mean the same way; `analog:N`), for stacks of
     /// a still or slow scene at a fraction of a photo-electron per pixel; repeatable. `MODEL@8` averages the model over 8 flips/transposes

@@ -57,7 +57,10 @@ impl Binning {
         } else if x <= self.four_sigma {
             (((u + 2.5) * 2.0).ceil() as usize).clamp(1, CORE - 1)
         } else {
-            let k = ((x - self.four_sigma) * self.inv_half_g).ceil() as usize;
+            // Capped before the cast: a value far beyond the last edge is in the last bin.
+            let k = ((x - self.four_sigma) * self.inv_half_g)
+                .ceil()
+                .min((TAIL + 1) as f32) as usize;
             (CORE - 1 + k.max(1)).min(BINS - 1)
         }
     }
@@ -201,6 +204,11 @@ impl BinModel {
         // The root of the score in μ > c: safeguarded Newton steps inside a bracket that grows
         // until it holds the root.
         let limit = N_MAX as f64 / 2.0;
+        if c + 1e-6 >= limit {
+            // A pixel this hot is beyond the electrons the model follows: no estimate (the
+            // analog mean is taken there).
+            return (0.0, f64::INFINITY);
+        }
         let (mut lo, mut hi) = (c, f64::INFINITY);
         let mut mu = (c + start.max(0.0)).clamp(c + 1e-6, limit);
         for _ in 0..100 {
@@ -252,6 +260,14 @@ mod tests {
             assert_eq!(b.bin((t - 1e-3) as f32), i, "edge {i} at {t}");
             assert_eq!(b.bin((t + 1e-3) as f32), i + 1, "edge {i} at {t}");
         }
+        // Far beyond the last edge, and NaN: the last and the first bin.
+        assert_eq!(b.bin(3e38), BINS - 1);
+        assert_eq!(b.bin(f32::NAN), 0);
+        // A pixel hotter than the electrons the model follows gets no estimate, not a panic.
+        let hot = BinModel::new(sigma, g, 25.0);
+        let mut h = [0u16; BINS];
+        h[BINS - 1] = 100;
+        assert_eq!(hot.estimate(&h, 100, 25.0).1, f64::INFINITY);
         // The model's probabilities of every bin sum to one, for any electron count.
         let m = BinModel::new(sigma, g, 0.01);
         for n in 0..6 {

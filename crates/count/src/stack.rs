@@ -89,16 +89,25 @@ pub fn count_stack(
     let g = cam.g;
     let mut counter = Counter::new(cam, req.threshold, level, per, frames, req.analog)?;
     let (fe, missed) = counter.plan().predicted();
-    let notes = vec![
-        match counter.plan().k_sigma {
-            Some(k) => format!("threshold {k:.2} sigma"),
-            None => format!("threshold {:?}", req.threshold),
-        },
-        format!(
-            "predicted false events per pixel per frame {fe:.3e}, single photo-electron missed {:.1} %",
-            100.0 * missed
-        ),
-    ];
+    let notes = match counter.plan().k_sigma {
+        _ if req.threshold == Threshold::Likelihood => {
+            vec!["threshold none (each pixel's values in 30 bins, the most likely rate)".into()]
+        }
+        Some(k) => vec![
+            format!("threshold {k:.2} sigma"),
+            format!(
+                "predicted false events per pixel per frame {fe:.3e}, single photo-electron missed {:.1} %",
+                100.0 * missed
+            ),
+        ],
+        None => vec![
+            format!("threshold {:?}", req.threshold),
+            format!(
+                "predicted false events per pixel per frame {fe:.3e}, single photo-electron missed {:.1} %",
+                100.0 * missed
+            ),
+        ],
+    };
     let (mut rate, mut error, mut outputs) = (Vec::new(), Vec::new(), 0);
     for fr in &pre {
         if let Some((r, s)) = counter.add(fr) {
