@@ -360,13 +360,7 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
         }
         _ => (width, height),
     };
-    let slope = ptc
-        .as_ref()
-        .map(|p| p.fit.slope)
-        .or_else(|| gain_series.as_ref().map(|g| g.slope_at(m.em_gain)));
-    let spurious = spurious_charge(&bias, slope, m.em_gain, &mut missing);
-
-    Ok(Calibration {
+    let mut cal = Calibration {
         camera: m.camera.clone(),
         em_gain: m.em_gain,
         manifest: m.path.clone(),
@@ -379,10 +373,12 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
         ptc,
         blooming,
         gain_series,
-        spurious,
+        spurious: None,
         missing,
         warnings,
-    })
+    };
+    cal.spurious = spurious_charge(&cal.bias, cal.slope(), cal.em_gain, &mut cal.missing);
+    Ok(cal)
 }
 
 /// The spurious charge and read noise of every bias exposure (in parallel), and their fit
@@ -846,18 +842,22 @@ fn run_gain_series(
 }
 
 impl Calibration {
+    /// The photon-transfer slope s, DN: the flats' regression, else the gain series' at the
+    /// calibrated EM gain.
+    fn slope(&self) -> Option<f64> {
+        self.ptc
+            .as_ref()
+            .map(|p| p.fit.slope)
+            .or_else(|| self.gain_series.as_ref().map(|g| g.slope_at(self.em_gain)))
+    }
+
     /// The Poisson–Gamma–Normal parameters measured: EM gain, e⁻/DN from the slope, the
     /// spurious charge and the read noise beneath it (the profile's fixed pattern, measured on
     /// the same bias frames, holds the spurious charge's mean: see
     /// [`CameraProfile::fpn_holds_spurious`]).
     fn pgn(&self) -> Option<PgnParams> {
         let s = self.spurious.as_ref()?;
-        let g = self
-            .ptc
-            .as_ref()
-            .map(|p| p.fit.slope)
-            .or_else(|| self.gain_series.as_ref().map(|g| g.slope_at(self.em_gain)))?
-            / 2.0;
+        let g = self.slope()? / 2.0;
         Some(PgnParams {
             em_gain: self.em_gain,
             e_per_dn: self.em_gain / g,
@@ -950,11 +950,7 @@ impl Calibration {
             em_gain: self.em_gain,
             width: self.width,
             height: self.height,
-            ptc_slope_dn: self
-                .ptc
-                .as_ref()
-                .map(|p| p.fit.slope)
-                .or_else(|| self.gain_series.as_ref().map(|g| g.slope_at(self.em_gain))),
+            ptc_slope_dn: self.slope(),
             f_range: [1.3, std::f64::consts::SQRT_2],
             quantization_dn: 1.0,
             adc_max_dn: self.adc_max_dn,

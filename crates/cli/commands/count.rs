@@ -213,10 +213,15 @@ struct Described {
     outputs: usize,
 }
 
+/// Input frames per output frame: `--per`, else the whole stack.
+fn per(a: &Args, job: &Job) -> usize {
+    a.per.map_or(job.frames, |n| n as usize)
+}
+
 /// Describes `counter`'s plan for `job`, warning of a fixed threshold below 3σ.
 fn describe(a: &Args, job: &Job, counter: &Counter) -> Described {
     let cam = &job.camera;
-    let per = a.per.map_or(job.frames, |n| n as usize);
+    let per = per(a, job);
     let plan = counter.plan();
     let (false_events, missed) = plan.predicted();
     let sigma = cam.median_sigma();
@@ -294,12 +299,11 @@ fn describe(a: &Args, job: &Job, counter: &Counter) -> Described {
 
 /// A counter for `job` as the arguments ask.
 fn counter(a: &Args, job: &Job) -> Result<Counter> {
-    let per = a.per.map_or(job.frames, |n| n as usize);
     Ok(Counter::new(
         job.camera.clone(),
         a.threshold,
         job.level,
-        per,
+        per(a, job),
         job.frames,
         a.analog,
     )?)
@@ -385,15 +389,21 @@ fn count_one(
         d.prediction,
         number(mean_rate),
         if a.analog { "analog" } else { "counted" },
-        regime(level),
+        regime(level, a.threshold),
     );
     Ok((files, summary))
 }
 
-/// A note where the light is bright enough that counting may not pay.
-fn regime(level: f64) -> String {
-    if level > 0.5 {
-        format!(" At {} e⁻ per pixel per frame the analog mean (--analog) is likely as good: counting pays below about 0.5.", number(level))
+/// A note where the light is bright enough that counting may not pay: above 0.5 e⁻ per pixel
+/// per frame for one threshold, above 1 for the likelihood (measured ahead of the analog mean up
+/// to 1 on both cameras of the suite, and not beyond).
+fn regime(level: f64, threshold: Threshold) -> String {
+    let (pays, measured) = match threshold {
+        Threshold::Likelihood => (1.0, "was measured ahead of it up to 1"),
+        _ => (0.5, "pays below about 0.5"),
+    };
+    if level > pays {
+        format!(" At {} e⁻ per pixel per frame the analog mean (--analog) is likely as good: counting {measured}.", number(level))
     } else {
         String::new()
     }
@@ -447,30 +457,37 @@ fn count_zarr(a: &Args, profile: &CameraProfile, job: &Job) -> Result<()> {
         }
         Ok(ZarrStackWriter::create_or_open(path, &spec(path, what))?)
     };
-    let (rate_store, made_rate) = open(&a.out, "photo-electrons per pixel per frame")?;
-    // A store made just now goes again if what follows cannot start.
-    let undo = |e: anyhow::Error| {
-        if made_rate && shard == Shard::ALL {
+    // What this run made alone goes again if it cannot start or cannot finish because of the
+    // data; a store stopped while writing (a full disk) stays to be resumed, as a shard's does.
+    let discard = |made_rate: bool, made_se: bool| {
+        if shard != Shard::ALL {
+            return;
+        }
+        if made_rate {
             let _ = std::fs::remove_dir_all(&a.out);
         }
-        e
-    };
-    let se_store = match &a.uncertainty {
-        Some(u) => {
-            Some(open(u, "standard error, photo-electrons per pixel per frame").map_err(undo)?)
+        if let (true, Some(u)) = (made_se, &a.uncertainty) {
+            let _ = std::fs::remove_dir_all(u);
         }
+    };
+    let (rate_store, made_rate) = open(&a.out, "photo-electrons per pixel per frame")?;
+    let se_store = match &a.uncertainty {
+        Some(u) => match open(u, "standard error, photo-electrons per pixel per frame") {
+            Ok(s) => Some(s),
+            Err(e) => {
+                discard(made_rate, false);
+                return Err(e);
+            }
+        },
         None => None,
     };
+    let made_se = se_store.as_ref().is_some_and(|s| s.1);
     let range = shard.range(d.outputs);
     let mut rec = match a.recording.reopen(&job.input, profile) {
         Ok(r) => r,
         Err(e) => {
-            if let (Some((_, true)), Some(u), true) =
-                (&se_store, &a.uncertainty, shard == Shard::ALL)
-            {
-                let _ = std::fs::remove_dir_all(u);
-            }
-            return Err(undo(e));
+            discard(made_rate, made_se);
+            return Err(e);
         }
     };
     let pb = progress(
@@ -506,16 +523,10 @@ fn count_zarr(a: &Args, profile: &CameraProfile, job: &Job) -> Result<()> {
     let written = match r {
         Ok(n) => n,
         Err(e) => {
-            if shard == Shard::ALL && !wrote_failed {
-                let made_se = se_store.as_ref().is_some_and(|s| s.1);
+            if !wrote_failed {
                 drop(se_store);
                 drop(rate_store);
-                if made_rate {
-                    let _ = std::fs::remove_dir_all(&a.out);
-                }
-                if let (true, Some(u)) = (made_se, &a.uncertainty) {
-                    let _ = std::fs::remove_dir_all(u);
-                }
+                discard(made_rate, made_se);
             }
             return Err(e.into());
         }
@@ -545,7 +556,7 @@ fn count_zarr(a: &Args, profile: &CameraProfile, job: &Job) -> Result<()> {
         if done < d.outputs { " (the other shards write the rest)" } else { "" },
         d.threshold,
         d.prediction,
-        regime(job.level),
+        regime(job.level, a.threshold),
     );
     Ok(())
 }

@@ -89,25 +89,20 @@ pub fn count_stack(
     let g = cam.g;
     let mut counter = Counter::new(cam, req.threshold, level, per, frames, req.analog)?;
     let (fe, missed) = counter.plan().predicted();
-    let notes = match counter.plan().k_sigma {
-        _ if req.threshold == Threshold::Likelihood => {
-            vec!["threshold none (each pixel's values in 30 bins, the most likely rate)".into()]
+    let mut notes = vec![match (req.threshold, counter.plan().k_sigma) {
+        (Threshold::Likelihood, _) => {
+            "threshold none (each pixel's values in 30 bins, the most likely rate)".to_string()
         }
-        Some(k) => vec![
-            format!("threshold {k:.2} sigma"),
-            format!(
-                "predicted false events per pixel per frame {fe:.3e}, single photo-electron missed {:.1} %",
-                100.0 * missed
-            ),
-        ],
-        None => vec![
-            format!("threshold {:?}", req.threshold),
-            format!(
-                "predicted false events per pixel per frame {fe:.3e}, single photo-electron missed {:.1} %",
-                100.0 * missed
-            ),
-        ],
-    };
+        (_, Some(k)) => format!("threshold {k:.2} sigma"),
+        (t, None) => format!("threshold {t:?}"),
+    }];
+    // What one threshold predicts; the likelihood has none.
+    if req.threshold != Threshold::Likelihood {
+        notes.push(format!(
+            "predicted false events per pixel per frame {fe:.3e}, single photo-electron missed {:.1} %",
+            100.0 * missed
+        ));
+    }
     let (mut rate, mut error, mut outputs) = (Vec::new(), Vec::new(), 0);
     for fr in &pre {
         if let Some((r, s)) = counter.add(fr) {
