@@ -421,9 +421,10 @@ fn the_binary_works_copied_anywhere() {
             .unwrap();
         assert_eq!(t, (64, 48), "{name}");
     };
-    for model in ["hybrid", "default", "microscopy", "lowlight"] {
+    for model in ["hybrid", "default", "microscopy", "lowlight", "movie"] {
         denoise(model, &["--model", model]);
     }
+    denoise("temporal-net", &["--method", "temporal-net"]);
     denoise("net", &["--method", "net"]);
     denoise("blend", &["--method", "blend"]);
     denoise("temporal", &[]);

@@ -127,8 +127,9 @@ def _make_widget_class():
                 "units": self.units.value,
                 "extrapolate": bool(self.extrapolate.value),
             }
-            # The window is the temporal methods' (the default's too: it runs one on a time series).
-            if method is None or method.startswith("temporal"):
+            # The window is the classical temporal method's (the default's too: it runs it on a
+            # time series); the temporal network's is its own.
+            if method is None or method == "temporal":
                 req["window"] = int(self.window.value)
             return req
 

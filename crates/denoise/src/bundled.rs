@@ -32,13 +32,15 @@ macro_rules! bundled_model {
 /// The bundled models: `hybrid` (BM3D-refining), `default` (natural images, the default
 /// profile), `microscopy` (the default fine-tuned on fluorescence microscopy) and `lowlight`
 /// (the low-light run: 0.3–30 mean photoelectrons per pixel, many cameras' read noise and CIC,
-/// Charbonnier loss; the best of them, which `--method net` runs). Their cards are in
-/// `models/README.md`.
-pub const BUNDLED: [Bundled; 4] = [
+/// Charbonnier loss; the best of them, which `--method net` runs), and `movie` (`lowlight`
+/// widened to five frames and trained on synthesized movies: `--method temporal-net`). Their
+/// cards are in `models/README.md`.
+pub const BUNDLED: [Bundled; 5] = [
     bundled_model!("hybrid", "hybrid-unet.safetensors"),
     bundled_model!("default", "default-unet.safetensors"),
     bundled_model!("microscopy", "microscopy-unet.safetensors"),
     bundled_model!("lowlight", "lowlight-unet.safetensors"),
+    bundled_model!("movie", "movie-unet.safetensors"),
 ];
 
 /// The bundled model of this name, if it is one.
@@ -80,7 +82,7 @@ pub fn source(arg: &str) -> Result<ModelSource> {
                 " (EMCCD_MODELS names a directory without this bundled model's file; unset it \
                  to use the built-in one)"
             } else {
-                " (a bundled name — hybrid, default, microscopy, lowlight — or a model file)"
+                " (a bundled name — hybrid, default, microscopy, lowlight, movie — or a model file)"
             }
         )));
     }

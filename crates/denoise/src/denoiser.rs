@@ -4,7 +4,7 @@
 
 use emccd_classical::frame::preprocess;
 use emccd_nn::tile::Tiling;
-use emccd_nn::{Classical, Error, Inference, Inputs, Model, Result};
+use emccd_nn::{Classical, Error, Inference, Inputs, Model, Result, MOVIE_WINDOW};
 use emccd_profile::CameraProfile;
 
 use crate::method::{Method, Units, DEFAULT_METHOD, DEFAULT_MOVIE_METHOD};
@@ -47,6 +47,16 @@ impl Resolved {
     /// method that denoises each frame alone); an error when a window is asked of such a
     /// method. The default method takes one for the movies it denoises temporally.
     pub fn window(&self, asked: Option<usize>) -> Result<usize> {
+        if self.method == Method::TemporalNet {
+            return match asked {
+                None => Ok(MOVIE_WINDOW),
+                Some(w) if w == MOVIE_WINDOW => Ok(w),
+                Some(w) => Err(Error::Model(format!(
+                    "--window {w}: --method temporal-net's network sees {MOVIE_WINDOW} frames \
+                     each side, no other number (--method temporal takes any window)"
+                ))),
+            };
+        }
         match (self.method.temporal() || self.defaulted, asked) {
             (true, w) => Ok(w.unwrap_or(DEFAULT_WINDOW)),
             (false, None | Some(0)) => Ok(0),
@@ -124,7 +134,6 @@ pub fn resolve(
     model: Option<&str>,
     load: impl Fn(&str) -> Result<Model>,
 ) -> Result<Resolved> {
-    let hybrid = |m: &Model| m.meta.inputs == Inputs::Hybrid;
     let classical = |method| Resolved {
         method,
         model: None,
@@ -140,10 +149,10 @@ pub fn resolve(
         (Some(c), None) if !c.uses_model() => Ok(classical(c)),
         (None, Some(name)) => {
             let m = load(name)?;
-            let method = if hybrid(&m) {
-                Method::Hybrid
-            } else {
-                Method::Net
+            let method = match m.meta.inputs {
+                Inputs::Hybrid => Method::Hybrid,
+                Inputs::Movie => Method::TemporalNet,
+                Inputs::Noisy => Method::Net,
             };
             Ok(Resolved {
                 method,
@@ -155,17 +164,16 @@ pub fn resolve(
         (method, name) => {
             let defaulted = method.is_none() && name.is_none();
             let method = method.unwrap_or(DEFAULT_METHOD);
-            let name = name.unwrap_or(match method {
-                Method::Hybrid => "hybrid",
-                _ => "lowlight",
-            });
+            let name = name.unwrap_or(method.default_model());
             let m = load(name)?;
-            if hybrid(&m) != (method == Method::Hybrid) {
+            if m.meta.inputs != method.inputs() {
                 return Err(Error::Model(format!(
                     "--model {name}: a {} model, not one for --method {}",
                     m.meta.inputs.name(),
                     match method {
                         Method::Hybrid => "hybrid (train one with `emccd train --inputs hybrid`)",
+                        Method::TemporalNet =>
+                            "temporal-net (train one with `emccd train --inputs movie`)",
                         other => other.name(),
                     }
                 )));
@@ -260,7 +268,7 @@ impl Denoiser<'_> {
     }
 
     /// The network run through this profile, tiling and ensemble.
-    fn inference<'m>(&'m self, model: &'m Model) -> Inference<'m> {
+    pub(crate) fn inference<'m>(&'m self, model: &'m Model) -> Inference<'m> {
         Inference {
             model,
             profile: self.profile,
@@ -282,6 +290,11 @@ impl Denoiser<'_> {
     /// method outputs, and what a temporal one tracks motion on and falls back to.
     pub(crate) fn estimate(&self, pre: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
         match (self.model, self.method.classical()) {
+            (Some(m), _) if self.method == Method::TemporalNet => {
+                // A lone frame: the frame in every slot of the window.
+                let window = vec![pre; m.meta.inputs.frames()];
+                self.inference(m).denoise_window(&window, exposure_s)
+            }
             (Some(m), _) => {
                 let net = self.inference(m).denoise_preprocessed(pre, exposure_s)?;
                 if self.method == Method::Blend {

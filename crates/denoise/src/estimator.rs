@@ -11,8 +11,10 @@ use crate::method::{Method, ModelSpec, Units};
 /// A method under comparison, by the name `emccd evaluate --method` takes: `input` (the
 /// preprocessed frame, no denoising), `bm3d`, `ivst`, `ivst:λ/b,…` (iterative BM3D with these
 /// passes, for comparing schedules), `blend` (`blend@K` with the network's K-orientation
-/// self-ensemble, `blend:MODEL[@K]` with another network), or a model (a bundled name or a file, `@K` for a
-/// K-orientation self-ensemble; a hybrid model runs as [`Method::Hybrid`]). Models are loaded
+/// self-ensemble, `blend:MODEL[@K]` with another network), `temporal[:K]` (K frames each side),
+/// `temporal-net` (the bundled temporal network), or a model (a bundled name or a file, `@K`
+/// for a K-orientation self-ensemble; a hybrid model runs as [`Method::Hybrid`], a temporal one
+/// as [`Method::TemporalNet`]). Models are loaded
 /// once, when the name is parsed; every run goes through the same code as `emccd denoise`.
 pub struct Estimator {
     name: String,
@@ -93,9 +95,10 @@ impl Estimator {
                 None => ("lowlight", ModelSpec::parse(name)?.ensemble),
             };
             let model = load(model_name)?;
-            if model.meta.inputs == Inputs::Hybrid {
+            if model.meta.inputs != Inputs::Noisy {
                 return Err(Error::Model(format!(
-                    "--method {name}: {model_name} is a refinement network; blend averages ivst with a denoiser"
+                    "--method {name}: {model_name} is a {} network; blend averages ivst with a single-frame denoiser",
+                    model.meta.inputs.name()
                 )));
             }
             Kind::Denoise {
@@ -105,17 +108,23 @@ impl Estimator {
                 window: 0,
             }
         } else {
+            // A model (bundled or a file) runs the method it was trained for; `temporal-net`
+            // is the bundled temporal network.
             let spec = ModelSpec::parse(name)?;
-            let model = load(spec.model)?;
+            let model = load(match spec.model {
+                "temporal-net" => Method::TemporalNet.default_model(),
+                m => m,
+            })?;
+            let (method, window) = match model.meta.inputs {
+                Inputs::Hybrid => (Method::Hybrid, 0),
+                Inputs::Movie => (Method::TemporalNet, emccd_nn::MOVIE_WINDOW),
+                Inputs::Noisy => (Method::Net, 0),
+            };
             Kind::Denoise {
-                method: if model.meta.inputs == Inputs::Hybrid {
-                    Method::Hybrid
-                } else {
-                    Method::Net
-                },
+                method,
                 model: Some(model),
                 ensemble: spec.ensemble,
-                window: 0,
+                window,
             }
         };
         Ok(Estimator {

@@ -1,7 +1,7 @@
 //! What a user picks: the denoising methods, the output's units, and a model argument with its
 //! self-ensemble size (`MODEL@K`).
 
-use emccd_nn::{Classical, Error, Result};
+use emccd_nn::{Classical, Error, Inputs, Result};
 use emccd_profile::CameraProfile;
 
 /// A denoising method.
@@ -38,6 +38,15 @@ pub enum Method {
     /// match (motion it cannot follow, a blink, a scene cut) each pixel falls back to `ivst` of
     /// the frame alone, as does a single frame. Two to three times `ivst`'s time.
     Temporal,
+    /// A movie's frame by a temporal network (bundled model `movie`): the frame and the two
+    /// before and after it in, the frame out. Trained on movies synthesized with the exact
+    /// noise chain and every kind of motion the movie suite has (drift, rotation, deformation,
+    /// jitter, diffusing and blinking spots, bleaching, cuts), so it learns where the
+    /// neighbours match the frame and where they do not. A movie's ends show the frames
+    /// mirrored about the frame; a lone frame is shown in every slot. The fastest temporal
+    /// method.
+    #[cfg_attr(feature = "clap", value(name = "temporal-net"))]
+    TemporalNet,
     /// No denoising: blooming and the fixed pattern removed and the units converted, as every
     /// method does first (the preprocessed photo-signal, for one's own analysis).
     None,
@@ -57,13 +66,14 @@ pub const DEFAULT_MOVIE_METHOD: Method = Method::Temporal;
 
 impl Method {
     /// Every method.
-    pub const ALL: [Method; 7] = [
+    pub const ALL: [Method; 8] = [
         Method::Hybrid,
         Method::Blend,
         Method::Net,
         Method::Bm3d,
         Method::Ivst,
         Method::Temporal,
+        Method::TemporalNet,
         Method::None,
     ];
 
@@ -73,7 +83,9 @@ impl Method {
         match self {
             Method::Bm3d => Some(Classical::Bm3d),
             Method::Ivst | Method::Temporal => Some(Classical::Ivst),
-            Method::Hybrid | Method::Blend | Method::Net | Method::None => None,
+            Method::Hybrid | Method::Blend | Method::Net | Method::TemporalNet | Method::None => {
+                None
+            }
         }
     }
 
@@ -86,18 +98,40 @@ impl Method {
             Method::Bm3d => "bm3d",
             Method::Ivst => "ivst",
             Method::Temporal => "temporal",
+            Method::TemporalNet => "temporal-net",
             Method::None => "none",
         }
     }
 
     /// Whether the method estimates a frame from its neighbours too (and so takes a window).
     pub fn temporal(self) -> bool {
-        self == Method::Temporal
+        matches!(self, Method::Temporal | Method::TemporalNet)
     }
 
     /// Whether the method runs a network (and so takes a model).
     pub fn uses_model(self) -> bool {
-        matches!(self, Method::Hybrid | Method::Blend | Method::Net)
+        matches!(
+            self,
+            Method::Hybrid | Method::Blend | Method::Net | Method::TemporalNet
+        )
+    }
+
+    /// What the method's network is given (for the methods that run one).
+    pub fn inputs(self) -> Inputs {
+        match self {
+            Method::Hybrid => Inputs::Hybrid,
+            Method::TemporalNet => Inputs::Movie,
+            _ => Inputs::Noisy,
+        }
+    }
+
+    /// The bundled model the method runs when none is named.
+    pub fn default_model(self) -> &'static str {
+        match self {
+            Method::Hybrid => "hybrid",
+            Method::TemporalNet => "movie",
+            _ => "lowlight",
+        }
     }
 }
 

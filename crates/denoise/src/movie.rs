@@ -1,21 +1,23 @@
-//! A recording's frames denoised with their neighbours ([`Method::Temporal`]) in bounded
-//! memory: each frame is preprocessed and given its single-frame estimate once, as it is read,
-//! and at most `2K + 1` of them (the window of `K` frames each side) are held at a time. A
-//! frame's window stays within its recording and is clipped at the recording's ends.
-//!
-//! [`Method::Temporal`]: crate::Method::Temporal
+//! A recording's frames denoised with their neighbours ([`Method::Temporal`],
+//! [`Method::TemporalNet`]) in bounded memory: each frame is preprocessed (and, for the
+//! classical method, given its single-frame estimate) once, as it is read, and at most `2K + 1`
+//! of them (the window of `K` frames each side) are held at a time. A frame's window stays
+//! within its recording: the classical method's is clipped at the recording's ends, the
+//! network's (a fixed number of frames) shows the frames mirrored about the frame there.
 
 use std::collections::VecDeque;
 use std::ops::Range;
 
 use emccd_classical::frame::vst_params;
+use emccd_nn::norm::mirror;
 use emccd_nn::{Error, Result};
 use emccd_profile::CameraProfile;
 
 use crate::denoiser::Denoiser;
+use crate::Method;
 
-/// One frame held for the windows it belongs to: its number, the preprocessed frame and its
-/// single-frame estimate (both DN above bias).
+/// One frame held for the windows it belongs to: its number, the preprocessed frame and, for
+/// the classical method, its single-frame estimate (both DN above bias).
 struct Held {
     index: usize,
     frame: Vec<f32>,
@@ -62,12 +64,31 @@ pub fn denoise_frames(
             while held.front().is_some_and(|h| h.index + k < due) {
                 held.pop_front();
             }
-            let center = due - held.front().expect("the frame itself is held").index;
+            let first = held.front().expect("the frame itself is held").index;
             let frames: Vec<&[f32]> = held.iter().map(|h| h.frame.as_slice()).collect();
-            let singles: Vec<&[f32]> = held.iter().map(|h| h.single.as_slice()).collect();
-            let mut out = emccd_classical::temporal::estimate(
-                &frames, &singles, center, p.width, p.height, noise,
-            );
+            let mut out = match fd.model.filter(|_| fd.method == Method::TemporalNet) {
+                // The network's fixed window, a movie's ends mirrored about the frame.
+                Some(model) => {
+                    let kk = k as isize;
+                    let window: Vec<&[f32]> = (-kk..=kk)
+                        .map(|d| frames[mirror(due, d, count) - first])
+                        .collect();
+                    fd.inference(model)
+                        .denoise_window(&window, exposure_s)
+                        .map_err(|e| e.at(at(due)))?
+                }
+                None => {
+                    let singles: Vec<&[f32]> = held.iter().map(|h| h.single.as_slice()).collect();
+                    emccd_classical::temporal::estimate(
+                        &frames,
+                        &singles,
+                        due - first,
+                        p.width,
+                        p.height,
+                        noise,
+                    )
+                }
+            };
             if to_units != 1.0 {
                 out.iter_mut().for_each(|v| *v *= to_units);
             }
@@ -130,7 +151,12 @@ pub fn denoise_slice(
 fn prepare(fd: &Denoiser, index: usize, raw: &[f32], exposure_s: f64) -> Result<Held> {
     fd.check_finite(raw)?;
     let frame = fd.preprocess(raw, exposure_s)?;
-    let single = fd.estimate(&frame, exposure_s)?;
+    // The classical method tracks motion on each frame's own estimate; the network needs none.
+    let single = if fd.method == Method::TemporalNet {
+        Vec::new()
+    } else {
+        fd.estimate(&frame, exposure_s)?
+    };
     Ok(Held {
         index,
         frame,

@@ -8,18 +8,18 @@ mod common;
 use emccd_nn::Model;
 
 /// Every bundled model is in `models/`, loads by name, and is the kind its method runs: the
-/// `hybrid` model a refinement network, the others denoisers.
+/// `hybrid` model a refinement network, `movie` a temporal network, the others denoisers.
 #[test]
 fn every_bundled_model_loads_by_name() {
     for b in emccd_denoise::bundled::BUNDLED {
         let m = emccd_denoise::bundled::load(b.name, &emccd_nn::cpu())
             .unwrap_or_else(|e| panic!("{}: {e}", b.name));
-        assert_eq!(
-            m.meta.inputs == emccd_nn::Inputs::Hybrid,
-            b.name == "hybrid",
-            "{}",
-            b.name
-        );
+        let want = match b.name {
+            "hybrid" => emccd_nn::Inputs::Hybrid,
+            "movie" => emccd_nn::Inputs::Movie,
+            _ => emccd_nn::Inputs::Noisy,
+        };
+        assert_eq!(m.meta.inputs, want, "{}", b.name);
         assert!(m.meta.steps > 0, "{}: an untrained model", b.name);
     }
 }

@@ -295,6 +295,7 @@ fn every_method_keeps_a_uniform_regions_mean() {
     let cam = VirtualCamera::new(p.clone(), PhysicalParams::default()).unwrap();
     let e = cam.exposure(EXPOSURE);
     let net = emccd_denoise::bundled::load("lowlight", &emccd_nn::cpu()).unwrap();
+    let movie = emccd_denoise::bundled::load("movie", &emccd_nn::cpu()).unwrap();
     let mean = |v: &[f32]| v.iter().map(|&x| x as f64).sum::<f64>() / v.len() as f64;
     let mut failed = Vec::new();
     for (level, seed) in [(0.5f32, 7u64), (2.0, 8), (8.0, 9)] {
@@ -310,7 +311,13 @@ fn every_method_keeps_a_uniform_regions_mean() {
         let fd = |method, window| Denoiser {
             profile: &p,
             method,
-            model: method.uses_model().then_some(&net),
+            model: method
+                .uses_model()
+                .then_some(if method == Method::TemporalNet {
+                    &movie
+                } else {
+                    &net
+                }),
             tiling: Default::default(),
             ensemble: 1,
             units: Units::Dn,

@@ -6,9 +6,9 @@
 use emccd_profile::CameraProfile;
 
 use crate::model::{Inputs, Model};
-use crate::norm::{prepare, prepare_hybrid, signal_scale};
+use crate::norm::{prepare, prepare_hybrid, prepare_movie, signal_scale, Prepared};
 use crate::tile::{run_ensemble, Planes, Tiling};
-use crate::Result;
+use crate::{Error, Result};
 use emccd_classical::frame::{preprocess_ablated, usable};
 
 /// A model ready for inference with the profile it is applied through.
@@ -48,14 +48,14 @@ impl Inference<'_> {
         )?)
     }
 
-    /// Denoises a preprocessed frame (DN above bias) of the profile's size.
+    /// Denoises a preprocessed frame (DN above bias) of the profile's size with a single-frame
+    /// network (a temporal one takes [`Inference::denoise_window`]).
     pub fn denoise_preprocessed(&self, dn: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
         let p = self.profile;
         usable(p, dn.len(), exposure_s)?;
         let slope = p.slope()?;
         let rn = p.read_noise_near(exposure_s);
-        let inputs = self.model.meta.inputs;
-        let prep = match inputs {
+        let prep = match self.model.meta.inputs {
             Inputs::Noisy => prepare(dn, p.width, slope, rn, self.model.meta.scale),
             Inputs::Hybrid => {
                 let est = self.model.meta.base.of_frame(p, dn, exposure_s)?;
@@ -63,7 +63,47 @@ impl Inference<'_> {
                     signal_scale(&est.iter().map(|v| v / slope as f32).collect::<Vec<f32>>());
                 prepare_hybrid(dn, &est, slope, rn, scale)
             }
+            Inputs::Movie => {
+                return Err(Error::Model(
+                    "a temporal network denoises a frame with the frames around it, not alone"
+                        .into(),
+                ))
+            }
         };
+        Ok(self.run(prep))
+    }
+
+    /// Denoises the centre frame of `window`, preprocessed frames (DN above bias) of the
+    /// profile's size in time order, with a temporal network ([`Inputs::Movie`]: the frame and
+    /// [`crate::MOVIE_WINDOW`] each side; a movie's ends filled by [`crate::norm::mirror`]).
+    pub fn denoise_window(&self, window: &[&[f32]], exposure_s: f64) -> Result<Vec<f32>> {
+        let p = self.profile;
+        let inputs = self.model.meta.inputs;
+        if inputs != Inputs::Movie || window.len() != inputs.frames() {
+            return Err(Error::Model(format!(
+                "a window of {} frames for a network that takes {}",
+                window.len(),
+                inputs.frames()
+            )));
+        }
+        for f in window {
+            usable(p, f.len(), exposure_s)?;
+        }
+        let prep = prepare_movie(
+            window,
+            window.len() / 2,
+            p.width,
+            p.slope()?,
+            p.read_noise_near(exposure_s),
+            self.model.meta.scale,
+        );
+        Ok(self.run(prep))
+    }
+
+    /// The network over a prepared frame, tiled and self-ensembled, back in DN.
+    fn run(&self, prep: Prepared) -> Vec<f32> {
+        let p = self.profile;
+        let inputs = self.model.meta.inputs;
         let multiple = self.model.meta.multiple();
         let planes = Planes {
             data: &prep.input,
@@ -79,7 +119,7 @@ impl Inference<'_> {
             self.ensemble,
             self.model.device(),
         );
-        Ok(out.into_iter().map(|v| v * prep.to_dn).collect())
+        out.into_iter().map(|v| v * prep.to_dn).collect()
     }
 
     /// Preprocesses and denoises a raw frame.

@@ -38,7 +38,7 @@ pub mod unet;
 
 pub use error::{Error, Result};
 pub use inference::Inference;
-pub use model::{Arch, Classical, Inputs, Model, ModelMeta, ModelSource, Net};
+pub use model::{Arch, Classical, Inputs, Model, ModelMeta, ModelSource, Net, MOVIE_WINDOW};
 pub use norm::Scale;
 pub use recipe::{Adaptation, Loss, TrainConfig};
 pub use uformer::{Uformer, UformerConfig};

@@ -76,10 +76,11 @@ impl Arch {
                 unet.unshuffle
             )));
         }
-        if inputs == Inputs::Hybrid && name != "unet" {
-            return Err(Error::Model(
-                "hybrid inputs: the refinement network is a U-Net in this build (arch unet)".into(),
-            ));
+        if inputs != Inputs::Noisy && name != "unet" {
+            return Err(Error::Model(format!(
+                "{} inputs: that network is a U-Net in this build (arch unet)",
+                inputs.name()
+            )));
         }
         Ok(match uformer {
             Some(c) => Arch::Uformer(c),
@@ -194,7 +195,18 @@ pub enum Inputs {
         value(help = "a refinement network: also the BM3D estimate, which it corrects")
     )]
     Hybrid,
+    /// A temporal denoiser: the frame with [`MOVIE_WINDOW`] frames of its movie on each side,
+    /// then the frame's noise level, all scaled by the frame's own rule
+    /// ([`crate::norm::prepare_movie`]); the output is a correction to the frame.
+    #[cfg_attr(
+        feature = "clap",
+        value(help = "a temporal denoiser: the frame, 2 frames each side and its noise level")
+    )]
+    Movie,
 }
+
+/// Frames each side of the one it denoises that a temporal network ([`Inputs::Movie`]) sees.
+pub const MOVIE_WINDOW: usize = 2;
 
 impl Inputs {
     /// Input channels the network takes.
@@ -202,6 +214,15 @@ impl Inputs {
         match self {
             Inputs::Noisy => 2,
             Inputs::Hybrid => 3,
+            Inputs::Movie => 2 * MOVIE_WINDOW + 2,
+        }
+    }
+
+    /// Frames of a movie the network sees at once (1 for a single-frame network).
+    pub fn frames(self) -> usize {
+        match self {
+            Inputs::Movie => 2 * MOVIE_WINDOW + 1,
+            Inputs::Noisy | Inputs::Hybrid => 1,
         }
     }
 
@@ -211,6 +232,7 @@ impl Inputs {
         match self {
             Inputs::Noisy => 0,
             Inputs::Hybrid => 2,
+            Inputs::Movie => MOVIE_WINDOW,
         }
     }
 
@@ -219,6 +241,7 @@ impl Inputs {
         match self {
             Inputs::Noisy => "noisy",
             Inputs::Hybrid => "hybrid",
+            Inputs::Movie => "movie",
         }
     }
 }
@@ -547,7 +570,8 @@ mod tests {
             ("resnet", Inputs::Noisy, false, 1, "this build has"),
             ("uformer-s", Inputs::Noisy, true, 1, "direct output"),
             ("unet", Inputs::Hybrid, true, 1, "direct output"),
-            ("uformer-b", Inputs::Hybrid, false, 1, "refinement network"),
+            ("uformer-b", Inputs::Hybrid, false, 1, "hybrid inputs"),
+            ("uformer-t", Inputs::Movie, false, 1, "movie inputs"),
             ("uformer-t", Inputs::Noisy, false, 2, "unshuffle 2"),
             ("unet", Inputs::Noisy, false, 3, "unshuffle 3"),
         ] {

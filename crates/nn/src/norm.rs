@@ -133,6 +133,69 @@ pub fn prepare_scaled(dn: &[f32], slope: f64, read_noise: &[f32], scale: f32) ->
     }
 }
 
+/// The frame that stands in for frame `t + d` of a movie of `count` frames when it is missing
+/// (beyond an end): the frame the same distance on the other side, `t − d`, else the nearest
+/// frame to `t + d` other than `t` (a stack shorter than the window), else `t` itself (one
+/// frame). What a temporal network is shown at a movie's ends, in training and at inference.
+pub fn mirror(t: usize, d: isize, count: usize) -> usize {
+    let inside = |j: isize| (0..count as isize).contains(&j);
+    let (t, n) = (t as isize, count as isize);
+    if inside(t + d) {
+        (t + d) as usize
+    } else if inside(t - d) {
+        (t - d) as usize
+    } else if n > 1 {
+        let j = (t + d).clamp(0, n - 1);
+        (if j == t { t - d.signum() } else { j }).clamp(0, n - 1) as usize
+    } else {
+        0
+    }
+}
+
+/// Temporal-network inputs [F + 1, H, W] ([`crate::Inputs::Movie`]): the preprocessed frames
+/// of a window `frames` (DN above bias, in time order), each divided by the slope and by one
+/// scale, then the noise level of frame `center` in the same units. One scale for the whole
+/// window, the centre frame's by `rule`, keeps the frames' relative brightness (bleaching, a
+/// blink) and scales the centre exactly as a single-frame network's input would be.
+pub fn prepare_movie(
+    frames: &[&[f32]],
+    center: usize,
+    width: usize,
+    slope: f64,
+    read_noise: &[f32],
+    rule: Scale,
+) -> Prepared {
+    let s = slope as f32;
+    let x: Vec<f32> = frames[center].iter().map(|v| v / s).collect();
+    prepare_movie_scaled(frames, center, slope, read_noise, rule.of(&x, width))
+}
+
+/// [`prepare_movie`] with the scale given (training crops take their whole frame's).
+pub fn prepare_movie_scaled(
+    frames: &[&[f32]],
+    center: usize,
+    slope: f64,
+    read_noise: &[f32],
+    scale: f32,
+) -> Prepared {
+    let n = frames[center].len();
+    let p = prepare_scaled(frames[center], slope, read_noise, scale);
+    let k = scale * slope as f32;
+    let mut input = Vec::with_capacity((frames.len() + 1) * n);
+    for (j, f) in frames.iter().enumerate() {
+        if j == center {
+            input.extend_from_slice(&p.input[..n]);
+        } else {
+            input.extend(f.iter().map(|v| v / k));
+        }
+    }
+    input.extend_from_slice(&p.input[n..]);
+    Prepared {
+        input,
+        to_dn: p.to_dn,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -225,6 +288,39 @@ mod tests {
         let tiny = frame(6, 40.0, 0.0, 7);
         assert_eq!(Scale::Binned.of(&tiny, 3), frame_scale(&tiny));
         assert_eq!(Scale::Percentile.of(&spiky, w), ps);
+    }
+
+    #[test]
+    fn the_ends_mirror_about_the_frame() {
+        assert_eq!(mirror(0, -1, 10), 1);
+        assert_eq!(mirror(0, -2, 10), 2);
+        assert_eq!(mirror(1, -2, 10), 3);
+        assert_eq!(mirror(1, -1, 10), 0);
+        assert_eq!(mirror(9, 2, 10), 7);
+        // Shorter than the window: the nearest other frame; one frame: itself.
+        assert_eq!(mirror(0, 2, 2), 1);
+        assert_eq!(mirror(0, -2, 2), 1);
+        assert_eq!(mirror(1, 2, 2), 0);
+        assert_eq!(mirror(0, 1, 1), 0);
+    }
+
+    #[test]
+    fn a_movie_input_scales_every_frame_by_the_centre_frames_scale() {
+        let bright = frame(4096, 40.0, 0.0, 4097);
+        let dim: Vec<f32> = bright.iter().map(|v| v * 0.5).collect();
+        let rn = vec![2.0f32; 4096];
+        let frames: Vec<&[f32]> = vec![&dim, &bright, &dim];
+        let m = prepare_movie(&frames, 1, 64, 2.0, &rn, Scale::Percentile);
+        let single = prepare(&bright, 64, 2.0, &rn, Scale::Percentile);
+        assert_eq!(m.input.len(), 4 * 4096);
+        assert_eq!(m.to_dn, single.to_dn);
+        // The centre and the noise level are the single-frame input's; a neighbour at half the
+        // light is half the centre (one scale for the window).
+        assert_eq!(&m.input[4096..2 * 4096], &single.input[..4096]);
+        assert_eq!(&m.input[3 * 4096..], &single.input[4096..]);
+        for i in 0..4096 {
+            assert!((m.input[i] - 0.5 * m.input[4096 + i]).abs() < 1e-6);
+        }
     }
 
     #[test]

@@ -233,6 +233,43 @@ impl UNet {
     }
 }
 
+impl UNet {
+    /// A single-frame denoiser (2 inputs: frame, noise level; residual on the frame) widened to
+    /// a temporal one ([`crate::Inputs::Movie`]: `frames` frames, then the centre's noise
+    /// level; residual on the centre, channel `frames / 2`) that starts as exactly the
+    /// single-frame network: the first layer's weights for the centre and the noise level are
+    /// the old frame's and noise level's, those for the neighbours start at zero and learn
+    /// what the neighbours add. `None` if this network is not such a denoiser.
+    pub fn widened_for_movie(mut self, frames: usize) -> Option<UNet> {
+        if self.unshuffle != 1 || self.residual != Some(0) {
+            return None;
+        }
+        let first = &mut self.enc.first_mut()?.c1;
+        let w = first.weight.val();
+        let [o, i, kh, kw] = w.dims();
+        if i != 2 {
+            return None;
+        }
+        let center = frames / 2;
+        let device = w.device();
+        let zeros = |n: usize| Tensor::<4>::zeros([o, n, kh, kw], &device);
+        let mut parts = Vec::new();
+        if center > 0 {
+            parts.push(zeros(center));
+        }
+        parts.push(w.clone().narrow(1, 0, 1));
+        if frames - center - 1 > 0 {
+            parts.push(zeros(frames - center - 1));
+        }
+        parts.push(w.narrow(1, 1, 1));
+        let wide = Tensor::cat(parts, 1);
+        // Detached: on an autodiff device the concatenation is not a leaf, and a parameter must be.
+        first.weight = burn::module::Param::from_tensor(wide.detach());
+        self.residual = Some(center);
+        Some(self)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -264,6 +301,53 @@ mod tests {
         let back: Vec<f32> = unfold(f, 2).into_data().try_into_vec::<f32>().unwrap();
         let orig: Vec<f32> = x.into_data().try_into_vec::<f32>().unwrap();
         assert_eq!(back, orig);
+    }
+
+    #[test]
+    fn a_widened_unet_starts_as_the_single_frame_network() {
+        let d = crate::cpu();
+        let cfg = UNetConfig {
+            levels: 2,
+            channels: 4,
+            ..UNetConfig::DEFAULT
+        };
+        let net = cfg.init(&d);
+        let n = 16 * 16;
+        let frame: Vec<f32> = (0..n).map(|i| ((i * 37) % 11) as f32 / 10.0).collect();
+        let level: Vec<f32> = frame.iter().map(|v| v.sqrt() + 0.1).collect();
+        let single = net
+            .forward(Tensor::<4>::from_data(
+                TensorData::new([frame.clone(), level.clone()].concat(), [1, 2, 16, 16]),
+                &d,
+            ))
+            .into_data()
+            .try_into_vec::<f32>()
+            .unwrap();
+        let wide = net
+            .widened_for_movie(5)
+            .expect("a residual denoiser widens");
+        // Neighbours unlike the frame change nothing at the start.
+        let other: Vec<f32> = frame.iter().map(|v| 3.0 - v).collect();
+        let input = [&other, &other, &frame, &other, &other, &level]
+            .map(|v| v.as_slice())
+            .concat();
+        let y = wide
+            .forward(Tensor::<4>::from_data(
+                TensorData::new(input, [1, 6, 16, 16]),
+                &d,
+            ))
+            .into_data()
+            .try_into_vec::<f32>()
+            .unwrap();
+        for (a, b) in y.iter().zip(&single) {
+            assert!((a - b).abs() < 1e-5, "{a} vs {b}");
+        }
+        let direct = UNetConfig {
+            direct: true,
+            ..cfg
+        }
+        .init(&d);
+        assert!(direct.widened_for_movie(5).is_none());
     }
 
     #[test]

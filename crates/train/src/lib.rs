@@ -37,6 +37,7 @@
 
 pub mod adapt;
 mod crops;
+pub mod motion;
 pub mod recorded;
 pub mod train;
 

@@ -22,10 +22,12 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::crops::{draw_orientation, orient, sub_image};
+use crate::motion::Motion;
 use crate::recorded::RecordedPairs;
-use emccd_nn::norm::{prepare_hybrid, prepare_scaled, signal_scale};
+use emccd_nn::norm::{prepare_hybrid, prepare_movie_scaled, prepare_scaled, signal_scale};
 use emccd_nn::{
     Classical, Error, Inputs, Loss, Model, ModelMeta, ModelSource, Net, Result, Scale, TrainConfig,
+    MOVIE_WINDOW,
 };
 
 /// A clean training image, values in [0, 1].
@@ -113,6 +115,7 @@ struct Batch {
 /// 99.5th percentile, which the estimate's stands in for at inference.
 fn synth_sample(
     img: &Image,
+    other: &Image,
     profile: &CameraProfile,
     cfg: &TrainConfig,
     inputs: Inputs,
@@ -127,20 +130,32 @@ fn synth_sample(
     let mode = draw_orientation(&mut rng, cfg.augment);
     let slope = profile.slope()?;
     let k_mean = profile.dn_per_electron()?;
+    // A movie's motion has its own random sequence, so single-frame runs keep theirs.
+    let motion = (inputs == Inputs::Movie).then(|| {
+        Motion::draw(
+            &mut Pcg64::seed_from_u64(seed ^ 0x4D4F_5649_45),
+            MOVIE_WINDOW,
+            c,
+        )
+    });
+    let dim = motion.as_ref().map_or(1.0, |m| m.background() as f64);
     // Electrons per unit of the clean image (whose values lie in [0, 1]).
     let per_unit = match cfg.mean_electrons {
         Some(range) => {
             let mean =
                 img.data.iter().map(|&v| v as f64).sum::<f64>() / img.data.len().max(1) as f64;
-            log_uniform(rng.random(), range) / mean.max(1e-3)
+            log_uniform(rng.random(), range) / (dim * mean).max(1e-3)
         }
         None => log_uniform(rng.random(), cfg.electrons),
     };
-    let clean: Vec<f32> = img
-        .data
-        .iter()
-        .map(|&v| (v as f64 * per_unit * k_mean) as f32)
-        .collect();
+    let to_dn = |v: f32| (v as f64 * per_unit * k_mean) as f32;
+    let mut clean: Vec<f32> = img.data.iter().map(|&v| to_dn(v * dim as f32)).collect();
+    if let Some(m) = &motion {
+        // The centre frame's spots, on the whole frame it is synthesized as.
+        for (i, s) in m.spots(0, c).into_iter().enumerate() {
+            clean[(y0 + i / c) * w + x0 + i % c] += to_dn(s);
+        }
+    }
     // A random read-noise map of the profile at a random offset, repeated to the image's size.
     let m = &profile.maps.read_noise[rng.random_range(0..profile.maps.read_noise.len())];
     let (pw, ph) = (profile.width, profile.height);
@@ -157,9 +172,12 @@ fn synth_sample(
         .collect();
     let mut noisy = vec![0f32; w * h];
     let noise_seed = rng.random::<u64>();
+    // The neighbours' camera is this one over the crop (its clock-induced charge is drawn the
+    // same way from the same state).
+    let crop_rng = rng.clone();
     pair_camera(cfg, profile, abl, &rn, &mut rng)?.synthesize(&clean, w, &mut noisy, noise_seed);
     let scale = match inputs {
-        Inputs::Noisy => cfg.scale.of(
+        Inputs::Noisy | Inputs::Movie => cfg.scale.of(
             &noisy.iter().map(|v| v / slope as f32).collect::<Vec<f32>>(),
             w,
         ),
@@ -171,9 +189,42 @@ fn synth_sample(
     // transpose, then optional flips.
     let cut = |src: &[f32]| orient(&sub_image(src, w, x0, y0, c, c), c, mode);
     let (noisy_c, rn_c) = (cut(&noisy), cut(&rn));
-    let p = match inputs {
-        Inputs::Noisy => prepare_scaled(&noisy_c, slope, &rn_c, scale),
-        Inputs::Hybrid => {
+    let p = match (inputs, &motion) {
+        (Inputs::Movie, Some(m)) => {
+            // The neighbours, synthesized over the crop alone, unoriented; frames beyond a
+            // movie's end are their mirror's noisy frame.
+            let raw_rn = sub_image(&rn, w, x0, y0, c, c);
+            let cam = pair_camera(cfg, profile, abl, &raw_rn, &mut crop_rng.clone())?;
+            let k = MOVIE_WINDOW as isize;
+            let mut made: Vec<(isize, Vec<f32>)> = vec![(0, noisy_c.clone())];
+            for d in (-k..=k).filter(|&d| d != 0 && m.shown(d) == d) {
+                let frame: Vec<f32> = m
+                    .frame(img, other, [x0, y0], c, d)
+                    .into_iter()
+                    .map(to_dn)
+                    .collect();
+                let mut n = vec![0f32; c * c];
+                cam.synthesize(
+                    &frame,
+                    c,
+                    &mut n,
+                    noise_seed ^ (d as u64).wrapping_mul(0x9E37),
+                );
+                made.push((d, orient(&n, c, mode)));
+            }
+            let frames: Vec<&[f32]> = (-k..=k)
+                .map(|d| {
+                    let shown = m.shown(d);
+                    made.iter()
+                        .find(|(e, _)| *e == shown)
+                        .map(|(_, f)| f.as_slice())
+                })
+                .collect::<Option<_>>()
+                .ok_or_else(|| Error::Data("a mirrored frame beyond both ends".into()))?;
+            prepare_movie_scaled(&frames, MOVIE_WINDOW, slope, &rn_c, scale)
+        }
+        (Inputs::Noisy | Inputs::Movie, _) => prepare_scaled(&noisy_c, slope, &rn_c, scale),
+        (Inputs::Hybrid, _) => {
             // The base estimate is made on a window reaching CONTEXT px beyond the crop (where
             // the image allows) and then cut: run on the crop alone, BM3D would see few similar
             // blocks near its edges and leave errors there that a whole frame never shows, and
@@ -254,9 +305,11 @@ fn sample(
     abl: Ablation,
     s: u64,
 ) -> Result<(Vec<f32>, Vec<f32>)> {
-    let img =
-        &images[(Pcg64::seed_from_u64(s ^ 0xA5A5).random::<u64>() % images.len() as u64) as usize];
-    synth_sample(img, profile, cfg, inputs, abl, s)
+    let pick = |salt: u64| {
+        &images[(Pcg64::seed_from_u64(s ^ salt).random::<u64>() % images.len() as u64) as usize]
+    };
+    // `other`: the unrelated scene a training movie may cut to.
+    synth_sample(pick(0xA5A5), pick(0x0C07), profile, cfg, inputs, abl, s)
 }
 
 /// The sample seed of pair number `k` of a pooled run with seed `seed`.
@@ -683,6 +736,30 @@ fn start_model(
                     Net::UNet(u) => Net::UNet(u.with_zero_output()),
                     other => other,
                 };
+            }
+            // A single-frame denoiser starting a temporal network is widened to the window,
+            // as exactly the network it was: it learns what the neighbours add.
+            if meta.inputs == Inputs::Movie && m.meta.inputs == Inputs::Noisy {
+                let widened = match (m.net, m.meta.arch) {
+                    (Net::UNet(u), emccd_nn::Arch::UNet(c)) => {
+                        u.widened_for_movie(Inputs::Movie.frames()).map(|u| (u, c))
+                    }
+                    _ => None,
+                };
+                let (u, c) = widened.ok_or_else(|| {
+                    Error::Model(
+                        "a temporal network starts from a U-Net denoiser with a residual output \
+                         on the frame (like the bundled lowlight), or from scratch"
+                            .into(),
+                    )
+                })?;
+                m.net = Net::UNet(u);
+                m.meta.arch = emccd_nn::Arch::UNet(emccd_nn::UNetConfig {
+                    in_channels: Inputs::Movie.channels(),
+                    residual: Inputs::Movie.residual(),
+                    ..c
+                });
+                m.meta.inputs = Inputs::Movie;
             }
             // The architecture is the initial model's; the rest describes this run.
             m.meta = ModelMeta {
