@@ -23,7 +23,10 @@ motion in turn; particles and jitter make their own.
 
 Usage: python3 tools/movie_suite.py [OUT] [--cameras lowlight-a,lowlight-b] [--levels 0.5,1,4,16]
            [--motions static,drift,...] [--frames 16] [--size 256] [--methods bm3d,blend,temporal]
-           [--no-bm4d]
+           [--no-bm4d] [--fast]
+--fast: the simulator's fast gain mode without its partial CIC, for the calibration acquisition
+and the movies alike (tools/unseen_camera.py --fast): several times quicker, for validation
+runs; the reported tables are made without it.
 Needs: python3 with emccd-detect, bm4d, scipy, tifffile, pillow (pip install emccd-detect bm4d
 scipy tifffile pillow) and the release binary (built if missing). Each camera's movies and their
 truth stacks go to OUT/CAMERA/movies with a pairs.toml, and every emccd method is scored there by
@@ -51,7 +54,6 @@ warnings.filterwarnings("ignore")
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tools"))
 import unseen_camera  # noqa: E402  (the cameras' parameters, one definition)
-from emccd_detect.emccd_detect import EMCCDDetect  # noqa: E402
 
 DATA = ROOT.parent / "shared/data/clean"
 SCENES = [DATA / "natural/McMaster/1.tif", DATA / "natural/McMaster/7.tif",
@@ -157,6 +159,7 @@ def main():
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--methods", default="bm3d,blend,temporal")
     ap.add_argument("--no-bm4d", action="store_true")
+    ap.add_argument("--fast", action="store_true", help="fast gain mode, no partial CIC in the register")
     ap.add_argument("--seed", type=int, default=11)
     a = ap.parse_args()
     exe = ROOT / "target/release/emccd"
@@ -171,7 +174,8 @@ def main():
         # The camera's calibration acquisition and profile, made once (at the movies' size).
         if not (cdir / "profile/profile.toml").exists():
             subprocess.run([sys.executable, str(ROOT / "tools/unseen_camera.py"), str(cdir), "--camera", cam_name,
-                            "--size", str(n), "--scenes", str(SCENES[0]), "--mean-electrons", "1"], check=True)
+                            "--size", str(n), "--scenes", str(SCENES[0]), "--mean-electrons", "1"]
+                           + (["--fast"] if a.fast else []), check=True)
             run([str(exe), "calibrate", str(cdir / "calibration.toml"), "-o", str(cdir / "profile"), "--force"])
         prof = json.loads(subprocess.run([str(exe), "profile", "show", str(cdir / "profile"), "--json"],
                                          check=True, capture_output=True, text=True).stdout)
@@ -180,7 +184,7 @@ def main():
         spec = unseen_camera.CAMERAS[cam_name]
         cam = dict(unseen_camera.COMMON, **spec["camera"])
         np.random.seed(a.seed)  # emccd-detect draws from numpy's global generator
-        det = EMCCDDetect(**cam)
+        det = unseen_camera.detector(cam, a.fast)
         g_dn = cam["em_gain"] / cam["eperdn"]
         hot = np.random.default_rng(a.seed).random((n, n)) < spec["hot_fraction"]
         rng = np.random.default_rng(a.seed + 1)

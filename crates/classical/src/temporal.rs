@@ -105,6 +105,174 @@ pub fn motion_mean(
             frames: vec![1.0; w * h],
         };
     }
+    let Tracked {
+        frames,
+        tracks,
+        first,
+        last,
+        ..
+    } = tracked(window, guides, center, w, h, p);
+    let (xs, ys) = (positions(w, N, STEP), positions(h, N, STEP));
+    let win = kaiser(N);
+    // Each output row gathers, in a fixed order (block rows, then blocks), Σ k·(the matched
+    // blocks' values), Σ k·m and Σ k, for the window weight k of each block and its m matched
+    // frames: the sums never depend on how the rows were shared among threads, so a frame's
+    // estimate is the same bits on every run (its decisions downstream hang on them).
+    // A block's steps within the scene, as (frame, x, y, weight in the mean).
+    type Kept = Vec<(usize, usize, usize, f64)>;
+    let kept = |steps: &[Step]| -> Kept {
+        steps
+            .iter()
+            .filter(|s| (first..=last).contains(&s.frame))
+            .map(|s| (s.frame, s.x, s.y, weight(s.d)))
+            .collect()
+    };
+    let kept: Vec<Vec<Kept>> = tracks
+        .iter()
+        .map(|row| row.iter().map(|steps| kept(steps)).collect())
+        .collect();
+    let rows: Vec<(Vec<f32>, Vec<f32>)> = (0..h)
+        .into_par_iter()
+        .map(|yo| {
+            let (mut num, mut den, mut cnt) = (vec![0f64; w], vec![0f64; w], vec![0f64; w]);
+            for (bi, &y) in ys.iter().enumerate() {
+                if yo < y || yo >= y + N {
+                    continue;
+                }
+                let r = yo - y;
+                for (&x, blocks) in xs.iter().zip(&kept[bi]) {
+                    let m: f64 = 1.0 + blocks.iter().map(|b| b.3).sum::<f64>();
+                    for q in 0..N {
+                        let k = win[r * N + q];
+                        let sum: f64 = frames[center][yo * w + x + q] as f64
+                            + blocks
+                                .iter()
+                                .map(|&(f, bx, by, wt)| {
+                                    wt * frames[f][(by + r) * w + bx + q] as f64
+                                })
+                                .sum::<f64>();
+                        num[x + q] += k * sum;
+                        den[x + q] += k * m;
+                        cnt[x + q] += k;
+                    }
+                }
+            }
+            let mean = (0..w)
+                .map(|q| {
+                    if den[q] > 0.0 {
+                        (num[q] / den[q]) as f32
+                    } else {
+                        own[yo * w + q]
+                    }
+                })
+                .collect();
+            // The frames a pixel holds: the blocks' m, weighted as the blocks are.
+            let held = (0..w)
+                .map(|q| {
+                    if cnt[q] > 0.0 {
+                        (den[q] / cnt[q]) as f32
+                    } else {
+                        1.0
+                    }
+                })
+                .collect();
+            (mean, held)
+        })
+        .collect();
+    let (mean, frames): (Vec<Vec<f32>>, Vec<Vec<f32>>) = rows.into_iter().unzip();
+    MotionMean {
+        mean: mean.concat(),
+        frames: frames.concat(),
+    }
+}
+
+/// What the tracking of a window's blocks found ([`tracked`]).
+struct Tracked {
+    /// The window's frames, brought to the centre frame's brightness.
+    frames: Vec<Vec<f32>>,
+    /// Every reference block's track (rows of blocks, each its steps).
+    tracks: Vec<Vec<Vec<Step>>>,
+    /// The first and last frames of the centre's scene.
+    first: usize,
+    last: usize,
+    /// Each frame's brightness factor (the trend of the centre's scene).
+    scale: Vec<f64>,
+}
+
+/// The frames of a window that show frame `center`'s scene, and the factors that bring each to
+/// its brightness: what [`motion_mean`] gates and scales its mean with, for a method that
+/// averages otherwise (the temporal network is shown only its frame's scene, at its
+/// brightness).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Scene {
+    /// The first and last frames of the window that hold the centre's scene: a cut or motion
+    /// too fast to follow ends it ([`SCENE_GATE`], or fewer than half the centre's blocks
+    /// found again in a frame).
+    pub first: usize,
+    /// See `first`.
+    pub last: usize,
+    /// Per window frame, the factor that brings it to the centre frame's brightness along the
+    /// scene's trend (bleaching).
+    pub scale: Vec<f64>,
+}
+
+/// The scene of `window[center]` ([`Scene`]), from the same block tracking as [`motion_mean`]
+/// (`guides` propose the moves, as there; any smooth estimate of each frame will do).
+pub fn scene(
+    window: &[&[f32]],
+    guides: &[&[f32]],
+    center: usize,
+    w: usize,
+    h: usize,
+    p: PoissonGaussian,
+) -> Scene {
+    if window.len() == 1 || w < N || h < N {
+        return Scene {
+            first: center,
+            last: center,
+            scale: vec![1.0; window.len()],
+        };
+    }
+    let t = tracked(window, guides, center, w, h, p);
+    // The mean needs no more (a block that found no match adds nothing to it), but a method
+    // that is shown whole frames does: a frame that fewer than half the blocks' tracks reached
+    // is another scene too (a cut to a scene as bright, whose blocks' differences over their
+    // noise the gate never sees, since no track reaches it).
+    let blocks: usize = t.tracks.iter().map(Vec::len).sum();
+    let held = |f: usize| {
+        let reached = t
+            .tracks
+            .iter()
+            .flatten()
+            .filter(|steps| steps.iter().any(|s| s.frame == f))
+            .count();
+        2 * reached >= blocks
+    };
+    let (mut first, mut last) = (center, center);
+    while first > t.first && held(first - 1) {
+        first -= 1;
+    }
+    while last < t.last && held(last + 1) {
+        last += 1;
+    }
+    let scale = if (first, last) == (t.first, t.last) {
+        t.scale
+    } else {
+        brightness(window, center, first..=last)
+    };
+    Scene { first, last, scale }
+}
+
+/// Every reference block of `window[center]` tracked outward through the window, the scene's
+/// frames found and brought to the centre's brightness.
+fn tracked(
+    window: &[&[f32]],
+    guides: &[&[f32]],
+    center: usize,
+    w: usize,
+    h: usize,
+    p: PoissonGaussian,
+) -> Tracked {
     let scale = brightness(window, center, 0..=window.len() - 1);
     // The guides too: a dimmer neighbour's guide would propose moves towards brighter content.
     let mut frames = scaled(window, &scale);
@@ -191,82 +359,19 @@ pub fn motion_mean(
         })
         .collect();
     let (first, last) = same_scene(&tracks, center, window.len());
+    let mut scale = scale;
     if (first, last) != (0, window.len() - 1) {
         // The trend of this scene's frames alone.
-        let scale = brightness(window, center, first..=last);
+        scale = brightness(window, center, first..=last);
         let scene = scaled(&window[first..=last], &scale[first..=last]);
         frames.splice(first..=last, scene);
     }
-    let win = kaiser(N);
-    // Each output row gathers, in a fixed order (block rows, then blocks), Σ k·(the matched
-    // blocks' values), Σ k·m and Σ k, for the window weight k of each block and its m matched
-    // frames: the sums never depend on how the rows were shared among threads, so a frame's
-    // estimate is the same bits on every run (its decisions downstream hang on them).
-    // A block's steps within the scene, as (frame, x, y, weight in the mean).
-    type Kept = Vec<(usize, usize, usize, f64)>;
-    let kept = |steps: &[Step]| -> Kept {
-        steps
-            .iter()
-            .filter(|s| (first..=last).contains(&s.frame))
-            .map(|s| (s.frame, s.x, s.y, weight(s.d)))
-            .collect()
-    };
-    let kept: Vec<Vec<Kept>> = tracks
-        .iter()
-        .map(|row| row.iter().map(|steps| kept(steps)).collect())
-        .collect();
-    let rows: Vec<(Vec<f32>, Vec<f32>)> = (0..h)
-        .into_par_iter()
-        .map(|yo| {
-            let (mut num, mut den, mut cnt) = (vec![0f64; w], vec![0f64; w], vec![0f64; w]);
-            for (bi, &y) in ys.iter().enumerate() {
-                if yo < y || yo >= y + N {
-                    continue;
-                }
-                let r = yo - y;
-                for (&x, blocks) in xs.iter().zip(&kept[bi]) {
-                    let m: f64 = 1.0 + blocks.iter().map(|b| b.3).sum::<f64>();
-                    for q in 0..N {
-                        let k = win[r * N + q];
-                        let sum: f64 = frames[center][yo * w + x + q] as f64
-                            + blocks
-                                .iter()
-                                .map(|&(f, bx, by, wt)| {
-                                    wt * frames[f][(by + r) * w + bx + q] as f64
-                                })
-                                .sum::<f64>();
-                        num[x + q] += k * sum;
-                        den[x + q] += k * m;
-                        cnt[x + q] += k;
-                    }
-                }
-            }
-            let mean = (0..w)
-                .map(|q| {
-                    if den[q] > 0.0 {
-                        (num[q] / den[q]) as f32
-                    } else {
-                        own[yo * w + q]
-                    }
-                })
-                .collect();
-            // The frames a pixel holds: the blocks' m, weighted as the blocks are.
-            let held = (0..w)
-                .map(|q| {
-                    if cnt[q] > 0.0 {
-                        (den[q] / cnt[q]) as f32
-                    } else {
-                        1.0
-                    }
-                })
-                .collect();
-            (mean, held)
-        })
-        .collect();
-    let (mean, frames): (Vec<Vec<f32>>, Vec<Vec<f32>>) = rows.into_iter().unzip();
-    MotionMean {
-        mean: mean.concat(),
-        frames: frames.concat(),
+    Tracked {
+        frames,
+        tracks,
+        first,
+        last,
+        scale,
     }
 }
 

@@ -2,7 +2,7 @@
 //! their photons promise on a still scene and on a drifting one, an event in one frame stays in
 //! that frame, and the mean over a uniform region stays the signal's.
 
-use emccd_classical::temporal::{estimate, motion_mean, single};
+use emccd_classical::temporal::{estimate, motion_mean, scene as scene_of, single};
 use emccd_classical::vst::{bm3d_adaptive, PoissonGaussian};
 
 const W: usize = 64;
@@ -330,4 +330,57 @@ fn nothing_crosses_a_scene_cut() {
 #[test]
 fn nothing_crosses_a_cut_to_a_dim_scene() {
     assert_cut_kept(&scene(2.0), &turned(0.4), 89);
+}
+
+/// The scene a window's frames show, for a method shown whole frames: a still scene's five
+/// frames at its brightness; a bleaching scene's brought up or down along its trend; a cut to a
+/// scene of other content that no block of the frame is found in ends the scene there.
+#[test]
+fn the_scene_ends_where_no_block_is_found_and_follows_the_brightness() {
+    let mut rng = Lcg(71);
+    let a = scene(4.0);
+    // A checkerboard of 3-px squares, 0 and 24 counts: nothing of `a` (smooth bars of 8 px)
+    // lies within a block's search in it.
+    let b: Vec<f64> = (0..W * H)
+        .map(|i| {
+            if ((i % W) / 3 + (i / W) / 3) % 2 == 0 {
+                24.0
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let shoot = |rng: &mut Lcg, counts: &[Vec<f64>]| -> Vec<Vec<f32>> {
+        counts.iter().map(|c| rng.frame(c)).collect()
+    };
+    let scene_at = |frames: &[Vec<f32>], t: usize| {
+        let window: Vec<&[f32]> = frames.iter().map(|f| f.as_slice()).collect();
+        let guides: Vec<Vec<f32>> = frames.iter().map(|f| single(f, W, H, CAM)).collect();
+        let guides: Vec<&[f32]> = guides.iter().map(|f| f.as_slice()).collect();
+        scene_of(&window, &guides, t, W, H, CAM)
+    };
+    let still = scene_at(&shoot(&mut rng, &vec![a.clone(); 5]), 2);
+    assert_eq!((still.first, still.last), (0, 4));
+    assert!(
+        still.scale.iter().all(|s| (s - 1.0).abs() < 0.03),
+        "{:?}",
+        still.scale
+    );
+    let fading: Vec<Vec<f64>> = (0..5)
+        .map(|t| a.iter().map(|c| c * (-0.04 * t as f64).exp()).collect())
+        .collect();
+    let fading = scene_at(&shoot(&mut rng, &fading), 2);
+    assert_eq!((fading.first, fading.last), (0, 4));
+    for (t, s) in fading.scale.iter().enumerate() {
+        let want = (0.04 * (t as f64 - 2.0)).exp();
+        assert!(
+            (s / want - 1.0).abs() < 0.02,
+            "frame {t}: × {s}, want × {want}"
+        );
+    }
+    let cut: Vec<Vec<f64>> = (0..5)
+        .map(|t| if t < 3 { a.clone() } else { b.clone() })
+        .collect();
+    let cut = scene_at(&shoot(&mut rng, &cut), 2);
+    assert_eq!((cut.first, cut.last), (0, 2));
 }

@@ -42,9 +42,10 @@ pub enum Method {
     /// before and after it in, the frame out. Trained on movies synthesized with the exact
     /// noise chain and every kind of motion the movie suite has (drift, rotation, deformation,
     /// jitter, diffusing and blinking spots, bleaching, cuts), so it learns where the
-    /// neighbours match the frame and where they do not. A movie's ends show the frames
-    /// mirrored about the frame; a lone frame is shown in every slot. The fastest temporal
-    /// method.
+    /// neighbours match the frame and where they do not. It is shown the frame's scene (the
+    /// classical method's tracking ends it at a cut it sees) brought to the frame's brightness
+    /// (bleaching), the frames beyond the scene or the movie mirrored about the frame; a lone
+    /// frame is shown in every slot. The fastest temporal method.
     #[cfg_attr(feature = "clap", value(name = "temporal-net"))]
     TemporalNet,
     /// No denoising: blooming and the fixed pattern removed and the units converted, as every

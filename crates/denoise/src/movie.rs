@@ -2,13 +2,15 @@
 //! [`Method::TemporalNet`]) in bounded memory: each frame is preprocessed (and, for the
 //! classical method, given its single-frame estimate) once, as it is read, and at most `2K + 1`
 //! of them (the window of `K` frames each side) are held at a time. A frame's window stays
-//! within its recording: the classical method's is clipped at the recording's ends, the
-//! network's (a fixed number of frames) shows the frames mirrored about the frame there.
+//! within its recording: the classical method's is clipped at the recording's ends; the
+//! network's (a fixed number of frames) shows the frame's scene at its brightness, the frames
+//! beyond the scene or the recording mirrored about the frame ([`net_window`]).
 
 use std::collections::VecDeque;
 use std::ops::Range;
 
 use emccd_classical::frame::vst_params;
+use emccd_classical::vst::PoissonGaussian;
 use emccd_nn::norm::mirror;
 use emccd_nn::{Error, Result};
 use emccd_profile::CameraProfile;
@@ -16,8 +18,9 @@ use emccd_profile::CameraProfile;
 use crate::denoiser::Denoiser;
 use crate::Method;
 
-/// One frame held for the windows it belongs to: its number, the preprocessed frame and, for
-/// the classical method, its single-frame estimate (both DN above bias).
+/// One frame held for the windows it belongs to: its number, the preprocessed frame and its
+/// single-frame estimate (the classical method's), or its [`guide`] (the network's), both DN
+/// above bias.
 struct Held {
     index: usize,
     frame: Vec<f32>,
@@ -67,12 +70,11 @@ pub fn denoise_frames(
             let first = held.front().expect("the frame itself is held").index;
             let frames: Vec<&[f32]> = held.iter().map(|h| h.frame.as_slice()).collect();
             let mut out = match fd.model.filter(|_| fd.method == Method::TemporalNet) {
-                // The network's fixed window, a movie's ends mirrored about the frame.
+                // The network's fixed window: the frame's scene, at its brightness.
                 Some(model) => {
-                    let kk = k as isize;
-                    let window: Vec<&[f32]> = (-kk..=kk)
-                        .map(|d| frames[mirror(due, d, count) - first])
-                        .collect();
+                    let guides: Vec<&[f32]> = held.iter().map(|h| h.single.as_slice()).collect();
+                    let shown = net_window(&frames, &guides, due - first, k, p.width, noise);
+                    let window: Vec<&[f32]> = shown.iter().map(Vec::as_slice).collect();
                     fd.inference(model)
                         .denoise_window(&window, exposure_s)
                         .map_err(|e| e.at(at(due)))?
@@ -97,6 +99,72 @@ pub fn denoise_frames(
         }
     }
     Ok(())
+}
+
+/// The `2k + 1` frames a temporal network is shown for frame `center` of `window` (the
+/// preprocessed frames within `k` of it, clipped at the recording's ends; `width` px wide,
+/// noise `noise`; `guides` each frame's [`guide`]): the frames of its scene — a scene cut or
+/// motion too fast to follow ends the scene, as the classical method's gate finds it
+/// ([`emccd_classical::temporal::scene`]) — brought to its brightness along the scene's trend
+/// (bleaching), and the frames beyond the scene or the recording mirrored about the frame
+/// ([`mirror`]), as the network saw a movie's ends in training.
+pub fn net_window(
+    window: &[&[f32]],
+    guides: &[&[f32]],
+    center: usize,
+    k: usize,
+    width: usize,
+    noise: PoissonGaussian,
+) -> Vec<Vec<f32>> {
+    let height = window[center].len() / width.max(1);
+    let sc = emccd_classical::temporal::scene(window, guides, center, width, height, noise);
+    let len = sc.last - sc.first + 1;
+    let kk = k as isize;
+    (-kk..=kk)
+        .map(|d| {
+            let j = sc.first + mirror(center - sc.first, d, len);
+            let s = sc.scale[j] as f32;
+            window[j].iter().map(|&v| v * s).collect()
+        })
+        .collect()
+}
+
+/// A cheap smooth estimate of a preprocessed frame `width` px wide, for the temporal network's
+/// scene gate (it proposes the tracked blocks' moves and predicts their noise, as a frame's
+/// single-frame estimate does for the classical method, at a fraction of its cost): the frame
+/// filtered by the binomial kernel (1 4 6 4 1)/16 along each axis, its edges mirrored.
+pub fn guide(frame: &[f32], width: usize) -> Vec<f32> {
+    const K: [f32; 5] = [1.0 / 16.0, 4.0 / 16.0, 6.0 / 16.0, 4.0 / 16.0, 1.0 / 16.0];
+    let w = width.max(1);
+    let h = frame.len() / w;
+    let at = |i: isize, n: usize| -> usize {
+        let n = n as isize;
+        (if i < 0 {
+            -i
+        } else if i >= n {
+            2 * n - 2 - i
+        } else {
+            i
+        })
+        .clamp(0, n - 1) as usize
+    };
+    let mut rows = vec![0f32; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            rows[y * w + x] = (0..5)
+                .map(|t| K[t] * frame[y * w + at(x as isize + t as isize - 2, w)])
+                .sum();
+        }
+    }
+    let mut out = vec![0f32; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            out[y * w + x] = (0..5)
+                .map(|t| K[t] * rows[at(y as isize + t as isize - 2, h) * w + x])
+                .sum();
+        }
+    }
+    out
 }
 
 /// The frames of `profile`'s size that `values` values make, one after another; an error when
@@ -151,9 +219,10 @@ pub fn denoise_slice(
 fn prepare(fd: &Denoiser, index: usize, raw: &[f32], exposure_s: f64) -> Result<Held> {
     fd.check_finite(raw)?;
     let frame = fd.preprocess(raw, exposure_s)?;
-    // The classical method tracks motion on each frame's own estimate; the network needs none.
+    // The classical method tracks motion on each frame's own estimate; the network's window is
+    // gated with a cheap one.
     let single = if fd.method == Method::TemporalNet {
-        Vec::new()
+        guide(&frame, fd.profile.width)
     } else {
         fd.estimate(&frame, exposure_s)?
     };
