@@ -4,9 +4,8 @@
 //! and against known truth, as the classical method is tested (crates/classical/tests): an event
 //! in one frame stays in that frame, a uniform region's mean and a bleaching scene's mean per
 //! frame stay the data's (the window is brought to the frame's brightness along the scene's
-//! trend first), and nothing crosses a scene cut. The last is a target the bundled network (10
-//! minutes of one GPU) misses on this scene, by the amount its `ignore` reason gives: it runs
-//! with `cargo test -- --ignored`, for the network that will meet it.
+//! trend first), and nothing crosses a scene cut (the window ends at a neighbour of another
+//! scene).
 
 use emccd_camera::{PhysicalParams, VirtualCamera};
 use emccd_classical::frame::preprocess;
@@ -322,12 +321,11 @@ fn a_bleaching_scene_keeps_each_frames_mean() {
 
 /// Frames 0–5 with a cut between frames 2 and 3 to the scene turned by 90°: frame 2's estimate
 /// from the whole movie is what frames 0–2 alone give it (within 0.2 dB), and frame 3's what
-/// frames 3–5 give it: nothing of the other scene crosses the cut. The scene gate does not see
+/// frames 3–5 give it: nothing of the other scene crosses the cut. The tracking does not see
 /// this cut (the turned bars' 8×8 blocks are all found again within their search: the
-/// classical method's mean is unharmed by them, a network shown the whole frames is), so it
-/// rests on the network, which blends the other scene in.
+/// classical method's mean is unharmed by them, a network shown the whole frames is not; it
+/// lost 3.3 dB here), the correlation of the whole frames does.
 #[test]
-#[ignore = "missed by the bundled `movie` (issue 35): frame 2 loses 3.3 dB across the cut (22.23 → 18.94)"]
 fn nothing_crosses_a_scene_cut() {
     let (p, m) = (profile(), model());
     let fd = net(&p, &m);
