@@ -30,8 +30,9 @@ pub struct Args {
     pub denoise: Vec<String>,
     /// Instead, measure temporal denoising: this many frames of a scene (the first of
     /// --scenes) drifting across the virtual camera (1 px right per frame, 1 px down every
-    /// second frame), at 20 and 200 photons at its peak, denoised frame by frame by BM3D + GAT and by
-    /// `--method temporal`: PSNR over the movie, seconds per frame and their ratio.
+    /// second frame), at 20 and 200 photons at its peak, denoised frame by frame by BM3D + GAT,
+    /// by `--method temporal` and by `--method temporal-net`: PSNR over the movie, seconds per
+    /// frame and the classical method's time over BM3D's.
     #[arg(long, value_name = "FRAMES")]
     pub movie: Option<usize>,
     /// Instead, measure photon counting: this many 512² frames of the virtual camera at 0.1
