@@ -165,8 +165,9 @@ def denoise(
     ``lowlight`` network averaged, the most accurate at low light; a 3-D stack of more than one
     frame runs ``temporal`` by default, unless ``window=0``), ``ivst`` (iterative BM3D), ``bm3d``, ``hybrid`` (BM3D refined by a network), ``net`` (a network alone, the
     fastest), ``temporal`` (each frame of a 3-D stack estimated from the ``window`` frames
-    before and after it too) or ``none`` (preprocessing only). ``model``: a bundled model (``default``,
-    ``microscopy``, ``lowlight``, ``hybrid``) or a model file; a model alone picks the method it was trained
+    before and after it too), ``temporal-net`` (a network on each frame and the 2 before and
+    after it: bundled model ``movie``) or ``none`` (preprocessing only). ``model``: a bundled
+    model (``default``, ``microscopy``, ``lowlight``, ``hybrid``, ``movie``) or a model file; a model alone picks the method it was trained
     for. ``exposure_s`` is required (arrays carry no header; :func:`read` returns it in the
     metadata). ``progress(done, total)`` is called after each frame; an exception it raises
     stops the work and is raised here. The CLI's warnings are issued as ``UserWarning``.

@@ -128,8 +128,8 @@ def _make_widget_class():
                 "extrapolate": bool(self.extrapolate.value),
             }
             # The window is the classical temporal method's (the default's too: it runs it on a
-            # time series); the temporal network's is its own.
-            if method is None or method == "temporal":
+            # time series, unless a model picks its own method); the temporal network's is its own.
+            if method == "temporal" or (method is None and req["model"] is None):
                 req["window"] = int(self.window.value)
             return req
 

@@ -226,6 +226,10 @@ pub fn scene(
     h: usize,
     p: PoissonGaussian,
 ) -> Scene {
+    assert_eq!(window.len(), guides.len(), "a guide for every frame");
+    for f in window.iter().chain(guides) {
+        assert_eq!(f.len(), w * h, "frame size");
+    }
     if window.len() == 1 || w < N || h < N {
         return Scene {
             first: center,
@@ -261,6 +265,12 @@ pub fn scene(
         brightness(window, center, first..=last)
     };
     Scene { first, last, scale }
+}
+
+/// Per window frame, the factor that brings it to frame `center`'s brightness along the trend
+/// of the frames `first..=last` (bleaching; [`Scene::scale`] over a narrower scene).
+pub fn brightness_trend(window: &[&[f32]], center: usize, first: usize, last: usize) -> Vec<f64> {
+    brightness(window, center, first..=last)
 }
 
 /// Every reference block of `window[center]` tracked outward through the window, the scene's

@@ -33,8 +33,9 @@ pub struct Args {
     /// and the `lowlight` network averaged, the default of `denoise`; `blend@8` with the
     /// network's self-ensemble, `blend:MODEL` with another network), `ivst:λ/b,λ/b,…` (iterative BM3D with these passes: the data's weight and the
     /// bin side, e.g. `ivst:1/3,0.7/2,0.4/1`), `hybrid` (the bundled BM3D-refining network), or
-    /// a model file (`default`, `microscopy`, `lowlight` = the bundled networks; a hybrid model file runs as
-    /// the hybrid method), `temporal` (a movie's frames from their neighbours, the
+    /// a model file (`default`, `microscopy`, `lowlight`, `movie` = the bundled networks; a hybrid model file runs as
+    /// the hybrid method, a temporal one as temporal-net), `temporal-net` (the bundled temporal
+    /// network on each frame and the 2 before and after it), `temporal` (a movie's frames from their neighbours, the
     /// default window each side or `temporal:K` K; on a still pair, `ivst`), `count` (photon
     /// counting as `emccd count` does it by default, the likelihood, one estimate of the whole
     /// stack given to each of its frames; `count:N` one per N frames; on a still pair, from all

@@ -38,9 +38,11 @@ pub struct Args {
     /// --init model's, else percentile.
     #[arg(long, value_enum)]
     pub scale: Option<Scale>,
-    /// What the network is given: `noisy` (the frame and its noise level: a denoiser), or
+    /// What the network is given: `noisy` (the frame and its noise level: a denoiser),
     /// `hybrid` (also the BM3D + GAT estimate, which the network corrects; its output layer
-    /// starts at zero, so training starts at BM3D's quality; U-Net only).
+    /// starts at zero, so training starts at BM3D's quality; U-Net only), or `movie` (the frame,
+    /// the 2 frames before and after it and its noise level: a temporal network, trained on
+    /// movies synthesized with every kind of motion; U-Net only).
     #[arg(long, value_enum, default_value = "noisy")]
     pub inputs: Inputs,
     /// --inputs hybrid: the estimate the network corrects: `bm3d` (BM3D + GAT, one pass) or
@@ -51,7 +53,9 @@ pub struct Args {
     pub hybrid_base: Option<Classical>,
     #[command(flatten)]
     pub cfg: TrainConfig,
-    /// Fine-tune from this model (a file, or a bundled model: `default`, `microscopy`, `lowlight`).
+    /// Fine-tune from this model (a file, or a bundled model: `default`, `microscopy`, `lowlight`,
+    /// `movie`). With --inputs movie, a single-frame U-Net denoiser (e.g. `lowlight`) is widened
+    /// to the five frames, starting as exactly the network it was.
     #[arg(long)]
     pub init: Option<String>,
     /// Continue the run whose checkpoint is in OUT.ckpt/.

@@ -44,8 +44,8 @@ impl Resolved {
     }
 
     /// The frames each side a temporal method uses: `asked`, or [`DEFAULT_WINDOW`] (0 for a
-    /// method that denoises each frame alone); an error when a window is asked of such a
-    /// method. The default method takes one for the movies it denoises temporally.
+    /// method that denoises each frame alone; the temporal network's own, [`MOVIE_WINDOW`],
+    /// which is the only one it takes); an error when a window is asked of such a method. The default method takes one for the movies it denoises temporally.
     pub fn window(&self, asked: Option<usize>) -> Result<usize> {
         if self.method == Method::TemporalNet {
             return match asked {
@@ -126,9 +126,9 @@ impl Resolved {
 
 /// The method and model a request runs: `method` and `model` as given (either may be absent),
 /// with `load` turning a model argument into a model ([`crate::bundled::load`], or another
-/// loader). The model a method takes by default is `hybrid` for
-/// [`Method::Hybrid`], else `lowlight` (the best network); a model alone picks the method it
-/// was trained for. An error where a model does not fit the method.
+/// loader). The model a method takes by default is [`Method::default_model`] (`hybrid` for
+/// [`Method::Hybrid`], `movie` for [`Method::TemporalNet`], else `lowlight`, the best
+/// network); a model alone picks the method it was trained for. An error where a model does not fit the method.
 pub fn resolve(
     method: Option<Method>,
     model: Option<&str>,
@@ -229,6 +229,22 @@ pub const DEFAULT_WINDOW: usize = 4;
 pub const MAX_WINDOW: usize = 16;
 
 impl Denoiser<'_> {
+    /// An error when the method needs a model and has none, or has one it does not run.
+    pub(crate) fn check_model(&self) -> Result<()> {
+        if self.method.uses_model() != self.model.is_some() {
+            return Err(Error::Model(format!(
+                "--method {} {} a model",
+                self.method.name(),
+                if self.method.uses_model() {
+                    "needs"
+                } else {
+                    "takes no"
+                }
+            )));
+        }
+        Ok(())
+    }
+
     /// An error naming the first pixel of `raw` that is not a finite number, if one is.
     pub(crate) fn check_finite(&self, raw: &[f32]) -> Result<()> {
         let width = self.profile.width.max(1);
@@ -247,17 +263,7 @@ impl Denoiser<'_> {
     /// non-finite value is an error naming the pixel.
     pub fn run(&self, raw: &[f32], exposure_s: f64) -> Result<Vec<f32>> {
         self.check_finite(raw)?;
-        if self.method.uses_model() != self.model.is_some() {
-            return Err(Error::Model(format!(
-                "--method {} {} a model",
-                self.method.name(),
-                if self.method.uses_model() {
-                    "needs"
-                } else {
-                    "takes no"
-                }
-            )));
-        }
+        self.check_model()?;
         let pre = self.preprocess(raw, exposure_s)?;
         let mut d = self.estimate(&pre, exposure_s)?;
         let to_units = self.units.factor(self.profile)?;

@@ -43,7 +43,8 @@ pub enum Method {
     /// noise chain and every kind of motion the movie suite has (drift, rotation, deformation,
     /// jitter, diffusing and blinking spots, bleaching, cuts), so it learns where the
     /// neighbours match the frame and where they do not. It is shown the frame's scene (the
-    /// classical method's tracking ends it at a cut it sees) brought to the frame's brightness
+    /// classical method's tracking and the whole frames' correlation end it at a cut) brought
+    /// to the frame's brightness
     /// (bleaching), the frames beyond the scene or the movie mirrored about the frame; a lone
     /// frame is shown in every slot. The fastest temporal method.
     #[cfg_attr(feature = "clap", value(name = "temporal-net"))]

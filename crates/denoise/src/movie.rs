@@ -48,6 +48,7 @@ pub fn denoise_frames(
     if want.is_empty() {
         return Ok(());
     }
+    fd.check_model()?;
     let k = fd.window;
     let (lo, hi) = (want.start.saturating_sub(k), (want.end + k).min(count));
     let p = fd.profile;
@@ -106,9 +107,10 @@ pub fn denoise_frames(
 /// The `2k + 1` frames a temporal network is shown for frame `center` of `window` (the
 /// preprocessed frames within `k` of it, clipped at the recording's ends; `width` px wide,
 /// noise `noise`; `guides` each frame's [`guide`]): the frames of its scene — a scene cut or
-/// motion too fast to follow ends the scene, as the classical method's gate finds it
-/// ([`emccd_classical::temporal::scene`]) — brought to its brightness along the scene's trend
-/// (bleaching), and the frames beyond the scene or the recording mirrored about the frame
+/// motion too fast to follow ends the scene, as the classical method's tracking finds it
+/// ([`emccd_classical::temporal::scene`]), and so does a neighbour whose whole frame does not
+/// correlate with this one ([`LIKENESS_GATE`]) — brought to its brightness along the scene's
+/// trend (bleaching), and the frames beyond the scene or the recording mirrored about the frame
 /// ([`mirror`]), as the network saw a movie's ends in training.
 pub fn net_window(
     window: &[&[f32]],
@@ -144,11 +146,15 @@ pub fn net_window(
             as f64)
             .sqrt();
     let other = |j: usize| like[j].is_some_and(|r| r < LIKENESS_GATE * best && best - r > margin);
+    let scene = (sc.first, sc.last);
     while sc.first < center && (sc.first..center).any(other) {
         sc.first += 1;
     }
     while sc.last > center && (center + 1..=sc.last).any(other) {
         sc.last -= 1;
+    }
+    if (sc.first, sc.last) != scene {
+        sc.scale = emccd_classical::temporal::brightness_trend(window, center, sc.first, sc.last);
     }
     let len = sc.last - sc.first + 1;
     let kk = k as isize;
@@ -308,8 +314,9 @@ pub fn denoise_slice(
     Ok(())
 }
 
-/// Raw frame `index` preprocessed, with its single-frame estimate: refused when a value is not
-/// finite (as [`Denoiser::run`] refuses it).
+/// Raw frame `index` preprocessed, with its single-frame estimate (the classical method's) or
+/// its [`guide`] (the network's): refused when a value is not finite (as [`Denoiser::run`]
+/// refuses it).
 fn prepare(fd: &Denoiser, index: usize, raw: &[f32], exposure_s: f64) -> Result<Held> {
     fd.check_finite(raw)?;
     let frame = fd.preprocess(raw, exposure_s)?;

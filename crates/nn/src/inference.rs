@@ -79,7 +79,14 @@ impl Inference<'_> {
     pub fn denoise_window(&self, window: &[&[f32]], exposure_s: f64) -> Result<Vec<f32>> {
         let p = self.profile;
         let inputs = self.model.meta.inputs;
-        if inputs != Inputs::Movie || window.len() != inputs.frames() {
+        if inputs != Inputs::Movie {
+            return Err(Error::Model(format!(
+                "a {} network denoises frames alone, not a movie's window (--method temporal-net \
+                 takes a temporal model, `emccd train --inputs movie`)",
+                inputs.name()
+            )));
+        }
+        if window.len() != inputs.frames() {
             return Err(Error::Model(format!(
                 "a window of {} frames for a network that takes {}",
                 window.len(),

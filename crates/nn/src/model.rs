@@ -55,8 +55,9 @@ impl Arch {
     /// The architecture named `name` (one of [`ARCHS`]) for a new network taking `inputs`: a
     /// Uformer preset, or a U-Net of `unet`'s size (`base`, `levels`, `direct`, `unshuffle`; its
     /// channels and residual follow `inputs`). Refuses what this build has not: an unknown
-    /// name, a refinement network (hybrid inputs), a direct output or an unshuffled input on
-    /// anything but a U-Net, a direct refinement network, an unshuffle other than 1, 2 or 4.
+    /// name, a refinement or temporal network (hybrid or movie inputs), a direct output or an
+    /// unshuffled input on anything but a U-Net, a direct refinement network, an unshuffle
+    /// other than 1, 2 or 4.
     pub fn for_training(name: &str, inputs: Inputs, unet: UNetConfig) -> Result<Arch> {
         let uformer = UformerConfig::by_name(name);
         if uformer.is_none() && name != "unet" {
@@ -67,7 +68,8 @@ impl Arch {
         }
         if unet.direct && (inputs == Inputs::Hybrid || name != "unet") {
             return Err(Error::Model(
-                "a direct output: only a U-Net denoiser (arch unet, noisy inputs) has one".into(),
+                "a direct output: only a U-Net denoiser (arch unet, noisy or movie inputs) has one"
+                    .into(),
             ));
         }
         if unet.unshuffle != 1 && (name != "unet" || ![2, 4].contains(&unet.unshuffle)) {
@@ -164,7 +166,8 @@ pub enum Net {
 
 impl Net {
     /// `x`: [N, C, H, W] ([`Inputs::channels`]: normalized frame, noise level, and for a
-    /// refinement network the estimate it refines), H and W multiples of
+    /// refinement network the estimate it refines; for a temporal one the window's frames,
+    /// then the noise level), H and W multiples of
     /// [`ModelMeta::multiple`]; returns the denoised [N, 1, H, W].
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         match self {
@@ -226,8 +229,8 @@ impl Inputs {
         }
     }
 
-    /// The input channel the network's output is a correction to: the noisy frame, or the
-    /// estimate a hybrid refines.
+    /// The input channel the network's output is a correction to: the noisy frame, the
+    /// estimate a hybrid refines, or a temporal network's centre frame.
     pub fn residual(self) -> usize {
         match self {
             Inputs::Noisy => 0,
@@ -338,10 +341,21 @@ impl Model {
             )));
         }
         let net = match meta.arch {
-            Arch::UNet(c) => Net::UNet(c.init(device)),
-            Arch::Uformer(_) if meta.inputs == Inputs::Hybrid => {
+            // The residual is what the output corrects: the input's frame, or the estimate a
+            // hybrid refines.
+            Arch::UNet(c) if !c.direct && c.residual != meta.inputs.residual() => {
                 return Err(Error::Model(format!(
-                    "a hybrid (BM3D-refining) network is a U-Net in this build, not {}",
+                    "model metadata: a {} network corrects input channel {}, its configuration says {}",
+                    meta.inputs.name(),
+                    meta.inputs.residual(),
+                    c.residual
+                )));
+            }
+            Arch::UNet(c) => Net::UNet(c.init(device)),
+            Arch::Uformer(_) if meta.inputs != Inputs::Noisy => {
+                return Err(Error::Model(format!(
+                    "a {} network is a U-Net in this build, not {}",
+                    meta.inputs.name(),
                     meta.arch.name()
                 )));
             }

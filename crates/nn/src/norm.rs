@@ -15,7 +15,8 @@ use serde::{Deserialize, Serialize};
 /// Inputs for the network and how to undo the scaling.
 #[derive(Clone, Debug)]
 pub struct Prepared {
-    /// Channel-major [2, H, W]: normalized frame, noise level.
+    /// Channel-major [C, H, W]: normalized frame, noise level (a hybrid's estimate after them;
+    /// a temporal network's window frames before the noise level).
     pub input: Vec<f32>,
     /// Output DN = network output × `to_dn`.
     pub to_dn: f32,

@@ -23,7 +23,7 @@ pub struct UNetConfig {
     #[cfg_attr(feature = "clap", arg(long, default_value_t = UNetConfig::DEFAULT.levels))]
     pub levels: usize,
     /// Input channels (the noisy frame and its noise-level map; a refinement network also
-    /// gets the estimate it refines).
+    /// gets the estimate it refines; a temporal network the frames around the frame).
     #[cfg_attr(feature = "clap", arg(skip = UNetConfig::DEFAULT.in_channels))]
     pub in_channels: usize,
     /// The input channel the output is added to (the global residual): 0, the noisy frame, for
@@ -241,7 +241,7 @@ impl UNet {
     /// the old frame's and noise level's, those for the neighbours start at zero and learn
     /// what the neighbours add. `None` if this network is not such a denoiser.
     pub fn widened_for_movie(mut self, frames: usize) -> Option<UNet> {
-        if self.unshuffle != 1 || self.residual != Some(0) {
+        if self.unshuffle != 1 || self.residual != Some(0) || frames % 2 == 0 {
             return None;
         }
         let first = &mut self.enc.first_mut()?.c1;

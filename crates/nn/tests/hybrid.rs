@@ -196,3 +196,34 @@ fn a_zeroed_output_layer_makes_a_trained_hybrid_the_identity() {
     };
     assert_eq!(run(&zeroed), input[2 * n..].to_vec());
 }
+
+/// Metadata that contradicts itself is refused when the model is built: a U-Net whose residual
+/// is not the channel its inputs say it corrects (a temporal network adding the first frame
+/// instead of the centre one), and a Uformer given a temporal network's inputs.
+#[test]
+fn a_network_must_correct_the_channel_its_inputs_name() {
+    let dev = emccd_nn::cpu();
+    let mut movie = ModelMeta {
+        arch: Arch::UNet(UNetConfig {
+            channels: 4,
+            levels: 2,
+            in_channels: Inputs::Movie.channels(),
+            residual: Inputs::Movie.residual(),
+            direct: false,
+            unshuffle: 1,
+        }),
+        inputs: Inputs::Movie,
+        ..meta(4, 2)
+    };
+    assert!(Model::new(movie.clone(), &dev).is_ok());
+    if let Arch::UNet(c) = &mut movie.arch {
+        c.residual = 0;
+    }
+    let e = Model::new(movie.clone(), &dev).unwrap_err().to_string();
+    assert!(e.contains("corrects input channel 2"), "{e}");
+    let uformer = ModelMeta {
+        arch: Arch::for_training("uformer-t", Inputs::Noisy, UNetConfig::DEFAULT).unwrap(),
+        ..movie
+    };
+    assert!(Model::new(uformer, &dev).is_err());
+}

@@ -60,6 +60,7 @@ pub struct Motion {
 impl Motion {
     /// A random motion for a window of `k` frames each side of crops `crop` px wide.
     pub fn draw(rng: &mut Pcg64, k: usize, crop: usize) -> Motion {
+        assert!(k >= 1, "a window of at least one frame each side");
         let n = 2 * k + 1;
         let c = crop as f32;
         let angle = |rng: &mut Pcg64| rng.random::<f32>() * std::f32::consts::TAU;

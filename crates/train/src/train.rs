@@ -884,11 +884,16 @@ pub(crate) fn train_from(
         mut loss_ema,
     } = start_model(&paths.checkpoint, resume, init, &meta, &cfg, &device)?;
     if matches!(source, Source::Recorded(_)) && model.meta.inputs != Inputs::Noisy {
-        return Err(Error::Data(format!(
-            "a {} network needs a base estimate of every training crop; recorded pairs train \
-             networks of noisy frames only",
-            model.meta.inputs.name()
-        )));
+        return Err(Error::Data(match model.meta.inputs {
+            Inputs::Movie => "a temporal network trains on synthesized movies only; recorded \
+                              pairs train networks of noisy frames"
+                .into(),
+            other => format!(
+                "a {} network needs a base estimate of every training crop; recorded pairs \
+                 train networks of noisy frames only",
+                other.name()
+            ),
+        }));
     }
     if c % model.meta.multiple() != 0 {
         return Err(Error::Data(format!(

@@ -314,6 +314,7 @@ fn self_supervised_adaptation_lowers_its_loss() {
     hybrid.inputs = emccd_nn::Inputs::Hybrid;
     if let emccd_nn::Arch::UNet(c) = &mut hybrid.arch {
         c.in_channels = 3;
+        c.residual = 2;
     }
     let e = run(&set, hybrid, AdaptMethod::Neighbors);
     assert!(e.contains("networks of noisy frames only"), "{e}");
