@@ -94,10 +94,7 @@ pub fn motion_mean(
     h: usize,
     p: PoissonGaussian,
 ) -> MotionMean {
-    assert_eq!(window.len(), guides.len(), "a guide for every frame");
-    for f in window.iter().chain(guides) {
-        assert_eq!(f.len(), w * h, "frame size");
-    }
+    check_window(window, guides, w, h);
     let own = window[center];
     if window.len() == 1 || w < N || h < N {
         return MotionMean {
@@ -226,10 +223,7 @@ pub fn scene(
     h: usize,
     p: PoissonGaussian,
 ) -> Scene {
-    assert_eq!(window.len(), guides.len(), "a guide for every frame");
-    for f in window.iter().chain(guides) {
-        assert_eq!(f.len(), w * h, "frame size");
-    }
+    check_window(window, guides, w, h);
     if window.len() == 1 || w < N || h < N {
         return Scene {
             first: center,
@@ -271,6 +265,14 @@ pub fn scene(
 /// of the frames `first..=last` (bleaching; [`Scene::scale`] over a narrower scene).
 pub fn brightness_trend(window: &[&[f32]], center: usize, first: usize, last: usize) -> Vec<f64> {
     brightness(window, center, first..=last)
+}
+
+/// Panics unless every frame of `window` has its guide and every frame and guide is `w × h`.
+fn check_window(window: &[&[f32]], guides: &[&[f32]], w: usize, h: usize) {
+    assert_eq!(window.len(), guides.len(), "a guide for every frame");
+    for f in window.iter().chain(guides) {
+        assert_eq!(f.len(), w * h, "frame size");
+    }
 }
 
 /// Distance between the reference blocks [`scene`] tracks, px: its decision is a median over

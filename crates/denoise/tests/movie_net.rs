@@ -92,17 +92,6 @@ fn mean(v: &[f32]) -> f64 {
     v.iter().map(|&x| x as f64).sum::<f64>() / v.len() as f64
 }
 
-fn psnr(est: &[f32], truth: &[f64]) -> f64 {
-    let peak = truth.iter().copied().fold(0.0, f64::max);
-    let mse = est
-        .iter()
-        .zip(truth)
-        .map(|(&e, &t)| (e as f64 - t).powi(2))
-        .sum::<f64>()
-        / truth.len() as f64;
-    10.0 * (peak * peak / mse).log10()
-}
-
 #[test]
 fn a_streamed_stack_is_the_mirrored_windows_computed_in_memory() {
     let (p, m) = (profile(), model());
@@ -354,15 +343,20 @@ fn nothing_crosses_a_scene_cut() {
         .map(|t| if t < 3 { a.clone() } else { b.clone() })
         .collect();
     let raws = shoot(&p, &photons, 3000);
-    let truth =
-        |s: &[f32]| -> Vec<f64> { s.iter().map(|&v| v as f64 * dn_per_photon(&p)).collect() };
+    let cam = VirtualCamera::new(p.clone(), PhysicalParams::default()).unwrap();
+    let exposure = cam.exposure(EXPOSURE);
+    let truth = |s: &[f32]| exposure.ground_truth(s);
     let whole = every_frame(&fd, &raws);
     let (first, second) = (every_frame(&fd, &raws[..3]), every_frame(&fd, &raws[3..]));
     for (name, across, within, t) in [
         ("frame 2", &whole[2], &first[2], truth(&a)),
         ("frame 3", &whole[3], &second[0], truth(&b)),
     ] {
-        let (x, w) = (psnr(across, &t), psnr(within, &t));
+        let peak = t.iter().copied().fold(0.0f32, f32::max) as f64;
+        let (x, w) = (
+            emccd_eval::psnr(across, &t, peak),
+            emccd_eval::psnr(within, &t, peak),
+        );
         println!("{name}: {w:.2} dB from its own scene, {x:.2} dB across the cut");
         assert!(x > w - 0.2, "{name}: {w:.2} → {x:.2} dB");
     }

@@ -323,10 +323,9 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_still_motion_gives_the_centre_frames_crop() {
-        let img = ramp(64, 48);
-        let m = Motion {
+    /// A window of 2 frames each side in which nothing moves or changes.
+    fn still() -> Motion {
+        Motion {
             k: 2,
             velocity: [0.0; 2],
             spin: 0.0,
@@ -338,7 +337,13 @@ mod tests {
             cut: None,
             end: None,
             lone: false,
-        };
+        }
+    }
+
+    #[test]
+    fn a_still_motion_gives_the_centre_frames_crop() {
+        let img = ramp(64, 48);
+        let m = still();
         let f = m.frame(&img, &img, [10, 7], 16, 2);
         for y in 0..16 {
             for x in 0..16 {
@@ -353,17 +358,7 @@ mod tests {
         let img = ramp(64, 48);
         let m = Motion {
             velocity: [1.0, 2.0],
-            ..Motion::draw(&mut Pcg64::seed_from_u64(1), 2, 16)
-        };
-        let m = Motion {
-            spin: 0.0,
-            wave: None,
-            jitter: vec![[0.0; 2]; 5],
-            bleach: 0.0,
-            background: 1.0,
-            spots: Vec::new(),
-            cut: None,
-            ..m
+            ..still()
         };
         // Frame d shows at (x, y) what the centre showed at (x − d·vx, y − d·vy).
         let f = m.frame(&img, &img, [20, 20], 16, -2);

@@ -174,7 +174,7 @@ fn synth_sample(
     let noise_seed = rng.random::<u64>();
     // The neighbours' camera is this one over the crop (its clock-induced charge is drawn the
     // same way from the same state).
-    let crop_rng = rng.clone();
+    let mut crop_rng = rng.clone();
     pair_camera(cfg, profile, abl, &rn, &mut rng)?.synthesize(&clean, w, &mut noisy, noise_seed);
     let scale = match inputs {
         Inputs::Noisy | Inputs::Movie => cfg.scale.of(
@@ -194,7 +194,7 @@ fn synth_sample(
             // The neighbours, synthesized over the crop alone, unoriented; frames beyond a
             // movie's end are their mirror's noisy frame.
             let raw_rn = sub_image(&rn, w, x0, y0, c, c);
-            let cam = pair_camera(cfg, profile, abl, &raw_rn, &mut crop_rng.clone())?;
+            let cam = pair_camera(cfg, profile, abl, &raw_rn, &mut crop_rng)?;
             let k = MOVIE_WINDOW as isize;
             let mut made: Vec<(isize, Vec<f32>)> = vec![(0, noisy_c.clone())];
             for d in (-k..=k).filter(|&d| d != 0 && m.shown(d) == d) {
