@@ -1,6 +1,6 @@
 //! Classical denoising of a movie frame from the frames around it. Block matching follows the
 //! motion: each 8×8 block of frame `t` is looked for in frame `t ± 1` around where the whole
-//! scene moved (the frame's best whole-pixel shift, which noise cannot fake over a whole
+//! scene moved (the frame's registration to frame `t`, which noise cannot fake over a whole
 //! frame), then in `t ± 2` around where it was found in `t ± 1`, and so on outward. The
 //! frames' single-frame estimates say whether a block moved on its own (a particle, a
 //! deformation): their best match is taken where it is clearly closer. The noisy frames, after
@@ -316,14 +316,38 @@ fn tracked(
     let limit = threshold();
     let (xs, ys) = (positions(w, N, step), positions(h, N, step));
     // How the whole scene moved into each frame from the one before it on the way out from
-    // frame `t` (the track's previous frame): each block's move is looked for around it.
-    let moves: Vec<(isize, isize)> = (0..window.len())
+    // frame `t` (the track's previous frame).
+    let moves: Vec<(f64, f64)> = (0..window.len())
         .map(|f| match f.cmp(&center) {
-            std::cmp::Ordering::Less => global_shift(&gat[f + 1], &gat[f], w, h),
-            std::cmp::Ordering::Greater => global_shift(&gat[f - 1], &gat[f], w, h),
-            std::cmp::Ordering::Equal => (0, 0),
+            std::cmp::Ordering::Less => global_shift(&gat[f + 1], &gat[f], w, h, (0, 0), SEARCH),
+            std::cmp::Ordering::Greater => global_shift(&gat[f - 1], &gat[f], w, h, (0, 0), SEARCH),
+            std::cmp::Ordering::Equal => (0.0, 0.0),
         })
         .collect();
+    // Where the scene is in each frame relative to frame `t`, to a fraction of a pixel: each
+    // frame registered to frame `t` itself within a pixel of where the moves, added up, put
+    // it. Moves rounded frame by frame lose a slow drift (0.3 px a frame is a whole pixel every
+    // third frame), and fractions added up add up their noise too (a still scene's to a whole
+    // pixel within a few frames at a photon per pixel). Each block's move is looked for
+    // around the whole pixel nearest the scene's.
+    let mut scene_at = vec![(0.0, 0.0); window.len()];
+    let chain = |prev: (f64, f64), f: usize| -> (f64, f64) {
+        let chained = (prev.0 + moves[f].0, prev.1 + moves[f].1);
+        let around = (chained.0.round() as isize, chained.1.round() as isize);
+        global_shift(&gat[center], &gat[f], w, h, around, 1)
+    };
+    for f in (0..center).rev() {
+        scene_at[f] = chain(scene_at[f + 1], f);
+    }
+    for f in center + 1..window.len() {
+        scene_at[f] = chain(scene_at[f - 1], f);
+    }
+    let step_of = |f: usize, prev: usize| -> (isize, isize) {
+        (
+            scene_at[f].0.round() as isize - scene_at[prev].0.round() as isize,
+            scene_at[f].1.round() as isize - scene_at[prev].1.round() as isize,
+        )
+    };
     // Every reference block's track, outward in both directions until a block fails.
     let tracks: Vec<Vec<Vec<Step>>> = ys
         .par_iter()
@@ -339,8 +363,8 @@ fn tracked(
                             let shifted = |c: usize, d: isize, len: usize| {
                                 (c as isize + d).clamp(0, (len - N) as isize) as usize
                             };
-                            let predicted =
-                                (shifted(px, moves[fu].0, w), shifted(py, moves[fu].1, h));
+                            let mv = step_of(fu, (fu as isize - dir) as usize);
+                            let predicted = (shifted(px, mv.0, w), shifted(py, mv.1, h));
                             match track(
                                 (&gat[center], &gat[fu]),
                                 (&guides[center], &guides[fu]),
@@ -496,19 +520,31 @@ fn brightness(
 /// half a count per pixel).
 const MOVE_GAIN: f64 = 0.05 * (N * N) as f64;
 
-/// The whole-pixel shift (within [`SEARCH`] px) that best carries frame `from` onto frame `to`
-/// (both after the transform): the one with the least mean squared difference over the pixels
-/// at least [`SEARCH`] px from the border. A drift or a tip-tilt jitter moves every block
-/// alike, and where noise hides the move from each block (below a photon or so per pixel) the
-/// whole frame still shows it; a still scene gives no shift, so no block is moved by noise.
-fn global_shift(from: &[f32], to: &[f32], w: usize, h: usize) -> (isize, isize) {
-    let s = SEARCH as usize;
+/// The shift (within `reach` px of `around`) that best carries frame `from` onto frame `to`
+/// (both after the transform): the whole-pixel one with the least mean squared difference over
+/// the pixels far enough from the border, refined to a fraction of a pixel by the vertex of the
+/// parabola through it and its neighbours along each axis. A drift or a tip-tilt jitter moves
+/// every block alike, and where noise hides the move from each block (below a photon or so per
+/// pixel) the whole frame still shows it; a still scene gives no shift, so no block is moved
+/// by noise.
+fn global_shift(
+    from: &[f32],
+    to: &[f32],
+    w: usize,
+    h: usize,
+    around: (isize, isize),
+    reach: isize,
+) -> (f64, f64) {
+    let s = (reach + around.0.abs().max(around.1.abs())) as usize;
     if w <= 2 * s || h <= 2 * s {
-        return (0, 0);
+        return (0.0, 0.0);
     }
+    let side = (2 * reach + 1) as usize;
+    let mut surface = vec![0f64; side * side];
     let mut best = (f64::INFINITY, (0, 0));
-    for dy in -SEARCH..=SEARCH {
-        for dx in -SEARCH..=SEARCH {
+    for sy in -reach..=reach {
+        for sx in -reach..=reach {
+            let (dx, dy) = (around.0 + sx, around.1 + sy);
             // Row sums in parallel, added in row order: the same bits on every run.
             let rows: Vec<f64> = (s..h - s)
                 .into_par_iter()
@@ -524,6 +560,7 @@ fn global_shift(from: &[f32], to: &[f32], w: usize, h: usize) -> (isize, isize) 
                 })
                 .collect();
             let d: f64 = rows.iter().sum();
+            surface[(sy + reach) as usize * side + (sx + reach) as usize] = d;
             // Ties go to the smaller move.
             let nearer = dx * dx + dy * dy < best.1 .0 * best.1 .0 + best.1 .1 * best.1 .1;
             if d < best.0 || (d == best.0 && nearer) {
@@ -531,7 +568,29 @@ fn global_shift(from: &[f32], to: &[f32], w: usize, h: usize) -> (isize, isize) 
             }
         }
     }
-    best.1
+    // The vertex of the parabola through the surface's minimum and its neighbours, per axis:
+    // over a whole frame the noise adds the same at every shift, and the surface is smooth.
+    let (bx, by) = (best.1 .0 - around.0, best.1 .1 - around.1);
+    let at = |dx: isize, dy: isize| surface[(dy + reach) as usize * side + (dx + reach) as usize];
+    let vertex = |m: f64, o: f64, p: f64| {
+        let c = m - 2.0 * o + p;
+        if c > 0.0 {
+            ((m - p) / (2.0 * c)).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        }
+    };
+    let fx = if bx.abs() < reach {
+        vertex(at(bx - 1, by), at(bx, by), at(bx + 1, by))
+    } else {
+        0.0
+    };
+    let fy = if by.abs() < reach {
+        vertex(at(bx, by - 1), at(bx, by), at(bx, by + 1))
+    } else {
+        0.0
+    };
+    ((bx + around.0) as f64 + fx, (by + around.1) as f64 + fy)
 }
 
 /// Where the block at `at` of frame `t` went in another frame, searched around where the
@@ -678,4 +737,50 @@ pub fn estimate(
 /// [`estimate`] tracks motion on and falls back to.
 pub fn single(frame: &[f32], w: usize, h: usize, p: PoissonGaussian) -> Vec<f32> {
     bm3d_adaptive(frame, w, h, p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A smooth pattern moved by (`dx`, `dy`) px, sampled on a `w × h` grid.
+    fn pattern(w: usize, h: usize, dx: f64, dy: f64) -> Vec<f32> {
+        (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f64 - dx, (i / w) as f64 - dy);
+                (10.0 + 3.0 * (x / 4.0).sin() + 2.0 * (y / 5.0).cos() + (0.07 * x * y / 9.0).sin())
+                    as f32
+            })
+            .collect()
+    }
+
+    /// The registration finds a move of whole and fractional pixels, searched widely or within
+    /// a pixel of a prediction, within 0.1 px: the parabola through the squared differences at
+    /// whole pixels leans towards the nearest whole pixel (the difference is not a parabola),
+    /// here by up to 0.07 px, which leaves the whole pixel each block is looked for around
+    /// right wherever the move is more than 0.1 px from a half.
+    #[test]
+    fn the_scene_is_registered_to_a_fraction_of_a_pixel() {
+        let (w, h) = (64, 64);
+        let still = pattern(w, h, 0.0, 0.0);
+        for (dx, dy) in [(0.3, -0.4), (2.6, 1.2), (-1.3, 0.2)] {
+            let moved = pattern(w, h, dx, dy);
+            let (fx, fy) = global_shift(&still, &moved, w, h, (0, 0), SEARCH);
+            assert!(
+                (fx - dx).abs() < 0.1 && (fy - dy).abs() < 0.1,
+                "moved ({dx}, {dy}): found ({fx:.3}, {fy:.3})"
+            );
+            let near = (dx.round() as isize, dy.round() as isize);
+            let (gx, gy) = global_shift(&still, &moved, w, h, near, 1);
+            assert!(
+                (gx - dx).abs() < 0.1 && (gy - dy).abs() < 0.1,
+                "moved ({dx}, {dy}), searched from {near:?}: found ({gx:.3}, {gy:.3})"
+            );
+        }
+        let (sx, sy) = global_shift(&still, &still, w, h, (0, 0), SEARCH);
+        assert!(
+            sx.abs() < 0.1 && sy.abs() < 0.1,
+            "still: ({sx:.3}, {sy:.3})"
+        );
+    }
 }

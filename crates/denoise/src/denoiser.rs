@@ -219,11 +219,12 @@ pub struct Denoiser<'a> {
     pub window: usize,
 }
 
-/// The frames each side `--method temporal` uses when no window is given: 9 frames in all.
+/// The frames each side `--method temporal` uses when no window is given: 13 frames in all.
 /// Chosen on the movie suite's validation camera (`tools/movie_suite.py --cameras tune`,
-/// docs/results.md): over 2 each side, +0.3 dB on average, more on still scenes, jittered stars and
-/// across cuts, −0.2 dB at most on a drift.
-pub const DEFAULT_WINDOW: usize = 4;
+/// docs/results.md): with the scene registered to a fraction of a pixel, over 4 each side
+/// +0.14 dB on average (16-frame movies; more on still, drifting and bleaching scenes, −0.5 dB
+/// on the deformation at 1 e⁻); 4 each side was +0.3 dB over 2 before that registration.
+pub const DEFAULT_WINDOW: usize = 6;
 
 /// The most frames each side a temporal method takes (33 frames held at a time).
 pub const MAX_WINDOW: usize = 16;
