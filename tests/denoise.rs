@@ -359,12 +359,15 @@ fn temporal_denoises_a_stack_with_its_neighbours() {
     assert_ne!(t, ivst);
     ok(&run(&["-o", "t.zarr", "--method", "temporal"]));
     let attrs = std::fs::read_to_string(d.join("t.zarr/zarr.json")).unwrap();
-    assert!(attrs.contains("\"window\": 4"), "{attrs}");
+    let k = emccd_denoise::DEFAULT_WINDOW;
+    assert!(attrs.contains(&format!("\"window\": {k}")), "{attrs}");
     let o = run(&["-o", "default.tif"]);
     ok(&o);
     let note = String::from_utf8_lossy(&o.stderr);
     assert!(
-        note.contains("4 frames: each estimated with the 4 before and after"),
+        note.contains(&format!(
+            "4 frames: each estimated with the {k} before and after"
+        )),
         "{note}"
     );
     ok(&run(&["-o", "t4.tif", "--method", "temporal"]));

@@ -13,7 +13,7 @@ use crate::common::{load_profile, progress, RecordingArgs};
 
 /// Denoise raw EMCCD frames: remove blooming and the fixed pattern with the camera profile (paper
 /// eq. 4), then denoise. By default a recording of several frames (a movie) runs `temporal`:
-/// each frame estimated from the 4 before and after it too (blocks tracked along the motion,
+/// each frame estimated from the 6 before and after it too (blocks tracked along the motion,
 /// averaged, denoised at the mean's noise; above `blend` on every kind of motion of the movie
 /// suite, docs/results.md). A single frame runs `blend`: BM3D with iterative variance stabilization
 /// (`ivst`) and the bundled `lowlight` network, averaged, the most accurate method this build
@@ -64,7 +64,7 @@ pub struct Args {
     #[arg(long, default_value_t = 1, value_parser = parse_ensemble)]
     pub ensemble: usize,
     /// --method temporal, and the default on a movie: the frames before and after each frame it
-    /// uses (default 4: nine frames; 0: each frame alone, as --method ivst, or as the default
+    /// uses (default 6: thirteen frames; 0: each frame alone, as --method ivst, or as the default
     /// does on a single frame, to the bit). A frame's window stays within its
     /// recording and is clipped at the recording's ends; at most 2·K + 1 frames are held.
     /// --method temporal-net takes 2 (its network's window) or nothing.
