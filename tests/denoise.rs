@@ -311,7 +311,8 @@ fn the_default_method_is_the_blend_of_ivst_and_lowlight() {
 
 /// `--method temporal` through the binary: a cropped 4-frame stack is denoised with its
 /// neighbours (frame count and size kept, the window in the Zarr provenance), `--window 0`
-/// gives `ivst`'s frames, and a window asked of a per-frame method is refused before anything
+/// gives each frame's own estimate (`ivst`'s here, at a tenth of a count per pixel; one plain
+/// BM3D pass from a count), and a window asked of a per-frame method is refused before anything
 /// is written. With no method, a stack runs `temporal` (and says so), `--window 0` the
 /// per-frame default, `blend`.
 #[test]

@@ -82,10 +82,21 @@ impl Schedule {
 /// BM3D with iterative variance stabilization, the schedule chosen from the frame's mean count
 /// ([`Schedule::for_counts`]).
 pub fn bm3d_adaptive(frame: &[f32], w: usize, h: usize, p: PoissonGaussian) -> Vec<f32> {
+    bm3d_iterative(
+        frame,
+        w,
+        h,
+        p,
+        &Schedule::for_counts(mean_counts(frame, p)).0,
+    )
+}
+
+/// A frame's mean effective counts per pixel: its mean signal over the gain α (finite values;
+/// 0 for a frame at or below the offset).
+pub fn mean_counts(frame: &[f32], p: PoissonGaussian) -> f64 {
     let finite = frame.iter().filter(|v| v.is_finite());
     let mean = finite.clone().map(|&v| v as f64).sum::<f64>() / finite.count().max(1) as f64;
-    let counts = ((mean - p.mu) / p.alpha).max(0.0);
-    bm3d_iterative(frame, w, h, p, &Schedule::for_counts(counts).0)
+    ((mean - p.mu) / p.alpha).max(0.0)
 }
 
 impl std::str::FromStr for Schedule {

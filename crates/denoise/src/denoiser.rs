@@ -312,6 +312,13 @@ impl Denoiser<'_> {
                 }
             }
             (None, Some(base)) => Ok(base.of_frame(self.profile, pre, exposure_s)?),
+            (None, None) if self.method == Method::Temporal => {
+                let noise = emccd_classical::frame::vst_params(self.profile, exposure_s)?;
+                let p = self.profile;
+                Ok(emccd_classical::temporal::single(
+                    pre, p.width, p.height, noise,
+                ))
+            }
             (None, None) => Ok(pre.to_vec()),
         }
     }

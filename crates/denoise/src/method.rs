@@ -79,15 +79,18 @@ impl Method {
         Method::None,
     ];
 
-    /// The classical estimate this method runs on a frame alone, if it is one (a temporal
-    /// method's, on a frame without neighbours).
+    /// The classical single-frame estimate this method is, if it is one (`temporal`'s own, on
+    /// a frame without neighbours, is [`emccd_classical::temporal::single`]).
     pub fn classical(self) -> Option<Classical> {
         match self {
             Method::Bm3d => Some(Classical::Bm3d),
-            Method::Ivst | Method::Temporal => Some(Classical::Ivst),
-            Method::Hybrid | Method::Blend | Method::Net | Method::TemporalNet | Method::None => {
-                None
-            }
+            Method::Ivst => Some(Classical::Ivst),
+            Method::Hybrid
+            | Method::Blend
+            | Method::Net
+            | Method::Temporal
+            | Method::TemporalNet
+            | Method::None => None,
         }
     }
 

@@ -113,35 +113,36 @@ fn a_streamed_stack_is_the_windows_computed_in_memory() {
 }
 
 #[test]
-fn window_zero_is_ivst_to_the_bit_and_a_short_stack_uses_what_it_has() {
+fn window_zero_is_the_single_frame_estimate_to_the_bit_and_a_short_stack_uses_what_it_has() {
     let p = profile();
     let dir = tempfile::tempdir().unwrap();
     let raws = movie(3);
     let input = dir.path().join("movie.tif");
     write(&input, &raws);
-    let ivst = Denoiser {
-        method: Method::Ivst,
-        window: 0,
-        ..temporal(&p, 0)
+    // A frame alone: `temporal`'s own single-frame estimate of it.
+    let noise = vst_params(&p, EXPOSURE).unwrap();
+    let own = |raw: &[f32]| {
+        emccd_classical::temporal::single(&preprocess(&p, raw, EXPOSURE).unwrap(), W, H, noise)
     };
     let out = dir.path().join("w0.tif");
     denoise_file(&temporal(&p, 0), open(&input, &p), &out, &mut || ()).unwrap();
     let (_, got) = emccd_io::read_all(&out).unwrap();
     for (g, raw) in got.iter().zip(&raws) {
-        assert_eq!(g, &ivst.run(raw, EXPOSURE).unwrap());
+        assert_eq!(g, &own(raw));
+        assert_eq!(g, &temporal(&p, 0).run(raw, EXPOSURE).unwrap());
     }
     // A window of 3 on 3 frames: each frame's window is the whole stack.
     let out = dir.path().join("w3.tif");
     denoise_file(&temporal(&p, 3), open(&input, &p), &out, &mut || ()).unwrap();
     let (_, got) = emccd_io::read_all(&out).unwrap();
     assert_eq!(got, in_memory(&p, &raws, 3));
-    // One frame: its own estimate, as ivst gives it.
+    // One frame: its own estimate.
     let single = dir.path().join("one.tif");
     write(&single, &raws[..1]);
     let out = dir.path().join("one_out.tif");
     denoise_file(&temporal(&p, 3), open(&single, &p), &out, &mut || ()).unwrap();
     let (_, got) = emccd_io::read_all(&out).unwrap();
-    assert_eq!(got[0], ivst.run(&raws[0], EXPOSURE).unwrap());
+    assert_eq!(got[0], own(&raws[0]));
     // A window asked of a method that denoises frames alone is refused.
     let r = resolve(Some(Method::Bm3d), None, |_| unreachable!()).unwrap();
     assert!(r
