@@ -371,11 +371,20 @@ fn tracked(
         .iter()
         .map(|&(x, y)| (x - x.round(), y - y.round()))
         .collect();
-    for f in 0..window.len() {
-        if fraction[f] != (0.0, 0.0) {
-            frames[f] = resampled(&frames[f], w, h, fraction[f]);
-            guides[f] = resampled(&guides[f], w, h, fraction[f]);
-            gat[f] = to_gat(&frames[f]);
+    let moved: Vec<Option<[Vec<f32>; 3]>> = (0..window.len())
+        .into_par_iter()
+        .map(|f| {
+            (fraction[f] != (0.0, 0.0)).then(|| {
+                let frame = resampled(&frames[f], w, h, fraction[f]);
+                let guide = resampled(&guides[f], w, h, fraction[f]);
+                let g = to_gat(&frame);
+                [frame, guide, g]
+            })
+        })
+        .collect();
+    for (f, m) in moved.into_iter().enumerate() {
+        if let Some([frame, guide, g]) = m {
+            (frames[f], guides[f], gat[f]) = (frame, guide, g);
         }
     }
     // Each pixel's noise variance, predicted from the frame's own estimate: a frame brought up
