@@ -1,7 +1,9 @@
 //! Classical denoising of a movie frame from the frames around it. Block matching follows the
 //! motion: each 8×8 block of frame `t` is looked for in frame `t ± 1` around where the whole
 //! scene moved (the frame's registration to frame `t`, which noise cannot fake over a whole
-//! frame), then in `t ± 2` around where it was found in `t ± 1`, and so on outward. The
+//! frame), then in `t ± 2` around where it was found in `t ± 1`, and so on outward; each
+//! neighbour is first resampled by the fraction of a pixel of its registration, so that the
+//! whole pixels its blocks are read at hold the scene where frame `t` has it. The
 //! frames' single-frame estimates say whether a block moved on its own (a particle, a
 //! deformation): their best match is taken where it is clearly closer. The noisy frames, after
 //! the generalized Anscombe transform (noise about 1 at every level, so one threshold tells a
@@ -9,13 +11,14 @@
 //! choice made on them fits their noise. The matched blocks are averaged in the data's own
 //! units — a motion-compensated mean that holds about `N` frames' photons wherever `N` frames
 //! matched — and the mean is denoised by iterative BM3D at the noise of a mean of `N` frames
-//! (gain α/N, read noise σ/√N).
+//! (gain α/N, read noise σ/√N), `N` the frames its noise is worth (a resampled neighbour holds
+//! less noise; a partly matching block counts partly).
 //!
 //! Where the neighbours hold nothing like frame `t` (a particle that moved off its track, a
 //! spot that blinked), no block passes the threshold; a neighbour whose blocks as a whole
 //! differ more than noise does (a scene cut) ends the window on its side. There the estimate
-//! falls back, pixel by pixel and in proportion to the frames that matched, to iterative BM3D of
-//! frame `t` alone. Neighbours are brought to frame `t`'s brightness along the window's trend
+//! falls back, pixel by pixel and in proportion to the frames that matched, to the estimate of
+//! frame `t` alone ([`single`]). Neighbours are brought to frame `t`'s brightness along the window's trend
 //! (bleaching). The mean is taken in the data's units and both estimates invert the transform
 //! with its exact unbiased inverse, so the mean over a region stays the signal's (within 1 %
 //! in the tests, down to half a count per pixel, bleaching or not).
