@@ -39,7 +39,7 @@ struct Transform {
     f: Vec<f64>,
     /// The synthesis rows transposed: the inverse applied as the forward is.
     t_rows: Vec<f64>,
-    /// `f` and `t_rows` transposed (`t_rows`'s transpose is `t`).
+    /// `f` transposed, and `t_rows` transposed (the synthesis rows themselves).
     f_cols: Vec<f64>,
     t: Vec<f64>,
 }
@@ -80,7 +80,7 @@ impl Transform {
         // products: this was a quarter of BM3D's time); the sums are in the same order.
         match self.n {
             8 => separable::<8>(m, mt, input, out),
-            4 => separable::<4>(m, mt, input, out),
+            11 => separable::<11>(m, mt, input, out),
             n => separable_n(n, m, input, out),
         }
     }
@@ -617,6 +617,30 @@ mod tests {
                 b.iter().zip(&r).all(|(a, b)| (a - b).abs() < 1e-9),
                 "n = {n}"
             );
+        }
+        // The sizes known to the compiler give the general product's sums to the bit, forward
+        // and inverse (the same products, added in the same order).
+        for (t, n) in [
+            (Transform::bior15(), 8),
+            (Transform::orthonormal(dct_matrix(8), 8), 8),
+            (Transform::orthonormal(dct_matrix(11), 11), 11),
+        ] {
+            let b: Vec<f64> = (0..n * n).map(|i| ((i * 53 % 17) as f64).sin()).collect();
+            for (m, mt) in [(&t.f, &t.f_cols), (&t.t_rows, &t.t)] {
+                let (mut fast, mut general) = (vec![0.0; n * n], vec![0.0; n * n]);
+                if n == 8 {
+                    separable::<8>(m, mt, &b, &mut fast);
+                } else {
+                    separable::<11>(m, mt, &b, &mut fast);
+                }
+                separable_n(n, m, &b, &mut general);
+                assert!(
+                    fast.iter()
+                        .zip(&general)
+                        .all(|(a, b)| a.to_bits() == b.to_bits()),
+                    "n = {n}"
+                );
+            }
         }
         let mut g: Vec<Block> = (0..8)
             .map(|k| std::array::from_fn(|i| ((i + 3 * k) % 7) as f64))

@@ -36,7 +36,8 @@ pub struct Args {
     /// a model file (`default`, `microscopy`, `lowlight`, `movie` = the bundled networks; a hybrid model file runs as
     /// the hybrid method, a temporal one as temporal-net), `temporal-net` (the bundled temporal
     /// network on each frame and the 2 before and after it), `temporal` (a movie's frames from their neighbours, the
-    /// default window each side or `temporal:K` K; on a still pair, `ivst`), `count` (photon
+    /// default window each side or `temporal:K` K; on a still pair, the frame's own estimate:
+    /// `ivst` below one count per pixel, one BM3D pass from there), `count` (photon
     /// counting as `emccd count` does it by default, the likelihood, one estimate of the whole
     /// stack given to each of its frames; `count:N` one per N frames; on a still pair, from all
     /// its noisy frames) and `analog` (the analog mean the same way; `analog:N`), for stacks of

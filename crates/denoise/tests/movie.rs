@@ -1,5 +1,5 @@
 //! `--method temporal` on stacks: streamed in windows, it gives what the windows computed in
-//! memory give; `--window 0` is `ivst` to the bit; shares of an OME-Zarr store read the frames
+//! memory give; `--window 0` is each frame's own estimate to the bit; shares of an OME-Zarr store read the frames
 //! of context around them and so equal one process's output; a stack too short for its window
 //! uses the frames it has; a bad frame is an error naming it, with nothing left behind.
 
