@@ -3,7 +3,9 @@
 //! its exact unbiased inverse with iterative BM3D ([`vst`]), both applied to a camera frame
 //! through its calibrated profile ([`frame`]: preprocessing, the profile's noise, the estimate a
 //! hybrid network refines), and a movie frame estimated from the frames around it
-//! ([`temporal`]: blocks tracked along the motion, averaged, and denoised at a mean's noise).
+//! ([`temporal`]: blocks tracked along the motion, averaged, and denoised at a mean's noise;
+//! its neighbours moved to a fraction of a pixel by [`resample`], Keys' cubic kernel, which
+//! the training movies' motion uses too).
 //!
 //! A flat frame with Poisson–Gaussian noise, stabilized, denoised and brought back unbiased:
 //!
@@ -21,6 +23,7 @@
 
 pub mod bm3d;
 pub mod frame;
+pub mod resample;
 pub mod temporal;
 pub mod vst;
 

@@ -26,6 +26,7 @@
 use rayon::prelude::*;
 
 use crate::bm3d::{kaiser, positions};
+use crate::resample::{noise_kept, resampled};
 use crate::vst::{bm3d_adaptive, bm3d_iterative, forward, mean_counts, PoissonGaussian, Schedule};
 
 /// Block side, px.
@@ -486,68 +487,6 @@ fn resample_all(frames: &mut [Vec<f32>], fraction: &[(f64, f64)], w: usize, h: u
         .zip(fraction)
         .filter(|(_, &e)| e != (0.0, 0.0))
         .for_each(|(f, &e)| *f = resampled(f, w, h, e));
-}
-
-/// Keys' cubic kernel (a = −½).
-fn keys(t: f64) -> f64 {
-    let t = t.abs();
-    if t < 1.0 {
-        1.5 * t * t * t - 2.5 * t * t + 1.0
-    } else if t < 2.0 {
-        -0.5 * t * t * t + 2.5 * t * t - 4.0 * t + 2.0
-    } else {
-        0.0
-    }
-}
-
-/// The four taps of [`keys`] for a sample `e` px along (offsets floor(e) − 1 … floor(e) + 2).
-fn taps(e: f64) -> (isize, [f64; 4]) {
-    let base = e.floor();
-    let frac = e - base;
-    (
-        base as isize,
-        [
-            keys(1.0 + frac),
-            keys(frac),
-            keys(1.0 - frac),
-            keys(2.0 - frac),
-        ],
-    )
-}
-
-/// The fraction of independent noise's variance a frame [`resampled`] by `e` keeps.
-fn noise_kept(e: (f64, f64)) -> f64 {
-    let sq = |e: f64| taps(e).1.iter().map(|w| w * w).sum::<f64>();
-    sq(e.0) * sq(e.1)
-}
-
-/// `frame` (`w × h`) sampled `e` px further along each axis (`out(x, y) = frame(x + eₓ, y + e_y)`),
-/// with Keys' cubic kernel (a = −½), the edge pixels repeated: its weights sum to 1, so the
-/// mean over a region is kept.
-fn resampled(frame: &[f32], w: usize, h: usize, e: (f64, f64)) -> Vec<f32> {
-    let (bx, wx) = taps(e.0);
-    let (by, wy) = taps(e.1);
-    let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
-    // Along x, then along y.
-    let mut rows = vec![0f32; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let v: f64 = (0..4)
-                .map(|k| wx[k] * frame[y * w + clamp(x as isize + bx - 1 + k as isize, w)] as f64)
-                .sum();
-            rows[y * w + x] = v as f32;
-        }
-    }
-    let mut out = vec![0f32; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let v: f64 = (0..4)
-                .map(|k| wy[k] * rows[clamp(y as isize + by - 1 + k as isize, h) * w + x] as f64)
-                .sum();
-            out[y * w + x] = v as f32;
-        }
-    }
-    out
 }
 
 /// The first and last frames of the window that hold frame `center`'s scene: walking out from

@@ -282,19 +282,7 @@ fn bicubic(img: &Image, x: f32, y: f32) -> f32 {
         let m = i.rem_euclid(p);
         (if m >= n { p - m } else { m }) as usize
     };
-    let weights = |t: f32| -> [f32; 4] {
-        let c = |x: f32| {
-            let x = x.abs();
-            if x < 1.0 {
-                1.5 * x * x * x - 2.5 * x * x + 1.0
-            } else if x < 2.0 {
-                -0.5 * x * x * x + 2.5 * x * x - 4.0 * x + 2.0
-            } else {
-                0.0
-            }
-        };
-        [c(1.0 + t), c(t), c(1.0 - t), c(2.0 - t)]
-    };
+    let weights = |t: f32| emccd_classical::resample::keys_weights(t as f64).map(|w| w as f32);
     let (fx, fy) = (x.floor(), y.floor());
     let (wx, wy) = (weights(x - fx), weights(y - fy));
     let (ix, iy) = (fx as isize, fy as isize);

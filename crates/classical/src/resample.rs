@@ -1,0 +1,68 @@
+//! Resampling a frame to a fraction of a pixel with Keys' cubic convolution kernel (a = −½):
+//! what the temporal method registers its neighbours with, and the movies synthesized for
+//! training move their scenes with. Its weights sum to 1 (a region's mean is kept) and its
+//! taps' squares say how much of independent noise a resampled frame keeps.
+
+/// Keys' cubic kernel (a = −½).
+fn keys(t: f64) -> f64 {
+    let t = t.abs();
+    if t < 1.0 {
+        1.5 * t * t * t - 2.5 * t * t + 1.0
+    } else if t < 2.0 {
+        -0.5 * t * t * t + 2.5 * t * t - 4.0 * t + 2.0
+    } else {
+        0.0
+    }
+}
+
+/// The kernel's weights for a sample `frac` (0 ≤ frac < 1) px past a pixel, on the pixels at
+/// offsets −1, 0, 1 and 2 from it.
+pub fn keys_weights(frac: f64) -> [f64; 4] {
+    [
+        keys(1.0 + frac),
+        keys(frac),
+        keys(1.0 - frac),
+        keys(2.0 - frac),
+    ]
+}
+
+/// The first pixel's offset and the weights for a sample `e` px along.
+fn taps(e: f64) -> (isize, [f64; 4]) {
+    let base = e.floor();
+    (base as isize, keys_weights(e - base))
+}
+
+/// The fraction of independent noise's variance a frame [`resampled`] by `e` keeps.
+pub fn noise_kept(e: (f64, f64)) -> f64 {
+    let sq = |e: f64| taps(e).1.iter().map(|w| w * w).sum::<f64>();
+    sq(e.0) * sq(e.1)
+}
+
+/// `frame` (`w × h`) sampled `e` px further along each axis (`out(x, y) = frame(x + eₓ, y + e_y)`),
+/// with Keys' cubic kernel (a = −½), the edge pixels repeated: its weights sum to 1, so the
+/// mean over a region is kept.
+pub fn resampled(frame: &[f32], w: usize, h: usize, e: (f64, f64)) -> Vec<f32> {
+    let (bx, wx) = taps(e.0);
+    let (by, wy) = taps(e.1);
+    let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
+    // Along x, then along y.
+    let mut rows = vec![0f32; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let v: f64 = (0..4)
+                .map(|k| wx[k] * frame[y * w + clamp(x as isize + bx - 1 + k as isize, w)] as f64)
+                .sum();
+            rows[y * w + x] = v as f32;
+        }
+    }
+    let mut out = vec![0f32; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let v: f64 = (0..4)
+                .map(|k| wy[k] * rows[clamp(y as isize + by - 1 + k as isize, h) * w + x] as f64)
+                .sum();
+            out[y * w + x] = v as f32;
+        }
+    }
+    out
+}
