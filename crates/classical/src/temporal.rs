@@ -184,26 +184,20 @@ pub fn motion_mean(
                     }
                 })
                 .collect();
-            // The frames a pixel holds: the blocks' m, weighted as the blocks are.
-            let held = (0..w)
-                .map(|q| {
-                    if cnt[q] > 0.0 {
-                        (den[q] / cnt[q]) as f32
-                    } else {
-                        1.0
-                    }
-                })
-                .collect();
-            let held_noise = (0..w)
-                .map(|q| {
-                    if cnt[q] > 0.0 {
-                        (held_noise[q] / cnt[q]) as f32
-                    } else {
-                        1.0
-                    }
-                })
-                .collect();
-            (mean, held, held_noise)
+            // Per pixel, a blocks' quantity weighted as the blocks are (1 where no block is).
+            let per_pixel = |sums: &[f64]| -> Vec<f32> {
+                (0..w)
+                    .map(|q| {
+                        if cnt[q] > 0.0 {
+                            (sums[q] / cnt[q]) as f32
+                        } else {
+                            1.0
+                        }
+                    })
+                    .collect()
+            };
+            // The frames a pixel holds (the blocks' m), and the frames its noise is worth.
+            (mean, per_pixel(&den), per_pixel(&held_noise))
         })
         .collect();
     let (mut mean, mut frames, mut noise_frames) = (Vec::new(), Vec::new(), Vec::new());
@@ -378,6 +372,7 @@ fn tracked(
         .iter()
         .map(|&(x, y)| (x - x.round(), y - y.round()))
         .collect();
+    let kept: Vec<f64> = fraction.iter().map(|&e| noise_kept(e)).collect();
     resample_all(&mut frames, &fraction, w, h);
     resample_all(&mut guides, &fraction, w, h);
     gat.par_iter_mut()
@@ -391,9 +386,8 @@ fn tracked(
     let variance: Vec<Vec<f32>> = guides
         .iter()
         .zip(&scale)
-        .zip(&fraction)
-        .map(|((g, &s), &e)| {
-            let k = noise_kept(e);
+        .zip(&kept)
+        .map(|((g, &s), &k)| {
             g.iter()
                 .map(|&z| {
                     (k * (s * p.alpha * (z as f64 - p.mu).max(0.0) + s * s * p.sigma * p.sigma))
@@ -476,7 +470,7 @@ fn tracked(
         first,
         last,
         scale,
-        kept: fraction.iter().map(|&e| noise_kept(e)).collect(),
+        kept,
     }
 }
 
