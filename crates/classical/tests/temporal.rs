@@ -189,6 +189,75 @@ fn a_spot_in_one_frame_stays_in_that_frame() {
     assert!(leaked.abs() < 0.1, "its neighbour takes {leaked:.3} of it");
 }
 
+/// Eight Gaussian spots (σ 1.2 px, 100 counts each) diffusing 1 px per frame and blinking (on →
+/// off with p 0.15, off → on with p 0.3 per frame) on a background of 0.3 counts, about half a
+/// count per pixel in all, like the movie suite's particles at 1 e⁻: over the nine frames of
+/// two movies, the spots that are on keep at least 90 % of their light within 3 px of their
+/// centres. A block that holds a spot's edge passes the block test even where the spot has
+/// moved away or blinked off in the neighbour (the edge holds a few photons under 64 pixels'
+/// noise); averaged in, it took 17 % of the spots' light (measured before the per-pixel
+/// agreement of the guides). The estimate of the ratio over ~100 spot-frames has about 1.5 %
+/// noise (one spot-frame's 7×7 box holds ~115 counts, ±10 %, before any denoising), so 90 % is
+/// several of it below the 96–97 % kept now.
+#[test]
+fn diffusing_blinking_spots_keep_their_light() {
+    let background = 0.3;
+    let (mut est_sum, mut truth_sum, mut spots) = (0.0, 0.0, 0);
+    for seed in [61, 67, 71, 73] {
+        let mut rng = Lcg(seed);
+        let mut pos: Vec<(f64, f64)> = (0..8)
+            .map(|_| (6.0 + 52.0 * rng.uniform(), 6.0 + 52.0 * rng.uniform()))
+            .collect();
+        let mut on: Vec<bool> = (0..8).map(|_| rng.uniform() < 0.7).collect();
+        let (mut counts, mut truths) = (Vec::new(), Vec::new());
+        for _ in 0..9 {
+            for (p, o) in pos.iter_mut().zip(on.iter_mut()) {
+                p.0 = (p.0 + rng.normal()).clamp(6.0, 57.0);
+                p.1 = (p.1 + rng.normal()).clamp(6.0, 57.0);
+                *o = if *o {
+                    rng.uniform() > 0.15
+                } else {
+                    rng.uniform() < 0.3
+                };
+            }
+            let c: Vec<f64> = (0..W * H)
+                .map(|i| {
+                    let (x, y) = ((i % W) as f64, (i / W) as f64);
+                    background
+                        + pos
+                            .iter()
+                            .zip(&on)
+                            .filter(|(_, &o)| o)
+                            .map(|(&(px, py), _)| {
+                                let r2 = (x - px).powi(2) + (y - py).powi(2);
+                                100.0 / (2.0 * std::f64::consts::PI * 1.44) * (-r2 / 2.88).exp()
+                            })
+                            .sum::<f64>()
+                })
+                .collect();
+            truths.push((pos.clone(), on.clone()));
+            counts.push(c);
+        }
+        let frames: Vec<Vec<f32>> = counts.iter().map(|c| rng.frame(c)).collect();
+        let estimates = every_frame(&frames, 4);
+        for ((est, c), (pos, on)) in estimates.iter().zip(&counts).zip(&truths) {
+            for (&(px, py), _) in pos.iter().zip(on).filter(|(_, &o)| o) {
+                let (cx, cy) = (px.round() as usize, py.round() as usize);
+                for y in cy - 3..=cy + 3 {
+                    for x in cx - 3..=cx + 3 {
+                        est_sum += est[y * W + x] as f64 - CAM.alpha * background;
+                        truth_sum += CAM.alpha * (c[y * W + x] - background);
+                    }
+                }
+                spots += 1;
+            }
+        }
+    }
+    let kept = est_sum / truth_sum;
+    println!("{spots} spot-frames keep {kept:.3} of their light");
+    assert!(kept >= 0.9, "the spots keep {kept:.3} of their light");
+}
+
 /// A uniform scene at 0.5, 2 and 8 counts per pixel: the mean of the estimate is the signal's
 /// within 1 %. Measured against the mean of the five frames it came from (whose expectation is
 /// the signal), so the data's own noise drops out — at 0.5 counts the 64² mean of five frames
