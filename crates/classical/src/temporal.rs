@@ -803,8 +803,8 @@ fn best_match(
 /// frames hold four times the photons: where a spot moved on its own and matched in a few
 /// frames, their mean's estimate still keeps it sharper than the frame's alone, though BM3D
 /// ran at the noise of the whole window's mean. Measured on the validation camera `tune` against
-/// going over to the typical pixel's frames (the rule before): particles +0.9 dB at 1 e⁻ and the
-/// other motions within ±0.1 (docs/journal.md).
+/// going over to the typical pixel's frames (the rule before): particles +0.9 dB at 1 e⁻, the
+/// other movies −0.02 to +0.13 dB (docs/journal.md).
 const POOLED_FROM: f64 = 4.0;
 
 /// The estimate of `window[center]` (DN above bias, noise `p`) from its window: iterative BM3D
