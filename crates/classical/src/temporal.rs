@@ -18,10 +18,10 @@
 //!
 //! Where the neighbours hold nothing like frame `t` (a particle that moved off its track, a
 //! spot that blinked), no block passes the threshold; a neighbour whose blocks as a whole
-//! differ more than noise does (a scene cut) ends the window on its side. There the estimate
-//! falls back, pixel by pixel and in proportion to the frames that matched, to the estimate of
-//! frame `t` alone ([`single`]) where fewer than [`POOLED_FROM`] frames' worth matched. Neighbours are brought to frame `t`'s brightness along the window's trend
-//! (bleaching). The mean is taken in the data's units and both estimates invert the transform
+//! differ more than noise does (a scene cut) ends the window on its side. Where fewer than
+//! [`POOLED_FROM`] frames' worth matched, the estimate falls back, pixel by pixel and in
+//! proportion, to the estimate of frame `t` alone ([`single`]). Neighbours are brought to frame
+//! `t`'s brightness along the window's trend (bleaching). The mean is taken in the data's units and both estimates invert the transform
 //! with its exact unbiased inverse, so the mean over a region stays the signal's (within 1 %
 //! in the tests, down to half a count per pixel, bleaching or not).
 
