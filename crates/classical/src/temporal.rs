@@ -58,7 +58,7 @@ fn weight(d: f64) -> f64 {
 }
 
 /// How much a pixel of a matched block counts, from the two frames' guides there, after the
-/// transform (`gat`, noise 1) and in the data's units (`dn`): fully where they differ by up to
+/// transform (their absolute difference, noise 1) and in the data's units (`dn`): fully where they differ by up to
 /// half the noise, nothing from the whole noise, unless the difference is a small part of the
 /// signal (under 40 %, then counting partly to 80 %). A block that holds the edge of a spot
 /// passes the block test where the spot has moved away or blinked off in the neighbour (at a
@@ -69,8 +69,8 @@ fn weight(d: f64) -> f64 {
 /// from frame to frame (BM3D blunts it by its sub-pixel phase), but by a few percent: without
 /// the relative part the jittered stars lost 0.6 dB at 4 e⁻. Thresholds chosen on the
 /// validation camera `tune` (docs/journal.md).
-fn agreement((gat_a, gat_b): (f32, f32), (dn_a, dn_b): (f32, f32)) -> f64 {
-    let differ = (((gat_a - gat_b).abs() as f64 - 0.5) / 0.5).clamp(0.0, 1.0);
+fn agreement(gat_difference: f32, (dn_a, dn_b): (f32, f32)) -> f64 {
+    let differ = ((gat_difference as f64 - 0.5) / 0.5).clamp(0.0, 1.0);
     let relative = ((dn_a - dn_b).abs() / dn_a.max(dn_b).max(f32::MIN_POSITIVE)) as f64;
     let substantial = ((relative - 0.4) / 0.4).clamp(0.0, 1.0);
     1.0 - differ * substantial
@@ -181,11 +181,14 @@ pub fn motion_mean(
                         let (mut sum, mut m, mut noise) = (frames[center][at] as f64, 1.0, 1.0);
                         for &(f, bx, by, wt) in blocks {
                             let there = (by + r) * w + bx + q;
-                            let wt = wt
-                                * agreement(
-                                    (guides_gat[center][at], guides_gat[f][there]),
-                                    (guides[center][at], guides[f][there]),
-                                );
+                            // Most pixels agree within half the noise: the data's units are
+                            // read only where they do not.
+                            let differ = (guides_gat[center][at] - guides_gat[f][there]).abs();
+                            let wt = if differ <= 0.5 {
+                                wt
+                            } else {
+                                wt * agreement(differ, (guides[center][at], guides[f][there]))
+                            };
                             sum += wt * frames[f][there] as f64;
                             m += wt;
                             // The mean's noise over one frame's: Σ k·w² / (Σ w)².
