@@ -12,8 +12,8 @@
 //! units, each pixel of a block counting as far as the guides agree there ([`agreement`]: a
 //! block that holds the edge of a spot that moved away or blinked off passes the block test,
 //! but not pixel by pixel) — a motion-compensated mean that holds about `N` frames' photons
-//! wherever `N` frames matched — and the mean is denoised by iterative BM3D at the noise of a mean of `N` frames
-//! (gain α/N, read noise σ/√N), `N` the frames its noise is worth (a resampled neighbour holds
+//! wherever `N` frames matched — and the mean is denoised by iterative BM3D at the noise of a
+//! mean of `N` frames (gain α/N, read noise σ/√N), `N` the frames its noise is worth (a resampled neighbour holds
 //! less noise; a partly matching block counts partly).
 //!
 //! Where the neighbours hold nothing like frame `t` (a particle that moved off its track, a
@@ -21,8 +21,8 @@
 //! differ more than noise does (a scene cut) ends the window on its side. Where fewer than
 //! [`POOLED_FROM`] frames' worth matched, the estimate falls back, pixel by pixel and in
 //! proportion, to the estimate of frame `t` alone ([`single`]). Neighbours are brought to frame
-//! `t`'s brightness along the window's trend (bleaching). The mean is taken in the data's units and both estimates invert the transform
-//! with its exact unbiased inverse, so the mean over a region stays the signal's (within 1 %
+//! `t`'s brightness along the window's trend (bleaching). The mean is taken in the data's units
+//! and both estimates invert the transform with its exact unbiased inverse, so the mean over a region stays the signal's (within 1 %
 //! in the tests, down to half a count per pixel, bleaching or not).
 
 use rayon::prelude::*;
@@ -58,8 +58,8 @@ fn weight(d: f64) -> f64 {
 }
 
 /// How much a pixel of a matched block counts, from the two frames' guides there, after the
-/// transform (their absolute difference, noise 1) and in the data's units (`dn`): fully where they differ by up to
-/// half the noise, nothing from the whole noise, unless the difference is a small part of the
+/// transform (their absolute difference, noise 1) and in the data's units (`dn`): fully where
+/// they differ by up to half the noise, nothing from the whole noise, unless the difference is a small part of the
 /// signal (under 40 %, then counting partly to 80 %). A block that holds the edge of a spot
 /// passes the block test where the spot has moved away or blinked off in the neighbour (at a
 /// photon per pixel the edge holds a few photons under 64 pixels' noise), and averaged in it
@@ -149,8 +149,8 @@ pub fn motion_mean(
     let win = kaiser(N);
     // Each output row gathers, in a fixed order (block rows, then blocks), Σ k·(the matched
     // blocks' values), Σ k·m and Σ k, for the window weight k of each block and the m frames
-    // matched at the pixel (each weighted by its block's match and the guides' agreement): the sums never depend on how the rows were shared among threads, so a frame's
-    // estimate is the same bits on every run (its decisions downstream hang on them).
+    // matched at the pixel (each weighted by its block's match and the guides' agreement): the
+    // sums never depend on how the rows were shared among threads, so a frame's estimate is the same bits on every run (its decisions downstream hang on them).
     // A block's steps within the scene, as (frame, x, y, weight in the mean).
     type Kept = Vec<(usize, usize, usize, f64)>;
     let kept = |steps: &[Step]| -> Kept {
@@ -179,15 +179,16 @@ pub fn motion_mean(
                         let k = win[r * N + q];
                         let at = yo * w + x + q;
                         let (mut sum, mut m, mut noise) = (frames[center][at] as f64, 1.0, 1.0);
+                        let (own_gat, own_dn) = (guides_gat[center][at], guides[center][at]);
                         for &(f, bx, by, wt) in blocks {
                             let there = (by + r) * w + bx + q;
                             // Most pixels agree within half the noise: the data's units are
                             // read only where they do not.
-                            let differ = (guides_gat[center][at] - guides_gat[f][there]).abs();
+                            let differ = (own_gat - guides_gat[f][there]).abs();
                             let wt = if differ <= 0.5 {
                                 wt
                             } else {
-                                wt * agreement(differ, (guides[center][at], guides[f][there]))
+                                wt * agreement(differ, (own_dn, guides[f][there]))
                             };
                             sum += wt * frames[f][there] as f64;
                             m += wt;
@@ -812,8 +813,8 @@ const POOLED_FROM: f64 = 4.0;
 
 /// The estimate of `window[center]` (DN above bias, noise `p`) from its window: iterative BM3D
 /// of the motion-compensated mean at a mean's noise, falling back to `singles[center]` (the
-/// frame's own estimate) where fewer than [`POOLED_FROM`] frames matched. `singles` are the window's single-frame
-/// estimates, [`single`] of each frame (a stack computes each once). One frame's worth of
+/// frame's own estimate) where fewer than [`POOLED_FROM`] frames matched. `singles` are the
+/// window's single-frame estimates, [`single`] of each frame (a stack computes each once). One frame's worth of
 /// matches or fewer gives `singles[center]` unchanged.
 pub fn estimate(
     window: &[&[f32]],

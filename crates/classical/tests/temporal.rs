@@ -255,7 +255,7 @@ fn diffusing_blinking_spots_keep_their_light() {
     }
     let kept = est_sum / truth_sum;
     println!("{spots} spot-frames keep {kept:.3} of their light");
-    assert!(kept >= 0.9, "the spots keep {kept:.3} of their light");
+    assert!(kept >= 0.91, "the spots keep {kept:.3} of their light");
 }
 
 /// A uniform scene at 0.5, 2 and 8 counts per pixel: the mean of the estimate is the signal's
