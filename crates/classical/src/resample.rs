@@ -1,7 +1,10 @@
 //! Resampling a frame to a fraction of a pixel with Keys' cubic convolution kernel (a = −½):
 //! what the temporal method registers its neighbours with, and the movies synthesized for
 //! training move their scenes with. Its weights sum to 1 (a region's mean is kept) and its
-//! taps' squares say how much of independent noise a resampled frame keeps.
+//! taps' squares say how much of independent noise a resampled frame keeps. And the binomial
+//! low-pass ([`binomial`]) that frames are registered on.
+
+use rayon::prelude::*;
 
 /// Keys' cubic kernel (a = −½).
 fn keys(t: f64) -> f64 {
@@ -64,5 +67,44 @@ pub fn resampled(frame: &[f32], w: usize, h: usize, e: (f64, f64)) -> Vec<f32> {
             out[y * w + x] = v as f32;
         }
     }
+    out
+}
+
+/// `frame` (`w` px wide) filtered by the binomial kernel (1 4 6 4 1)/16 along each axis (about
+/// a Gaussian of σ = 1 px), its edges mirrored. Whole frames are registered on it: at a photon
+/// per pixel each shift's sum of squared differences between two raw frames carries its own
+/// draw of the pixels' noise, which buries the scene's sub-pixel slope; filtered, the noise
+/// varies smoothly from shift to shift as the scene does.
+pub fn binomial(frame: &[f32], w: usize) -> Vec<f32> {
+    const K: [f32; 5] = [1.0 / 16.0, 4.0 / 16.0, 6.0 / 16.0, 4.0 / 16.0, 1.0 / 16.0];
+    let w = w.max(1);
+    let h = frame.len() / w;
+    let at = |i: isize, n: usize| -> usize {
+        let n = n as isize;
+        (if i < 0 {
+            -i
+        } else if i >= n {
+            2 * n - 2 - i
+        } else {
+            i
+        })
+        .clamp(0, n - 1) as usize
+    };
+    let mut rows = vec![0f32; w * h];
+    rows.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, r) in row.iter_mut().enumerate() {
+            *r = (0..5)
+                .map(|t| K[t] * frame[y * w + at(x as isize + t as isize - 2, w)])
+                .sum();
+        }
+    });
+    let mut out = vec![0f32; w * h];
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, o) in row.iter_mut().enumerate() {
+            *o = (0..5)
+                .map(|t| K[t] * rows[at(y as isize + t as isize - 2, h) * w + x])
+                .sum();
+        }
+    });
     out
 }

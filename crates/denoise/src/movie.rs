@@ -234,37 +234,7 @@ fn likeness(a: &[f32], b: &[f32], w: usize, h: usize, r: usize) -> f64 {
 /// single-frame estimate does for the classical method, at a fraction of its cost): the frame
 /// filtered by the binomial kernel (1 4 6 4 1)/16 along each axis, its edges mirrored.
 pub fn guide(frame: &[f32], width: usize) -> Vec<f32> {
-    const K: [f32; 5] = [1.0 / 16.0, 4.0 / 16.0, 6.0 / 16.0, 4.0 / 16.0, 1.0 / 16.0];
-    let w = width.max(1);
-    let h = frame.len() / w;
-    let at = |i: isize, n: usize| -> usize {
-        let n = n as isize;
-        (if i < 0 {
-            -i
-        } else if i >= n {
-            2 * n - 2 - i
-        } else {
-            i
-        })
-        .clamp(0, n - 1) as usize
-    };
-    let mut rows = vec![0f32; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            rows[y * w + x] = (0..5)
-                .map(|t| K[t] * frame[y * w + at(x as isize + t as isize - 2, w)])
-                .sum();
-        }
-    }
-    let mut out = vec![0f32; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            out[y * w + x] = (0..5)
-                .map(|t| K[t] * rows[at(y as isize + t as isize - 2, h) * w + x])
-                .sum();
-        }
-    }
-    out
+    emccd_classical::resample::binomial(frame, width)
 }
 
 /// The frames of `profile`'s size that `values` values make, one after another; an error when
