@@ -376,10 +376,10 @@ fn tracked(
     let moves: Vec<(f64, f64)> = (0..window.len())
         .map(|f| match f.cmp(&center) {
             std::cmp::Ordering::Less => {
-                global_shift(&smooth[f + 1], &smooth[f], w, h, (0, 0), SEARCH)
+                global_shift(&smooth[f + 1], &smooth[f], w, h, (0, 0), SEARCH).shift
             }
             std::cmp::Ordering::Greater => {
-                global_shift(&smooth[f - 1], &smooth[f], w, h, (0, 0), SEARCH)
+                global_shift(&smooth[f - 1], &smooth[f], w, h, (0, 0), SEARCH).shift
             }
             std::cmp::Ordering::Equal => (0.0, 0.0),
         })
@@ -395,7 +395,7 @@ fn tracked(
     let chain = |prev: (f64, f64), f: usize| -> (f64, f64) {
         let chained = (prev.0 + moves[f].0, prev.1 + moves[f].1);
         let around = (chained.0.round() as isize, chained.1.round() as isize);
-        global_shift(&smooth[center], &smooth[f], w, h, around, 1)
+        global_shift(&smooth[center], &smooth[f], w, h, around, 1).shift
     };
     for f in (0..center).rev() {
         chained[f] = chain(chained[f + 1], f);
@@ -549,22 +549,25 @@ fn places(
     let pairs: Vec<(usize, usize)> = (0..len)
         .flat_map(|i| (i + 1..(i + PAIRS_APART + 1).min(len)).map(move |j| (i, j)))
         .collect();
-    let registered: Vec<((f64, f64), f64)> = pairs
+    let registered: Vec<Registration> = pairs
         .par_iter()
         .map(|&(i, j)| {
             let around = (
                 (first[j].0 - first[i].0).round() as isize,
                 (first[j].1 - first[i].1).round() as isize,
             );
-            registration(&smooth[i], &smooth[j], w, h, around, 1)
+            global_shift(&smooth[i], &smooth[j], w, h, around, 1)
         })
         .collect();
-    let best = registered.iter().map(|r| r.1).fold(f64::INFINITY, f64::min);
+    let best = registered
+        .iter()
+        .map(|r| r.msd)
+        .fold(f64::INFINITY, f64::min);
     let kept: Vec<((usize, usize), (f64, f64))> = pairs
         .iter()
         .zip(&registered)
-        .filter(|(_, r)| r.1.is_finite() && r.1 <= PAIR_GATE * best)
-        .map(|(&p, r)| (p, r.0))
+        .filter(|(_, r)| r.msd.is_finite() && r.msd <= PAIR_GATE * best)
+        .map(|(&p, r)| (p, r.shift))
         .collect();
     // The frames linked to frame `center`, and their unknowns' indices (frame `center`'s place
     // is 0, not an unknown).
@@ -752,23 +755,13 @@ fn global_shift(
     h: usize,
     around: (isize, isize),
     reach: isize,
-) -> (f64, f64) {
-    registration(from, to, w, h, around, reach).0
-}
-
-/// [`global_shift`] and the mean squared difference per pixel at its whole-pixel shift (infinite
-/// where the frame is too small to be shifted that far).
-fn registration(
-    from: &[f32],
-    to: &[f32],
-    w: usize,
-    h: usize,
-    around: (isize, isize),
-    reach: isize,
-) -> ((f64, f64), f64) {
+) -> Registration {
     let s = (reach + around.0.abs().max(around.1.abs())) as usize;
     if w <= 2 * s || h <= 2 * s {
-        return ((0.0, 0.0), f64::INFINITY);
+        return Registration {
+            shift: (0.0, 0.0),
+            msd: f64::INFINITY,
+        };
     }
     let side = (2 * reach + 1) as usize;
     let mut surface = vec![0f64; side * side];
@@ -822,10 +815,19 @@ fn registration(
         0.0
     };
     let pixels = ((w - 2 * s) * (h - 2 * s)) as f64;
-    (
-        ((bx + around.0) as f64 + fx, (by + around.1) as f64 + fy),
-        best.0 / pixels,
-    )
+    Registration {
+        shift: ((bx + around.0) as f64 + fx, (by + around.1) as f64 + fy),
+        msd: best.0 / pixels,
+    }
+}
+
+/// A whole-frame registration ([`global_shift`]).
+struct Registration {
+    /// The shift, px.
+    shift: (f64, f64),
+    /// The mean squared difference per pixel at its whole-pixel part (infinite where the frame
+    /// is too small to be shifted that far).
+    msd: f64,
 }
 
 /// Where the block at `at` of frame `t` went in another frame, searched around where the
@@ -1083,19 +1085,19 @@ mod tests {
         let still = pattern(w, h, 0.0, 0.0);
         for (dx, dy) in [(0.3, -0.4), (2.6, 1.2), (-1.3, 0.2)] {
             let moved = pattern(w, h, dx, dy);
-            let (fx, fy) = global_shift(&still, &moved, w, h, (0, 0), SEARCH);
+            let (fx, fy) = global_shift(&still, &moved, w, h, (0, 0), SEARCH).shift;
             assert!(
                 (fx - dx).abs() < 0.1 && (fy - dy).abs() < 0.1,
                 "moved ({dx}, {dy}): found ({fx:.3}, {fy:.3})"
             );
             let near = (dx.round() as isize, dy.round() as isize);
-            let (gx, gy) = global_shift(&still, &moved, w, h, near, 1);
+            let (gx, gy) = global_shift(&still, &moved, w, h, near, 1).shift;
             assert!(
                 (gx - dx).abs() < 0.1 && (gy - dy).abs() < 0.1,
                 "moved ({dx}, {dy}), searched from {near:?}: found ({gx:.3}, {gy:.3})"
             );
         }
-        let (sx, sy) = global_shift(&still, &still, w, h, (0, 0), SEARCH);
+        let (sx, sy) = global_shift(&still, &still, w, h, (0, 0), SEARCH).shift;
         assert!(
             sx.abs() < 0.1 && sy.abs() < 0.1,
             "still: ({sx:.3}, {sy:.3})"
