@@ -522,7 +522,7 @@ fn tracked(
 /// How many frames apart two frames of a window may be for their registration to enter
 /// [`places`]: 5. On the validation camera, pairs up to 2, 3, 5, 8 and 12 apart gave +0.15,
 /// +0.18, +0.22, +0.21 and +0.21 dB over registering each raw frame to frame `t` alone (the
-/// low-pass alone: +0.17).
+/// low-pass alone: +0.17; measured before [`PAIR_GATE`] and [`SNAP`]).
 const PAIRS_APART: usize = 5;
 
 /// A pair of frames enters [`places`] only if their mean squared difference at their
@@ -534,12 +534,14 @@ const PAIR_GATE: f64 = 2.0;
 /// The scene's place in every frame relative to frame `center` (fixed at 0) that agrees best,
 /// in least squares, with the registrations of the pairs of frames up to [`PAIRS_APART`] apart
 /// that match about as well as the best pair ([`PAIR_GATE`]), each registered within a pixel of
-/// where `first` (each frame registered to frame `center`) puts it. A frame registered to frame
-/// `center` alone takes frame `center`'s noise as part of its place, and every frame the same
-/// part; each frame's place now rests on up to 2·[`PAIRS_APART`] registrations. A frame no
-/// chain of such pairs links to frame `center` keeps its place in `first`; a place that does
-/// not differ from frame `center`'s by more than [`SNAP`] standard errors (nor by half a pixel)
-/// is frame `center`'s.
+/// where `first` (each frame registered to frame `center`) puts it. Each place rests on up to
+/// 2·[`PAIRS_APART`] registrations, so each registration's own noise (its draw of the two
+/// frames' noise at each shift) averages out. What no pair can see is a frame's own apparent
+/// shift (its noise mimicking a move of its scene): frame `center`'s stays in every
+/// neighbour's place. A frame no chain of such pairs links to frame `center` keeps its place
+/// in `first`; with at least two more pairs than unknown places, a place that does not differ
+/// from frame `center`'s by more than [`SNAP`] standard errors (nor by half a pixel) is frame
+/// `center`'s (a window of 3 frames or fewer is never snapped).
 fn places(
     smooth: &[Vec<f32>],
     first: &[(f64, f64)],
@@ -1108,6 +1110,69 @@ mod tests {
                 noise_kept(e)
             );
         }
+    }
+
+    /// [`places`] on noise-free frames: a drift of (0.6, 0.3) px a frame comes back within 0.1 px
+    /// of the truth (the parabola's lean, as below), a still scene's places are frame t's
+    /// (within 0.01 px: the sums at opposite shifts round differently), the frames after a cut to other content keep the places they were given (no pair
+    /// links them to frame t), and frames too small to be shifted keep theirs too.
+    #[test]
+    fn the_places_agree_with_the_pairs_of_frames() {
+        let (w, h) = (64, 64);
+        let center = 3;
+        let given = |smooth: &[Vec<f32>], near: &dyn Fn(usize) -> (f64, f64)| -> Vec<(f64, f64)> {
+            (0..smooth.len())
+                .map(|f| {
+                    let (x, y) = near(f);
+                    let around = (x.round() as isize, y.round() as isize);
+                    global_shift(&smooth[center], &smooth[f], w, h, around, 1).shift
+                })
+                .collect()
+        };
+        let truth = |f: usize| (0.6 * (f as f64 - 3.0), 0.3 * (f as f64 - 3.0));
+        let drift: Vec<Vec<f32>> = (0..7)
+            .map(|f| binomial(&pattern(w, h, truth(f).0, truth(f).1), w))
+            .collect();
+        let at = places(&drift, &given(&drift, &truth), center, w, h);
+        for (f, &(x, y)) in at.iter().enumerate() {
+            let (tx, ty) = truth(f);
+            assert!(
+                (x - tx).abs() < 0.1 && (y - ty).abs() < 0.1,
+                "frame {f}: ({x:.3}, {y:.3}), truth ({tx:.2}, {ty:.2})"
+            );
+        }
+        let still: Vec<Vec<f32>> = (0..7)
+            .map(|_| binomial(&pattern(w, h, 0.0, 0.0), w))
+            .collect();
+        let at = places(&still, &given(&still, &|_| (0.0, 0.0)), center, w, h);
+        let near_zero = |p: &(f64, f64)| p.0.abs() < 0.01 && p.1.abs() < 0.01;
+        assert!(at.iter().all(near_zero), "{at:?}");
+        // Frames 5 and 6 hold a pattern of other scales, turned.
+        let other: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i / w) as f64, (i % w) as f64);
+                (10.0 + 5.0 * (x / 2.0).sin() * (y / 3.0).cos()) as f32
+            })
+            .collect();
+        let cut: Vec<Vec<f32>> = (0..7)
+            .map(|f| {
+                binomial(
+                    &if f < 5 {
+                        pattern(w, h, 0.0, 0.0)
+                    } else {
+                        other.clone()
+                    },
+                    w,
+                )
+            })
+            .collect();
+        let first = given(&cut, &|_| (0.0, 0.0));
+        let at = places(&cut, &first, center, w, h);
+        assert_eq!(at[5..], first[5..]);
+        assert!(at[..5].iter().all(near_zero), "{at:?}");
+        let tiny: Vec<Vec<f32>> = (0..5).map(|f| vec![f as f32; 4]).collect();
+        let first = vec![(0.25, -0.5); 5];
+        assert_eq!(places(&tiny, &first, 2, 2, 2), first);
     }
 
     /// The registration finds a move of whole and fractional pixels, searched widely or within
