@@ -1,30 +1,29 @@
 //! Classical denoising of a movie frame from the frames around it. Block matching follows the
-//! motion: each 8×8 block of frame `t` is looked for in frame `t ± 1` around where the whole
-//! scene moved (the frame's registration to frame `t`, which noise cannot fake over a whole
-//! frame: on low-passed frames, each frame's place agreeing with the pairs of frames around
-//! it), then in `t ± 2` around where it was found in `t ± 1`, and so on outward; each
-//! neighbour is first resampled by the fraction of a pixel of its registration, so that the
-//! whole pixels its blocks are read at hold the scene where frame `t` has it. The
-//! frames' single-frame estimates say whether a block moved on its own (a particle, a
-//! deformation): their best match is taken where it is clearly closer. The noisy frames, after
-//! the generalized Anscombe transform (noise about 1 at every level, so one threshold tells a
-//! match from a mismatch), accept the match or end the track; they choose nothing, since a
-//! choice made on them fits their noise. The matched blocks are averaged in the data's own
-//! units, each pixel of a block counting as far as the guides agree there ([`agreement`]: a
-//! block that holds the edge of a spot that moved away or blinked off passes the block test,
-//! but not pixel by pixel) — a motion-compensated mean that holds about `N` frames' photons
-//! wherever `N` frames matched — and the mean is denoised by iterative BM3D at the noise of a
-//! mean of `N` frames (gain α/N, read noise σ/√N), `N` the frames its noise is worth (a resampled neighbour holds
-//! less noise; a partly matching block counts partly).
+//! motion: each 8×8 block of frame `t` is looked for in frame `t ± 1` around where the whole scene
+//! moved (the frame's registration to frame `t`, which noise cannot fake over a whole frame: on
+//! low-passed frames, each frame's place agreeing with the pairs of frames around it), then in
+//! `t ± 2` around where it was found in `t ± 1`, and so on outward; each neighbour is first
+//! resampled by the fraction of a pixel of its registration, so that the whole pixels its blocks
+//! are read at hold the scene where frame `t` has it. The frames' single-frame estimates say
+//! whether a block moved on its own (a particle, a deformation): their best match is taken where it
+//! is clearly closer. The noisy frames, after the generalized Anscombe transform (noise about 1 at
+//! every level, so one threshold tells a match from a mismatch), accept the match or end the track;
+//! they choose nothing, since a choice made on them fits their noise. The matched blocks are
+//! averaged in the data's own units, each pixel of a block counting as far as the guides agree
+//! there ([`agreement`]: a block that holds the edge of a spot that moved away or blinked off
+//! passes the block test, but not pixel by pixel) — a motion-compensated mean that holds about `N`
+//! frames' photons wherever `N` frames matched — and the mean is denoised by iterative BM3D at the
+//! noise of a mean of `N` frames (gain α/N, read noise σ/√N), `N` the frames its noise is worth (a
+//! resampled neighbour holds less noise; a partly matching block counts partly).
 //!
-//! Where the neighbours hold nothing like frame `t` (a particle that moved off its track, a
-//! spot that blinked), no block passes the threshold; a neighbour whose blocks as a whole
-//! differ more than noise does (a scene cut) ends the window on its side. Where fewer than
-//! [`POOLED_FROM`] frames' worth matched, the estimate falls back, pixel by pixel and in
-//! proportion, to the estimate of frame `t` alone ([`single`]). Neighbours are brought to frame
-//! `t`'s brightness along the window's trend (bleaching). The mean is taken in the data's units
-//! and both estimates invert the transform with its exact unbiased inverse, so the mean over a region stays the signal's (within 1 %
-//! in the tests, down to half a count per pixel, bleaching or not).
+//! Where the neighbours hold nothing like frame `t` (a particle that moved off its track, a spot
+//! that blinked), no block passes the threshold; a neighbour whose blocks as a whole differ more
+//! than noise does (a scene cut) ends the window on its side. Where fewer than [`POOLED_FROM`]
+//! frames' worth matched, the estimate falls back, pixel by pixel and in proportion, to the
+//! estimate of frame `t` alone ([`single`]). Neighbours are brought to frame `t`'s brightness along
+//! the window's trend (bleaching). The mean is taken in the data's units and both estimates invert
+//! the transform with its exact unbiased inverse, so the mean over a region stays the signal's
+//! (within 1 % in the tests, down to half a count per pixel, bleaching or not).
 
 use rayon::prelude::*;
 
@@ -60,20 +59,24 @@ fn weight(d: f64) -> f64 {
     ((threshold() - d) / (threshold() - typical)).clamp(0.0, 1.0)
 }
 
+/// Guides that differ by up to this after the transform (noise 1) agree fully ([`agreement`]);
+/// from twice it, not at all.
+const AGREED: f32 = 0.5;
+
 /// How much a pixel of a matched block counts, from the two frames' guides there, after the
-/// transform (their absolute difference, noise 1) and in the data's units (`dn`): fully where
-/// they differ by up to half the noise, nothing from the whole noise, unless the difference is a small part of the
-/// signal (under 40 %, then counting partly to 80 %). A block that holds the edge of a spot
-/// passes the block test where the spot has moved away or blinked off in the neighbour (at a
-/// photon per pixel the edge holds a few photons under 64 pixels' noise), and averaged in it
-/// took 12–16 % of the spots' light on the validation camera's particles at 1 e⁻ (measured by
-/// averaging the truth along the tracks); there the guides differ by a median of 1.0 noise σ,
-/// on matched background by 0.03 (99 % under 0.23). A bright star's guides differ by as much
-/// from frame to frame (BM3D blunts it by its sub-pixel phase), but by a few percent: without
-/// the relative part the jittered stars lost 0.6 dB at 4 e⁻. Thresholds chosen on the
-/// validation camera `tune` (docs/journal.md).
+/// transform (their absolute difference, noise 1) and in the data's units (`dn`): fully where they
+/// differ by up to half the noise ([`AGREED`]), nothing from the whole noise, unless the difference
+/// is a small part of the signal (under 40 %, then counting partly to 80 %). A block that holds the
+/// edge of a spot passes the block test where the spot has moved away or blinked off in the
+/// neighbour (at a photon per pixel the edge holds a few photons under 64 pixels' noise), and
+/// averaged in it took 12–16 % of the spots' light on the validation camera's particles at 1 e⁻
+/// (measured by averaging the truth along the tracks); there the guides differ by a median of 1.0
+/// noise σ, on matched background by 0.03 (99 % under 0.23). A bright star's guides differ by as
+/// much from frame to frame (BM3D blunts it by its sub-pixel phase), but by a few percent: without
+/// the relative part the jittered stars lost 0.6 dB at 4 e⁻. Thresholds chosen on the validation
+/// camera `tune` (docs/journal.md).
 fn agreement(gat_difference: f32, (dn_a, dn_b): (f32, f32)) -> f64 {
-    let differ = ((gat_difference as f64 - 0.5) / 0.5).clamp(0.0, 1.0);
+    let differ = ((gat_difference as f64 - AGREED as f64) / AGREED as f64).clamp(0.0, 1.0);
     let relative = ((dn_a - dn_b).abs() / dn_a.max(dn_b).max(f32::MIN_POSITIVE)) as f64;
     let substantial = ((relative - 0.4) / 0.4).clamp(0.0, 1.0);
     1.0 - differ * substantial
@@ -150,11 +153,12 @@ pub fn motion_mean(
     } = tracked(window, guides, center, w, h, p, STEP);
     let (xs, ys) = (positions(w, N, STEP), positions(h, N, STEP));
     let win = kaiser(N);
-    // Each output row gathers, in a fixed order (block rows, then blocks), Σ k·(the matched
-    // blocks' values), Σ k·m and Σ k, for the window weight k of each block and the m frames
-    // matched at the pixel (each weighted by its block's match and the guides' agreement): the
-    // sums never depend on how the rows were shared among threads, so a frame's estimate is the same bits on every run (its decisions downstream hang on them).
-    // A block's steps within the scene, as (frame, x, y, weight in the mean).
+    // Each output row gathers, in a fixed order (block rows, then blocks), Σ k·(the matched blocks'
+    // values), Σ k·m and Σ k, for the window weight k of each block and the m frames matched at the
+    // pixel (each weighted by its block's match and the guides' agreement): the sums never depend
+    // on how the rows were shared among threads, so a frame's estimate is the same bits on every
+    // run (its decisions downstream hang on them). A block's steps within the scene, as (frame, x,
+    // y, weight in the mean).
     type Kept = Vec<(usize, usize, usize, f64)>;
     let kept = |steps: &[Step]| -> Kept {
         steps
@@ -188,7 +192,7 @@ pub fn motion_mean(
                             // Most pixels agree within half the noise: the data's units are
                             // read only where they do not.
                             let differ = (own_gat - guides_gat[f][there]).abs();
-                            let wt = if differ <= 0.5 {
+                            let wt = if differ <= AGREED {
                                 wt
                             } else {
                                 wt * agreement(differ, (own_dn, guides[f][there]))
@@ -393,8 +397,8 @@ fn tracked(
     // move is looked for around the whole pixel nearest the scene's.
     let mut chained = vec![(0.0, 0.0); window.len()];
     let chain = |prev: (f64, f64), f: usize| -> (f64, f64) {
-        let chained = (prev.0 + moves[f].0, prev.1 + moves[f].1);
-        let around = (chained.0.round() as isize, chained.1.round() as isize);
+        let added = (prev.0 + moves[f].0, prev.1 + moves[f].1);
+        let around = (added.0.round() as isize, added.1.round() as isize);
         global_shift(&smooth[center], &smooth[f], w, h, around, 1).shift
     };
     for f in (0..center).rev() {
@@ -600,9 +604,10 @@ fn places(
     // The normal equations: the linked pairs' graph Laplacian without frame `center`'s row and
     // column, one right-hand side per axis; positive definite, since every unknown is linked
     // to frame `center`.
+    let used: Vec<_> = kept.iter().filter(|((i, _), _)| linked[*i]).collect();
     let mut normal = DMatrix::<f64>::zeros(unknowns, unknowns);
     let mut rhs = DMatrix::<f64>::zeros(unknowns, 2);
-    for &((i, j), (sx, sy)) in kept.iter().filter(|((i, _), _)| linked[*i]) {
+    for &&((i, j), (sx, sy)) in &used {
         for (f, sign) in [(i, -1.0), (j, 1.0)] {
             if f == center {
                 continue;
@@ -633,7 +638,6 @@ fn places(
         .collect();
     // Each place's standard error: the pairs' scatter about the solution (both axes pooled)
     // through the least squares' covariance.
-    let used: Vec<_> = kept.iter().filter(|((i, _), _)| linked[*i]).collect();
     let dof = used.len() as f64 - unknowns as f64;
     if dof >= 2.0 {
         let scatter = used
@@ -724,13 +728,13 @@ fn scaled(frames: &[&[f32]], scale: &[f64]) -> Vec<Vec<f32>> {
         .collect()
 }
 
-/// Per window frame, the factor that brings it to frame `center`'s brightness along the
-/// window's trend: the least-squares slope of the log of the frames' means over time, fitted on
-/// the frames `within` around `center` that change by under 10 % from one to the next (a larger
-/// step is a cut or a flash, whose frames the matching refuses anyway). Without it a bleaching scene's
-/// first and last frames, whose neighbours are all brighter or all dimmer, would be biased by
-/// the trend (4 %/frame bleaching: 4 % at the ends of a 5-frame window). Only the trend is
-/// taken, not each frame's own mean, so the noise of the mean still averages over the window.
+/// Per window frame, the factor that brings it to frame `center`'s brightness along the window's
+/// trend: the least-squares slope of the log of the frames' means over time, fitted on the frames
+/// `within` around `center` that change by under 10 % from one to the next (a larger step is a cut
+/// or a flash, whose frames the matching refuses anyway). Without it a bleaching scene's first and
+/// last frames, whose neighbours are all brighter or all dimmer, would be biased by the trend (4
+/// %/frame bleaching: 4 % at the ends of a 5-frame window). Only the trend is taken, not each
+/// frame's own mean, so the noise of the mean still averages over the window.
 fn brightness(
     window: &[&[f32]],
     center: usize,
@@ -868,12 +872,12 @@ struct Registration {
     msd: f64,
 }
 
-/// Where the block at `at` of frame `t` went in another frame, searched around where the
-/// scene's move puts it, `around`, and the summed squared difference there between the noisy
-/// frames after the transform (noise 1), which accepts or refuses it. The guides (the frames' single-frame
-/// estimates, transformed too) say where it went: their best match within the search, taken if
-/// it is closer than staying by [`MOVE_GAIN`]. They decide alone, since a decision on the noisy
-/// frames is a decision on their noise.
+/// Where the block at `at` of frame `t` went in another frame, searched around where the scene's
+/// move puts it, `around`, and the summed squared difference there between the noisy frames after
+/// the transform (noise 1), which accepts or refuses it. The guides (the frames' single-frame
+/// estimates, transformed too) say where it went: their best match within the search, taken if it
+/// is closer than staying by [`MOVE_GAIN`]. They decide alone, since a decision on the noisy frames
+/// is a decision on their noise.
 fn track(
     (own, other): (&[f32], &[f32]),
     (own_guide, other_guide): (&[f32], &[f32]),
@@ -986,11 +990,11 @@ fn best_match(
 /// other movies −0.02 to +0.13 dB (docs/journal.md).
 const POOLED_FROM: f64 = 4.0;
 
-/// The estimate of `window[center]` (DN above bias, noise `p`) from its window: iterative BM3D
-/// of the motion-compensated mean at a mean's noise, falling back to `singles[center]` (the
-/// frame's own estimate) where fewer than [`POOLED_FROM`] frames matched. `singles` are the
-/// window's single-frame estimates, [`single`] of each frame (a stack computes each once). One frame's worth of
-/// matches or fewer gives `singles[center]` unchanged.
+/// The estimate of `window[center]` (DN above bias, noise `p`) from its window: iterative BM3D of
+/// the motion-compensated mean at a mean's noise, falling back to `singles[center]` (the frame's
+/// own estimate) where fewer than [`POOLED_FROM`] frames matched. `singles` are the window's
+/// single-frame estimates, [`single`] of each frame (a stack computes each once). One frame's worth
+/// of matches or fewer gives `singles[center]` unchanged.
 pub fn estimate(
     window: &[&[f32]],
     singles: &[&[f32]],
@@ -1114,8 +1118,9 @@ mod tests {
 
     /// [`places`] on noise-free frames: a drift of (0.6, 0.3) px a frame comes back within 0.1 px
     /// of the truth (the parabola's lean, as below), a still scene's places are frame t's
-    /// (within 0.01 px: the sums at opposite shifts round differently), the frames after a cut to other content keep the places they were given (no pair
-    /// links them to frame t), and frames too small to be shifted keep theirs too.
+    /// (within 0.01 px: the sums at opposite shifts round differently), the frames after a cut
+    /// to other content keep the places they were given (no pair links them to frame t), and
+    /// frames too small to be shifted keep theirs too.
     #[test]
     fn the_places_agree_with_the_pairs_of_frames() {
         let (w, h) = (64, 64);
