@@ -182,30 +182,38 @@ pub fn motion_mean(
                 }
                 let r = yo - y;
                 for (&x, blocks) in xs.iter().zip(&kept[bi]) {
-                    for q in 0..N {
-                        let k = win[r * N + q];
-                        let at = yo * w + x + q;
-                        let (mut sum, mut m, mut noise) = (frames[center][at] as f64, 1.0, 1.0);
-                        let (own_gat, own_dn) = (guides_gat[center][at], guides[center][at]);
-                        for &(f, bx, by, wt) in blocks {
-                            let there = (by + r) * w + bx + q;
+                    // The block's row of N pixels: frame by frame, each pixel's sums (in the
+                    // same order per pixel as pixel by pixel, so the same bits), a frame's
+                    // row read in one run.
+                    let at = yo * w + x;
+                    let mut sum: [f64; N] = std::array::from_fn(|q| frames[center][at + q] as f64);
+                    let (mut m, mut noise) = ([1.0f64; N], [1.0f64; N]);
+                    let (own_gat, own_dn) = (&guides_gat[center][at..], &guides[center][at..]);
+                    for &(f, bx, by, wt) in blocks {
+                        let there = (by + r) * w + bx;
+                        let (g_gat, g_dn) = (&guides_gat[f][there..], &guides[f][there..]);
+                        let values = &frames[f][there..];
+                        for q in 0..N {
                             // Most pixels agree within half the noise: the data's units are
                             // read only where they do not.
-                            let differ = (own_gat - guides_gat[f][there]).abs();
+                            let differ = (own_gat[q] - g_gat[q]).abs();
                             let wt = if differ <= AGREED {
                                 wt
                             } else {
-                                wt * agreement(differ, (own_dn, guides[f][there]))
+                                wt * agreement(differ, (own_dn[q], g_dn[q]))
                             };
-                            sum += wt * frames[f][there] as f64;
-                            m += wt;
+                            sum[q] += wt * values[q] as f64;
+                            m[q] += wt;
                             // The mean's noise over one frame's: Σ k·w² / (Σ w)².
-                            noise += noise_kept[f] * wt * wt;
+                            noise[q] += noise_kept[f] * wt * wt;
                         }
-                        num[x + q] += k * sum;
-                        den[x + q] += k * m;
+                    }
+                    for q in 0..N {
+                        let k = win[r * N + q];
+                        num[x + q] += k * sum[q];
+                        den[x + q] += k * m[q];
                         cnt[x + q] += k;
-                        held_noise[x + q] += k * m * m / noise;
+                        held_noise[x + q] += k * m[q] * m[q] / noise[q];
                     }
                 }
             }
@@ -475,7 +483,7 @@ fn tracked(
                                 (x, y),
                                 predicted,
                             ) {
-                                Some((d, bx, by)) if d <= limit => {
+                                (d, bx, by) if d <= limit => {
                                     let chi = scaled_difference(
                                         (&frames[center], &frames[fu]),
                                         (&variance[center], &variance[fu]),
@@ -885,11 +893,13 @@ fn track(
     h: usize,
     at: (usize, usize),
     around: (usize, usize),
-) -> Option<(f64, usize, usize)> {
-    let (moved, gx, gy) = best_match(own_guide, other_guide, w, h, at, around)?;
-    let go = (gx, gy) != around && ssd(own_guide, other_guide, w, at, around) - moved > MOVE_GAIN;
-    let (x, y) = if go { (gx, gy) } else { around };
-    Some((ssd(own, other, w, at, (x, y)), x, y))
+) -> (f64, usize, usize) {
+    // Only a position closer than staying by the gain can win, so the search gives up on every
+    // other one as soon as its partial sum says so (most of them, within a row or two).
+    let stay = ssd(own_guide, other_guide, w, at, around);
+    let (x, y) = best_match(own_guide, other_guide, w, h, at, around, stay - MOVE_GAIN)
+        .map_or(around, |(_, x, y)| (x, y));
+    (ssd(own, other, w, at, (x, y)), x, y)
 }
 
 /// The summed squared difference of the blocks at `a` in `one` and at `b` in `other` (the data's
@@ -932,7 +942,8 @@ fn ssd(one: &[f32], other: &[f32], w: usize, a: (usize, usize), b: (usize, usize
 }
 
 /// The position within [`SEARCH`] px of `around` in `other` whose block is closest to the block
-/// at `at` in `own`, with its summed squared difference.
+/// at `at` in `own`, with its summed squared difference, if any is under `under` (ties go to the
+/// position nearest `around`).
 fn best_match(
     own: &[f32],
     other: &[f32],
@@ -940,6 +951,7 @@ fn best_match(
     h: usize,
     at: (usize, usize),
     around: (usize, usize),
+    under: f64,
 ) -> Option<(f64, usize, usize)> {
     let span = |c: usize, len: usize| {
         (
@@ -952,7 +964,7 @@ fn best_match(
     for cy in y0..=y1 {
         for cx in x0..=x1 {
             let mut d = 0.0;
-            let bound = best.map_or(f64::INFINITY, |b| b.0);
+            let bound = best.map_or(under, |b| b.0);
             for r in 0..N {
                 let a = &own[(at.1 + r) * w + at.0..(at.1 + r) * w + at.0 + N];
                 let b = &other[(cy + r) * w + cx..(cy + r) * w + cx + N];
@@ -961,19 +973,18 @@ fn best_match(
                     .zip(b)
                     .map(|(p, q)| ((p - q) as f64).powi(2))
                     .sum::<f64>();
-                if d >= bound {
+                if d > bound {
                     break;
                 }
             }
-            // Ties go to the position nearest the prediction (a still scene stays put).
-            let nearer = |b: &(f64, usize, usize)| {
-                let dist = |x: usize, y: usize| {
-                    (x as isize - around.0 as isize).pow(2)
-                        + (y as isize - around.1 as isize).pow(2)
-                };
-                dist(cx, cy) < dist(b.1, b.2)
+            let dist = |x: usize, y: usize| {
+                (x as isize - around.0 as isize).pow(2) + (y as isize - around.1 as isize).pow(2)
             };
-            if best.is_none_or(|b| d < b.0 || (d == b.0 && nearer(&b))) {
+            let better = match best {
+                None => d < under,
+                Some(b) => d < b.0 || (d == b.0 && dist(cx, cy) < dist(b.1, b.2)),
+            };
+            if better {
                 best = Some((d, cx, cy));
             }
         }
