@@ -415,7 +415,7 @@ fn tracked(
     for f in center + 1..window.len() {
         chained[f] = chain(chained[f - 1], f);
     }
-    let scene_at = places(&smooth, &chained, center, w, h);
+    let (scene_at, linked) = places(&smooth, &chained, center, w, h);
     // Each neighbour resampled by its fraction of a pixel (Keys' cubic kernel), so that the whole
     // pixels its blocks are read at hold the scene where frame t has it: blocks read at whole
     // pixels were up to half a pixel off on a drift or a jitter. The place comes from the whole
@@ -510,7 +510,7 @@ fn tracked(
                 .collect()
         })
         .collect();
-    let (first, last) = same_scene(&tracks, center, window.len());
+    let (first, last) = same_scene(&tracks, center, window.len(), &linked);
     let mut scale = scale;
     if (first, last) != (0, window.len() - 1) {
         // The trend of this scene's frames alone.
@@ -538,29 +538,35 @@ fn tracked(
 const PAIRS_APART: usize = 5;
 
 /// A pair of frames enters [`places`] only if their mean squared difference at their
-/// registration is within this times the best-matching pair's: a pair across a scene cut holds
-/// two scenes, and its registration is noise that the least squares would spread to the
-/// frames of frame `t`'s scene.
+/// registration is within this times the best of the pairs that share one of its frames (the
+/// better of its two frames' best pairs): a pair across a scene cut holds two scenes, and its
+/// registration is noise that the least squares would spread to the frames of frame `t`'s
+/// scene. Each frame's best, not the window's: after the transform a dim scene's frames differ
+/// less than a bright one's (below a count per pixel its noise is under 1), and on a cut from a
+/// bright scene to a dim one the window's best pair gated out the bright scene's own pairs
+/// (`tune`'s cuts at 0.5 / 1 e⁻ −1.2 / −1.7 dB once an unlinked frame ended the scene).
 const PAIR_GATE: f64 = 2.0;
 
 /// The scene's place in every frame relative to frame `center` (fixed at 0) that agrees best,
 /// in least squares, with the registrations of the pairs of frames up to [`PAIRS_APART`] apart
-/// that match about as well as the best pair ([`PAIR_GATE`]), each registered within a pixel of
-/// where `first` (each frame registered to frame `center`) puts it. Each place rests on up to
-/// 2·[`PAIRS_APART`] registrations, so each registration's own noise (its draw of the two
-/// frames' noise at each shift) averages out. What no pair can see is a frame's own apparent
-/// shift (its noise mimicking a move of its scene): frame `center`'s stays in every
-/// neighbour's place. A frame no chain of such pairs links to frame `center` keeps its place
-/// in `first`; with at least two more pairs than unknown places, a place that does not differ
-/// from frame `center`'s by more than [`SNAP`] standard errors (nor by half a pixel) is frame
-/// `center`'s (a window of 3 frames or fewer is never snapped).
+/// that match about as well as their frames' best pairs ([`PAIR_GATE`]), each registered within
+/// a pixel of where `first` (each frame registered to frame `center`) puts it, and which frames
+/// a chain of such pairs links to frame `center`. Each place rests on up to 2·[`PAIRS_APART`]
+/// registrations, so each registration's own noise (its draw of the two frames' noise at each
+/// shift) averages out. What no pair can see is a frame's own apparent shift (its noise
+/// mimicking a move of its scene): frame `center`'s stays in every neighbour's place. A frame
+/// not linked to frame `center` holds another scene ([`same_scene`] ends the scene before it)
+/// and keeps its place in `first`; with at least two more pairs than unknown places, a place
+/// that does not differ from frame `center`'s by more than [`SNAP`] standard errors (nor by half
+/// a pixel) is frame `center`'s (a window of 3 frames or fewer is never snapped). Frames too
+/// small to register keep `first`, all linked.
 fn places(
     smooth: &[Vec<f32>],
     first: &[(f64, f64)],
     center: usize,
     w: usize,
     h: usize,
-) -> Vec<(f64, f64)> {
+) -> (Vec<(f64, f64)>, Vec<bool>) {
     let len = first.len();
     let pairs: Vec<(usize, usize)> = (0..len)
         .flat_map(|i| (i + 1..(i + PAIRS_APART + 1).min(len)).map(move |j| (i, j)))
@@ -575,14 +581,19 @@ fn places(
             global_shift(&smooth[i], &smooth[j], w, h, around, 1)
         })
         .collect();
-    let best = registered
-        .iter()
-        .map(|r| r.msd)
-        .fold(f64::INFINITY, f64::min);
+    // Each frame's best pair.
+    let mut best = vec![f64::INFINITY; len];
+    for (&(i, j), r) in pairs.iter().zip(&registered) {
+        best[i] = best[i].min(r.msd);
+        best[j] = best[j].min(r.msd);
+    }
+    if best.iter().all(|b| b.is_infinite()) {
+        return (first.to_vec(), vec![true; len]);
+    }
     let kept: Vec<((usize, usize), (f64, f64))> = pairs
         .iter()
         .zip(&registered)
-        .filter(|(_, r)| r.msd.is_finite() && r.msd <= PAIR_GATE * best)
+        .filter(|(&(i, j), r)| r.msd.is_finite() && r.msd <= PAIR_GATE * best[i].min(best[j]))
         .map(|(&p, r)| (p, r.shift))
         .collect();
     // The frames linked to frame `center`, and their unknowns' indices (frame `center`'s place
@@ -607,7 +618,7 @@ fn places(
         unknowns += 1;
     }
     if unknowns == 0 {
-        return first.to_vec();
+        return (first.to_vec(), linked);
     }
     // The normal equations: the linked pairs' graph Laplacian without frame `center`'s row and
     // column, one right-hand side per axis; positive definite, since every unknown is linked
@@ -630,7 +641,7 @@ fn places(
         }
     }
     let Some(cholesky) = normal.cholesky() else {
-        return first.to_vec();
+        return (first.to_vec(), linked);
     };
     let solved = cholesky.solve(&rhs);
     let mut at: Vec<(f64, f64)> = (0..len)
@@ -666,7 +677,7 @@ fn places(
             }
         }
     }
-    at
+    (at, linked)
 }
 
 /// A place along an axis within this many standard errors of frame `t`'s, and within half a
@@ -688,13 +699,21 @@ fn resample_all(frames: &mut [Vec<f32>], fraction: &[(f64, f64)], w: usize, h: u
 }
 
 /// The first and last frames of the window that hold frame `center`'s scene: walking out from
-/// it, a frame whose tracked blocks' median difference over their predicted noise
-/// ([`scaled_difference`]) is above [`SCENE_GATE`] times the best-matching neighbour's ends the
-/// scene on that side (it and every frame beyond). The best neighbour stands for noise alone
-/// because the predicted noise is only a model (EMCCD frames are not exactly Poisson–Gaussian,
-/// and the estimates it comes from are smoothed), and a window rarely holds no frame of its own
-/// scene. A frame most blocks' tracks never reached is left to the blocks that did.
-fn same_scene(tracks: &[Vec<Vec<Step>>], center: usize, len: usize) -> (usize, usize) {
+/// it, a frame that no chain of registered pairs links to it (`linked`, from [`places`]), or
+/// whose tracked blocks' median difference over their predicted noise ([`scaled_difference`])
+/// is above [`SCENE_GATE`] times the best-matching neighbour's, ends the scene on that side (it
+/// and every frame beyond). The best neighbour stands for noise alone because the predicted
+/// noise is only a model (EMCCD frames are not exactly Poisson–Gaussian, and the estimates it
+/// comes from are smoothed), and a window rarely holds no frame of its own scene. A frame most
+/// blocks' tracks never reached is left to the blocks that did. The links see what the medians
+/// can miss: on a dim frame just after a cut, its own scene's frames resampled by its own
+/// apparent shift matched it worse than the other scene's, left whole, and set the floor.
+fn same_scene(
+    tracks: &[Vec<Vec<Step>>],
+    center: usize,
+    len: usize,
+    linked: &[bool],
+) -> (usize, usize) {
     let blocks: usize = tracks.iter().map(Vec::len).sum();
     let medians: Vec<Option<f64>> = (0..len)
         .map(|f| {
@@ -715,7 +734,7 @@ fn same_scene(tracks: &[Vec<Vec<Step>>], center: usize, len: usize) -> (usize, u
         .flatten()
         .copied()
         .fold(f64::INFINITY, f64::min);
-    let other = |f: usize| medians[f].is_some_and(|m| m > SCENE_GATE * floor);
+    let other = |f: usize| !linked[f] || medians[f].is_some_and(|m| m > SCENE_GATE * floor);
     let mut first = center;
     while first > 0 && !other(first - 1) {
         first -= 1;
@@ -854,20 +873,25 @@ fn global_shift(
             0.0
         }
     };
-    let fx = if bx.abs() < reach {
-        vertex(at(bx - 1, by), at(bx, by), at(bx + 1, by))
-    } else {
-        0.0
+    // Each axis's fraction, and the parabola's change from the whole pixel to it (≤ 0).
+    let fraction = |m: f64, o: f64, p: f64| {
+        let f = vertex(m, o, p);
+        (f, f * (p - m) / 2.0 + (m - 2.0 * o + p) * f * f / 2.0)
     };
-    let fy = if by.abs() < reach {
-        vertex(at(bx, by - 1), at(bx, by), at(bx, by + 1))
+    let (fx, dx) = if bx.abs() < reach {
+        fraction(at(bx - 1, by), at(bx, by), at(bx + 1, by))
     } else {
-        0.0
+        (0.0, 0.0)
+    };
+    let (fy, dy) = if by.abs() < reach {
+        fraction(at(bx, by - 1), at(bx, by), at(bx, by + 1))
+    } else {
+        (0.0, 0.0)
     };
     let pixels = ((w - 2 * s) * (h - 2 * s)) as f64;
     Registration {
         shift: ((bx + around.0) as f64 + fx, (by + around.1) as f64 + fy),
-        msd: best.0 / pixels,
+        msd: (best.0 + dx + dy).max(0.0) / pixels,
     }
 }
 
@@ -875,8 +899,9 @@ fn global_shift(
 struct Registration {
     /// The shift, px.
     shift: (f64, f64),
-    /// The mean squared difference per pixel at its whole-pixel part (infinite where the frame
-    /// is too small to be shifted that far).
+    /// The mean squared difference per pixel at the shift, as the parabolas through the whole
+    /// pixels' put it (a pair half a pixel apart would otherwise count its misfit at the whole
+    /// pixel as difference; infinite where the frame is too small to be shifted that far).
     msd: f64,
 }
 
@@ -1130,8 +1155,9 @@ mod tests {
     /// [`places`] on noise-free frames: a drift of (0.6, 0.3) px a frame comes back within 0.1 px
     /// of the truth (the parabola's lean, as below), a still scene's places are frame t's
     /// (within 0.01 px: the sums at opposite shifts round differently), the frames after a cut
-    /// to other content keep the places they were given (no pair links them to frame t), and
-    /// frames too small to be shifted keep theirs too.
+    /// to other content keep the places they were given and are not linked to frame t (no pair
+    /// links them), on noisy frames a dim scene's pairs do not gate out a bright scene's own,
+    /// and frames too small to be shifted keep their places, all linked.
     #[test]
     fn the_places_agree_with_the_pairs_of_frames() {
         let (w, h) = (64, 64);
@@ -1149,7 +1175,8 @@ mod tests {
         let drift: Vec<Vec<f32>> = (0..7)
             .map(|f| binomial(&pattern(w, h, truth(f).0, truth(f).1), w))
             .collect();
-        let at = places(&drift, &given(&drift, &truth), center, w, h);
+        let (at, linked) = places(&drift, &given(&drift, &truth), center, w, h);
+        assert!(linked.iter().all(|&l| l));
         for (f, &(x, y)) in at.iter().enumerate() {
             let (tx, ty) = truth(f);
             assert!(
@@ -1160,7 +1187,7 @@ mod tests {
         let still: Vec<Vec<f32>> = (0..7)
             .map(|_| binomial(&pattern(w, h, 0.0, 0.0), w))
             .collect();
-        let at = places(&still, &given(&still, &|_| (0.0, 0.0)), center, w, h);
+        let (at, _) = places(&still, &given(&still, &|_| (0.0, 0.0)), center, w, h);
         let near_zero = |p: &(f64, f64)| p.0.abs() < 0.01 && p.1.abs() < 0.01;
         assert!(at.iter().all(near_zero), "{at:?}");
         // Frames 5 and 6 hold a pattern of other scales, turned.
@@ -1183,12 +1210,44 @@ mod tests {
             })
             .collect();
         let first = given(&cut, &|_| (0.0, 0.0));
-        let at = places(&cut, &first, center, w, h);
+        let (at, linked) = places(&cut, &first, center, w, h);
         assert_eq!(at[5..], first[5..]);
         assert!(at[..5].iter().all(near_zero), "{at:?}");
+        assert_eq!(linked, [true, true, true, true, true, false, false]);
+        // A cut from a bright noisy scene to a dim one, whose frames differ less (a quarter of
+        // the noise's variance): each scene's frames are linked to their own, from either side.
+        let mut state = 7u64;
+        let mut noise = |sd: f64| -> f32 {
+            let mut uniform = || {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (state >> 11) as f64 / (1u64 << 53) as f64
+            };
+            (sd * ((0..12).map(|_| uniform()).sum::<f64>() - 6.0)) as f32
+        };
+        let noisy: Vec<Vec<f32>> = (0..7)
+            .map(|f| {
+                let (scene, sd) = if f < 5 {
+                    (pattern(w, h, 0.0, 0.0), 1.0)
+                } else {
+                    (other.clone(), 0.5)
+                };
+                let frame: Vec<f32> = scene.iter().map(|&v| v + noise(sd)).collect();
+                binomial(&frame, w)
+            })
+            .collect();
+        for (center, own) in [(3, 0..5), (5, 5..7)] {
+            let first: Vec<(f64, f64)> = (0..7)
+                .map(|f| global_shift(&noisy[center], &noisy[f], w, h, (0, 0), 1).shift)
+                .collect();
+            let (_, linked) = places(&noisy, &first, center, w, h);
+            let expected: Vec<bool> = (0..7).map(|f| own.contains(&f)).collect();
+            assert_eq!(linked, expected, "frame {center}");
+        }
         let tiny: Vec<Vec<f32>> = (0..5).map(|f| vec![f as f32; 4]).collect();
         let first = vec![(0.25, -0.5); 5];
-        assert_eq!(places(&tiny, &first, 2, 2, 2), first);
+        assert_eq!(places(&tiny, &first, 2, 2, 2), (first, vec![true; 5]));
     }
 
     /// The registration finds a move of whole and fractional pixels, searched widely or within
