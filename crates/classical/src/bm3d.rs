@@ -134,7 +134,7 @@ fn separable_n(n: usize, m: &[f64], input: &[f64], out: &mut [f64]) {
 /// unit norm, as BM3D's hard-thresholding stage uses it. Values computed with PyWavelets
 /// (`wavedec(e_i, 'bior1.5', mode='periodization', level=3)` for each unit vector).
 fn bior15_matrix() -> Vec<f64> {
-    let (a, b) = (0.3535533905932738, 0.7071067811865476);
+    let (a, b) = (0.3535533905932738, std::f64::consts::FRAC_1_SQRT_2);
     let (p, q) = (0.2194176492525008, 0.44928375799321585);
     let (u, v, x) = (0.5693593983428461, 0.402347308162278, 0.08350604509028409);
     vec![
@@ -152,7 +152,7 @@ fn bior15_matrix() -> Vec<f64> {
 /// The synthesis basis of [`bior15_matrix`] (its inverse, transposed: the dual wavelets at
 /// the same normalization), rows as there; `transforms_invert` checks it against the analysis rows.
 fn bior15_synthesis() -> Vec<f64> {
-    let (a, b) = (0.3535533905932738, 0.7071067811865476);
+    let (a, b) = (0.3535533905932738, std::f64::consts::FRAC_1_SQRT_2);
     let (r, m, e) = (0.3738589410626687, 0.5145585562523474, 0.12153397801643778);
     vec![
         a, a, a, a, a, a, a, a, //
