@@ -18,7 +18,8 @@
 //!
 //! Where the neighbours hold nothing like frame `t` (a particle that moved off its track, a spot
 //! that blinked), no block passes the threshold; a neighbour whose blocks as a whole differ more
-//! than noise does (a scene cut) ends the window on its side. Where fewer than [`POOLED_FROM`]
+//! than noise does, or that no chain of matching pairs of frames links to frame `t` (a scene
+//! cut), ends the window on its side. Where fewer than [`POOLED_FROM`]
 //! frames' worth matched, the estimate falls back, pixel by pixel and in proportion, to the
 //! estimate of frame `t` alone ([`single`]). Neighbours are brought to frame `t`'s brightness along
 //! the window's trend (bleaching). The mean is taken in the data's units and both estimates invert
@@ -547,6 +548,15 @@ const PAIRS_APART: usize = 5;
 /// (`tune`'s cuts at 0.5 / 1 e⁻ −1.2 / −1.7 dB once an unlinked frame ended the scene).
 const PAIR_GATE: f64 = 2.0;
 
+/// The least best pair [`PAIR_GATE`] counts from: 4 times what two frames of noise alone differ
+/// by per pixel after the transform (noise 1) and the low-pass ([`binomial`] keeps 70/256 of a
+/// pixel's variance per axis). Without it, frames of noise-free or very bright scenes (from about
+/// 1 600 e⁻ per pixel on fine texture, in a simulation) whose pairs differ only by the misfit the
+/// parabolas leave at a half-pixel shift were gated apart by pairs a whole number of pixels
+/// apart, which match exactly; a cut's pairs differed by far more on every validation cut (16
+/// times this left them gated). On `tune` 1 and 4 times it changed no movie by over 0.02 dB.
+const PAIR_FLOOR: f64 = 4.0 * 2.0 * (70.0 / 256.0) * (70.0 / 256.0);
+
 /// The scene's place in every frame relative to frame `center` (fixed at 0) that agrees best,
 /// in least squares, with the registrations of the pairs of frames up to [`PAIRS_APART`] apart
 /// that match about as well as their frames' best pairs ([`PAIR_GATE`]), each registered within
@@ -593,7 +603,9 @@ fn places(
     let kept: Vec<((usize, usize), (f64, f64))> = pairs
         .iter()
         .zip(&registered)
-        .filter(|(&(i, j), r)| r.msd.is_finite() && r.msd <= PAIR_GATE * best[i].min(best[j]))
+        .filter(|(&(i, j), r)| {
+            r.msd.is_finite() && r.msd <= PAIR_GATE * best[i].min(best[j]).max(PAIR_FLOOR)
+        })
         .map(|(&p, r)| (p, r.shift))
         .collect();
     // The frames linked to frame `center`, and their unknowns' indices (frame `center`'s place
@@ -699,10 +711,10 @@ fn resample_all(frames: &mut [Vec<f32>], fraction: &[(f64, f64)], w: usize, h: u
 }
 
 /// The first and last frames of the window that hold frame `center`'s scene: walking out from
-/// it, a frame that no chain of registered pairs links to it (`linked`, from [`places`]), or
-/// whose tracked blocks' median difference over their predicted noise ([`scaled_difference`])
-/// is above [`SCENE_GATE`] times the best-matching neighbour's, ends the scene on that side (it
-/// and every frame beyond). The best neighbour stands for noise alone because the predicted
+/// it, a frame beyond the first or last frame that a chain of gated pairs links to it
+/// (`linked`, from [`places`]), or one whose tracked blocks' median difference over their
+/// predicted noise ([`scaled_difference`]) is above [`SCENE_GATE`] times the best-matching
+/// neighbour's, ends the scene on that side (it and every frame beyond). The best neighbour stands for noise alone because the predicted
 /// noise is only a model (EMCCD frames are not exactly Poisson–Gaussian, and the estimates it
 /// comes from are smoothed), and a window rarely holds no frame of its own scene. A frame most
 /// blocks' tracks never reached is left to the blocks that did. The links see what the medians
@@ -734,7 +746,15 @@ fn same_scene(
         .flatten()
         .copied()
         .fold(f64::INFINITY, f64::min);
-    let other = |f: usize| !linked[f] || medians[f].is_some_and(|m| m > SCENE_GATE * floor);
+    // The links' scene: from the first to the last linked frame (a cut leaves the other
+    // scene's frames unlinked at one end; a frame unlinked between linked ones is a pair's
+    // misfit, not another scene).
+    let (lo, hi) = (
+        linked.iter().position(|&l| l).unwrap_or(center),
+        linked.iter().rposition(|&l| l).unwrap_or(center),
+    );
+    let other =
+        |f: usize| !(lo..=hi).contains(&f) || medians[f].is_some_and(|m| m > SCENE_GATE * floor);
     let mut first = center;
     while first > 0 && !other(first - 1) {
         first -= 1;
@@ -891,7 +911,12 @@ fn global_shift(
     let pixels = ((w - 2 * s) * (h - 2 * s)) as f64;
     Registration {
         shift: ((bx + around.0) as f64 + fx, (by + around.1) as f64 + fy),
-        msd: (best.0 + dx + dy).max(0.0) / pixels,
+        // Infinite where no shift gave a number (a frame with NaN in it).
+        msd: if best.0.is_finite() {
+            (best.0 + dx + dy).max(0.0) / pixels
+        } else {
+            f64::INFINITY
+        },
     }
 }
 
@@ -1177,6 +1202,14 @@ mod tests {
             .collect();
         let (at, linked) = places(&drift, &given(&drift, &truth), center, w, h);
         assert!(linked.iter().all(|&l| l));
+        // Half a pixel a frame: pairs an even number of frames apart match exactly, the others
+        // only as well as the parabolas fit; all stay linked ([`PAIR_FLOOR`]).
+        let half = |f: usize| (0.5 * (f as f64 - 3.0), 0.0);
+        let halves: Vec<Vec<f32>> = (0..7)
+            .map(|f| binomial(&pattern(w, h, half(f).0, half(f).1), w))
+            .collect();
+        let (_, linked) = places(&halves, &given(&halves, &half), center, w, h);
+        assert!(linked.iter().all(|&l| l), "{linked:?}");
         for (f, &(x, y)) in at.iter().enumerate() {
             let (tx, ty) = truth(f);
             assert!(
