@@ -569,7 +569,8 @@ const PAIR_FLOOR: f64 = 4.0 * 2.0 * (70.0 / 256.0) * (70.0 / 256.0);
 /// and keeps its place in `first`; with at least two more pairs than unknown places, a place
 /// that does not differ from frame `center`'s by more than [`SNAP`] standard errors (nor by half
 /// a pixel) is frame `center`'s (a window of 3 frames or fewer is never snapped). Frames too
-/// small to register keep `first`, all linked.
+/// small for any pair to be registered keep `first`, all linked; a frame whose own pairs alone
+/// are shifted too far for the frames' size is not linked.
 fn places(
     smooth: &[Vec<f32>],
     first: &[(f64, f64)],
