@@ -19,10 +19,10 @@
 //! Where the neighbours hold nothing like frame `t` (a particle that moved off its track, a spot
 //! that blinked), no block passes the threshold; a neighbour whose blocks as a whole differ more
 //! than noise does, or that no chain of matching pairs of frames links to frame `t` (a scene
-//! cut), ends the window on its side. Where fewer than [`POOLED_FROM`]
-//! frames' worth matched, the estimate falls back, pixel by pixel and in proportion, to the
-//! estimate of frame `t` alone ([`single`]). Neighbours are brought to frame `t`'s brightness along
-//! the window's trend (bleaching). The mean is taken in the data's units and both estimates invert
+//! cut), ends the window on its side. Where fewer than [`POOLED_FROM`] frames' worth matched, the
+//! estimate falls back, pixel by pixel and in proportion, to the estimate of frame `t` alone
+//! ([`single`]). Neighbours are brought to frame `t`'s brightness along the window's trend
+//! (bleaching). The mean is taken in the data's units and both estimates invert
 //! the transform with its exact unbiased inverse, so the mean over a region stays the signal's
 //! (within 1 % in the tests, down to half a count per pixel, bleaching or not).
 
@@ -715,12 +715,13 @@ fn resample_all(frames: &mut [Vec<f32>], fraction: &[(f64, f64)], w: usize, h: u
 /// it, a frame beyond the first or last frame that a chain of gated pairs links to it
 /// (`linked`, from [`places`]), or one whose tracked blocks' median difference over their
 /// predicted noise ([`scaled_difference`]) is above [`SCENE_GATE`] times the best-matching
-/// neighbour's, ends the scene on that side (it and every frame beyond). The best neighbour stands for noise alone because the predicted
-/// noise is only a model (EMCCD frames are not exactly Poisson–Gaussian, and the estimates it
-/// comes from are smoothed), and a window rarely holds no frame of its own scene. A frame most
-/// blocks' tracks never reached is left to the blocks that did. The links see what the medians
-/// can miss: on a dim frame just after a cut, its own scene's frames resampled by its own
-/// apparent shift matched it worse than the other scene's, left whole, and set the floor.
+/// neighbour's, ends the scene on that side (it and every frame beyond). The best neighbour
+/// stands for noise alone because the predicted noise is only a model (EMCCD frames are not
+/// exactly Poisson–Gaussian, and the estimates it comes from are smoothed), and a window rarely
+/// holds no frame of its own scene. A frame most blocks' tracks never reached is left to the
+/// blocks that did. The links see what the medians can miss: on a dim frame just after a cut,
+/// its own scene's frames resampled by its own apparent shift matched it worse than the other
+/// scene's, left whole, and set the floor.
 fn same_scene(
     tracks: &[Vec<Vec<Step>>],
     center: usize,
