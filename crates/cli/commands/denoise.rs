@@ -64,7 +64,7 @@ pub struct Args {
     #[arg(long, default_value_t = 1, value_parser = parse_ensemble)]
     pub ensemble: usize,
     /// --method temporal, and the default on a movie: the frames before and after each frame it
-    /// uses (default 6: thirteen frames; 0: each frame alone — with --method temporal its own
+    /// uses (default 12: twenty-five frames; 0: each frame alone — with --method temporal its own
     /// estimate, ivst below one count per pixel and one BM3D pass from there; with no
     /// --method the default's on a single frame, blend, to the bit). A frame's window stays within its
     /// recording and is clipped at the recording's ends; at most 2·K + 1 frames are held.

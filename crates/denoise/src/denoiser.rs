@@ -219,12 +219,14 @@ pub struct Denoiser<'a> {
     pub window: usize,
 }
 
-/// The frames each side `--method temporal` uses when no window is given: 13 frames in all.
+/// The frames each side `--method temporal` uses when no window is given: 25 frames in all.
 /// Chosen on the movie suite's validation camera (`tools/movie_suite.py --cameras tune`,
-/// docs/results.md): with the scene registered to a fraction of a pixel, over 4 each side
-/// +0.14 dB on average (16-frame movies; more on still, drifting and bleaching scenes, −0.5 dB
-/// on the deformation at 1 e⁻); 4 each side was +0.3 dB over 2 before that registration.
-pub const DEFAULT_WINDOW: usize = 6;
+/// docs/journal.md), on 32-frame movies so that every frame could have its 12 each side: over
+/// 6, 8 / 10 / 12 each side gave +0.12 / +0.17 / +0.19 dB (still, bleaching and jittered scenes
+/// up to +1.3, the deformation −0.4 / −0.8 / −1.1 at 1 e⁻), and once a block's own moves were
+/// held to what the guides' noise cannot propose (`temporal`'s move gain), 12 each side +0.39 dB
+/// over 6 with the same gain. Before, 6 each side was chosen over 4 (+0.14 dB) and 4 over 2.
+pub const DEFAULT_WINDOW: usize = 12;
 
 /// The most frames each side a temporal method takes (33 frames held at a time).
 pub const MAX_WINDOW: usize = 16;
