@@ -830,7 +830,8 @@ fn brightness(
 /// from a few photo-electrons up. On the validation camera `tune` with 12 frames each side,
 /// 0.15·N² over 0.05·N²: +0.51 / +0.37 dB at 1 / 4 and 0.5 / 16 e⁻ (still scenes at 4 / 16 e⁻
 /// +1.9 / +1.5, the stars +2.2 / +1.9 at 1 / 0.5 e⁻), with the particles at 0.5 e⁻ −0.7 and the
-/// rotation −0.5 (their own moves need the smaller gain there); 0.3·N² +0.55 / +0.30; a gain
+/// rotation −0.5 (their own moves need the smaller gain there; on camera A's 256² rotation at
+/// 0.5 e⁻, −0.6 dB with 6 frames each side); 0.3·N² +0.55 / +0.30; a gain
 /// scaled to the window's median difference was between (docs/journal.md). Taking every move
 /// the guides favour fits their residual noise (a still scene at ~1 count 21.3 dB where 0.05·N²
 /// gave 26.2). Choosing on the noisy frames instead picks the neighbours' blocks that resemble

@@ -221,11 +221,13 @@ pub struct Denoiser<'a> {
 
 /// The frames each side `--method temporal` uses when no window is given: 25 frames in all.
 /// Chosen on the movie suite's validation camera (`tools/movie_suite.py --cameras tune`,
-/// docs/journal.md), on 32-frame movies so that every frame could have its 12 each side: over
+/// docs/journal.md), on 32-frame movies so that a frame in the middle has its 12 each side: over
 /// 6, 8 / 10 / 12 each side gave +0.12 / +0.17 / +0.19 dB (still, bleaching and jittered scenes
 /// up to +1.3, the deformation −0.4 / −0.8 / −1.1 at 1 e⁻), and once a block's own moves were
 /// held to what the guides' noise cannot propose (`temporal`'s move gain), 12 each side +0.39 dB
 /// over 6 with the same gain. Before, 6 each side was chosen over 4 (+0.14 dB) and 4 over 2.
+/// Its cost: on camera A's 256² rotation (larger moves at the corners) far frames lose up to
+/// 0.7 dB against 6 each side (docs/results.md#movies).
 pub const DEFAULT_WINDOW: usize = 12;
 
 /// The most frames each side a temporal method takes (33 frames held at a time).
