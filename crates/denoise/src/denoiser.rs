@@ -227,7 +227,7 @@ pub struct Denoiser<'a> {
 /// held to what the guides' noise cannot propose (`temporal`'s move gain), 12 each side +0.39 dB
 /// over 6 with the same gain. Before, 6 each side was chosen over 4 (+0.14 dB) and 4 over 2.
 /// Its cost: on camera A's 256² rotation (larger moves at the corners) far frames lose up to
-/// 0.7 dB against 6 each side (docs/results.md#movies).
+/// 0.9 dB against 6 each side (docs/results.md#movies).
 pub const DEFAULT_WINDOW: usize = 12;
 
 /// The most frames each side a temporal method takes (33 frames held at a time).
