@@ -111,6 +111,39 @@ const SCENE_GATE: f64 = 1.1;
 /// difference there (after the transform, noise 1), and the same difference in the data's units
 /// over its expected noise ([`scaled_difference`]), which the scene gate compares.
 #[derive(Clone, Copy)]
+/// Where a block's track goes next, before its neighbours are heard: where the scene's move puts
+/// it, and the guides' better place if they propose one, with whether it beats staying by the
+/// full move gain.
+struct Proposal {
+    predicted: (usize, usize),
+    moved: Option<((usize, usize), bool)>,
+}
+
+/// Whether a block of frame t at `from`, whose guides propose moving it from `stay` to `to` by
+/// less than [`MOVE_GAIN`] but more than [`NEIGHBOURED_GAIN`], moves: where `to` is closer than
+/// `stay` to where the blocks around it went (`around`: each one's place in this frame against
+/// its own in frame t; their median along each axis, since some of them follow their guides'
+/// noise too), and at least [`NEIGHBOURS_NEEDED`] of them are still tracked. A rotation or a
+/// deformation moves neighbouring blocks alike, by fractions of a pixel that each block's
+/// whole-pixel track takes up in different frames; a move the guides propose out of their
+/// residual noise is the block's alone.
+fn agrees(
+    from: (usize, usize),
+    stay: (usize, usize),
+    to: (usize, usize),
+    around: &[(f64, f64)],
+) -> bool {
+    if around.len() < NEIGHBOURS_NEEDED.max(1) {
+        return false;
+    }
+    let mx = emccd_profile::median(around.iter().map(|a| a.0)).unwrap_or(0.0);
+    let my = emccd_profile::median(around.iter().map(|a| a.1)).unwrap_or(0.0);
+    let off = |c: (usize, usize)| {
+        (c.0 as f64 - from.0 as f64 - mx).powi(2) + (c.1 as f64 - from.1 as f64 - my).powi(2)
+    };
+    off(to) < off(stay)
+}
+
 struct Step {
     frame: usize,
     x: usize,
@@ -459,58 +492,136 @@ fn tracked(
             scene_at[f].1.round() as isize - scene_at[prev].1.round() as isize,
         )
     };
-    // Every reference block's track, outward in both directions until a block fails.
-    let tracks: Vec<Vec<Vec<Step>>> = ys
-        .par_iter()
-        .map(|&y| {
-            xs.iter()
-                .map(|&x| {
-                    let mut steps = Vec::with_capacity(window.len() - 1);
-                    for dir in [-1isize, 1] {
-                        let (mut px, mut py) = (x, y);
-                        let mut f = center as isize + dir;
-                        while f >= 0 && (f as usize) < window.len() {
-                            let fu = f as usize;
-                            let shifted = |c: usize, d: isize, len: usize| {
-                                (c as isize + d).clamp(0, (len - N) as isize) as usize
-                            };
-                            let mv = step_of(fu, (fu as isize - dir) as usize);
-                            let predicted = (shifted(px, mv.0, w), shifted(py, mv.1, h));
-                            match track(
-                                (&gat[center], &gat[fu]),
-                                (&guides_gat[center], &guides_gat[fu]),
-                                w,
-                                h,
-                                (x, y),
-                                predicted,
-                            ) {
-                                (d, bx, by) if d <= limit => {
-                                    let chi = scaled_difference(
-                                        (&frames[center], &frames[fu]),
-                                        (&variance[center], &variance[fu]),
-                                        w,
-                                        (x, y),
-                                        (bx, by),
-                                    );
-                                    steps.push(Step {
-                                        frame: fu,
-                                        x: bx,
-                                        y: by,
-                                        d,
-                                        chi,
-                                    });
-                                    (px, py) = (bx, by);
-                                }
-                                _ => break,
-                            }
-                            f += dir;
-                        }
-                    }
-                    steps
-                })
+    // Every reference block's track, outward in both directions until a block fails, all
+    // blocks a frame at a time, so that a move the guides propose can be weighed against the
+    // moves its neighbours' blocks propose in the same frame.
+    let (nx, ny) = (xs.len(), ys.len());
+    // The blocks a block's width away each way (and diagonally), in steps of the grid.
+    let reach = (NEIGHBOURS_AT / step).max(1) as isize;
+    let mut tracks: Vec<Vec<Vec<Step>>> = (0..ny)
+        .map(|_| {
+            (0..nx)
+                .map(|_| Vec::with_capacity(window.len() - 1))
                 .collect()
         })
         .collect();
+    let shifted =
+        |c: usize, d: isize, len: usize| (c as isize + d).clamp(0, (len - N) as isize) as usize;
+    for dir in [-1isize, 1] {
+        let mut at: Vec<Option<(usize, usize)>> = ys
+            .iter()
+            .flat_map(|&y| xs.iter().map(move |&x| Some((x, y))))
+            .collect();
+        let mut f = center as isize + dir;
+        while f >= 0 && (f as usize) < window.len() {
+            let fu = f as usize;
+            let mv = step_of(fu, (fu as isize - dir) as usize);
+            // Each live block's proposal: where the scene's move puts it, and the guides' best
+            // place within the search around there if it is closer than staying by
+            // [`NEIGHBOURED_GAIN`] (and whether by [`MOVE_GAIN`] too). The guides (the frames'
+            // single-frame estimates, transformed too) decide alone, since a decision on the
+            // noisy frames is a decision on their noise; the noisy frames' difference at the
+            // chosen place then accepts or ends the track. Only a position closer than staying
+            // by the gain can win, so the search gives up on every other one as soon as its
+            // partial sum says so (most of them, within a row or two).
+            let proposals: Vec<Option<Proposal>> = at
+                .par_iter()
+                .enumerate()
+                .map(|(i, &pos)| {
+                    let (px, py) = pos?;
+                    let (x, y) = (xs[i % nx], ys[i / nx]);
+                    let predicted = (shifted(px, mv.0, w), shifted(py, mv.1, h));
+                    let stay = ssd(&guides_gat[center], &guides_gat[fu], w, (x, y), predicted);
+                    let best = best_match(
+                        &guides_gat[center],
+                        &guides_gat[fu],
+                        w,
+                        h,
+                        (x, y),
+                        predicted,
+                        stay - NEIGHBOURED_GAIN,
+                    );
+                    Some(Proposal {
+                        predicted,
+                        moved: best.map(|(d, bx, by)| ((bx, by), d < stay - MOVE_GAIN)),
+                    })
+                })
+                .collect();
+            let next: Vec<Option<(usize, usize, f64, f64)>> = (0..nx * ny)
+                .into_par_iter()
+                .map(|i| {
+                    let p = proposals[i].as_ref()?;
+                    let (x, y) = (xs[i % nx], ys[i / nx]);
+                    let chosen = match p.moved {
+                        Some((b, true)) => b,
+                        Some((b, false)) => {
+                            let (gx, gy) = ((i % nx) as isize, (i / nx) as isize);
+                            let r = reach;
+                            let around: Vec<(f64, f64)> = [
+                                (-r, 0),
+                                (r, 0),
+                                (0, -r),
+                                (0, r),
+                                (-r, -r),
+                                (r, -r),
+                                (-r, r),
+                                (r, r),
+                            ]
+                            .iter()
+                            .filter_map(|&(dx, dy)| {
+                                let (qx, qy) = (gx + dx, gy + dy);
+                                if qx < 0 || qy < 0 || qx as usize >= nx || qy as usize >= ny {
+                                    return None;
+                                }
+                                let j = qy as usize * nx + qx as usize;
+                                let q = proposals[j].as_ref()?;
+                                let to = q.moved.map_or(q.predicted, |(m, _)| m);
+                                Some((
+                                    to.0 as f64 - xs[j % nx] as f64,
+                                    to.1 as f64 - ys[j / nx] as f64,
+                                ))
+                            })
+                            .collect();
+                            if agrees((x, y), p.predicted, b, &around) {
+                                b
+                            } else {
+                                p.predicted
+                            }
+                        }
+                        None => p.predicted,
+                    };
+                    let d = ssd(&gat[center], &gat[fu], w, (x, y), chosen);
+                    if d > limit {
+                        return None;
+                    }
+                    let chi = scaled_difference(
+                        (&frames[center], &frames[fu]),
+                        (&variance[center], &variance[fu]),
+                        w,
+                        (x, y),
+                        chosen,
+                    );
+                    Some((chosen.0, chosen.1, d, chi))
+                })
+                .collect();
+            for (i, n) in next.iter().enumerate() {
+                at[i] = n.map(|(bx, by, d, chi)| {
+                    tracks[i / nx][i % nx].push(Step {
+                        frame: fu,
+                        x: bx,
+                        y: by,
+                        d,
+                        chi,
+                    });
+                    (bx, by)
+                });
+            }
+            if at.iter().all(Option::is_none) {
+                break;
+            }
+            f += dir;
+        }
+    }
     let (first, last) = same_scene(&tracks, center, window.len(), &linked);
     let mut scale = scale;
     if (first, last) != (0, window.len() - 1) {
@@ -821,7 +932,8 @@ fn brightness(
 
 /// How much closer (summed squared difference after the transform, in units of the noise of
 /// one pixel) the guides must put a block at its proposed move than where the scene's move puts
-/// it for the track to move: 0.15·N². A track goes on from where its block was last found, so a
+/// it for the track to move on the guides' word alone: 0.15·N² (a smaller move gain needs the
+/// blocks around to agree, [`NEIGHBOURED_GAIN`]). A track goes on from where its block was last found, so a
 /// move the guides' own residual errors propose (on flat regions, along an edge, a star blunted
 /// by its sub-pixel phase) is carried to every frame beyond it, and there the block is matched
 /// off the scene. On a still scene the guides' blocks differ by a median of about 0.1 at half a
@@ -838,6 +950,25 @@ fn brightness(
 /// frame `t`'s noise, which then averages out less and biases the mean (measured: 2–5 % on a
 /// uniform scene at half a count per pixel).
 const MOVE_GAIN: f64 = 0.15 * (N * N) as f64;
+
+/// The move gain under [`MOVE_GAIN`] at which a block still moves where the blocks around it moved
+/// alike ([`agrees`]): 0.02·N². A rotation's or a deformation's moves at the dim end, and the
+/// blunted stars' at any level, are real but beat staying by less than [`MOVE_GAIN`]. On the
+/// validation camera `tune` (12 frames each side), over [`MOVE_GAIN`] alone: +0.09 / +0.05 dB
+/// at 1 / 4 and 0.5 / 16 e⁻ (the deformation +0.5, the rotation +0.2 / +0.3, the stars +0.4);
+/// 0.05·N² +0.06 / +0.04; the neighbours' mean instead of their median +0.08 with the still
+/// scene at 4 e⁻ −0.15; no gain (every move the guides favour, with the neighbours' say) −0.6,
+/// the still scenes −1.8 and their means 1 % high: the neighbours' own proposals are noise then.
+const NEIGHBOURED_GAIN: f64 = 0.02 * (N * N) as f64;
+
+/// How far apart the blocks are whose moves confirm a block's, px: 8, a block's width, so that
+/// no pixel of theirs is the block's own and their guides' noise is theirs. 12 px measured 0.01 dB
+/// below it on `tune`.
+const NEIGHBOURS_AT: usize = 8;
+
+/// How many of the eight blocks around a block ([`NEIGHBOURS_AT`] away each way and diagonally)
+/// must be still tracked for their moves to confirm its own: 3 (a corner block has 3).
+const NEIGHBOURS_NEEDED: usize = 3;
 
 /// The shift (within `reach` px of `around`) that best carries frame `from` onto frame `to`
 /// (both after the transform): the whole-pixel one with the least mean squared difference over
@@ -938,28 +1069,6 @@ struct Registration {
     /// pixels' put it (a pair half a pixel apart would otherwise count its misfit at the whole
     /// pixel as difference; infinite where the frame is too small to be shifted that far).
     msd: f64,
-}
-
-/// Where the block at `at` of frame `t` went in another frame, searched around where the scene's
-/// move puts it, `around`, and the summed squared difference there between the noisy frames after
-/// the transform (noise 1), which accepts or refuses it. The guides (the frames' single-frame
-/// estimates, transformed too) say where it went: their best match within the search, taken if it
-/// is closer than staying by [`MOVE_GAIN`]. They decide alone, since a decision on the noisy frames
-/// is a decision on their noise.
-fn track(
-    (own, other): (&[f32], &[f32]),
-    (own_guide, other_guide): (&[f32], &[f32]),
-    w: usize,
-    h: usize,
-    at: (usize, usize),
-    around: (usize, usize),
-) -> (f64, usize, usize) {
-    // Only a position closer than staying by the gain can win, so the search gives up on every
-    // other one as soon as its partial sum says so (most of them, within a row or two).
-    let stay = ssd(own_guide, other_guide, w, at, around);
-    let (x, y) = best_match(own_guide, other_guide, w, h, at, around, stay - MOVE_GAIN)
-        .map_or(around, |(_, x, y)| (x, y));
-    (ssd(own, other, w, at, (x, y)), x, y)
 }
 
 /// The summed squared difference of the blocks at `a` in `one` and at `b` in `other` (the data's
@@ -1119,6 +1228,39 @@ pub fn single_schedule(counts: f64) -> Schedule {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_small_move_is_taken_where_the_blocks_around_it_moved_alike() {
+        let (from, stay, to) = ((20, 20), (20, 20), (21, 20));
+        // The blocks around it went 0.6 px right (a rotation's slow motion): closer to there.
+        assert!(agrees(from, stay, to, &[(0.6, 0.0); 8]));
+        // They stayed, or went less than half the way: staying is closer.
+        assert!(!agrees(from, stay, to, &[(0.0, 0.0); 8]));
+        assert!(!agrees(from, stay, to, &[(0.4, 0.0); 8]));
+        // They went the other way, or up.
+        assert!(!agrees(from, stay, to, &[(-1.0, 0.0); 8]));
+        assert!(!agrees(from, stay, to, &[(0.0, 1.0); 8]));
+        // Mixed: their median decides (5 right by a pixel, 3 staying: 1 px right), and a few
+        // far off do not move it (5 staying, 3 by 4 px: their mean would say 1.5 px).
+        let mixed = [(1.0, 0.0); 5]
+            .iter()
+            .chain(&[(0.0, 0.0); 3])
+            .copied()
+            .collect::<Vec<_>>();
+        assert!(agrees(from, stay, to, &mixed));
+        let outliers = [(0.0, 0.0); 5]
+            .iter()
+            .chain(&[(4.0, 0.0); 3])
+            .copied()
+            .collect::<Vec<_>>();
+        assert!(!agrees(from, stay, to, &outliers));
+        // Too few of them still tracked to say.
+        assert!(!agrees(from, stay, to, &[(1.0, 0.0); 2]));
+        assert!(!agrees(from, stay, to, &[]));
+        // The scene's own move (`stay` already off `from`) is not counted twice.
+        assert!(!agrees(from, (22, 20), (23, 20), &[(2.0, 0.0); 8]));
+        assert!(agrees(from, (22, 20), (23, 20), &[(2.7, 0.0); 8]));
+    }
 
     /// A smooth pattern moved by (`dx`, `dy`) px, sampled on a `w × h` grid.
     fn pattern(w: usize, h: usize, dx: f64, dy: f64) -> Vec<f32> {
