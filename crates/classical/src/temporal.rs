@@ -954,11 +954,12 @@ const MOVE_GAIN: f64 = 0.15 * (N * N) as f64;
 /// The move gain under [`MOVE_GAIN`] at which a block still moves where the blocks around it moved
 /// alike ([`agrees`]): 0.02·N². A rotation's or a deformation's moves at the dim end, and the
 /// blunted stars' at any level, are real but beat staying by less than [`MOVE_GAIN`]. On the
-/// validation camera `tune` (12 frames each side), over [`MOVE_GAIN`] alone: +0.09 / +0.05 dB
-/// at 1 / 4 and 0.5 / 16 e⁻ (the deformation +0.5, the rotation +0.2 / +0.3, the stars +0.4);
-/// 0.05·N² +0.06 / +0.04; the neighbours' mean instead of their median +0.08 with the still
-/// scene at 4 e⁻ −0.15; no gain (every move the guides favour, with the neighbours' say) −0.6,
-/// the still scenes −1.8 and their means 1 % high: the neighbours' own proposals are noise then.
+/// validation camera `tune` (12 frames each side), over [`MOVE_GAIN`] alone: +0.09 / +0.07 dB
+/// at 1 / 4 and 0.5 / 16 e⁻ and +0.06 on the 32-frame movies (the deformation up to +0.5, the
+/// rotation +0.1 to +0.3, the stars up to +0.4; no movie below by more than 0.11); 0.05·N² with
+/// the neighbours' mean +0.06 / +0.04; 0.02·N² with their mean +0.08 at 1 / 4 e⁻ but the still
+/// scene −0.15; no gain at all (every move the guides favour, with the neighbours' say) −0.6, the
+/// still scenes −1.8 and their means 1 % high: the neighbours' own proposals are noise then.
 const NEIGHBOURED_GAIN: f64 = 0.02 * (N * N) as f64;
 
 /// How far apart the blocks are whose moves confirm a block's, px: 8, a block's width, so that
