@@ -226,8 +226,9 @@ pub struct Denoiser<'a> {
 /// up to +1.3, the deformation −0.4 / −0.8 / −1.1 at 1 e⁻), and once a block's own moves were
 /// held to what the guides' noise cannot propose (`temporal`'s move gain), 12 each side +0.39 dB
 /// over 6 with the same gain. Before, 6 each side was chosen over 4 (+0.14 dB) and 4 over 2.
-/// Its cost: on camera A's 256² rotation (larger moves at the corners) far frames lose up to
-/// 0.9 dB against 6 each side (docs/results.md#movies).
+/// Its cost: on camera A's 256² rotation (larger moves at the corners) far frames lost up to
+/// 0.9 dB against 6 each side, before small moves confirmed by the blocks around won back
+/// +0.7 dB of it at 0.5 e⁻ (docs/results.md#movies).
 pub const DEFAULT_WINDOW: usize = 12;
 
 /// The most frames each side a temporal method takes (33 frames held at a time).
