@@ -107,10 +107,6 @@ pub struct MotionMean {
 /// well above them.
 const SCENE_GATE: f64 = 1.1;
 
-/// One step of a block's track: the frame, where the block was found, the summed squared
-/// difference there (after the transform, noise 1), and the same difference in the data's units
-/// over its expected noise ([`scaled_difference`]), which the scene gate compares.
-#[derive(Clone, Copy)]
 /// Where a block's track goes next, before its neighbours are heard: where the scene's move puts
 /// it, and the guides' better place if they propose one, with whether it beats staying by the
 /// full move gain.
@@ -144,6 +140,10 @@ fn agrees(
     off(to) < off(stay)
 }
 
+/// One step of a block's track: the frame, where the block was found, the summed squared
+/// difference there (after the transform, noise 1), and the same difference in the data's units
+/// over its expected noise ([`scaled_difference`]), which the scene gate compares.
+#[derive(Clone, Copy)]
 struct Step {
     frame: usize,
     x: usize,
@@ -933,9 +933,10 @@ fn brightness(
 /// How much closer (summed squared difference after the transform, in units of the noise of
 /// one pixel) the guides must put a block at its proposed move than where the scene's move puts
 /// it for the track to move on the guides' word alone: 0.15·N² (a smaller move gain needs the
-/// blocks around to agree, [`NEIGHBOURED_GAIN`]). A track goes on from where its block was last found, so a
-/// move the guides' own residual errors propose (on flat regions, along an edge, a star blunted
-/// by its sub-pixel phase) is carried to every frame beyond it, and there the block is matched
+/// blocks around to agree, [`NEIGHBOURED_GAIN`]). A track goes on from where its block was last
+/// found, so a move the guides' own residual errors propose (on flat regions, along an edge, a
+/// star blunted by its sub-pixel phase) is carried to every frame beyond it, and there the block
+/// is matched
 /// off the scene. On a still scene the guides' blocks differ by a median of about 0.1 at half a
 /// photo-electron per pixel and 6 at 16 (they are sharper and keep more of the noise's texture),
 /// so 0.05·N² (3.2, chosen when blocks followed the scene's motion alone) let noise move blocks
