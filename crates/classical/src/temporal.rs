@@ -497,7 +497,7 @@ fn tracked(
     // moves its neighbours' blocks propose in the same frame.
     let (nx, ny) = (xs.len(), ys.len());
     // The blocks a block's width away each way (and diagonally), in steps of the grid.
-    let reach = (NEIGHBOURS_AT / step).max(1) as isize;
+    let r = (NEIGHBOURS_AT / step).max(1) as isize;
     let mut tracks: Vec<Vec<Vec<Step>>> = (0..ny)
         .map(|_| {
             (0..nx)
@@ -556,7 +556,6 @@ fn tracked(
                         Some((b, true)) => b,
                         Some((b, false)) => {
                             let (gx, gy) = ((i % nx) as isize, (i / nx) as isize);
-                            let r = reach;
                             let around: Vec<(f64, f64)> = [
                                 (-r, 0),
                                 (r, 0),
@@ -930,26 +929,24 @@ fn brightness(
     one
 }
 
-/// How much closer (summed squared difference after the transform, in units of the noise of
-/// one pixel) the guides must put a block at its proposed move than where the scene's move puts
-/// it for the track to move on the guides' word alone: 0.15·N² (a smaller move gain needs the
-/// blocks around to agree, [`NEIGHBOURED_GAIN`]). A track goes on from where its block was last
-/// found, so a move the guides' own residual errors propose (on flat regions, along an edge, a
-/// star blunted by its sub-pixel phase) is carried to every frame beyond it, and there the block
-/// is matched
-/// off the scene. On a still scene the guides' blocks differ by a median of about 0.1 at half a
-/// photo-electron per pixel and 6 at 16 (they are sharper and keep more of the noise's texture),
-/// so 0.05·N² (3.2, chosen when blocks followed the scene's motion alone) let noise move blocks
-/// from a few photo-electrons up. On the validation camera `tune` with 12 frames each side,
-/// 0.15·N² over 0.05·N²: +0.51 / +0.37 dB at 1 / 4 and 0.5 / 16 e⁻ (still scenes at 4 / 16 e⁻
-/// +1.9 / +1.5, the stars +2.2 / +1.9 at 1 / 0.5 e⁻), with the particles at 0.5 e⁻ −0.7 and the
-/// rotation −0.5 (their own moves need the smaller gain there; on camera A's 256² rotation at
-/// 0.5 e⁻, −0.6 dB with 6 frames each side); 0.3·N² +0.55 / +0.30; a gain
-/// scaled to the window's median difference was between (docs/journal.md). Taking every move
-/// the guides favour fits their residual noise (a still scene at ~1 count 21.3 dB where 0.05·N²
-/// gave 26.2). Choosing on the noisy frames instead picks the neighbours' blocks that resemble
-/// frame `t`'s noise, which then averages out less and biases the mean (measured: 2–5 % on a
-/// uniform scene at half a count per pixel).
+/// How much closer (summed squared difference after the transform, in units of the noise of one
+/// pixel) the guides must put a block at its proposed move than where the scene's move puts it for
+/// the track to move on the guides' word alone: 0.15·N² (a smaller move gain needs the blocks
+/// around to agree, [`NEIGHBOURED_GAIN`]). A track goes on from where its block was last found, so
+/// a move the guides' own residual errors propose (on flat regions, along an edge, a star blunted
+/// by its sub-pixel phase) is carried to every frame beyond it, and there the block is matched off
+/// the scene. On a still scene the guides' blocks differ by a median of about 0.1 at half a
+/// photo-electron per pixel and 6 at 16 (they are sharper and keep more of the noise's texture), so
+/// 0.05·N² (3.2, chosen when blocks followed the scene's motion alone) let noise move blocks from a
+/// few photo-electrons up. On the validation camera `tune` with 12 frames each side, 0.15·N² over
+/// 0.05·N²: +0.51 / +0.37 dB at 1 / 4 and 0.5 / 16 e⁻ (still scenes at 4 / 16 e⁻ +1.9 / +1.5, the
+/// stars +2.2 / +1.9 at 1 / 0.5 e⁻), with the particles at 0.5 e⁻ −0.7 and the rotation −0.5 (their
+/// own moves need the smaller gain there; on camera A's 256² rotation at 0.5 e⁻, −0.6 dB with 6
+/// frames each side); 0.3·N² +0.55 / +0.30; a gain scaled to the window's median difference was
+/// between (docs/journal.md). Taking every move the guides favour fits their residual noise (a
+/// still scene at ~1 count 21.3 dB where 0.05·N² gave 26.2). Choosing on the noisy frames instead
+/// picks the neighbours' blocks that resemble frame `t`'s noise, which then averages out less and
+/// biases the mean (measured: 2–5 % on a uniform scene at half a count per pixel).
 const MOVE_GAIN: f64 = 0.15 * (N * N) as f64;
 
 /// The move gain under [`MOVE_GAIN`] at which a block still moves where the blocks around it moved
