@@ -62,8 +62,10 @@ MOTIONS = ["static", "drift", "rotate", "deform", "particles", "jitter", "bleach
 EXPOSURE = unseen_camera.TEST_EXPOSURE
 
 
-def gray(path):
-    return np.asarray(Image.open(path).convert("L"), dtype=np.float64) / 255.0
+def gray(path, n=0):
+    """A scene, mirrored at its edges where it is smaller than `n` px."""
+    img = np.asarray(Image.open(path).convert("L"), dtype=np.float64) / 255.0
+    return np.pad(img, [(0, max(0, n - img.shape[0])), (0, max(0, n - img.shape[1]))], mode="symmetric")
 
 
 def centre(img, n):
@@ -193,7 +195,7 @@ def main():
         # The movies, their truth stacks and pairs.toml: movie pairs `emccd evaluate` scores.
         pairs, bm4d_rows = [], {}
         for mi, motion in enumerate(motions):
-            scene, other = gray(SCENES[mi % 3]), gray(SCENES[(mi + 1) % 3])
+            scene, other = gray(SCENES[mi % 3], n + 64), gray(SCENES[(mi + 1) % 3], n + 64)
             rel = movie(motion, scene, other, n, a.frames, rng)
             for level in levels:
                 e = rel * (level / max(rel.mean(), 1e-6))

@@ -96,7 +96,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("out", type=Path)
     ap.add_argument("--camera", choices=sorted(CAMERAS), default="unseen")
-    ap.add_argument("--size", type=int, default=256, help="frame side, px (centre crop of the scenes)")
+    ap.add_argument("--size", type=int, default=256, help="frame side, px (centre crop of the scenes, mirrored at their edges where smaller)")
     ap.add_argument("--frames", type=int, default=16, help="frames per calibration stack")
     ap.add_argument("--seed", type=int, default=5)
     ap.add_argument("--scenes", nargs="+", default=[str(p) for p in DEFAULT_SCENES], help="scene files or directories")
@@ -147,6 +147,8 @@ def main():
              'note = "clean: expected photo-signal in DN above bias, photo-electrons * G / (e-/DN), float32"', '']
     for sc in scene_files(a.scenes):
         img = np.asarray(Image.open(sc).convert("L"), dtype=np.float64) / 255.0
+        # A scene smaller than the frame is mirrored at its edges to fill it.
+        img = np.pad(img, [(0, max(0, n - img.shape[0])), (0, max(0, n - img.shape[1]))], mode="symmetric")
         y0, x0 = (img.shape[0] - n) // 2, (img.shape[1] - n) // 2
         img = img[y0:y0 + n, x0:x0 + n]
         if a.mean_electrons:

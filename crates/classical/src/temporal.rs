@@ -36,6 +36,7 @@ use crate::vst::{bm3d_adaptive, bm3d_iterative, forward, mean_counts, PoissonGau
 
 /// Block side, px.
 const N: usize = 8;
+const _: () = assert!(N == 8, "the rows' sums are trees of eight");
 /// Distance between reference blocks, px.
 const STEP: usize = 2;
 /// Half-width of the search in a neighbouring frame around the block's last position, px.
@@ -993,32 +994,37 @@ fn global_shift(
         };
     }
     let side = (2 * reach + 1) as usize;
-    let mut surface = vec![0f64; side * side];
-    let mut best = (f64::INFINITY, (0, 0));
-    for sy in -reach..=reach {
-        for sx in -reach..=reach {
-            let (dx, dy) = (around.0 + sx, around.1 + sy);
-            // Row sums in parallel, added in row order: the same bits on every run.
-            let rows: Vec<f64> = (s..h - s)
-                .into_par_iter()
+    // Each shift's sum over the rows in row order, the shifts side by side: the same bits on
+    // every run (a row is too little work to share among threads).
+    let surface: Vec<f64> = (0..side * side)
+        .into_par_iter()
+        .map(|k| {
+            let (dx, dy) = (
+                around.0 + (k % side) as isize - reach,
+                around.1 + (k / side) as isize - reach,
+            );
+            let xb = (s as isize + dx) as usize;
+            (s..h - s)
                 .map(|y| {
-                    let a = &from[y * w + s..y * w + w - s];
                     let yb = (y as isize + dy) as usize;
-                    let xb = (s as isize + dx) as usize;
-                    let b = &to[yb * w + xb..yb * w + xb + w - 2 * s];
-                    a.iter()
-                        .zip(b)
-                        .map(|(p, q)| ((p - q) as f64).powi(2))
-                        .sum::<f64>()
+                    squared_difference(
+                        &from[y * w + s..y * w + w - s],
+                        &to[yb * w + xb..][..w - 2 * s],
+                    )
                 })
-                .collect();
-            let d: f64 = rows.iter().sum();
-            surface[(sy + reach) as usize * side + (sx + reach) as usize] = d;
-            // Ties go to the smaller move.
-            let nearer = dx * dx + dy * dy < best.1 .0 * best.1 .0 + best.1 .1 * best.1 .1;
-            if d < best.0 || (d == best.0 && nearer) {
-                best = (d, (dx, dy));
-            }
+                .sum::<f64>()
+        })
+        .collect();
+    let mut best = (f64::INFINITY, (0, 0));
+    for (k, &d) in surface.iter().enumerate() {
+        let (dx, dy) = (
+            around.0 + (k % side) as isize - reach,
+            around.1 + (k / side) as isize - reach,
+        );
+        // Ties go to the smaller move.
+        let nearer = dx * dx + dy * dy < best.1 .0 * best.1 .0 + best.1 .1 * best.1 .1;
+        if d < best.0 || (d == best.0 && nearer) {
+            best = (d, (dx, dy));
         }
     }
     // The vertex of the parabola through the surface's minimum and its neighbours, per axis:
@@ -1085,12 +1091,15 @@ fn scaled_difference(
     (0..N)
         .map(|r| {
             let (ia, ib) = ((a.1 + r) * w + a.0, (b.1 + r) * w + b.0);
-            (0..N)
-                .map(|q| {
-                    let diff = (one[ia + q] - other[ib + q]) as f64;
-                    diff * diff / (v_one[ia + q] + v_other[ib + q]) as f64
-                })
-                .sum::<f64>()
+            let (x, y) = (&one[ia..][..N], &other[ib..][..N]);
+            let (vx, vy) = (&v_one[ia..][..N], &v_other[ib..][..N]);
+            // A row's eight terms added as a tree, as [`squared_difference`] does (N is 8).
+            let terms: [f64; N] = std::array::from_fn(|q| {
+                let diff = (x[q] - y[q]) as f64;
+                diff * diff / (vx[q] + vy[q]) as f64
+            });
+            let half: [f64; 4] = std::array::from_fn(|j| terms[j] + terms[j + 4]);
+            (half[0] + half[2]) + (half[1] + half[3])
         })
         .sum()
 }
@@ -1099,14 +1108,35 @@ fn scaled_difference(
 fn ssd(one: &[f32], other: &[f32], w: usize, a: (usize, usize), b: (usize, usize)) -> f64 {
     (0..N)
         .map(|r| {
-            let x = &one[(a.1 + r) * w + a.0..(a.1 + r) * w + a.0 + N];
-            let y = &other[(b.1 + r) * w + b.0..(b.1 + r) * w + b.0 + N];
-            x.iter()
-                .zip(y)
-                .map(|(p, q)| ((p - q) as f64).powi(2))
-                .sum::<f64>()
+            let x = &one[(a.1 + r) * w + a.0..][..N];
+            let y = &other[(b.1 + r) * w + b.0..][..N];
+            squared_difference(x, y)
         })
         .sum()
+}
+
+/// The summed squared difference of two runs of pixels of the same length, in `f64`. Most of
+/// the tracking's time: the squares are added in eight lanes (pixel `i` to lane `i % 8`), the
+/// lanes then as a tree (halves, then quarters), which vector units do side by side where a
+/// sum from left to right waits on each addition in turn; the order is fixed, so the bits are
+/// the same on every run.
+fn squared_difference(a: &[f32], b: &[f32]) -> f64 {
+    debug_assert_eq!(a.len(), b.len());
+    let mut lanes = [0f64; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for j in 0..8 {
+            let d = (x[j] - y[j]) as f64;
+            lanes[j] += d * d;
+        }
+    }
+    for (j, (p, q)) in ra.iter().zip(rb).enumerate() {
+        let d = (p - q) as f64;
+        lanes[j] += d * d;
+    }
+    let half: [f64; 4] = std::array::from_fn(|j| lanes[j] + lanes[j + 4]);
+    (half[0] + half[2]) + (half[1] + half[3])
 }
 
 /// The position within [`SEARCH`] px of `around` in `other` whose block is closest to the block
@@ -1134,13 +1164,9 @@ fn best_match(
             let mut d = 0.0;
             let bound = best.map_or(under, |b| b.0);
             for r in 0..N {
-                let a = &own[(at.1 + r) * w + at.0..(at.1 + r) * w + at.0 + N];
-                let b = &other[(cy + r) * w + cx..(cy + r) * w + cx + N];
-                d += a
-                    .iter()
-                    .zip(b)
-                    .map(|(p, q)| ((p - q) as f64).powi(2))
-                    .sum::<f64>();
+                let a = &own[(at.1 + r) * w + at.0..][..N];
+                let b = &other[(cy + r) * w + cx..][..N];
+                d += squared_difference(a, b);
                 if d > bound {
                     break;
                 }
