@@ -1287,6 +1287,26 @@ mod tests {
         assert!(agrees(from, (22, 20), (23, 20), &[(2.7, 0.0); 8]));
     }
 
+    /// The lanes' sum is the plain sum of the squares, whatever the length (whole lanes, a
+    /// remainder, none), to within the rounding of a few additions in a different order.
+    #[test]
+    fn squared_differences_are_summed_whole() {
+        for len in [0, 1, 7, 8, 9, 16, 21, 250] {
+            let a: Vec<f32> = (0..len).map(|i| (i as f32 * 0.37).sin() * 40.0).collect();
+            let b: Vec<f32> = (0..len).map(|i| (i as f32 * 0.11).cos() * 25.0).collect();
+            let plain: f64 = a
+                .iter()
+                .zip(&b)
+                .map(|(p, q)| ((p - q) as f64).powi(2))
+                .sum();
+            let lanes = squared_difference(&a, &b);
+            assert!(
+                (lanes - plain).abs() <= 1e-12 * plain.max(1.0),
+                "{len}: {lanes} vs {plain}"
+            );
+        }
+    }
+
     /// A smooth pattern moved by (`dx`, `dy`) px, sampled on a `w × h` grid.
     fn pattern(w: usize, h: usize, dx: f64, dy: f64) -> Vec<f32> {
         (0..w * h)
