@@ -47,7 +47,6 @@ from pathlib import Path
 
 import numpy as np
 import tifffile
-from PIL import Image
 from scipy import ndimage
 
 warnings.filterwarnings("ignore")
@@ -60,12 +59,6 @@ SCENES = [DATA / "natural/McMaster/1.tif", DATA / "natural/McMaster/7.tif",
           DATA / "microscopy/fmd-confocal-bpae/field5-avg50.png"]
 MOTIONS = ["static", "drift", "rotate", "deform", "particles", "jitter", "bleach", "cut"]
 EXPOSURE = unseen_camera.TEST_EXPOSURE
-
-
-def gray(path, n=0):
-    """A scene, mirrored at its edges where it is smaller than `n` px."""
-    img = np.asarray(Image.open(path).convert("L"), dtype=np.float64) / 255.0
-    return np.pad(img, [(0, max(0, n - img.shape[0])), (0, max(0, n - img.shape[1]))], mode="symmetric")
 
 
 def centre(img, n):
@@ -195,7 +188,7 @@ def main():
         # The movies, their truth stacks and pairs.toml: movie pairs `emccd evaluate` scores.
         pairs, bm4d_rows = [], {}
         for mi, motion in enumerate(motions):
-            scene, other = gray(SCENES[mi % 3], n + 64), gray(SCENES[(mi + 1) % 3], n + 64)
+            scene, other = (unseen_camera.scene_image(SCENES[(mi + j) % 3], n + 64) for j in (0, 1))
             rel = movie(motion, scene, other, n, a.frames, rng)
             for level in levels:
                 e = rel * (level / max(rel.mean(), 1e-6))

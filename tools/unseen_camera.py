@@ -88,6 +88,12 @@ def scene_files(args):
     return out
 
 
+def scene_image(path, n=0):
+    """A scene file as gray values in [0, 1], mirrored at its edges where it is smaller than `n` px."""
+    img = np.asarray(Image.open(path).convert("L"), dtype=np.float64) / 255.0
+    return np.pad(img, [(0, max(0, n - img.shape[0])), (0, max(0, n - img.shape[1]))], mode="symmetric")
+
+
 def numbers(text):
     return [float(v) for v in text.split(",") if v]
 
@@ -146,9 +152,7 @@ def main():
              'profile = "../profile"',
              'note = "clean: expected photo-signal in DN above bias, photo-electrons * G / (e-/DN), float32"', '']
     for sc in scene_files(a.scenes):
-        img = np.asarray(Image.open(sc).convert("L"), dtype=np.float64) / 255.0
-        # A scene smaller than the frame is mirrored at its edges to fill it.
-        img = np.pad(img, [(0, max(0, n - img.shape[0])), (0, max(0, n - img.shape[1]))], mode="symmetric")
+        img = scene_image(sc, n)
         y0, x0 = (img.shape[0] - n) // 2, (img.shape[1] - n) // 2
         img = img[y0:y0 + n, x0:x0 + n]
         if a.mean_electrons:

@@ -994,15 +994,19 @@ fn global_shift(
         };
     }
     let side = (2 * reach + 1) as usize;
+    // The shift of the surface's `k`th point, row by row.
+    let shift = |k: usize| {
+        (
+            around.0 + (k % side) as isize - reach,
+            around.1 + (k / side) as isize - reach,
+        )
+    };
     // Each shift's sum over the rows in row order, the shifts side by side: the same bits on
     // every run (a row is too little work to share among threads).
     let surface: Vec<f64> = (0..side * side)
         .into_par_iter()
         .map(|k| {
-            let (dx, dy) = (
-                around.0 + (k % side) as isize - reach,
-                around.1 + (k / side) as isize - reach,
-            );
+            let (dx, dy) = shift(k);
             let xb = (s as isize + dx) as usize;
             (s..h - s)
                 .map(|y| {
@@ -1017,10 +1021,7 @@ fn global_shift(
         .collect();
     let mut best = (f64::INFINITY, (0, 0));
     for (k, &d) in surface.iter().enumerate() {
-        let (dx, dy) = (
-            around.0 + (k % side) as isize - reach,
-            around.1 + (k / side) as isize - reach,
-        );
+        let (dx, dy) = shift(k);
         // Ties go to the smaller move.
         let nearer = dx * dx + dy * dy < best.1 .0 * best.1 .0 + best.1 .1 * best.1 .1;
         if d < best.0 || (d == best.0 && nearer) {
@@ -1093,13 +1094,11 @@ fn scaled_difference(
             let (ia, ib) = ((a.1 + r) * w + a.0, (b.1 + r) * w + b.0);
             let (x, y) = (&one[ia..][..N], &other[ib..][..N]);
             let (vx, vy) = (&v_one[ia..][..N], &v_other[ib..][..N]);
-            // A row's eight terms added as a tree, as [`squared_difference`] does (N is 8).
-            let terms: [f64; N] = std::array::from_fn(|q| {
+            // A row's eight terms added as a tree, as [`squared_difference`]'s lanes (N is 8).
+            tree_sum(std::array::from_fn(|q| {
                 let diff = (x[q] - y[q]) as f64;
                 diff * diff / (vx[q] + vy[q]) as f64
-            });
-            let half: [f64; 4] = std::array::from_fn(|j| terms[j] + terms[j + 4]);
-            (half[0] + half[2]) + (half[1] + half[3])
+            }))
         })
         .sum()
 }
@@ -1135,6 +1134,11 @@ fn squared_difference(a: &[f32], b: &[f32]) -> f64 {
         let d = (p - q) as f64;
         lanes[j] += d * d;
     }
+    tree_sum(lanes)
+}
+
+/// Eight terms added as a tree (halves, then quarters): the same order on every call.
+fn tree_sum(lanes: [f64; 8]) -> f64 {
     let half: [f64; 4] = std::array::from_fn(|j| lanes[j] + lanes[j + 4]);
     (half[0] + half[2]) + (half[1] + half[3])
 }
