@@ -41,6 +41,29 @@ pub fn noise_kept(e: (f64, f64)) -> f64 {
     sq(e.0) * sq(e.1)
 }
 
+/// The taps that sample a frame `e` px past a whole pixel along one axis: the first pixel's offset
+/// and the four weights ([`keys_weights`]).
+pub fn sample_taps(e: f64) -> (isize, [f64; 4]) {
+    taps(e)
+}
+
+/// `frame` (`w × h`) at the point (`x`, `y`) (pixel centres at whole coordinates), with Keys'
+/// cubic kernel, the edge pixels repeated.
+pub fn sample(frame: &[f32], w: usize, h: usize, x: f64, y: f64) -> f64 {
+    let (bx, wx) = taps(x);
+    let (by, wy) = taps(y);
+    let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
+    (0..4)
+        .map(|j| {
+            let row = clamp(by - 1 + j as isize, h) * w;
+            wy[j]
+                * (0..4)
+                    .map(|k| wx[k] * frame[row + clamp(bx - 1 + k as isize, w)] as f64)
+                    .sum::<f64>()
+        })
+        .sum()
+}
+
 /// `frame` (`w × h`) sampled `e` px further along each axis (`out(x, y) = frame(x + eₓ, y + e_y)`),
 /// with Keys' cubic kernel (a = −½), the edge pixels repeated: its weights sum to 1, so the
 /// mean over a region is kept.
