@@ -29,8 +29,9 @@ pub fn keys_weights(frac: f64) -> [f64; 4] {
     ]
 }
 
-/// The first pixel's offset and the weights for a sample `e` px along.
-fn taps(e: f64) -> (isize, [f64; 4]) {
+/// The first pixel's offset and the weights for a sample `e` px along one axis: the sample is
+/// `Σₖ weight[k] · pixel[offset − 1 + k]` ([`keys_weights`]).
+pub fn taps(e: f64) -> (isize, [f64; 4]) {
     let base = e.floor();
     (base as isize, keys_weights(e - base))
 }
@@ -39,29 +40,6 @@ fn taps(e: f64) -> (isize, [f64; 4]) {
 pub fn noise_kept(e: (f64, f64)) -> f64 {
     let sq = |e: f64| taps(e).1.iter().map(|w| w * w).sum::<f64>();
     sq(e.0) * sq(e.1)
-}
-
-/// The taps that sample a frame `e` px past a whole pixel along one axis: the first pixel's offset
-/// and the four weights ([`keys_weights`]).
-pub fn sample_taps(e: f64) -> (isize, [f64; 4]) {
-    taps(e)
-}
-
-/// `frame` (`w × h`) at the point (`x`, `y`) (pixel centres at whole coordinates), with Keys'
-/// cubic kernel, the edge pixels repeated.
-pub fn sample(frame: &[f32], w: usize, h: usize, x: f64, y: f64) -> f64 {
-    let (bx, wx) = taps(x);
-    let (by, wy) = taps(y);
-    let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
-    (0..4)
-        .map(|j| {
-            let row = clamp(by - 1 + j as isize, h) * w;
-            wy[j]
-                * (0..4)
-                    .map(|k| wx[k] * frame[row + clamp(bx - 1 + k as isize, w)] as f64)
-                    .sum::<f64>()
-        })
-        .sum()
 }
 
 /// `frame` (`w × h`) sampled `e` px further along each axis (`out(x, y) = frame(x + eₓ, y + e_y)`),

@@ -6,8 +6,9 @@
 //! resampled by the fraction of a pixel of its registration, so that the whole pixels its blocks
 //! are read at hold the scene where frame `t` has it. The frames' single-frame estimates say
 //! whether a block moved on its own (a particle, a deformation): their best match is taken where it
-//! is clearly closer, and aligned to a fraction of a pixel on them ([`refine`]). The noisy frames, after the generalized Anscombe transform (noise about 1 at
-//! every level, so one threshold tells a match from a mismatch), accept the match or end the track;
+//! is clearly closer, and aligned to a fraction of a pixel on them ([`refine`]). The noisy frames,
+//! after the generalized Anscombe transform (noise about 1 at every level, so one threshold tells
+//! a match from a mismatch), accept the match or end the track;
 //! they choose nothing, since a choice made on them fits their noise. The matched blocks are
 //! averaged in the data's own units, each pixel of a block counting as far as the guides agree
 //! there ([`agreement`]: a block that holds the edge of a spot that moved away or blinked off
@@ -31,7 +32,7 @@ use rayon::prelude::*;
 use crate::bm3d::{kaiser, positions};
 use nalgebra::DMatrix;
 
-use crate::resample::{binomial, noise_kept, resampled, sample, sample_taps};
+use crate::resample::{binomial, noise_kept, resampled, taps};
 use crate::vst::{bm3d_adaptive, bm3d_iterative, forward, mean_counts, PoissonGaussian, Schedule};
 
 /// Block side, px.
@@ -239,13 +240,10 @@ pub fn motion_mean(
                                     frame_kept[f],
                                 )
                             } else {
-                                let yy = (by + r) as f64 + sub.1;
-                                for q in 0..N {
-                                    let xx = (bx + q) as f64 + sub.0;
-                                    buf[0][q] = sample(&guides_gat[f], w, h, xx, yy) as f32;
-                                    buf[1][q] = sample(&guides[f], w, h, xx, yy) as f32;
-                                    buf[2][q] = sample(&frames[f], w, h, xx, yy) as f32;
-                                }
+                                let row = (bx, by + r);
+                                shifted_row(&guides_gat[f], w, h, row, sub, &mut buf[0]);
+                                shifted_row(&guides[f], w, h, row, sub, &mut buf[1]);
+                                shifted_row(&frames[f], w, h, row, sub, &mut buf[2]);
                                 (&buf[0], &buf[1], &buf[2], frame_kept[f] * noise_kept(sub))
                             };
                         for q in 0..N {
@@ -1167,8 +1165,8 @@ fn shifted_patch(
     out: &mut [f64; (N + 2) * (N + 2)],
 ) {
     const P: usize = N + 2;
-    let (ox, wx) = sample_taps(e.0);
-    let (oy, wy) = sample_taps(e.1);
+    let (ox, wx) = taps(e.0);
+    let (oy, wy) = taps(e.1);
     let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
     // Along x over the rows the taps reach (P + 3), then along y.
     let mut rows = [0f64; (N + 5) * (N + 2)];
@@ -1185,6 +1183,34 @@ fn shifted_patch(
         for q in 0..P {
             out[r * P + q] = (0..4).map(|k| wy[k] * rows[(r + k) * P + q]).sum();
         }
+    }
+}
+
+/// The `N` pixels of `frame` from (`b.0`, `b.1`) along the row, sampled `e` px further along each
+/// axis (Keys' cubic kernel, the edge pixels repeated; the taps computed once for the row).
+fn shifted_row(
+    frame: &[f32],
+    w: usize,
+    h: usize,
+    b: (usize, usize),
+    e: (f64, f64),
+    out: &mut [f32; N],
+) {
+    let (ox, wx) = taps(b.0 as f64 + e.0);
+    let (oy, wy) = taps(b.1 as f64 + e.1);
+    let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
+    for (q, o) in out.iter_mut().enumerate() {
+        let x0 = ox + q as isize - 1;
+        let v: f64 = (0..4)
+            .map(|j| {
+                let row = clamp(oy - 1 + j as isize, h) * w;
+                wy[j]
+                    * (0..4)
+                        .map(|k| wx[k] * frame[row + clamp(x0 + k as isize, w)] as f64)
+                        .sum::<f64>()
+            })
+            .sum();
+        *o = v as f32;
     }
 }
 
