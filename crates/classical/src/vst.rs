@@ -157,6 +157,19 @@ pub fn bm3d_iterative(
     p: PoissonGaussian,
     passes: &[Pass],
 ) -> Vec<f32> {
+    bm3d_iterative_spaced(frame, w, h, p, passes, 1)
+}
+
+/// [`bm3d_iterative`] with every pass's reference blocks at least `min_step` px apart
+/// ([`crate::bm3d::bm3d_spaced`]).
+pub fn bm3d_iterative_spaced(
+    frame: &[f32],
+    w: usize,
+    h: usize,
+    p: PoissonGaussian,
+    passes: &[Pass],
+    min_step: usize,
+) -> Vec<f32> {
     assert_eq!(frame.len(), w * h, "image size");
     let mut est: Option<Vec<f32>> = None;
     for (k, pass) in passes.iter().enumerate() {
@@ -185,7 +198,7 @@ pub fn bm3d_iterative(
             .map(|&z| forward(z as f64, q) as f32)
             .collect();
         let range = t.iter().copied().fold(0f32, f32::max).max(1.0) as f64;
-        let d = crate::bm3d::bm3d(&t, bw, bh, 1.0, range);
+        let d = crate::bm3d::bm3d_spaced(&t, bw, bh, 1.0, range, min_step);
         let back: Vec<f32> = d
             .into_iter()
             .map(|v| (inverse(v as f64, q) / (b * b) as f64) as f32)
