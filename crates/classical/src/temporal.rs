@@ -1408,11 +1408,12 @@ pub fn single(frame: &[f32], w: usize, h: usize, p: PoissonGaussian) -> Vec<f32>
     bm3d_iterative_spaced(frame, w, h, p, &passes, SINGLE_STEP)
 }
 
-/// How far apart the reference blocks of a frame's own estimate are, px: 4, where BM3D's own
-/// profile puts them 3 apart. The estimate is a guide and a fallback, and was a third of the
-/// method's time (its full-resolution pass alone, on 512² movies at 1 e⁻). On the validation
-/// camera `tune`, 4 px in its last pass: −0.005 dB on average at 0.5 / 16 e⁻ (no movie below by
-/// more than 0.05) for 0.59 of the estimate's time (docs/journal.md).
+/// How far apart the reference blocks of a frame's own estimate are in its full-resolution
+/// pass, px: 4, where BM3D's own profile puts them 3 apart. The estimate is a guide and a
+/// fallback, and that pass was a third of the method's time (on 512² movies at 1 e⁻). On the
+/// validation camera `tune`: −0.005 / −0.009 dB on average at 0.5 / 16 and 1 / 4 e⁻ (the
+/// particles −0.02 to −0.05, the rest within ±0.04) for 0.59 of the estimate's time; 4 px in
+/// the binned passes too cost the jittered stars 0.14 dB at 1 e⁻ (docs/journal.md).
 const SINGLE_STEP: usize = 4;
 
 /// The passes of [`single`] at `counts` mean counts per pixel: [`Schedule::for_counts`]'s

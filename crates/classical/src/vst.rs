@@ -160,8 +160,9 @@ pub fn bm3d_iterative(
     bm3d_iterative_spaced(frame, w, h, p, passes, 1)
 }
 
-/// [`bm3d_iterative`] with every pass's reference blocks at least `min_step` px apart
-/// ([`crate::bm3d::bm3d_spaced`]).
+/// [`bm3d_iterative`] with the reference blocks of its full-resolution passes at least
+/// `min_step` px apart ([`crate::bm3d::bm3d_spaced`]); a binned pass's grid is already
+/// coarser in the frame's pixels, and costs a fraction of a full pass.
 pub fn bm3d_iterative_spaced(
     frame: &[f32],
     w: usize,
@@ -198,7 +199,8 @@ pub fn bm3d_iterative_spaced(
             .map(|&z| forward(z as f64, q) as f32)
             .collect();
         let range = t.iter().copied().fold(0f32, f32::max).max(1.0) as f64;
-        let d = crate::bm3d::bm3d_spaced(&t, bw, bh, 1.0, range, min_step);
+        let step = if b == 1 { min_step } else { 1 };
+        let d = crate::bm3d::bm3d_spaced(&t, bw, bh, 1.0, range, step);
         let back: Vec<f32> = d
             .into_iter()
             .map(|v| (inverse(v as f64, q) / (b * b) as f64) as f32)
