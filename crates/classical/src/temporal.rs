@@ -1493,7 +1493,7 @@ pub fn single(frame: &[f32], w: usize, h: usize, p: PoissonGaussian) -> Vec<f32>
 /// validation camera `tune`: −0.005 / −0.009 dB on average at 0.5 / 16 and 1 / 4 e⁻ (the
 /// particles −0.02 to −0.05, the rest within ±0.04) for 0.59 of the estimate's time; 4 px in
 /// the binned passes too cost the jittered stars 0.14 dB at 1 e⁻ (docs/journal.md).
-const SINGLE_STEP: usize = 4;
+pub const SINGLE_STEP: usize = 4;
 
 /// The passes of [`single`] at `counts` mean counts per pixel: [`Schedule::for_counts`]'s
 /// below one count, one plain pass from there. Measured on the validation movies (docs/journal.md):

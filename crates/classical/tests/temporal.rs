@@ -2,8 +2,12 @@
 //! their photons promise on a still scene and on a drifting one, an event in one frame stays in
 //! that frame, and the mean over a uniform region stays the signal's.
 
-use emccd_classical::temporal::{estimate, motion_mean, scene as scene_of, single};
-use emccd_classical::vst::{bm3d_adaptive, bm3d_poisson_gaussian, PoissonGaussian};
+use emccd_classical::temporal::{
+    estimate, motion_mean, scene as scene_of, single, single_schedule, SINGLE_STEP,
+};
+use emccd_classical::vst::{
+    bm3d_adaptive, bm3d_iterative_spaced, mean_counts, PoissonGaussian, Schedule,
+};
 
 const W: usize = 64;
 const H: usize = 64;
@@ -109,7 +113,8 @@ fn psnr(est: &[f32], truth: &[f64]) -> f64 {
 }
 
 /// A window of one frame is the frame's single-frame estimate, and its mean is the frame. The
-/// estimate is iterative BM3D below one count per pixel and one plain BM3D pass from there.
+/// estimate is iterative BM3D below one count per pixel and one plain BM3D pass from there,
+/// its full-resolution pass on the coarser grid.
 #[test]
 fn a_window_of_one_frame_is_the_single_frame_estimate() {
     let mut rng = Lcg(3);
@@ -117,11 +122,14 @@ fn a_window_of_one_frame_is_the_single_frame_estimate() {
     for (peak, iterative) in [(4.0, false), (1.0, true)] {
         let frame = rng.frame(&scene(peak));
         let own = single(&frame, W, H, CAM);
-        let want = if iterative {
-            bm3d_adaptive(&frame, W, H, CAM)
+        let counts = mean_counts(&frame, CAM);
+        let passes = if iterative {
+            Schedule::for_counts(counts)
         } else {
-            bm3d_poisson_gaussian(&frame, W, H, CAM)
+            Schedule::single()
         };
+        assert_eq!(single_schedule(counts), passes, "peak {peak}");
+        let want = bm3d_iterative_spaced(&frame, W, H, CAM, &passes.0, SINGLE_STEP);
         assert!(own == want, "peak {peak}: not the expected BM3D");
         assert_eq!(estimate(&[&frame], &[&own], 0, W, H, CAM), own);
         let mm = motion_mean(&[&frame], &[&own], 0, W, H, CAM);
