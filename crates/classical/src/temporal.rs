@@ -863,6 +863,9 @@ const ACCELERATION: f64 = 0.03;
 /// places do not follow, so at 1.5 its smooth places were refused too.
 const SMOOTH_GATE: f64 = 4.0;
 
+/// The smooth places of [`smooth_motion`] and their covariance.
+type Smooth = (Vec<(f64, f64)>, DMatrix<f64>);
+
 /// [`places`]' normal equations, right-hand sides, pairs used and unknowns' indices.
 type Fit<'a> = (
     &'a DMatrix<f64>,
@@ -887,7 +890,7 @@ fn smooth_motion(
     linked: &[bool],
     at: &[(f64, f64)],
     scatter: f64,
-) -> Option<(Vec<(f64, f64)>, DMatrix<f64>)> {
+) -> Option<Smooth> {
     let strength = scatter / (ACCELERATION * ACCELERATION);
     let mut prior = normal.clone();
     for f in 1..index.len().saturating_sub(1) {
