@@ -1482,10 +1482,17 @@ pub fn estimate(
         .collect()
 }
 
-/// A frame's single-frame estimate (DN above bias, noise `p`), what [`estimate`] tracks motion
-/// on and falls back to: iterative BM3D below one count per pixel (mean signal over α), one
-/// plain BM3D pass from there ([`single_schedule`]), its reference blocks [`SINGLE_STEP`] apart.
+/// A frame's single-frame estimate (DN above bias, noise `p`): iterative BM3D below one count
+/// per pixel (mean signal over α), one plain BM3D pass from there ([`single_schedule`]). What a
+/// frame denoised without neighbours (`--window 0`) is.
 pub fn single(frame: &[f32], w: usize, h: usize, p: PoissonGaussian) -> Vec<f32> {
+    let passes = single_schedule(mean_counts(frame, p)).0;
+    bm3d_iterative_spaced(frame, w, h, p, &passes, 1)
+}
+
+/// [`single`] as a window's member, what [`estimate`] tracks motion on and falls back to: its
+/// full-resolution pass with reference blocks [`SINGLE_STEP`] apart.
+pub fn window_single(frame: &[f32], w: usize, h: usize, p: PoissonGaussian) -> Vec<f32> {
     let passes = single_schedule(mean_counts(frame, p)).0;
     bm3d_iterative_spaced(frame, w, h, p, &passes, SINGLE_STEP)
 }
@@ -1603,6 +1610,21 @@ mod tests {
     }
 
     /// A smooth pattern moved by (`dx`, `dy`) px, sampled on a `w × h` grid.
+    /// Nearly normal noise of standard deviation `sd` per call (12 uniforms of a fixed LCG
+    /// seeded with `seed`, less 6).
+    fn gaussian(seed: u64) -> impl FnMut(f64) -> f32 {
+        let mut state = seed;
+        move |sd: f64| {
+            let mut uniform = || {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (state >> 11) as f64 / (1u64 << 53) as f64
+            };
+            (sd * ((0..12).map(|_| uniform()).sum::<f64>() - 6.0)) as f32
+        }
+    }
+
     fn pattern(w: usize, h: usize, dx: f64, dy: f64) -> Vec<f32> {
         (0..w * h)
             .map(|i| {
@@ -1741,16 +1763,7 @@ mod tests {
         assert_eq!(linked, [true, true, true, true, true, false, false]);
         // A cut from a bright noisy scene to a dim one, whose frames differ less (a quarter of
         // the noise's variance): each scene's frames are linked to their own, from either side.
-        let mut state = 7u64;
-        let mut noise = |sd: f64| -> f32 {
-            let mut uniform = || {
-                state = state
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                (state >> 11) as f64 / (1u64 << 53) as f64
-            };
-            (sd * ((0..12).map(|_| uniform()).sum::<f64>() - 6.0)) as f32
-        };
+        let mut noise = gaussian(7);
         let noisy: Vec<Vec<f32>> = (0..7)
             .map(|f| {
                 let (scene, sd) = if f < 5 {
@@ -1784,16 +1797,7 @@ mod tests {
     #[test]
     fn a_drift_is_registered_along_one_smooth_path_and_a_jitter_is_not() {
         let (w, h, center) = (64, 64, 12);
-        let mut state = 11u64;
-        let mut noise = |sd: f64| -> f32 {
-            let mut uniform = || {
-                state = state
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                (state >> 11) as f64 / (1u64 << 53) as f64
-            };
-            (sd * ((0..12).map(|_| uniform()).sum::<f64>() - 6.0)) as f32
-        };
+        let mut noise = gaussian(11);
         let drift = |f: usize| (0.6 * (f as f64 - 12.0), 0.3 * (f as f64 - 12.0));
         let frames: Vec<Vec<f32>> = (0..25)
             .map(|f| {

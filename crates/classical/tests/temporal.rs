@@ -3,7 +3,7 @@
 //! that frame, and the mean over a uniform region stays the signal's.
 
 use emccd_classical::temporal::{
-    estimate, motion_mean, scene as scene_of, single, single_schedule, SINGLE_STEP,
+    estimate, motion_mean, scene as scene_of, single, single_schedule, window_single, SINGLE_STEP,
 };
 use emccd_classical::vst::{
     bm3d_adaptive, bm3d_iterative_spaced, mean_counts, PoissonGaussian, Schedule,
@@ -113,8 +113,8 @@ fn psnr(est: &[f32], truth: &[f64]) -> f64 {
 }
 
 /// A window of one frame is the frame's single-frame estimate, and its mean is the frame. The
-/// estimate is iterative BM3D below one count per pixel and one plain BM3D pass from there,
-/// its full-resolution pass on the coarser grid.
+/// estimate is iterative BM3D below one count per pixel and one plain BM3D pass from there; as
+/// a window's member, its full-resolution pass on the coarser grid.
 #[test]
 fn a_window_of_one_frame_is_the_single_frame_estimate() {
     let mut rng = Lcg(3);
@@ -129,8 +129,10 @@ fn a_window_of_one_frame_is_the_single_frame_estimate() {
             Schedule::single()
         };
         assert_eq!(single_schedule(counts), passes, "peak {peak}");
-        let want = bm3d_iterative_spaced(&frame, W, H, CAM, &passes.0, SINGLE_STEP);
+        let want = bm3d_iterative_spaced(&frame, W, H, CAM, &passes.0, 1);
         assert!(own == want, "peak {peak}: not the expected BM3D");
+        let spaced = bm3d_iterative_spaced(&frame, W, H, CAM, &passes.0, SINGLE_STEP);
+        assert!(window_single(&frame, W, H, CAM) == spaced, "peak {peak}");
         assert_eq!(estimate(&[&frame], &[&own], 0, W, H, CAM), own);
         let mm = motion_mean(&[&frame], &[&own], 0, W, H, CAM);
         assert_eq!(mm.mean, frame);

@@ -292,10 +292,16 @@ fn prepare(fd: &Denoiser, index: usize, raw: &[f32], exposure_s: f64) -> Result<
     let frame = fd.preprocess(raw, exposure_s)?;
     // The classical method tracks motion on each frame's own estimate; the network's window is
     // gated with a cheap one.
-    let single = if fd.method == Method::TemporalNet {
-        guide(&frame, fd.profile.width)
-    } else {
-        fd.estimate(&frame, exposure_s)?
+    let single = match fd.method {
+        Method::TemporalNet => guide(&frame, fd.profile.width),
+        // Its full-resolution pass on a coarser grid: a guide and a fallback. Without
+        // neighbours the frame's estimate is its output, as a per-frame method's.
+        Method::Temporal if fd.window > 0 => {
+            let p = fd.profile;
+            let noise = vst_params(p, exposure_s)?;
+            emccd_classical::temporal::window_single(&frame, p.width, p.height, noise)
+        }
+        _ => fd.estimate(&frame, exposure_s)?,
     };
     Ok(Held {
         index,
