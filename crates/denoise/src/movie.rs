@@ -62,7 +62,8 @@ pub fn denoise_frames(
     let mut due = want.start;
     for j in lo..hi {
         next(j, Some(&mut buf))?;
-        held.push_back(prepare(fd, j, &buf, exposure_s).map_err(|e| e.at(at(j)))?);
+        let with_neighbours = k > 0 && count > 1;
+        held.push_back(prepare(fd, j, &buf, exposure_s, with_neighbours).map_err(|e| e.at(at(j)))?);
         // Every frame whose window is now complete (or ends at the last frame read). A frame
         // is denoised as soon as frame `due + k` is read, so what is held past the frames
         // before its window is exactly its window.
@@ -284,10 +285,16 @@ pub fn denoise_slice(
     Ok(())
 }
 
-/// Raw frame `index` preprocessed, with its single-frame estimate (the classical method's) or
-/// its [`guide`] (the network's): refused when a value is not finite (as [`Denoiser::run`]
-/// refuses it).
-fn prepare(fd: &Denoiser, index: usize, raw: &[f32], exposure_s: f64) -> Result<Held> {
+/// Raw frame `index` preprocessed, with its single-frame estimate (the classical method's: as
+/// a window's member `with_neighbours`, else the frame's output) or its [`guide`] (the
+/// network's): refused when a value is not finite (as [`Denoiser::run`] refuses it).
+fn prepare(
+    fd: &Denoiser,
+    index: usize,
+    raw: &[f32],
+    exposure_s: f64,
+    with_neighbours: bool,
+) -> Result<Held> {
     fd.check_finite(raw)?;
     let frame = fd.preprocess(raw, exposure_s)?;
     // The classical method tracks motion on each frame's own estimate; the network's window is
@@ -296,7 +303,7 @@ fn prepare(fd: &Denoiser, index: usize, raw: &[f32], exposure_s: f64) -> Result<
         Method::TemporalNet => guide(&frame, fd.profile.width),
         // Its full-resolution pass on a coarser grid: a guide and a fallback. Without
         // neighbours the frame's estimate is its output, as a per-frame method's.
-        Method::Temporal if fd.window > 0 => {
+        Method::Temporal if with_neighbours => {
             let p = fd.profile;
             let noise = vst_params(p, exposure_s)?;
             emccd_classical::temporal::window_single(&frame, p.width, p.height, noise)

@@ -83,7 +83,13 @@ fn in_memory(p: &CameraProfile, raws: &[Vec<f32>], k: usize) -> Vec<Vec<f32>> {
         .collect();
     let singles: Vec<Vec<f32>> = pre
         .iter()
-        .map(|f| emccd_classical::temporal::single(f, W, H, noise))
+        .map(|f| {
+            if k > 0 && raws.len() > 1 {
+                emccd_classical::temporal::window_single(f, W, H, noise)
+            } else {
+                emccd_classical::temporal::single(f, W, H, noise)
+            }
+        })
         .collect();
     (0..raws.len())
         .map(|t| {
