@@ -1486,15 +1486,25 @@ pub fn estimate(
 /// per pixel (mean signal over α), one plain BM3D pass from there ([`single_schedule`]). What a
 /// frame denoised without neighbours (`--window 0`) is.
 pub fn single(frame: &[f32], w: usize, h: usize, p: PoissonGaussian) -> Vec<f32> {
-    let passes = single_schedule(mean_counts(frame, p)).0;
-    bm3d_iterative_spaced(frame, w, h, p, &passes, 1)
+    single_spaced(frame, w, h, p, 1)
 }
 
 /// [`single`] as a window's member, what [`estimate`] tracks motion on and falls back to: its
 /// full-resolution pass with reference blocks [`SINGLE_STEP`] apart.
 pub fn window_single(frame: &[f32], w: usize, h: usize, p: PoissonGaussian) -> Vec<f32> {
+    single_spaced(frame, w, h, p, SINGLE_STEP)
+}
+
+/// [`single`]'s passes with the full-resolution one's reference blocks `min_step` apart.
+fn single_spaced(
+    frame: &[f32],
+    w: usize,
+    h: usize,
+    p: PoissonGaussian,
+    min_step: usize,
+) -> Vec<f32> {
     let passes = single_schedule(mean_counts(frame, p)).0;
-    bm3d_iterative_spaced(frame, w, h, p, &passes, SINGLE_STEP)
+    bm3d_iterative_spaced(frame, w, h, p, &passes, min_step)
 }
 
 /// How far apart the reference blocks of a frame's own estimate are in its full-resolution

@@ -57,13 +57,15 @@ pub fn denoise_frames(
     for j in 0..lo {
         next(j, None)?;
     }
+    // A recording of more than one frame with a window: the classical method's frames are
+    // members of windows, at this noise.
+    let members = (k > 0 && count > 1).then_some(noise);
     let mut held: VecDeque<Held> = VecDeque::with_capacity(2 * k + 1);
     let mut buf = vec![0f32; p.len()];
     let mut due = want.start;
     for j in lo..hi {
         next(j, Some(&mut buf))?;
-        let with_neighbours = k > 0 && count > 1;
-        held.push_back(prepare(fd, j, &buf, exposure_s, with_neighbours).map_err(|e| e.at(at(j)))?);
+        held.push_back(prepare(fd, j, &buf, exposure_s, members).map_err(|e| e.at(at(j)))?);
         // Every frame whose window is now complete (or ends at the last frame read). A frame
         // is denoised as soon as frame `due + k` is read, so what is held past the frames
         // before its window is exactly its window.
@@ -286,26 +288,26 @@ pub fn denoise_slice(
 }
 
 /// Raw frame `index` preprocessed, with its single-frame estimate (the classical method's: as
-/// a window's member `with_neighbours`, else the frame's output) or its [`guide`] (the
-/// network's): refused when a value is not finite (as [`Denoiser::run`] refuses it).
+/// a window's member where `members` gives the frames' noise, else the frame's output) or its
+/// [`guide`] (the network's): refused when a value is not finite (as [`Denoiser::run`] refuses
+/// it).
 fn prepare(
     fd: &Denoiser,
     index: usize,
     raw: &[f32],
     exposure_s: f64,
-    with_neighbours: bool,
+    members: Option<PoissonGaussian>,
 ) -> Result<Held> {
     fd.check_finite(raw)?;
     let frame = fd.preprocess(raw, exposure_s)?;
     // The classical method tracks motion on each frame's own estimate; the network's window is
     // gated with a cheap one.
-    let single = match fd.method {
-        Method::TemporalNet => guide(&frame, fd.profile.width),
+    let single = match (fd.method, members) {
+        (Method::TemporalNet, _) => guide(&frame, fd.profile.width),
         // Its full-resolution pass on a coarser grid: a guide and a fallback. Without
         // neighbours the frame's estimate is its output, as a per-frame method's.
-        Method::Temporal if with_neighbours => {
+        (Method::Temporal, Some(noise)) => {
             let p = fd.profile;
-            let noise = vst_params(p, exposure_s)?;
             emccd_classical::temporal::window_single(&frame, p.width, p.height, noise)
         }
         _ => fd.estimate(&frame, exposure_s)?,
