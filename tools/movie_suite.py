@@ -19,7 +19,8 @@ Motions (each a movie of --frames frames of --size² px cut from a larger crop o
 
 Light: the mean over the movie's frames is --levels photo-electrons per pixel (0.5, 1, 4, 16).
 Scenes: McMaster 1 and 7 and FMD field 5 (never trained on: the low-light suite's), one per
-motion in turn; particles and jitter make their own.
+motion in turn; particles and jitter make their own. A run of some --motions has the same scenes
+and moves as the full run; only the noise is drawn anew.
 
 Usage: python3 tools/movie_suite.py [OUT] [--cameras lowlight-a,lowlight-b] [--levels 0.5,1,4,16]
            [--motions static,drift,...] [--frames 16] [--size 256] [--methods bm3d,blend,temporal]
@@ -162,6 +163,8 @@ def main():
         subprocess.run(["cargo", "build", "--release", "--locked"], cwd=ROOT, check=True)
     levels = [float(v) for v in a.levels.split(",")]
     motions = a.motions.split(",")
+    if unknown := [m for m in motions if m not in MOTIONS]:
+        sys.exit(f"unknown motion(s) {', '.join(unknown)}; the motions are {', '.join(MOTIONS)}")
     methods = a.methods.split(",")
     rows, n = [], a.size
     for cam_name in a.cameras.split(","):
@@ -187,9 +190,14 @@ def main():
         mdir.mkdir(parents=True, exist_ok=True)
         # The movies, their truth stacks and pairs.toml: movie pairs `emccd evaluate` scores.
         pairs, bm4d_rows = [], {}
-        for mi, motion in enumerate(motions):
+        # Every motion's clean movie is made, in MOTIONS' order, so that a run of a few motions
+        # has the same scenes and moves as the full run (its noise is drawn anew).
+        clean = {}
+        for mi, motion in enumerate(MOTIONS):
             scene, other = (unseen_camera.scene_image(SCENES[(mi + j) % 3], n + 64) for j in (0, 1))
-            rel = movie(motion, scene, other, n, a.frames, rng)
+            clean[motion] = movie(motion, scene, other, n, a.frames, rng)
+        for motion in motions:
+            rel = clean[motion]
             for level in levels:
                 e = rel * (level / max(rel.mean(), 1e-6))
                 stem = f"{motion}_m{level:g}"
