@@ -1619,7 +1619,6 @@ mod tests {
         }
     }
 
-    /// A smooth pattern moved by (`dx`, `dy`) px, sampled on a `w × h` grid.
     /// Nearly normal noise of standard deviation `sd` per call (12 uniforms of a fixed LCG
     /// seeded with `seed`, less 6).
     fn gaussian(seed: u64) -> impl FnMut(f64) -> f32 {
@@ -1635,6 +1634,7 @@ mod tests {
         }
     }
 
+    /// A smooth pattern moved by (`dx`, `dy`) px, sampled on a `w × h` grid.
     fn pattern(w: usize, h: usize, dx: f64, dy: f64) -> Vec<f32> {
         (0..w * h)
             .map(|i| {
