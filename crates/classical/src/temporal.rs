@@ -17,6 +17,11 @@
 //! noise of a mean of `N` frames (gain α/N, read noise σ/√N), `N` the frames its noise is worth (a
 //! resampled neighbour holds less noise; a partly matching block counts partly).
 //!
+//! A scene that deforms differs in its far frames by more than any block's track follows, and
+//! there fewer frames are worth more: the mean is of the whole window or of its [`NEAR`] frames
+//! each side, whichever frame `t`'s own data, held out of both, finds clearly closer
+//! ([`HeldOut`]).
+//!
 //! Where the neighbours hold nothing like frame `t` (a particle that moved off its track, a spot
 //! that blinked), no block passes the threshold; a neighbour whose blocks as a whole differ more
 //! than noise does, or that no chain of matching pairs of frames links to frame `t` (a scene
@@ -182,6 +187,25 @@ pub fn motion_mean(
             noise_frames: vec![1.0; w * h],
         };
     }
+    let t = tracked(window, guides, center, w, h, p, STEP);
+    pooled(&t, own, center, w, h, usize::MAX, true, 0..h)
+}
+
+/// The motion-compensated mean of rows `rows` of frame `center` from its tracked window `t`:
+/// the matched blocks of the frames at most `reach` frames from it, and the frame itself if
+/// `with_own`. Without it (the held-out mean, [`held_out`]), a pixel no block matched is the
+/// frame's own estimate (its guide).
+#[allow(clippy::too_many_arguments)]
+fn pooled(
+    t: &Tracked,
+    own: &[f32],
+    center: usize,
+    w: usize,
+    h: usize,
+    reach: usize,
+    with_own: bool,
+    rows: std::ops::Range<usize>,
+) -> MotionMean {
     let Tracked {
         frames,
         tracks,
@@ -191,7 +215,8 @@ pub fn motion_mean(
         guides,
         guides_gat,
         ..
-    } = tracked(window, guides, center, w, h, p, STEP);
+    } = t;
+    let (first, last) = (*first, *last);
     let (xs, ys) = (positions(w, N, STEP), positions(h, N, STEP));
     let win = kaiser(N);
     // Each output row gathers, in a fixed order (block rows, then blocks), Σ k·(the matched blocks'
@@ -204,7 +229,7 @@ pub fn motion_mean(
     let kept = |steps: &[Step]| -> Kept {
         steps
             .iter()
-            .filter(|s| (first..=last).contains(&s.frame))
+            .filter(|s| (first..=last).contains(&s.frame) && s.frame.abs_diff(center) <= reach)
             .map(|s| (s.frame, s.x, s.y, weight(s.d), s.sub))
             .collect()
     };
@@ -212,7 +237,7 @@ pub fn motion_mean(
         .iter()
         .map(|row| row.iter().map(|steps| kept(steps)).collect())
         .collect();
-    let rows: Vec<(Vec<f32>, Vec<f32>, Vec<f32>)> = (0..h)
+    let rows: Vec<(Vec<f32>, Vec<f32>, Vec<f32>)> = rows
         .into_par_iter()
         .map(|yo| {
             let (mut num, mut den, mut cnt) = (vec![0f64; w], vec![0f64; w], vec![0f64; w]);
@@ -227,8 +252,10 @@ pub fn motion_mean(
                     // same order per pixel as pixel by pixel, so the same bits), a frame's
                     // row read in one run.
                     let at = yo * w + x;
-                    let mut sum: [f64; N] = std::array::from_fn(|q| frames[center][at + q] as f64);
-                    let (mut m, mut noise) = ([1.0f64; N], [1.0f64; N]);
+                    let counted = if with_own { 1.0 } else { 0.0 };
+                    let mut sum: [f64; N] =
+                        std::array::from_fn(|q| counted * frames[center][at + q] as f64);
+                    let (mut m, mut noise) = ([counted; N], [counted; N]);
                     let (own_gat, own_dn) = (&guides_gat[center][at..], &guides[center][at..]);
                     let mut buf = [[0f32; N]; 3];
                     for &(f, bx, by, wt, sub) in blocks {
@@ -268,7 +295,9 @@ pub fn motion_mean(
                         num[x + q] += k * sum[q];
                         den[x + q] += k * m[q];
                         cnt[x + q] += k;
-                        held_noise[x + q] += k * m[q] * m[q] / noise[q];
+                        if noise[q] > 0.0 {
+                            held_noise[x + q] += k * m[q] * m[q] / noise[q];
+                        }
                     }
                 }
             }
@@ -276,8 +305,10 @@ pub fn motion_mean(
                 .map(|q| {
                     if den[q] > 0.0 {
                         (num[q] / den[q]) as f32
-                    } else {
+                    } else if with_own {
                         own[yo * w + q]
+                    } else {
+                        guides[center][yo * w + q]
                     }
                 })
                 .collect();
@@ -1451,7 +1482,9 @@ const POOLED_FROM: f64 = 4.0;
 
 /// The estimate of `window[center]` (DN above bias, noise `p`) from its window: iterative BM3D of
 /// the motion-compensated mean at a mean's noise, falling back to `singles[center]` (the frame's
-/// own estimate) where fewer than [`POOLED_FROM`] frames matched. `singles` are the window's
+/// own estimate) where fewer than [`POOLED_FROM`] frames matched. The mean is over the whole
+/// window, or over the [`NEAR`] frames each side where the held-out test prefers them
+/// ([`HeldOut`]). `singles` are the window's
 /// single-frame estimates, [`single`] of each frame (a stack computes each once). One frame's worth
 /// of matches or fewer gives `singles[center]` unchanged.
 pub fn estimate(
@@ -1462,11 +1495,19 @@ pub fn estimate(
     h: usize,
     p: PoissonGaussian,
 ) -> Vec<f32> {
-    let single = singles[center];
-    let mm = motion_mean(window, singles, center, w, h, p);
+    check_window(window, singles, w, h);
+    let (own, single) = (window[center], singles[center]);
+    if window.len() == 1 || w < N || h < N {
+        return single.to_vec();
+    }
+    let t = tracked(window, singles, center, w, h, p, STEP);
+    let mut mm = pooled(&t, own, center, w, h, usize::MAX, true, 0..h);
     let typical = emccd_profile::median(mm.frames.iter().copied()).unwrap_or(1.0) as f64;
     if typical < 1.5 {
         return single.to_vec();
+    }
+    if held_out_of(&t, own, center, w, h, p).is_some_and(|c| c.prefers_near()) {
+        mm = pooled(&t, own, center, w, h, NEAR, true, 0..h);
     }
     // The mean's noise: that of a mean of as many frames as its noise is worth.
     let worth = emccd_profile::median(mm.noise_frames.iter().copied()).unwrap_or(1.0) as f64;
@@ -1480,6 +1521,128 @@ pub fn estimate(
             wt * a + (1.0 - wt) * b
         })
         .collect()
+}
+
+/// The frames each side of frame `t` the shorter window holds, which [`estimate`] takes instead
+/// of the whole window where the held-out test prefers it ([`HeldOut`]). A scene that deforms
+/// changes from frame to frame in ways no block's whole-pixel track follows, and its far frames
+/// add their distortion: on the validation camera `tune` (128², 1 e⁻) the deformation was
+/// 19.26 / 18.68 / 17.98 / 17.77 dB with 3 / 5 / 8 / 12 frames each side (docs/journal.md).
+pub const NEAR: usize = 3;
+
+/// Side of the square at the frame's centre that the held-out test denoises twice, px: an
+/// eighth of the time of one BM3D pass of a 512² frame for both, where the test's noise is
+/// still a fifth of the deformation's difference at a photon per pixel.
+const HELD_OUT_SIDE: usize = 128;
+
+/// How many of its standard deviations the held-out difference must reach for the near frames
+/// to be taken. The test is unbiased but noisy where a few bright pixels hold the error (a
+/// jittered star field: one frame in 16 at 4 e⁻ came out just above zero and lost 2.4 dB with
+/// the near frames); at two standard deviations no frame of the validation movies took them
+/// where they were worse, and every frame of the deformation at 1 e⁻ took them (docs/journal.md).
+const HELD_OUT_Z: f64 = 2.0;
+
+/// Frame `t` estimated without its own data, from the whole window and from the [`NEAR`]
+/// frames each side, over a square at its centre: each the motion-compensated mean of the
+/// neighbours alone (the same tracks), denoised as [`estimate`] denoises the mean. Since frame
+/// `t`'s noise is in neither, the squared difference of each to frame `t` is its squared
+/// error plus the same noise term on average, so their difference is an unbiased estimate of
+/// how much worse the whole window is — a choice made on data the estimates were not made from.
+#[derive(Clone, Debug)]
+pub struct HeldOut {
+    /// The square compared: its left and top edges and its width and height, px.
+    pub rect: (usize, usize, usize, usize),
+    /// The estimate from the whole window's neighbours over the square (DN, row by row).
+    pub whole: Vec<f32>,
+    /// The estimate from the near frames' neighbours over the square.
+    pub near: Vec<f32>,
+    /// Σ (frame − whole)² − Σ (frame − near)² over the square (DN²): on average the whole
+    /// window's squared error less the near frames'.
+    pub difference: f64,
+    /// The standard deviation of `difference` from frame `t`'s noise, 2·√(Σ var·(whole −
+    /// near)²), with each pixel's variance from the noise model at its own estimate.
+    pub sd: f64,
+}
+
+impl HeldOut {
+    /// Whether the near frames are clearly better: the difference above [`HELD_OUT_Z`] of its
+    /// standard deviations.
+    pub fn prefers_near(&self) -> bool {
+        self.difference > HELD_OUT_Z * self.sd
+    }
+}
+
+/// The held-out comparison of `window[center]`'s whole window with its [`NEAR`] frames each
+/// side ([`HeldOut`]; `guides` as for [`motion_mean`]); `None` where the window's scene holds
+/// no frame beyond them, or the frame is smaller than a block.
+pub fn held_out(
+    window: &[&[f32]],
+    guides: &[&[f32]],
+    center: usize,
+    w: usize,
+    h: usize,
+    p: PoissonGaussian,
+) -> Option<HeldOut> {
+    check_window(window, guides, w, h);
+    if window.len() == 1 || w < N || h < N {
+        return None;
+    }
+    let t = tracked(window, guides, center, w, h, p, STEP);
+    held_out_of(&t, window[center], center, w, h, p)
+}
+
+/// [`held_out`] on a tracked window.
+fn held_out_of(
+    t: &Tracked,
+    own: &[f32],
+    center: usize,
+    w: usize,
+    h: usize,
+    p: PoissonGaussian,
+) -> Option<HeldOut> {
+    if t.first + NEAR >= center && t.last <= center + NEAR {
+        return None;
+    }
+    let (cw, ch) = (w.min(HELD_OUT_SIDE), h.min(HELD_OUT_SIDE));
+    let (x0, y0) = ((w - cw) / 2, (h - ch) / 2);
+    let square = |v: &[f32]| -> Vec<f32> {
+        (0..ch)
+            .flat_map(|r| v[r * w + x0..][..cw].iter().copied())
+            .collect()
+    };
+    let without_own = |reach: usize| -> Vec<f32> {
+        let mm = pooled(t, own, center, w, h, reach, false, y0..y0 + ch);
+        let worth = emccd_profile::median(square(&mm.noise_frames).into_iter()).unwrap_or(1.0);
+        bm3d_adaptive(
+            &square(&mm.mean),
+            cw,
+            ch,
+            p.of_mean((worth as f64).max(1.0)),
+        )
+    };
+    let (whole, near) = (without_own(usize::MAX), without_own(NEAR));
+    let (mut difference, mut variance) = (0.0, 0.0);
+    for r in 0..ch {
+        let at = (y0 + r) * w + x0;
+        let (frame, guide) = (&own[at..][..cw], &t.guides[center][at..][..cw]);
+        for q in 0..cw {
+            let (y, a, b) = (
+                frame[q] as f64,
+                whole[r * cw + q] as f64,
+                near[r * cw + q] as f64,
+            );
+            difference += (y - a).powi(2) - (y - b).powi(2);
+            let var = p.alpha * (guide[q] as f64 - p.mu).max(0.0) + p.sigma * p.sigma;
+            variance += var * (a - b).powi(2);
+        }
+    }
+    Some(HeldOut {
+        rect: (x0, y0, cw, ch),
+        whole,
+        near,
+        difference,
+        sd: 2.0 * variance.sqrt(),
+    })
 }
 
 /// A frame's single-frame estimate (DN above bias, noise `p`): iterative BM3D below one count
