@@ -178,9 +178,8 @@ pub fn motion_mean(
     h: usize,
     p: PoissonGaussian,
 ) -> MotionMean {
-    check_window(window, guides, w, h);
     let own = window[center];
-    if window.len() == 1 || w < N || h < N {
+    if !trackable(window, guides, w, h) {
         return MotionMean {
             mean: own.to_vec(),
             frames: vec![1.0; w * h],
@@ -389,8 +388,7 @@ pub fn scene(
     h: usize,
     p: PoissonGaussian,
 ) -> Scene {
-    check_window(window, guides, w, h);
-    if window.len() == 1 || w < N || h < N {
+    if !trackable(window, guides, w, h) {
         return Scene {
             first: center,
             last: center,
@@ -433,12 +431,15 @@ pub fn brightness_trend(window: &[&[f32]], center: usize, first: usize, last: us
     brightness(window, center, first..=last)
 }
 
-/// Panics unless every frame of `window` has its guide and every frame and guide is `w × h`.
-fn check_window(window: &[&[f32]], guides: &[&[f32]], w: usize, h: usize) {
+/// Whether `window` holds neighbours to track: more than one frame, each at least a block in
+/// size. Panics unless every frame of `window` has its guide and every frame and guide is
+/// `w × h`.
+fn trackable(window: &[&[f32]], guides: &[&[f32]], w: usize, h: usize) -> bool {
     assert_eq!(window.len(), guides.len(), "a guide for every frame");
     for f in window.iter().chain(guides) {
         assert_eq!(f.len(), w * h, "frame size");
     }
+    window.len() > 1 && w >= N && h >= N
 }
 
 /// Distance between the reference blocks [`scene`] tracks, px: its decision is a median over
@@ -1484,9 +1485,9 @@ const POOLED_FROM: f64 = 4.0;
 /// the motion-compensated mean at a mean's noise, falling back to `singles[center]` (the frame's
 /// own estimate) where fewer than [`POOLED_FROM`] frames matched. The mean is over the whole
 /// window, or over the [`NEAR`] frames each side where the held-out test prefers them
-/// ([`HeldOut`]). `singles` are the window's
-/// single-frame estimates, [`single`] of each frame (a stack computes each once). One frame's worth
-/// of matches or fewer gives `singles[center]` unchanged.
+/// ([`HeldOut`]). `singles` are the window's single-frame estimates, [`single`] of each frame (a
+/// stack computes each once). One frame's worth of matches or fewer gives `singles[center]`
+/// unchanged.
 pub fn estimate(
     window: &[&[f32]],
     singles: &[&[f32]],
@@ -1495,9 +1496,8 @@ pub fn estimate(
     h: usize,
     p: PoissonGaussian,
 ) -> Vec<f32> {
-    check_window(window, singles, w, h);
     let (own, single) = (window[center], singles[center]);
-    if window.len() == 1 || w < N || h < N {
+    if !trackable(window, singles, w, h) {
         return single.to_vec();
     }
     let t = tracked(window, singles, center, w, h, p, STEP);
@@ -1583,8 +1583,7 @@ pub fn held_out(
     h: usize,
     p: PoissonGaussian,
 ) -> Option<HeldOut> {
-    check_window(window, guides, w, h);
-    if window.len() == 1 || w < N || h < N {
+    if !trackable(window, guides, w, h) {
         return None;
     }
     let t = tracked(window, guides, center, w, h, p, STEP);
