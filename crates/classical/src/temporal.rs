@@ -216,6 +216,8 @@ fn pooled(
         ..
     } = t;
     let (first, last) = (*first, *last);
+    // What the frame itself counts in its own mean: once, or not at all (held out).
+    let counted = if with_own { 1.0 } else { 0.0 };
     let (xs, ys) = (positions(w, N, STEP), positions(h, N, STEP));
     let win = kaiser(N);
     // Each output row gathers, in a fixed order (block rows, then blocks), Σ k·(the matched blocks'
@@ -251,7 +253,6 @@ fn pooled(
                     // same order per pixel as pixel by pixel, so the same bits), a frame's
                     // row read in one run.
                     let at = yo * w + x;
-                    let counted = if with_own { 1.0 } else { 0.0 };
                     let mut sum: [f64; N] =
                         std::array::from_fn(|q| counted * frames[center][at + q] as f64);
                     let (mut m, mut noise) = ([counted; N], [counted; N]);

@@ -16,10 +16,11 @@ use crate::common::{load_profile, progress, RecordingArgs};
 /// each frame estimated from the 12 before and after it too (blocks tracked along the motion,
 /// averaged, denoised at the mean's noise), or from the 3 nearest each side where the frame's
 /// own data, held out of both, finds them clearly better (a deforming scene); above `blend` on
-/// every kind of motion of the movie suite, docs/results.md. A single frame runs `blend`: BM3D with iterative variance stabilization
-/// (`ivst`) and the bundled `lowlight` network, averaged, the most accurate method this build
-/// ships at low light (measured on the low-light suite, docs/results.md: +0.48 dB over plain
-/// BM3D + GAT, above it and above `ivst` at every light level); `--method ivst` is the
+/// every kind of motion of the movie suite, docs/results.md. A single frame runs `blend`: BM3D
+/// with iterative variance stabilization (`ivst`) and the bundled `lowlight` network, averaged,
+/// the most accurate method this build ships at low light (measured on the low-light suite,
+/// docs/results.md: +0.48 dB over plain BM3D + GAT, above it and above `ivst` at every light
+/// level); `--method ivst` is the
 /// classical half alone, `--method bm3d` one plain BM3D + GAT pass, `--method hybrid` refines
 /// BM3D's estimate with the bundled `hybrid` network, `--method net` runs a network alone (the
 /// `lowlight` network unless --model names another; fastest), `--method
@@ -66,8 +67,8 @@ pub struct Args {
     pub ensemble: usize,
     /// --method temporal, and the default on a movie: the frames before and after each frame it
     /// uses (default 12: twenty-five frames, or the 3 nearest each side where a held-out test
-    /// prefers them; 0: each frame alone — with --method temporal its own
-    /// estimate, ivst below one count per pixel and one BM3D pass from there; with no
+    /// prefers them; 0: each frame alone — with --method temporal its own estimate, ivst
+    /// below one count per pixel and one BM3D pass from there; with no
     /// --method the default's on a single frame, blend, to the bit). A frame's window stays within its
     /// recording and is clipped at the recording's ends; at most 2·K + 1 frames are held.
     /// --method temporal-net takes 2 (its network's window) or nothing.
