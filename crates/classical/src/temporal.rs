@@ -39,7 +39,7 @@ use nalgebra::DMatrix;
 
 use crate::resample::{binomial, noise_kept, resampled, taps};
 use crate::vst::{
-    bm3d_adaptive_sd, bm3d_iterative_spaced, forward, mean_counts, PoissonGaussian, Schedule,
+    bm3d_adaptive, bm3d_iterative_spaced, forward, mean_counts, PoissonGaussian, Schedule,
 };
 
 /// Block side, px.
@@ -105,9 +105,6 @@ pub struct MotionMean {
     /// weighted mean's noise is `Σw²/(Σw)²`) and where frames were resampled (their noise is
     /// smaller).
     pub noise_frames: Vec<f32>,
-    /// `noise_frames` for the noise's coarsest part, which resampling does not lessen (its
-    /// kernel's weights sum to 1): equal to it where no frame was resampled.
-    pub coarse_noise_frames: Vec<f32>,
 }
 
 /// A neighbour whose tracked blocks differ from frame `t`'s by more than this times the best
@@ -187,7 +184,6 @@ pub fn motion_mean(
             mean: own.to_vec(),
             frames: vec![1.0; w * h],
             noise_frames: vec![1.0; w * h],
-            coarse_noise_frames: vec![1.0; w * h],
         };
     }
     let t = tracked(window, guides, center, w, h, p, STEP);
@@ -242,11 +238,11 @@ fn pooled(
         .iter()
         .map(|row| row.iter().map(|steps| kept(steps)).collect())
         .collect();
-    let rows: Vec<[Vec<f32>; 4]> = rows
+    let rows: Vec<(Vec<f32>, Vec<f32>, Vec<f32>)> = rows
         .into_par_iter()
         .map(|yo| {
             let (mut num, mut den, mut cnt) = (vec![0f64; w], vec![0f64; w], vec![0f64; w]);
-            let (mut held_noise, mut held_coarse) = (vec![0f64; w], vec![0f64; w]);
+            let mut held_noise = vec![0f64; w];
             for (bi, &y) in ys.iter().enumerate() {
                 if yo < y || yo >= y + N {
                     continue;
@@ -259,7 +255,7 @@ fn pooled(
                     let at = yo * w + x;
                     let mut sum: [f64; N] =
                         std::array::from_fn(|q| counted * frames[center][at + q] as f64);
-                    let (mut m, mut noise, mut coarse) = ([counted; N], [counted; N], [counted; N]);
+                    let (mut m, mut noise) = ([counted; N], [counted; N]);
                     let (own_gat, own_dn) = (&guides_gat[center][at..], &guides[center][at..]);
                     let mut buf = [[0f32; N]; 3];
                     for &(f, bx, by, wt, sub) in blocks {
@@ -292,7 +288,6 @@ fn pooled(
                             m[q] += wt;
                             // The mean's noise over one frame's: Σ k·w² / (Σ w)².
                             noise[q] += kept_f * wt * wt;
-                            coarse[q] += wt * wt;
                         }
                     }
                     for q in 0..N {
@@ -302,7 +297,6 @@ fn pooled(
                         cnt[x + q] += k;
                         if noise[q] > 0.0 {
                             held_noise[x + q] += k * m[q] * m[q] / noise[q];
-                            held_coarse[x + q] += k * m[q] * m[q] / coarse[q];
                         }
                     }
                 }
@@ -331,26 +325,19 @@ fn pooled(
                     .collect()
             };
             // The frames a pixel holds (the blocks' m), and the frames its noise is worth.
-            [
-                mean,
-                per_pixel(&den),
-                per_pixel(&held_noise),
-                per_pixel(&held_coarse),
-            ]
+            (mean, per_pixel(&den), per_pixel(&held_noise))
         })
         .collect();
-    let mut columns: [Vec<f32>; 4] = Default::default();
-    for row in rows {
-        for (column, part) in columns.iter_mut().zip(row) {
-            column.extend(part);
-        }
+    let (mut mean, mut frames, mut noise_frames) = (Vec::new(), Vec::new(), Vec::new());
+    for (m, f, n) in rows {
+        mean.extend(m);
+        frames.extend(f);
+        noise_frames.extend(n);
     }
-    let [mean, frames, noise_frames, coarse_noise_frames] = columns;
     MotionMean {
         mean,
         frames,
         noise_frames,
-        coarse_noise_frames,
     }
 }
 
@@ -1523,13 +1510,9 @@ pub fn estimate(
     if held_out_of(&t, own, center, w, h, p).is_some_and(|c| c.prefers_near()) {
         mm = pooled(&t, own, center, w, h, NEAR, true, 0..h);
     }
-    let pooled = denoised(
-        &mm.mean,
-        (&mm.noise_frames, &mm.coarse_noise_frames),
-        w,
-        h,
-        p,
-    );
+    // The mean's noise: that of a mean of as many frames as its noise is worth.
+    let worth = emccd_profile::median(mm.noise_frames.iter().copied()).unwrap_or(1.0) as f64;
+    let pooled = bm3d_adaptive(&mm.mean, w, h, p.of_mean(worth));
     pooled
         .iter()
         .zip(single)
@@ -1539,29 +1522,6 @@ pub fn estimate(
             wt * a + (1.0 - wt) * b
         })
         .collect()
-}
-
-/// A motion-compensated mean (`w × h`) denoised at its noise: iterative BM3D at the noise of a
-/// mean of as many frames as its noise is worth (the median of `worth.0`, a [`MotionMean`]'s
-/// `noise_frames`), and at the standard deviation its coarse part keeps (`worth.1`, its
-/// `coarse_noise_frames`; [`bm3d_adaptive_sd`]). At the noise of the pixels alone BM3D left the
-/// coarse noise of frames resampled by fractions of a pixel: on the validation camera's 256²
-/// drift at half a photoelectron per pixel (standard deviation 1.22) 0.3 dB below.
-fn denoised(
-    mean: &[f32],
-    worth: (&[f32], &[f32]),
-    w: usize,
-    h: usize,
-    p: PoissonGaussian,
-) -> Vec<f32> {
-    let median = |v: &[f32]| {
-        emccd_profile::median(v.iter().copied())
-            .unwrap_or(1.0)
-            .max(1.0)
-    };
-    let (pixels, coarse) = (median(worth.0), median(worth.1));
-    let sd = (pixels / coarse).max(1.0).sqrt();
-    bm3d_adaptive_sd(mean, w, h, p.of_mean(pixels), sd)
 }
 
 /// The frames each side of frame `t` the shorter window holds, which [`estimate`] takes instead
@@ -1655,11 +1615,13 @@ fn held_out_of(
     };
     let without_own = |reach: usize| -> Vec<f32> {
         let mm = pooled(t, own, center, w, h, reach, false, y0..y0 + ch);
-        let worth = (
-            &square(&mm.noise_frames)[..],
-            &square(&mm.coarse_noise_frames)[..],
-        );
-        denoised(&square(&mm.mean), worth, cw, ch, p)
+        let worth = emccd_profile::median(square(&mm.noise_frames).into_iter()).unwrap_or(1.0);
+        bm3d_adaptive(
+            &square(&mm.mean),
+            cw,
+            ch,
+            p.of_mean((worth as f64).max(1.0)),
+        )
     };
     let (whole, near) = (without_own(usize::MAX), without_own(NEAR));
     let (mut difference, mut variance) = (0.0, 0.0);

@@ -82,23 +82,13 @@ impl Schedule {
 /// BM3D with iterative variance stabilization, the schedule chosen from the frame's mean count
 /// ([`Schedule::for_counts`]).
 pub fn bm3d_adaptive(frame: &[f32], w: usize, h: usize, p: PoissonGaussian) -> Vec<f32> {
-    bm3d_adaptive_sd(frame, w, h, p, 1.0)
-}
-
-/// [`bm3d_adaptive`] for noise whose coarse part is `sd` times stronger after the transform than
-/// its pixels' variance says: BM3D thresholds and weighs at standard deviation `sd` instead of 1,
-/// while the transform and its inverse keep the pixels' variance. An average of frames moved by
-/// fractions of a pixel is such noise: interpolation smooths each frame's noise, which lowers its
-/// variance per pixel but not at the lowest spatial frequencies.
-pub fn bm3d_adaptive_sd(
-    frame: &[f32],
-    w: usize,
-    h: usize,
-    p: PoissonGaussian,
-    sd: f64,
-) -> Vec<f32> {
-    let passes = Schedule::for_counts(mean_counts(frame, p)).0;
-    iterate(frame, w, h, p, &passes, 1, sd)
+    bm3d_iterative(
+        frame,
+        w,
+        h,
+        p,
+        &Schedule::for_counts(mean_counts(frame, p)).0,
+    )
 }
 
 /// A frame's mean effective counts per pixel: its mean signal over the gain α (finite values;
@@ -181,20 +171,6 @@ pub fn bm3d_iterative_spaced(
     passes: &[Pass],
     min_step: usize,
 ) -> Vec<f32> {
-    iterate(frame, w, h, p, passes, min_step, 1.0)
-}
-
-/// [`bm3d_iterative_spaced`] with BM3D at standard deviation `sd` after the transform
-/// ([`bm3d_adaptive_sd`]).
-fn iterate(
-    frame: &[f32],
-    w: usize,
-    h: usize,
-    p: PoissonGaussian,
-    passes: &[Pass],
-    min_step: usize,
-    sd: f64,
-) -> Vec<f32> {
     assert_eq!(frame.len(), w * h, "image size");
     let mut est: Option<Vec<f32>> = None;
     for (k, pass) in passes.iter().enumerate() {
@@ -224,7 +200,7 @@ fn iterate(
             .collect();
         let range = t.iter().copied().fold(0f32, f32::max).max(1.0) as f64;
         let step = if b == 1 { min_step } else { 1 };
-        let d = crate::bm3d::bm3d_spaced(&t, bw, bh, sd, range, step);
+        let d = crate::bm3d::bm3d_spaced(&t, bw, bh, 1.0, range, step);
         let back: Vec<f32> = d
             .into_iter()
             .map(|v| (inverse(v as f64, q) / (b * b) as f64) as f32)

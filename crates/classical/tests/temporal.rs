@@ -2,7 +2,6 @@
 //! their photons promise on a still scene and on a drifting one, an event in one frame stays in
 //! that frame, and the mean over a uniform region stays the signal's.
 
-use emccd_classical::resample::noise_kept;
 use emccd_classical::temporal::{
     estimate, held_out, motion_mean, scene as scene_of, single, single_schedule, window_single,
     NEAR, SINGLE_STEP,
@@ -335,48 +334,6 @@ fn a_drifting_scene_is_followed_where_it_can_be_seen() {
             "{counts} e⁻, {speed} px/frame: {one:.2} → {five:.2} dB"
         );
     }
-}
-
-/// A mean of frames moved by fractions of a pixel: resampling smooths each frame's noise, so the
-/// mean's pixels hold the noise of more frames than its coarsest part does (the kernel's weights
-/// sum to 1: the frame's mean noise stays whole). Per pixel the two worths are `m²/Σk·w²` and
-/// `m²/Σw²` for the frames' weights `w` and kept variances `k ≤ 1`, so on a scene drifting 1.5 px
-/// a frame (two of four neighbours half a pixel off) the pixels' worth is the larger, by at most
-/// `1/k` of the smallest kept (a half pixel's on both axes), and clearly larger at the median
-/// pixel. Their ratio is what BM3D is told of the mean's coarse noise.
-#[test]
-fn a_mean_of_resampled_frames_keeps_its_coarse_noise() {
-    let worths = |speed: f64| {
-        let mut rng = Lcg(5);
-        let frames: Vec<Vec<f32>> = (0..5)
-            .map(|k| rng.frame(&scene_at(20.0, speed * k as f64)))
-            .collect();
-        let window: Vec<&[f32]> = frames.iter().map(|f| f.as_slice()).collect();
-        let singles: Vec<Vec<f32>> = window.iter().map(|f| single(f, W, H, CAM)).collect();
-        let guides: Vec<&[f32]> = singles.iter().map(|f| f.as_slice()).collect();
-        let mm = motion_mean(&window, &guides, 2, W, H, CAM);
-        (mm.noise_frames, mm.coarse_noise_frames)
-    };
-    let (pixels, coarse) = worths(1.5);
-    let most = 1.0 / (noise_kept((0.5, 0.0)) * noise_kept((0.0, 0.5)));
-    let mut ratios: Vec<f64> = pixels
-        .iter()
-        .zip(&coarse)
-        .map(|(&p, &c)| p as f64 / c as f64)
-        .collect();
-    ratios.sort_by(f64::total_cmp);
-    let (least, median) = (ratios[0], ratios[ratios.len() / 2]);
-    println!("pixels' worth over the coarse part's: least {least:.3}, median {median:.3}, at most {most:.3}");
-    assert!(least >= 1.0 - 1e-6, "least {least}");
-    assert!(
-        ratios[ratios.len() - 1] <= most + 1e-6,
-        "most {}",
-        ratios[ratios.len() - 1]
-    );
-    assert!(
-        median > 1.1,
-        "the neighbours half a pixel off were resampled: {median}"
-    );
 }
 
 /// A scene bleaching by 4 % per frame at about 2 counts per pixel: every frame's estimate keeps
