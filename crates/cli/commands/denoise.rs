@@ -12,25 +12,25 @@ use emccd_profile::CameraProfile;
 use crate::common::{load_profile, progress, RecordingArgs};
 
 /// Denoise raw EMCCD frames: remove blooming and the fixed pattern with the camera profile (paper
-/// eq. 4), then denoise. By default a recording of several frames (a movie) runs `temporal`:
-/// each frame estimated from the 12 before and after it too (blocks tracked along the motion,
-/// averaged, denoised at the mean's noise), or from the 3 nearest each side where the frame's
-/// own data, held out of both, finds them clearly better (a deforming scene); above `blend` on
-/// every kind of motion of the movie suite, docs/results.md. A single frame runs `blend`: BM3D
-/// with iterative variance stabilization (`ivst`) and the bundled `lowlight` network, averaged,
-/// the most accurate method this build ships at low light (measured on the low-light suite,
-/// docs/results.md: +0.48 dB over plain BM3D + GAT, above it and above `ivst` at every light
-/// level); `--method ivst` is the
+/// eq. 4), then denoise. By default a recording of several frames (a movie) runs `temporal`: each
+/// frame estimated from the 12 before and after it too (blocks tracked along the motion, averaged,
+/// denoised at the mean's noise), or from the 3 nearest each side where the frame's own data, held
+/// out of both, finds them clearly better (a deforming scene); above `blend` on every kind of
+/// motion of the movie suite, docs/results.md. A single frame runs `blend`: BM3D with iterative
+/// variance stabilization (`ivst`) and the bundled `lowlight` network, averaged, the most accurate
+/// method this build ships at low light (measured on the low-light suite, docs/results.md: +0.48 dB
+/// over plain BM3D + GAT, above it and above `ivst` at every light level); `--method ivst` is the
 /// classical half alone, `--method bm3d` one plain BM3D + GAT pass, `--method hybrid` refines
 /// BM3D's estimate with the bundled `hybrid` network, `--method net` runs a network alone (the
-/// `lowlight` network unless --model names another; fastest), `--method
-/// temporal` estimates each frame of a stack from its neighbours too (`--window`; blocks
-/// tracked along the motion, averaged, denoised by `ivst` at the mean's noise), `--method
-/// temporal-net` by the bundled temporal network (`movie`: each frame and the 2 before and
-/// after it; shown only the frame's scene, at its brightness; about a tenth of `temporal`'s
-/// time, 0.7 dB behind it on the movie suite), `--method none` only preprocesses. TIFF/BigTIFF, SIF, FITS and Zarr in (stacks are streamed frame by
-/// frame); float32 TIFF, FITS or OME-Zarr out (by the output's extension), in DN above bias by
-/// default. The exposure comes from the file header (SIF, emccd TIFF) or --exposure-s.
+/// `lowlight` network unless --model names another; fastest), `--method temporal` estimates each
+/// frame of a stack from its neighbours too (`--window`; blocks tracked along the motion, averaged,
+/// denoised by `ivst` at the mean's noise), `--method temporal-net` by the bundled temporal network
+/// (`movie`: each frame and the 2 before and after it; shown only the frame's scene, at its
+/// brightness; a fifth to a seventh of `temporal`'s time, 2.3–2.5 dB behind it on the 256² movie
+/// suite), `--method none` only preprocesses. TIFF/BigTIFF, SIF, FITS and Zarr in (stacks are
+/// streamed frame by frame); float32 TIFF, FITS or OME-Zarr out (by the output's extension), in DN
+/// above bias by default. The exposure comes from the file header (SIF, emccd TIFF) or
+/// --exposure-s.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Raw frames or stacks.
@@ -67,11 +67,11 @@ pub struct Args {
     pub ensemble: usize,
     /// --method temporal, and the default on a movie: the frames before and after each frame it
     /// uses (default 12: twenty-five frames, or the 3 nearest each side where a held-out test
-    /// prefers them; 0: each frame alone — with --method temporal its own estimate, ivst
-    /// below one count per pixel and one BM3D pass from there; with no
-    /// --method the default's on a single frame, blend, to the bit). A frame's window stays within its
-    /// recording and is clipped at the recording's ends; at most 2·K + 1 frames are held.
-    /// --method temporal-net takes 2 (its network's window) or nothing.
+    /// prefers them; 0: each frame alone — with --method temporal its own estimate, ivst below one
+    /// count per pixel and one BM3D pass from there; with no --method the default's on a single
+    /// frame, blend, to the bit). A frame's window stays within its recording and is clipped at the
+    /// recording's ends; at most 2·K + 1 frames are held. --method temporal-net takes 2 (its
+    /// network's window) or nothing.
     #[arg(long, value_name = "K", value_parser = clap::value_parser!(u16).range(0..=emccd_denoise::MAX_WINDOW as i64))]
     pub window: Option<u16>,
     /// Denoise only share I of N of the frames (I from 0; contiguous, one chunk per frame) into

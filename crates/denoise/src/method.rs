@@ -31,14 +31,15 @@ pub enum Method {
     /// Better than `bm3d` below about 8 e⁻ per pixel (4 counts), the same above; up to about
     /// 2.3× its time.
     Ivst,
-    /// A movie's frame from the frames around it (`--window K`: the K frames before and after
-    /// it, 6 by default): each neighbour registered and resampled to a fraction of a pixel,
-    /// blocks tracked along the motion (the scene's, and each block's own move) are averaged
+    /// A movie's frame from the frames around it (`--window K`: the K frames before and after it,
+    /// 12 by default, or the 3 nearest each side where the frame's own data, held out of both,
+    /// finds them clearly better): each neighbour registered and resampled to a fraction of a
+    /// pixel, blocks tracked along the motion (the scene's, and each block's own move) are averaged
     /// into a motion-compensated mean, brought to the frame's brightness (bleaching), which
     /// iterative BM3D denoises at a mean's noise; where the neighbours do not match (motion it
     /// cannot follow, a blink, a scene cut) each pixel falls back to the frame's own estimate
-    /// (`ivst` below one count per pixel, one BM3D pass from there), as does a single frame.
-    /// About three times BM3D's time.
+    /// (`ivst` below one count per pixel, one BM3D pass from there), as does a single frame. About
+    /// 2.2–2.6 times BM3D's time.
     Temporal,
     /// A movie's frame by a temporal network (bundled model `movie`): the frame and the two
     /// before and after it in, the frame out. Trained on movies synthesized with the exact
