@@ -11,8 +11,15 @@
 //! 4 px, groups of 32 with a permissive matching threshold, threshold 2.8σ, and 11×11 Wiener
 //! blocks every 6 px. (The 2007 paper's prefiltered matching, its older very-noisy setting,
 //! measured 0.15 dB worse on BSD68 at σ = 50 and is not used.)
+//!
+//! Noise that is not white ([`Covariance`]: a mean of resampled frames) is thresholded and
+//! shrunk at each 2-D coefficient's own variance, σ² times [`Covariance::coefficient_variances`],
+//! and the aggregation weights sum those variances (Mäkinen, Azzari & Foi 2020, simplified:
+//! the blocks of a group are taken as independent). White noise gives exactly the filter above.
 
 use rayon::prelude::*;
+
+use crate::noise::Covariance;
 
 const N1: usize = 8;
 const STEP: usize = 3;
@@ -448,25 +455,27 @@ fn bm3d_padded(
     sigma: f64,
     data_range: f64,
     min_step: usize,
+    noise: &Covariance,
 ) -> Vec<f32> {
     let (pw, ph) = (w.max(NMAX), h.max(NMAX));
     let padded: Vec<f32> = (0..pw * ph)
         .map(|i| noisy[mirror(i / pw, h) * w + mirror(i % pw, w)])
         .collect();
-    let d = bm3d_spaced(&padded, pw, ph, sigma, data_range, min_step);
+    let d = bm3d_spaced(&padded, pw, ph, sigma, data_range, min_step, noise);
     (0..w * h).map(|i| d[(i / w) * pw + i % w]).collect()
 }
 
 /// Denoises `noisy` (`w × h`, row-major) with noise std `sigma`, in units where the image spans
 /// about `data_range` (the matching thresholds are defined for 8-bit data).
 pub fn bm3d(noisy: &[f32], w: usize, h: usize, sigma: f64, data_range: f64) -> Vec<f32> {
-    bm3d_spaced(noisy, w, h, sigma, data_range, 1)
+    bm3d_spaced(noisy, w, h, sigma, data_range, 1, &Covariance::white())
 }
 
 /// [`bm3d`] with its reference blocks at least `min_step` px apart in both stages (each
 /// stage's own spacing where it is wider: 3 px, or 4 and 6 above σ = 40). Every pixel is
 /// still covered, by fewer overlapping groups; 4 px instead of 3 is 0.56 of the groups to
-/// match and filter.
+/// match and filter. The noise is σ² times `noise` ([`Covariance::white`]: white noise of
+/// std σ).
 pub fn bm3d_spaced(
     noisy: &[f32],
     w: usize,
@@ -474,6 +483,7 @@ pub fn bm3d_spaced(
     sigma: f64,
     data_range: f64,
     min_step: usize,
+    noise: &Covariance,
 ) -> Vec<f32> {
     assert_eq!(noisy.len(), w * h, "image size");
     if w == 0 || h == 0 {
@@ -521,7 +531,7 @@ pub fn bm3d_spaced(
         },
     );
     if w < NMAX || h < NMAX {
-        return bm3d_padded(noisy, w, h, sigma, data_range, min_step);
+        return bm3d_padded(noisy, w, h, sigma, data_range, min_step, noise);
     }
     let scale = 255.0 / data_range;
     let s = sigma * scale;
@@ -531,17 +541,20 @@ pub fn bm3d_spaced(
     // Stage 1: hard thresholding.
     let ht = Transform::bior15();
     let win1 = kaiser(N1);
+    // Each coefficient's noise variance over σ² (all 1 for white noise), and its threshold.
+    let var1 = noise.coefficient_variances(&ht.f, N1);
+    let thr: Vec<f64> = var1.iter().map(|v| lambda * s * v.sqrt()).collect();
     let basic = aggregate(w, h, p1, &z, &|x, y, num: &mut [f64], den: &mut [f64]| {
         let group = matches(&z, w, h, x, y, p1);
         let mut g = spectrum(&z, w, &group, &ht);
-        let thr = lambda * s;
-        let mut kept = 0usize;
+        // The noise variance of the coefficients kept, over σ².
+        let mut kept = 0.0;
         for c in g.iter_mut() {
-            for v in c[..N1 * N1].iter_mut() {
-                if v.abs() < thr {
+            for ((v, t), var) in c[..N1 * N1].iter_mut().zip(&thr).zip(&var1) {
+                if v.abs() < *t {
                     *v = 0.0;
                 } else {
-                    kept += 1;
+                    kept += var;
                 }
             }
         }
@@ -550,7 +563,7 @@ pub fn bm3d_spaced(
             &group,
             &ht,
             &win1,
-            1.0 / (s * s * kept.max(1) as f64),
+            1.0 / (s * s * if kept > 0.0 { kept } else { 1.0 }),
             w,
             num,
             den,
@@ -560,6 +573,7 @@ pub fn bm3d_spaced(
     // Stage 2: empirical Wiener filtering guided by the basic estimate.
     let dct = Transform::orthonormal(dct_matrix(p2.n), p2.n);
     let win2 = kaiser(p2.n);
+    let var2 = noise.coefficient_variances(&dct.f, p2.n);
     let fin = aggregate(
         w,
         h,
@@ -569,12 +583,17 @@ pub fn bm3d_spaced(
             let group = matches(&basic, w, h, x, y, p2);
             let gb = spectrum(&basic, w, &group, &dct);
             let mut gn = spectrum(&z, w, &group, &dct);
+            // Σ W²·(the coefficient's noise variance over σ²): the estimate's noise over σ².
             let mut wsum = 0.0;
             for (cn, cb) in gn.iter_mut().zip(&gb) {
-                for (vn, vb) in cn[..p2.n * p2.n].iter_mut().zip(&cb[..p2.n * p2.n]) {
-                    let wf = vb * vb / (vb * vb + s * s);
+                for ((vn, vb), r) in cn[..p2.n * p2.n]
+                    .iter_mut()
+                    .zip(&cb[..p2.n * p2.n])
+                    .zip(&var2)
+                {
+                    let wf = vb * vb / (vb * vb + s * s * r);
                     *vn *= wf;
-                    wsum += wf * wf;
+                    wsum += wf * wf * r;
                 }
             }
             put_back(

@@ -5,7 +5,8 @@
 //! hybrid network refines), and a movie frame estimated from the frames around it
 //! ([`temporal`]: blocks tracked along the motion, averaged, and denoised at a mean's noise;
 //! its neighbours moved to a fraction of a pixel by [`resample`], Keys' cubic kernel, which
-//! the training movies' motion uses too).
+//! the training movies' motion uses too, so that the mean's noise is coarser than white and
+//! BM3D is told its [`noise::Covariance`]).
 //!
 //! A flat frame with Poisson–Gaussian noise, stabilized, denoised and brought back unbiased:
 //!
@@ -23,6 +24,7 @@
 
 pub mod bm3d;
 pub mod frame;
+pub mod noise;
 pub mod resample;
 pub mod temporal;
 pub mod vst;

@@ -42,6 +42,12 @@ pub fn noise_kept(e: (f64, f64)) -> f64 {
     sq(e.0) * sq(e.1)
 }
 
+/// The covariance along one axis of independent unit noise resampled by `e` px (lags −3 to 3):
+/// what resampling leaves of the noise at each spatial frequency ([`crate::noise`]).
+pub fn covariance(e: f64) -> Vec<f64> {
+    crate::noise::filtered(&taps(e).1)
+}
+
 /// `frame` (`w × h`) sampled `e` px further along each axis (`out(x, y) = frame(x + eₓ, y + e_y)`),
 /// with Keys' cubic kernel (a = −½), the edge pixels repeated: its weights sum to 1, so the
 /// mean over a region is kept.

@@ -15,7 +15,9 @@
 //! passes the block test, but not pixel by pixel) — a motion-compensated mean that holds about `N`
 //! frames' photons wherever `N` frames matched — and the mean is denoised by iterative BM3D at the
 //! noise of a mean of `N` frames (gain α/N, read noise σ/√N), `N` the frames its noise is worth (a
-//! resampled neighbour holds less noise; a partly matching block counts partly).
+//! resampled neighbour holds less noise; a partly matching block counts partly), each transform
+//! coefficient at its own noise ([`MotionMean::noise`]: resampling takes a neighbour's fine noise,
+//! not its coarse, so the mean's coarse detail is noisier than its pixels say).
 //!
 //! A scene that deforms differs in its far frames by more than any block's track follows, and
 //! there fewer frames are worth more: the mean is of the whole window or of its [`NEAR`] frames
@@ -37,9 +39,11 @@ use rayon::prelude::*;
 use crate::bm3d::{kaiser, positions};
 use nalgebra::DMatrix;
 
-use crate::resample::{binomial, noise_kept, resampled, taps};
+use crate::noise::{convolved, Covariance};
+use crate::resample::{binomial, covariance, noise_kept, resampled, taps};
 use crate::vst::{
-    bm3d_adaptive, bm3d_iterative_spaced, forward, mean_counts, PoissonGaussian, Schedule,
+    bm3d_adaptive_correlated, bm3d_iterative_spaced, forward, mean_counts, PoissonGaussian,
+    Schedule,
 };
 
 /// Block side, px.
@@ -105,6 +109,10 @@ pub struct MotionMean {
     /// weighted mean's noise is `Σw²/(Σw)²`) and where frames were resampled (their noise is
     /// smaller).
     pub noise_frames: Vec<f32>,
+    /// The mean's noise covariance over the whole frame, at a pixel variance of 1: its
+    /// resampled neighbours' noise is coarser than white, each as its kernel left it, in
+    /// proportion to its share of the mean's noise.
+    pub noise: Covariance,
 }
 
 /// A neighbour whose tracked blocks differ from frame `t`'s by more than this times the best
@@ -184,6 +192,7 @@ pub fn motion_mean(
             mean: own.to_vec(),
             frames: vec![1.0; w * h],
             noise_frames: vec![1.0; w * h],
+            noise: Covariance::white(),
         };
     }
     let t = tracked(window, guides, center, w, h, p, STEP);
@@ -211,6 +220,7 @@ fn pooled(
         first,
         last,
         kept: frame_kept,
+        fraction,
         guides,
         guides_gat,
         ..
@@ -238,11 +248,14 @@ fn pooled(
         .iter()
         .map(|row| row.iter().map(|steps| kept(steps)).collect())
         .collect();
-    let rows: Vec<(Vec<f32>, Vec<f32>, Vec<f32>)> = rows
+    let rows: Vec<(Vec<f32>, Vec<f32>, Vec<f32>, Shares)> = rows
         .into_par_iter()
         .map(|yo| {
             let (mut num, mut den, mut cnt) = (vec![0f64; w], vec![0f64; w], vec![0f64; w]);
             let mut held_noise = vec![0f64; w];
+            let mut shares = Shares::default();
+            // Each matched frame's pixel weights in the block's row, with its frame and offset.
+            let mut weights: Vec<(usize, (f64, f64), [f64; N])> = Vec::new();
             for (bi, &y) in ys.iter().enumerate() {
                 if yo < y || yo >= y + N {
                     continue;
@@ -258,7 +271,9 @@ fn pooled(
                     let (mut m, mut noise) = ([counted; N], [counted; N]);
                     let (own_gat, own_dn) = (&guides_gat[center][at..], &guides[center][at..]);
                     let mut buf = [[0f32; N]; 3];
+                    weights.clear();
                     for &(f, bx, by, wt, sub) in blocks {
+                        let mut used = [0f64; N];
                         let there = (by + r) * w + bx;
                         let (g_gat, g_dn, values, kept_f): (&[f32], &[f32], &[f32], f64) =
                             if sub == (0.0, 0.0) {
@@ -288,7 +303,21 @@ fn pooled(
                             m[q] += wt;
                             // The mean's noise over one frame's: Σ k·w² / (Σ w)².
                             noise[q] += kept_f * wt * wt;
+                            used[q] = wt;
                         }
+                        weights.push((f, sub, used));
+                    }
+                    // Each frame's share of the mean's noise variance here, w²/m² (the
+                    // blocks' window weighing the pixels), for the mean's covariance.
+                    let share = |used: &[f64; N]| -> f64 {
+                        (0..N)
+                            .filter(|&q| m[q] > 0.0)
+                            .map(|q| win[r * N + q] * (used[q] / m[q]).powi(2))
+                            .sum()
+                    };
+                    shares.add((center, (0.0, 0.0)), share(&[counted; N]));
+                    for (f, sub, used) in &weights {
+                        shares.add((*f, *sub), share(used));
                     }
                     for q in 0..N {
                         let k = win[r * N + q];
@@ -325,19 +354,60 @@ fn pooled(
                     .collect()
             };
             // The frames a pixel holds (the blocks' m), and the frames its noise is worth.
-            (mean, per_pixel(&den), per_pixel(&held_noise))
+            (mean, per_pixel(&den), per_pixel(&held_noise), shares)
         })
         .collect();
     let (mut mean, mut frames, mut noise_frames) = (Vec::new(), Vec::new(), Vec::new());
-    for (m, f, n) in rows {
+    let mut shares = Shares::default();
+    for (m, f, n, s) in rows {
         mean.extend(m);
         frames.extend(f);
         noise_frames.extend(n);
+        for (key, v) in s.0 {
+            shares.add(key, v);
+        }
     }
     MotionMean {
         mean,
         frames,
         noise_frames,
+        noise: shares.covariance(fraction),
+    }
+}
+
+/// Each matched frame's share of a motion-compensated mean's noise variance, by the frame and
+/// the fraction of a pixel its blocks were shifted by after its registration (to 1/16 px):
+/// what the mean's [`Covariance`] is made of.
+#[derive(Default)]
+struct Shares(Vec<((usize, (f64, f64)), f64)>);
+
+impl Shares {
+    /// Adds `v` to frame `key.0`'s share at the block offset `key.1`.
+    fn add(&mut self, (f, sub): (usize, (f64, f64)), v: f64) {
+        let q = |e: f64| (e * 16.0).round() / 16.0;
+        let key = (f, (q(sub.0), q(sub.1)));
+        match self.0.iter_mut().find(|(k, _)| *k == key) {
+            Some((_, s)) => *s += v,
+            None => self.0.push((key, v)),
+        }
+    }
+
+    /// The mean's covariance at a pixel variance of 1: each frame's noise resampled by its
+    /// registration's `fraction`, then by its blocks' offset, weighted by its share.
+    fn covariance(&self, fraction: &[(f64, f64)]) -> Covariance {
+        let mut c = Covariance::empty();
+        for &((f, sub), v) in &self.0 {
+            let axis = |e: f64, s: f64| {
+                let c = covariance(e);
+                if s == 0.0 {
+                    c
+                } else {
+                    convolved(&c, &covariance(s))
+                }
+            };
+            c.add(v, &axis(fraction[f].0, sub.0), &axis(fraction[f].1, sub.1));
+        }
+        c.normalized()
     }
 }
 
@@ -356,6 +426,8 @@ struct Tracked {
     /// The fraction of its noise's variance each frame kept when it was resampled to a
     /// fraction of a pixel ([`noise_kept`]; 1 for a frame not resampled).
     kept: Vec<f64>,
+    /// The fraction of a pixel each frame was resampled by.
+    fraction: Vec<(f64, f64)>,
     /// The frames' single-frame estimates, brought and resampled as `frames` are (DN).
     guides: Vec<Vec<f32>>,
     /// The same after the transform (noise 1).
@@ -712,6 +784,7 @@ fn tracked(
         last,
         scale,
         kept,
+        fraction,
         guides,
         guides_gat,
     }
@@ -1512,7 +1585,7 @@ pub fn estimate(
     }
     // The mean's noise: that of a mean of as many frames as its noise is worth.
     let worth = emccd_profile::median(mm.noise_frames.iter().copied()).unwrap_or(1.0) as f64;
-    let pooled = bm3d_adaptive(&mm.mean, w, h, p.of_mean(worth));
+    let pooled = bm3d_adaptive_correlated(&mm.mean, w, h, p.of_mean(worth), &mm.noise);
     pooled
         .iter()
         .zip(single)
@@ -1616,11 +1689,12 @@ fn held_out_of(
     let without_own = |reach: usize| -> Vec<f32> {
         let mm = pooled(t, own, center, w, h, reach, false, y0..y0 + ch);
         let worth = emccd_profile::median(square(&mm.noise_frames).into_iter()).unwrap_or(1.0);
-        bm3d_adaptive(
+        bm3d_adaptive_correlated(
             &square(&mm.mean),
             cw,
             ch,
             p.of_mean((worth as f64).max(1.0)),
+            &mm.noise,
         )
     };
     let (whole, near) = (without_own(usize::MAX), without_own(NEAR));
@@ -1670,7 +1744,7 @@ fn single_spaced(
     min_step: usize,
 ) -> Vec<f32> {
     let passes = single_schedule(mean_counts(frame, p)).0;
-    bm3d_iterative_spaced(frame, w, h, p, &passes, min_step)
+    bm3d_iterative_spaced(frame, w, h, p, &passes, min_step, &Covariance::white())
 }
 
 /// How far apart the reference blocks of a frame's own estimate are in its full-resolution

@@ -5,6 +5,8 @@
 
 pub use emccd_profile::PoissonGaussian;
 
+use crate::noise::Covariance;
+
 /// Generalized Anscombe transform: noise std ≈ 1 afterwards.
 pub fn forward(z: f64, p: PoissonGaussian) -> f64 {
     let a = p.alpha * z + 0.375 * p.alpha * p.alpha + p.sigma * p.sigma - p.alpha * p.mu;
@@ -82,13 +84,20 @@ impl Schedule {
 /// BM3D with iterative variance stabilization, the schedule chosen from the frame's mean count
 /// ([`Schedule::for_counts`]).
 pub fn bm3d_adaptive(frame: &[f32], w: usize, h: usize, p: PoissonGaussian) -> Vec<f32> {
-    bm3d_iterative(
-        frame,
-        w,
-        h,
-        p,
-        &Schedule::for_counts(mean_counts(frame, p)).0,
-    )
+    bm3d_adaptive_correlated(frame, w, h, p, &Covariance::white())
+}
+
+/// [`bm3d_adaptive`] of a frame whose noise, once transformed, has the covariance `noise`
+/// (variance 1 a pixel; a motion-compensated mean's, coarser than white).
+pub fn bm3d_adaptive_correlated(
+    frame: &[f32],
+    w: usize,
+    h: usize,
+    p: PoissonGaussian,
+    noise: &Covariance,
+) -> Vec<f32> {
+    let passes = Schedule::for_counts(mean_counts(frame, p)).0;
+    bm3d_iterative_spaced(frame, w, h, p, &passes, 1, noise)
 }
 
 /// A frame's mean effective counts per pixel: its mean signal over the gain α (finite values;
@@ -157,12 +166,14 @@ pub fn bm3d_iterative(
     p: PoissonGaussian,
     passes: &[Pass],
 ) -> Vec<f32> {
-    bm3d_iterative_spaced(frame, w, h, p, passes, 1)
+    bm3d_iterative_spaced(frame, w, h, p, passes, 1, &Covariance::white())
 }
 
 /// [`bm3d_iterative`] with the reference blocks of its full-resolution passes at least
 /// `min_step` px apart ([`crate::bm3d::bm3d_spaced`]); a binned pass's grid is already
-/// coarser in the frame's pixels, and costs a fraction of a full pass.
+/// coarser in the frame's pixels, and costs a fraction of a full pass. Once transformed, the
+/// frame's noise has the covariance `noise` ([`Covariance::white`] for a camera frame); a
+/// binned pass is told its bins' ([`Covariance::binned`]).
 pub fn bm3d_iterative_spaced(
     frame: &[f32],
     w: usize,
@@ -170,6 +181,7 @@ pub fn bm3d_iterative_spaced(
     p: PoissonGaussian,
     passes: &[Pass],
     min_step: usize,
+    noise: &Covariance,
 ) -> Vec<f32> {
     assert_eq!(frame.len(), w * h, "image size");
     let mut est: Option<Vec<f32>> = None;
@@ -200,7 +212,7 @@ pub fn bm3d_iterative_spaced(
             .collect();
         let range = t.iter().copied().fold(0f32, f32::max).max(1.0) as f64;
         let step = if b == 1 { min_step } else { 1 };
-        let d = crate::bm3d::bm3d_spaced(&t, bw, bh, 1.0, range, step);
+        let d = crate::bm3d::bm3d_spaced(&t, bw, bh, 1.0, range, step, &noise.binned(b));
         let back: Vec<f32> = d
             .into_iter()
             .map(|v| (inverse(v as f64, q) / (b * b) as f64) as f32)

@@ -2,6 +2,8 @@
 //! their photons promise on a still scene and on a drifting one, an event in one frame stays in
 //! that frame, and the mean over a uniform region stays the signal's.
 
+use emccd_classical::noise::Covariance;
+use emccd_classical::resample::covariance;
 use emccd_classical::temporal::{
     estimate, held_out, motion_mean, scene as scene_of, single, single_schedule, window_single,
     NEAR, SINGLE_STEP,
@@ -136,9 +138,17 @@ fn a_window_of_one_frame_is_the_single_frame_estimate() {
             Schedule::single()
         };
         assert_eq!(single_schedule(counts), passes, "peak {peak}");
-        let want = bm3d_iterative_spaced(&frame, W, H, CAM, &passes.0, 1);
+        let want = bm3d_iterative_spaced(&frame, W, H, CAM, &passes.0, 1, &Covariance::white());
         assert!(own == want, "peak {peak}: not the expected BM3D");
-        let spaced = bm3d_iterative_spaced(&frame, W, H, CAM, &passes.0, SINGLE_STEP);
+        let spaced = bm3d_iterative_spaced(
+            &frame,
+            W,
+            H,
+            CAM,
+            &passes.0,
+            SINGLE_STEP,
+            &Covariance::white(),
+        );
         assert!(window_single(&frame, W, H, CAM) == spaced, "peak {peak}");
         assert_eq!(estimate(&[&frame], &[&own], 0, W, H, CAM), own);
         let mm = motion_mean(&[&frame], &[&own], 0, W, H, CAM);
@@ -333,6 +343,87 @@ fn a_drifting_scene_is_followed_where_it_can_be_seen() {
             five - one >= at_least,
             "{counts} e⁻, {speed} px/frame: {one:.2} → {five:.2} dB"
         );
+    }
+}
+
+/// The orthonormal 8-point DCT-II's rows (BM3D's Wiener transform).
+fn dct8() -> Vec<f64> {
+    (0..64)
+        .map(|i| {
+            let (k, x) = (i / 8, i % 8);
+            let c = if k == 0 {
+                0.125f64.sqrt()
+            } else {
+                0.25f64.sqrt()
+            };
+            c * (std::f64::consts::PI * (x as f64 + 0.5) * k as f64 / 8.0).cos()
+        })
+        .collect()
+}
+
+/// Waves along both axes and a blob, `peak` counts at the brightest, moved right by `dx` px: a
+/// scene whose place is plain along both axes to a fraction of a pixel ([`scene`]'s bars have
+/// no edge along y, where a still one's frames register up to a third of a pixel apart, and
+/// its sharp edges sampled at whole pixels do not move by half a pixel).
+fn checks(peak: f64, dx: f64) -> Vec<f64> {
+    (0..W * H)
+        .map(|i| {
+            let (x, y) = ((i % W) as f64 - dx, (i / W) as f64);
+            let bars = |t: f64, p: f64| 0.15 * (std::f64::consts::PI * t / p).sin();
+            let blob = (-((x - 40.0).powi(2) + (y - 20.0).powi(2)) / 30.0).exp();
+            peak * (0.35 + bars(x, 8.0) + bars(y, 6.0) + 0.25 * blob)
+        })
+        .collect()
+}
+
+/// The motion-compensated mean's noise covariance, against what the frames' registrations make
+/// it. On a still scene no frame is resampled: white. On a drift of half a pixel a frame to the
+/// right, the frames ±1 are resampled by half a pixel (Keys' kernel keeps their noise's coarse
+/// detail whole and almost none at the finest along x), the frames ±2 by whole pixels: along y
+/// white, along x the mean's coarse noise about 1.17 of a pixel's and its finest about 0.7. Each
+/// frame's share of the mean's noise is its blocks' squared weight: a block counts fully while
+/// its difference to frame t is at most the typical 2·N² of two full-noise blocks, then less. The
+/// frames ±1, resampled, differ by about 1.64·N² and count fully; the frames ±2 by 2·N² ± 2·√(2·N²)
+/// and count 0.87 on average (0.77 squared). So the covariance lies between the ones with the
+/// frames ±2 at 0.7 and at 1 of a share, give or take 0.02: a few blocks are aligned on their
+/// own to a fraction of a pixel (where their guides' noise proposes it), which takes some of
+/// their frame's fine noise too, on the still scene as well.
+#[test]
+fn the_means_noise_is_as_coarse_as_its_resampled_frames() {
+    let dct = dct8();
+    for speed in [0.0, 0.5] {
+        let mut rng = Lcg(17);
+        let frames: Vec<Vec<f32>> = (0..5)
+            .map(|k| rng.frame(&checks(16.0, speed * (k as f64 - 2.0))))
+            .collect();
+        let singles: Vec<Vec<f32>> = frames.iter().map(|f| single(f, W, H, CAM)).collect();
+        let window: Vec<&[f32]> = frames.iter().map(|f| f.as_slice()).collect();
+        let guides: Vec<&[f32]> = singles.iter().map(|f| f.as_slice()).collect();
+        let got = motion_mean(&window, &guides, 2, W, H, CAM)
+            .noise
+            .coefficient_variances(&dct, 8);
+        let want = |far: f64| {
+            let mut c = Covariance::empty();
+            for k in 0..5 {
+                let e = speed * (k as f64 - 2.0);
+                let share = if k == 0 || k == 4 { far } else { 1.0 };
+                c.add(share, &covariance(e - e.round()), &[1.0]);
+            }
+            c.normalized().coefficient_variances(&dct, 8)
+        };
+        let (a, b) = (want(0.7), want(1.0));
+        for (i, g) in got.iter().enumerate() {
+            let (lo, hi) = (a[i].min(b[i]) - 0.02, a[i].max(b[i]) + 0.02);
+            assert!(
+                (lo..=hi).contains(g),
+                "{speed} px/frame, coefficient ({}, {}): {g:.3} outside {lo:.3}–{hi:.3}",
+                i / 8,
+                i % 8
+            );
+        }
+        if speed > 0.0 {
+            assert!(got[0] > 1.1 && got[7] < 0.8, "{:.3} {:.3}", got[0], got[7]);
+        }
     }
 }
 
