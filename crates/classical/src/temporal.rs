@@ -248,7 +248,9 @@ fn pooled(
         .iter()
         .map(|row| row.iter().map(|steps| kept(steps)).collect())
         .collect();
-    let rows: Vec<(Vec<f32>, Vec<f32>, Vec<f32>, Shares)> = rows
+    // A row's mean, frames held, frames' worth of noise, and the frames' noise shares.
+    type Row = (Vec<f32>, Vec<f32>, Vec<f32>, Shares);
+    let rows: Vec<Row> = rows
         .into_par_iter()
         .map(|yo| {
             let (mut num, mut den, mut cnt) = (vec![0f64; w], vec![0f64; w], vec![0f64; w]);
@@ -379,11 +381,14 @@ fn pooled(
 /// the fraction of a pixel its blocks were shifted by after its registration (to 1/16 px):
 /// what the mean's [`Covariance`] is made of.
 #[derive(Default)]
-struct Shares(Vec<((usize, (f64, f64)), f64)>);
+struct Shares(Vec<(ShareKey, f64)>);
+
+/// A frame and its blocks' offset after its registration.
+type ShareKey = (usize, (f64, f64));
 
 impl Shares {
     /// Adds `v` to frame `key.0`'s share at the block offset `key.1`.
-    fn add(&mut self, (f, sub): (usize, (f64, f64)), v: f64) {
+    fn add(&mut self, (f, sub): ShareKey, v: f64) {
         let q = |e: f64| (e * 16.0).round() / 16.0;
         let key = (f, (q(sub.0), q(sub.1)));
         match self.0.iter_mut().find(|(k, _)| *k == key) {
