@@ -5,7 +5,7 @@
 //!
 //! A motion-compensated mean holds neighbours resampled to fractions of a pixel. Resampling
 //! low-passes their noise: it keeps a frame's coarse noise whole and takes some of its fine
-//! noise, so the mean's noise is weaker than one frame's in its fine detail than in its coarse.
+//! noise, so the mean's noise is weaker in its fine detail than in its coarse.
 //! Told a single noise level (the mean's per pixel), BM3D thresholds the coarse coefficients
 //! too little and the fine ones too much; a binned pass of iterative BM3D, which sees the coarse
 //! noise alone, is told too little altogether.
@@ -178,8 +178,8 @@ pub fn filtered(kernel: &[f64]) -> Vec<f64> {
         .collect()
 }
 
-/// The covariance of noise of covariance `a` filtered again so that its own covariance becomes
-/// `b` as well (two filterings in turn: the covariances convolve).
+/// The covariance of noise of covariance `a` filtered once more, by a filter whose
+/// autocorrelation is `b` (two filterings in turn: the covariances convolve).
 pub fn convolved(a: &[f64], b: &[f64]) -> Vec<f64> {
     let mut out = vec![0.0; a.len() + b.len() - 1];
     for (i, x) in a.iter().enumerate() {

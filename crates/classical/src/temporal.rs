@@ -109,7 +109,7 @@ pub struct MotionMean {
     /// weighted mean's noise is `Σw²/(Σw)²`) and where frames were resampled (their noise is
     /// smaller).
     pub noise_frames: Vec<f32>,
-    /// The mean's noise covariance over the whole frame, at a pixel variance of 1: its
+    /// The mean's noise covariance over the rows it was taken on, at a pixel variance of 1: its
     /// resampled neighbours' noise is coarser than white, each as its kernel left it, in
     /// proportion to its share of the mean's noise.
     pub noise: Covariance,
@@ -310,7 +310,10 @@ fn pooled(
                         weights.push((f, sub, used));
                     }
                     // Each frame's share of the mean's noise variance here, w²/m² (the
-                    // blocks' window weighing the pixels), for the mean's covariance.
+                    // blocks' window weighing the pixels), for the mean's covariance. An
+                    // approximation: the overlapping blocks' means are averaged again, and a
+                    // frame's blocks at different offsets count as independent; only the
+                    // shares' proportions matter (the covariance is normalized).
                     let share = |used: &[f64; N]| -> f64 {
                         (0..N)
                             .filter(|&q| m[q] > 0.0)
