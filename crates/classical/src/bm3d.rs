@@ -173,8 +173,9 @@ fn bior15_synthesis() -> Vec<f64> {
     ]
 }
 
-/// Orthonormal n-point DCT-II, row-major n×n (row k = basis k).
-fn dct_matrix(n: usize) -> Vec<f64> {
+/// Orthonormal n-point DCT-II, row-major n×n (row k = basis k): the Wiener stage's transform,
+/// whose rows [`Covariance::coefficient_variances`] takes.
+pub fn dct_matrix(n: usize) -> Vec<f64> {
     let mut m = vec![0.0; n * n];
     for k in 0..n {
         let a = if k == 0 {

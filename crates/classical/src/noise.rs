@@ -28,12 +28,6 @@ struct Term {
     y: Vec<f64>,
 }
 
-impl Default for Covariance {
-    fn default() -> Covariance {
-        Covariance::white()
-    }
-}
-
 impl Covariance {
     /// White noise of variance 1.
     pub fn white() -> Covariance {
@@ -193,21 +187,7 @@ pub fn convolved(a: &[f64], b: &[f64]) -> Vec<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// The orthonormal DCT-II rows, the transform the Wiener stage uses.
-    fn dct(n: usize) -> Vec<f64> {
-        (0..n * n)
-            .map(|i| {
-                let (k, x) = (i / n, i % n);
-                let c = if k == 0 {
-                    (1.0 / n as f64).sqrt()
-                } else {
-                    (2.0 / n as f64).sqrt()
-                };
-                c * (std::f64::consts::PI * (x as f64 + 0.5) * k as f64 / n as f64).cos()
-            })
-            .collect()
-    }
+    use crate::bm3d::dct_matrix as dct;
 
     #[test]
     fn white_noise_is_one_everywhere_and_binned_stays_white() {

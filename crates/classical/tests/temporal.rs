@@ -2,6 +2,7 @@
 //! their photons promise on a still scene and on a drifting one, an event in one frame stays in
 //! that frame, and the mean over a uniform region stays the signal's.
 
+use emccd_classical::bm3d::dct_matrix;
 use emccd_classical::noise::Covariance;
 use emccd_classical::resample::covariance;
 use emccd_classical::temporal::{
@@ -346,21 +347,6 @@ fn a_drifting_scene_is_followed_where_it_can_be_seen() {
     }
 }
 
-/// The orthonormal 8-point DCT-II's rows (BM3D's Wiener transform).
-fn dct8() -> Vec<f64> {
-    (0..64)
-        .map(|i| {
-            let (k, x) = (i / 8, i % 8);
-            let c = if k == 0 {
-                0.125f64.sqrt()
-            } else {
-                0.25f64.sqrt()
-            };
-            c * (std::f64::consts::PI * (x as f64 + 0.5) * k as f64 / 8.0).cos()
-        })
-        .collect()
-}
-
 /// Waves along both axes and a blob, `peak` counts at the brightest, moved right by `dx` px: a
 /// scene whose place is plain along both axes to a fraction of a pixel ([`scene`]'s bars have
 /// no edge along y, where a still one's frames register up to a third of a pixel apart, and
@@ -390,7 +376,7 @@ fn checks(peak: f64, dx: f64) -> Vec<f64> {
 /// their frame's fine noise too, on the still scene as well.
 #[test]
 fn the_means_noise_is_as_coarse_as_its_resampled_frames() {
-    let dct = dct8();
+    let dct = dct_matrix(8);
     for speed in [0.0, 0.5] {
         let mut rng = Lcg(17);
         let frames: Vec<Vec<f32>> = (0..5)
