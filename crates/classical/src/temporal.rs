@@ -19,6 +19,11 @@
 //! coefficient at its own noise ([`MotionMean::noise`]: resampling takes a neighbour's fine noise,
 //! not its coarse, so the mean's coarse detail is noisier than its pixels say).
 //!
+//! Where the scene moves, pixels that hold an excess or a deficit at one place on the sensor
+//! (hot pixels the profile does not know) are taken out of every frame ([`fixed_defects`]) and
+//! the frames registered again: they pull the registrations towards no move, and the mean
+//! would draw each one as a trail along the motion.
+//!
 //! A scene that deforms differs in its far frames by more than any block's track follows, and
 //! there fewer frames are worth more: the mean is of the whole window or of its [`NEAR`] frames
 //! each side, whichever frame `t`'s own data, held out of both, finds clearly closer
@@ -196,7 +201,7 @@ pub fn motion_mean(
         };
     }
     let t = tracked(window, guides, center, w, h, p, STEP);
-    pooled(&t, own, center, w, h, usize::MAX, true, 0..h)
+    pooled(&t, &t.own(own), center, w, h, usize::MAX, true, 0..h)
 }
 
 /// The motion-compensated mean of rows `rows` of frame `center` from its tracked window `t`:
@@ -440,6 +445,23 @@ struct Tracked {
     guides: Vec<Vec<f32>>,
     /// The same after the transform (noise 1).
     guides_gat: Vec<Vec<f32>>,
+    /// The pixels taken out of every frame as defects ([`fixed_defects`]).
+    defects: Vec<usize>,
+    /// The frames' width, px.
+    w: usize,
+}
+
+impl Tracked {
+    /// Frame `center`'s data as its mean takes it: `frame` with the window's defects taken out.
+    fn own<'a>(&self, frame: &'a [f32]) -> std::borrow::Cow<'a, [f32]> {
+        if self.defects.is_empty() {
+            return frame.into();
+        }
+        let mut own = frame.to_vec();
+        let is_defect = defect_mask(&self.defects, frame.len());
+        inpaint(&mut own, &self.defects, &is_defect, self.w);
+        own.into()
+    }
 }
 
 /// The frames of a window that show frame `center`'s scene, and the factors that bring each to
@@ -550,40 +572,29 @@ fn tracked(
     let (xs, ys) = (positions(w, N, step), positions(h, N, step));
     // The frames are registered low-passed ([`binomial`]): on the raw frames at a photon per
     // pixel the registrations of a drift came out off by a pixel and more.
-    let smooth: Vec<Vec<f32>> = gat.par_iter().map(|g| binomial(g, w)).collect();
-    // How the whole scene moved into each frame from the one before it on the way out from
-    // frame `t` (the track's previous frame).
-    let moves: Vec<(f64, f64)> = (0..window.len())
-        .map(|f| match f.cmp(&center) {
-            std::cmp::Ordering::Less => {
-                global_shift(&smooth[f + 1], &smooth[f], w, h, (0, 0), SEARCH).shift
-            }
-            std::cmp::Ordering::Greater => {
-                global_shift(&smooth[f - 1], &smooth[f], w, h, (0, 0), SEARCH).shift
-            }
-            std::cmp::Ordering::Equal => (0.0, 0.0),
-        })
-        .collect();
-    // Where the scene is in each frame relative to frame `t`, to a fraction of a pixel: each
-    // frame registered to frame `t` itself within a pixel of where the moves, added up, put
-    // it. Moves rounded frame by frame lose a slow drift (0.3 px a frame is a whole pixel every
-    // third frame), and fractions added up add up their noise too (a still scene's to a whole
-    // pixel within a few frames at a photon per pixel). Then every frame's place is made to
-    // agree with the registrations of the pairs of frames around it ([`places`]). Each block's
-    // move is looked for around the whole pixel nearest the scene's.
-    let mut chained = vec![(0.0, 0.0); window.len()];
-    let chain = |prev: (f64, f64), f: usize| -> (f64, f64) {
-        let added = (prev.0 + moves[f].0, prev.1 + moves[f].1);
-        let around = (added.0.round() as isize, added.1.round() as isize);
-        global_shift(&smooth[center], &smooth[f], w, h, around, 1).shift
+    let (mut scene_at, mut linked, chained) = registered(&gat, center, w, h, None);
+    // Where the scene moves, pixels that keep their excess or deficit at one place on the
+    // sensor are defects the profile does not know ([`fixed_defects`]): they pull every
+    // registration towards no move, and the mean would draw each one as a trail along the
+    // motion. Taken out of every frame, and each pair of frames registered again within a
+    // pixel of where the first registrations to frame `t` put it: without them, registered
+    // afresh, a dim scene's frames found wrong places pixels off along an axis with little
+    // texture, which the defects' pull towards no move had kept them from (`tune`'s 128²
+    // drift at 0.5 e⁻ −0.31 dB afresh). Where the scene stays, they are left: the data cannot
+    // tell them from the scene's own sharp points there.
+    let defects = if spans(&scene_at, &linked, DEFECT_MOVE) {
+        fixed_defects(&gat, w, h)
+    } else {
+        Vec::new()
     };
-    for f in (0..center).rev() {
-        chained[f] = chain(chained[f + 1], f);
+    if !defects.is_empty() {
+        let is_defect = defect_mask(&defects, w * h);
+        for f in frames.iter_mut().chain(guides.iter_mut()) {
+            inpaint(f, &defects, &is_defect, w);
+        }
+        gat = frames.iter().map(to_gat).collect();
+        (scene_at, linked, _) = registered(&gat, center, w, h, Some(&chained));
     }
-    for f in center + 1..window.len() {
-        chained[f] = chain(chained[f - 1], f);
-    }
-    let (scene_at, linked) = places(&smooth, &chained, center, w, h);
     // Each neighbour resampled by its fraction of a pixel (Keys' cubic kernel), so that the whole
     // pixels its blocks are read at hold the scene where frame t has it: blocks read at whole
     // pixels were up to half a pixel off on a drift or a jitter. The place comes from the whole
@@ -781,7 +792,11 @@ fn tracked(
     if (first, last) != (0, window.len() - 1) {
         // The trend of this scene's frames alone.
         scale = brightness(window, center, first..=last);
-        let scene = scaled(&window[first..=last], &scale[first..=last]);
+        let mut scene = scaled(&window[first..=last], &scale[first..=last]);
+        let is_defect = defect_mask(&defects, w * h);
+        for f in &mut scene {
+            inpaint(f, &defects, &is_defect, w);
+        }
         frames.splice(first..=last, scene);
         resample_all(&mut frames[first..=last], &fraction[first..=last], w, h);
     }
@@ -795,6 +810,216 @@ fn tracked(
         fraction,
         guides,
         guides_gat,
+        defects,
+        w,
+    }
+}
+
+/// What [`registered`] returns: each frame's place, whether it is linked, and the registration
+/// to frame `center` its pairs were looked for around.
+type Registered = (Vec<(f64, f64)>, Vec<bool>, Vec<(f64, f64)>);
+
+/// Where the scene is in each frame of a window relative to frame `center` (the frames after
+/// the transform, `gat`), and which frames a chain of matching pairs links to it ([`places`]),
+/// each pair registered within a pixel of where `near` puts it; without `near`, of where each
+/// frame's registration to frame `center` puts it, itself looked for around where the
+/// registrations of each frame to the one before it on the way out, added up, put it. Returns
+/// the places, the links and the registrations to frame `center` (`near` where given).
+fn registered(
+    gat: &[Vec<f32>],
+    center: usize,
+    w: usize,
+    h: usize,
+    near: Option<&[(f64, f64)]>,
+) -> Registered {
+    let smooth: Vec<Vec<f32>> = gat.par_iter().map(|g| binomial(g, w)).collect();
+    if let Some(near) = near {
+        let (at, linked) = places(&smooth, near, center, w, h);
+        return (at, linked, near.to_vec());
+    }
+    // How the whole scene moved into each frame from the one before it on the way out from
+    // frame `t` (the track's previous frame).
+    let moves: Vec<(f64, f64)> = (0..gat.len())
+        .map(|f| match f.cmp(&center) {
+            std::cmp::Ordering::Less => {
+                global_shift(&smooth[f + 1], &smooth[f], w, h, (0, 0), SEARCH).shift
+            }
+            std::cmp::Ordering::Greater => {
+                global_shift(&smooth[f - 1], &smooth[f], w, h, (0, 0), SEARCH).shift
+            }
+            std::cmp::Ordering::Equal => (0.0, 0.0),
+        })
+        .collect();
+    // Where the scene is in each frame relative to frame `t`, to a fraction of a pixel: each
+    // frame registered to frame `t` itself within a pixel of where the moves, added up, put
+    // it. Moves rounded frame by frame lose a slow drift (0.3 px a frame is a whole pixel every
+    // third frame), and fractions added up add up their noise too (a still scene's to a whole
+    // pixel within a few frames at a photon per pixel). Then every frame's place is made to
+    // agree with the registrations of the pairs of frames around it ([`places`]). Each block's
+    // move is looked for around the whole pixel nearest the scene's.
+    let mut chained = vec![(0.0, 0.0); gat.len()];
+    let chain = |prev: (f64, f64), f: usize| -> (f64, f64) {
+        let added = (prev.0 + moves[f].0, prev.1 + moves[f].1);
+        let around = (added.0.round() as isize, added.1.round() as isize);
+        global_shift(&smooth[center], &smooth[f], w, h, around, 1).shift
+    };
+    for f in (0..center).rev() {
+        chained[f] = chain(chained[f + 1], f);
+    }
+    for f in center + 1..gat.len() {
+        chained[f] = chain(chained[f - 1], f);
+    }
+    let (at, linked) = places(&smooth, &chained, center, w, h);
+    (at, linked, chained)
+}
+
+/// How far the scene must move within a window, px along an axis from its first place to its
+/// last, for [`fixed_defects`] to be looked for: 2. A sharp point of the scene then spends
+/// most frames off any one pixel of the sensor.
+const DEFECT_MOVE: f64 = 2.0;
+
+/// Whether the places of the `linked` frames span at least `reach` px along an axis.
+fn spans(places: &[(f64, f64)], linked: &[bool], reach: f64) -> bool {
+    let span = |axis: fn(&(f64, f64)) -> f64| {
+        let along = places
+            .iter()
+            .zip(linked)
+            .filter(|(_, &l)| l)
+            .map(|(p, _)| axis(p));
+        let (lo, hi) = along.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+            (lo.min(v), hi.max(v))
+        });
+        hi - lo
+    };
+    span(|p| p.0) >= reach || span(|p| p.1) >= reach
+}
+
+/// How many robust standard deviations (1.4826 median absolute deviations over the frame) a
+/// pixel's median difference to its neighbours must lie from the frame's median for
+/// [`fixed_defects`] to take it: 7, at which noise alone flags no pixel of a 512² frame.
+const DEFECT_Z: f64 = 7.0;
+
+/// The interior pixels whose difference to the mean of their eight neighbours, in the median
+/// over the frames (after the transform, `gat`), lies beyond [`DEFECT_Z`] robust standard
+/// deviations: a hot pixel the profile does not know (emccd-detect draws its hot pixels anew
+/// for each acquisition; a real camera's calibration from another day misses some), or one
+/// the profile subtracts that is no longer hot. Only what holds in most frames at one place
+/// on the sensor: a bright point of a moving scene passes a pixel in a few frames and leaves
+/// the median alone.
+fn fixed_defects(gat: &[Vec<f32>], w: usize, h: usize) -> Vec<usize> {
+    if w < 3 || h < 3 || gat.len() < 3 {
+        return Vec::new();
+    }
+    let middle = |v: &mut [f32]| {
+        let mid = v.len() / 2;
+        *v.select_nth_unstable_by(mid, f32::total_cmp).1
+    };
+    // Each interior pixel's median difference over the frames, on the interior's grid.
+    let (iw, ih) = (w - 2, h - 2);
+    let medians: Vec<f32> = (1..h - 1)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            let mut d = vec![0f32; gat.len()];
+            (1..w - 1)
+                .map(|x| {
+                    let i = y * w + x;
+                    for (v, g) in d.iter_mut().zip(gat) {
+                        let around = g[i - w - 1]
+                            + g[i - w]
+                            + g[i - w + 1]
+                            + g[i - 1]
+                            + g[i + 1]
+                            + g[i + w - 1]
+                            + g[i + w]
+                            + g[i + w + 1];
+                        *v = g[i] - around / 8.0;
+                    }
+                    middle(&mut d)
+                })
+                .collect::<Vec<f32>>()
+        })
+        .collect();
+    let centre = middle(&mut medians.clone());
+    let spread = 1.4826
+        * middle(
+            &mut medians
+                .iter()
+                .map(|m| (m - centre).abs())
+                .collect::<Vec<_>>(),
+        );
+    if !spread.is_finite() || spread <= 0.0 {
+        return Vec::new();
+    }
+    let limit = DEFECT_Z as f32 * spread;
+    // A defect's neighbours share none of its difference: each is lower by an eighth of it
+    // (the defect is among its own neighbours). A star's core is a blob, whose pixels around
+    // the brightest stand out from theirs about as much (a bright star shaken by tip-tilt by
+    // less than its width stays on its pixels in most frames).
+    let isolated = |k: usize, m: f32| {
+        let (x, y) = ((k % iw) as isize, (k / iw) as isize);
+        let (mut sum, mut n) = (0.0f32, 0);
+        for (dx, dy) in [
+            (-1, -1),
+            (0, -1),
+            (1, -1),
+            (-1, 0),
+            (1, 0),
+            (-1, 1),
+            (0, 1),
+            (1, 1),
+        ] {
+            let (qx, qy) = (x + dx, y + dy);
+            if qx >= 0 && qy >= 0 && (qx as usize) < iw && (qy as usize) < ih {
+                sum += medians[qy as usize * iw + qx as usize] - centre;
+                n += 1;
+            }
+        }
+        n > 0
+            && (m - centre).signum() * sum / (n as f32) < (m - centre).abs() * DEFECT_SHARED as f32
+    };
+    medians
+        .iter()
+        .enumerate()
+        .filter(|&(k, &m)| (m - centre).abs() > limit && isolated(k, m))
+        .map(|(k, _)| (k / iw + 1) * w + k % iw + 1)
+        .collect()
+}
+
+/// How much of a defect's difference to its neighbours they may share on average, in the
+/// same direction, for [`fixed_defects`] to take it: a quarter. A defect's neighbours share
+/// −1/8 of it; the pixels around a star's brightest share about half of its.
+const DEFECT_SHARED: f64 = 0.25;
+
+/// A frame's mask of `defects`.
+fn defect_mask(defects: &[usize], len: usize) -> Vec<bool> {
+    let mut mask = vec![false; len];
+    for &i in defects {
+        mask[i] = true;
+    }
+    mask
+}
+
+/// Each of the interior pixels `defects` (masked in `is_defect`) of `frame` replaced by the
+/// mean of its neighbours that are not defects (left where all eight are).
+fn inpaint(frame: &mut [f32], defects: &[usize], is_defect: &[bool], w: usize) {
+    for &i in defects {
+        let around = [
+            i - w - 1,
+            i - w,
+            i - w + 1,
+            i - 1,
+            i + 1,
+            i + w - 1,
+            i + w,
+            i + w + 1,
+        ];
+        let (sum, n) = around
+            .iter()
+            .filter(|&&j| !is_defect[j])
+            .fold((0.0f64, 0usize), |(s, n), &j| (s + frame[j] as f64, n + 1));
+        if n > 0 {
+            frame[i] = (sum / n as f64) as f32;
+        }
     }
 }
 
@@ -1583,6 +1808,8 @@ pub fn estimate(
         return single.to_vec();
     }
     let t = tracked(window, singles, center, w, h, p, STEP);
+    let own = t.own(own);
+    let own = &own[..];
     let mut mm = pooled(&t, own, center, w, h, usize::MAX, true, 0..h);
     let typical = emccd_profile::median(mm.frames.iter().copied()).unwrap_or(1.0) as f64;
     if typical < 1.5 {
@@ -1672,7 +1899,7 @@ pub fn held_out(
         return None;
     }
     let t = tracked(window, guides, center, w, h, p, STEP);
-    held_out_of(&t, window[center], center, w, h, p)
+    held_out_of(&t, &t.own(window[center]), center, w, h, p)
 }
 
 /// [`held_out`] on a tracked window.

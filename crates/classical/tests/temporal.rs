@@ -637,3 +637,83 @@ fn a_deforming_scene_is_estimated_from_its_near_frames() {
         }
     }
 }
+
+/// Light at eight fixed pixels of the sensor, `excess` counts each in every frame of `frames`
+/// (DN), with its own Poisson noise. Spread apart, off the frame's edge, none next to another.
+fn with_fixed_points(frames: &[Vec<f32>], excess: f64, seed: u64) -> Vec<Vec<f32>> {
+    let points: Vec<usize> = (0..8)
+        .map(|k| (7 + 7 * k) * W + 9 + (k * 23) % 46)
+        .collect();
+    let mut rng = Lcg(seed);
+    frames
+        .iter()
+        .map(|f| {
+            let mut f = f.clone();
+            for &i in &points {
+                f[i] += (CAM.alpha * rng.poisson(excess)) as f32;
+            }
+            f
+        })
+        .collect()
+}
+
+/// Frame `center` of `frames` as [`estimate`] makes it, and its motion-compensated mean.
+fn estimate_and_mean(frames: &[Vec<f32>], center: usize) -> (Vec<f32>, Vec<f32>) {
+    let window: Vec<&[f32]> = frames.iter().map(|f| f.as_slice()).collect();
+    let singles: Vec<Vec<f32>> = window.iter().map(|f| single(f, W, H, CAM)).collect();
+    let singles: Vec<&[f32]> = singles.iter().map(|f| f.as_slice()).collect();
+    (
+        estimate(&window, &singles, center, W, H, CAM),
+        motion_mean(&window, &singles, center, W, H, CAM).mean,
+    )
+}
+
+/// Pixels that hold light at one place on the sensor while the scene drifts (hot pixels the
+/// profile does not know) are the camera's, not the scene's. Kept, the motion-compensated mean
+/// held 88 % of their light, drawn as a trail along the motion, and the estimate of a frame
+/// 72 % (measured). Taken out, the mean holds none of it, give or take the
+/// noise of the neighbours that replace them (about 1 DN a pixel against 1 280 DN in all), and
+/// the estimate under a tenth. Where the scene stays still, the same pixels are its own sharp
+/// points, which the data cannot tell from defects: the mean holds all their light, within the
+/// Poisson noise of its nine draws at each (3.7 % of it, one standard deviation).
+#[test]
+fn light_that_stays_on_the_sensor_while_the_scene_drifts_is_the_cameras() {
+    let excess = 10.0;
+    let light = CAM.alpha * excess * 8.0;
+    for speed in [0.5, 0.0] {
+        let mut rng = Lcg(23);
+        let plain: Vec<Vec<f32>> = (0..9)
+            .map(|k| rng.frame(&checks(2.0, speed * k as f64)))
+            .collect();
+        let points = with_fixed_points(&plain, excess, 5);
+        let ((est_a, mean_a), (est_b, mean_b)) =
+            (estimate_and_mean(&points, 4), estimate_and_mean(&plain, 4));
+        let taken = |a: &[f32], b: &[f32]| {
+            a.iter().zip(b).map(|(&x, &y)| (x - y) as f64).sum::<f64>() / light
+        };
+        let (estimated, meant) = (taken(&est_a, &est_b), taken(&mean_a, &mean_b));
+        println!(
+            "{speed} px/frame: the fixed points' light {:.1} % in the estimate, {:.1} % in the mean",
+            100.0 * estimated,
+            100.0 * meant
+        );
+        if speed > 0.0 {
+            assert!(
+                meant.abs() < 0.1,
+                "drift: {:.1} % in the mean",
+                100.0 * meant
+            );
+            assert!(
+                estimated.abs() < 0.1,
+                "drift: {:.1} % in the estimate",
+                100.0 * estimated
+            );
+        } else {
+            assert!(
+                (meant - 1.0).abs() < 0.1,
+                "still: {:.1} % in the mean",
+                100.0 * meant
+            );
+        }
+    }
+}
