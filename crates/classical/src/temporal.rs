@@ -458,8 +458,7 @@ impl Tracked {
             return frame.into();
         }
         let mut own = frame.to_vec();
-        let is_defect = defect_mask(&self.defects, frame.len());
-        inpaint(&mut own, &self.defects, &is_defect, self.w);
+        inpaint(&mut own, &self.defects, self.w);
         own.into()
     }
 }
@@ -572,7 +571,7 @@ fn tracked(
     let (xs, ys) = (positions(w, N, step), positions(h, N, step));
     // The frames are registered low-passed ([`binomial`]): on the raw frames at a photon per
     // pixel the registrations of a drift came out off by a pixel and more.
-    let (mut scene_at, mut linked, chained) = registered(&gat, center, w, h, None);
+    let (mut scene_at, mut linked, chained) = registered(&gat, center, w, h);
     // Where the scene moves, pixels that keep their excess or deficit at one place on the
     // sensor are defects the profile does not know ([`fixed_defects`]): they pull every
     // registration towards no move, and the mean would draw each one as a trail along the
@@ -588,12 +587,17 @@ fn tracked(
         Vec::new()
     };
     if !defects.is_empty() {
-        let is_defect = defect_mask(&defects, w * h);
         for f in frames.iter_mut().chain(guides.iter_mut()) {
-            inpaint(f, &defects, &is_defect, w);
+            inpaint(f, &defects, w);
         }
-        gat = frames.iter().map(to_gat).collect();
-        (scene_at, linked, _) = registered(&gat, center, w, h, Some(&chained));
+        // Only the defects' pixels changed.
+        for (g, f) in gat.iter_mut().zip(&frames) {
+            for &i in &defects {
+                g[i] = forward(f[i] as f64, p) as f32;
+            }
+        }
+        let smooth: Vec<Vec<f32>> = gat.par_iter().map(|g| binomial(g, w)).collect();
+        (scene_at, linked) = places(&smooth, &chained, center, w, h);
     }
     // Each neighbour resampled by its fraction of a pixel (Keys' cubic kernel), so that the whole
     // pixels its blocks are read at hold the scene where frame t has it: blocks read at whole
@@ -793,9 +797,8 @@ fn tracked(
         // The trend of this scene's frames alone.
         scale = brightness(window, center, first..=last);
         let mut scene = scaled(&window[first..=last], &scale[first..=last]);
-        let is_defect = defect_mask(&defects, w * h);
         for f in &mut scene {
-            inpaint(f, &defects, &is_defect, w);
+            inpaint(f, &defects, w);
         }
         frames.splice(first..=last, scene);
         resample_all(&mut frames[first..=last], &fraction[first..=last], w, h);
@@ -821,22 +824,12 @@ type Registered = (Vec<(f64, f64)>, Vec<bool>, Vec<(f64, f64)>);
 
 /// Where the scene is in each frame of a window relative to frame `center` (the frames after
 /// the transform, `gat`), and which frames a chain of matching pairs links to it ([`places`]),
-/// each pair registered within a pixel of where `near` puts it; without `near`, of where each
-/// frame's registration to frame `center` puts it, itself looked for around where the
-/// registrations of each frame to the one before it on the way out, added up, put it. Returns
-/// the places, the links and the registrations to frame `center` (`near` where given).
-fn registered(
-    gat: &[Vec<f32>],
-    center: usize,
-    w: usize,
-    h: usize,
-    near: Option<&[(f64, f64)]>,
-) -> Registered {
+/// each pair registered within a pixel of where each frame's registration to frame `center`
+/// puts it, itself looked for around where the registrations of each frame to the one before
+/// it on the way out, added up, put it. Returns the places, the links and the registrations to
+/// frame `center`.
+fn registered(gat: &[Vec<f32>], center: usize, w: usize, h: usize) -> Registered {
     let smooth: Vec<Vec<f32>> = gat.par_iter().map(|g| binomial(g, w)).collect();
-    if let Some(near) = near {
-        let (at, linked) = places(&smooth, near, center, w, h);
-        return (at, linked, near.to_vec());
-    }
     // How the whole scene moved into each frame from the one before it on the way out from
     // frame `t` (the track's previous frame).
     let moves: Vec<(f64, f64)> = (0..gat.len())
@@ -990,18 +983,10 @@ fn fixed_defects(gat: &[Vec<f32>], w: usize, h: usize) -> Vec<usize> {
 /// −1/8 of it; the pixels around a star's brightest share about half of its.
 const DEFECT_SHARED: f64 = 0.25;
 
-/// A frame's mask of `defects`.
-fn defect_mask(defects: &[usize], len: usize) -> Vec<bool> {
-    let mut mask = vec![false; len];
-    for &i in defects {
-        mask[i] = true;
-    }
-    mask
-}
-
-/// Each of the interior pixels `defects` (masked in `is_defect`) of `frame` replaced by the
-/// mean of its neighbours that are not defects (left where all eight are).
-fn inpaint(frame: &mut [f32], defects: &[usize], is_defect: &[bool], w: usize) {
+/// Each of the interior pixels `defects` (ascending, as [`fixed_defects`] finds them) of
+/// `frame` replaced by the mean of its neighbours that are not defects (left where all eight
+/// are).
+fn inpaint(frame: &mut [f32], defects: &[usize], w: usize) {
     for &i in defects {
         let around = [
             i - w - 1,
@@ -1015,7 +1000,7 @@ fn inpaint(frame: &mut [f32], defects: &[usize], is_defect: &[bool], w: usize) {
         ];
         let (sum, n) = around
             .iter()
-            .filter(|&&j| !is_defect[j])
+            .filter(|&&j| defects.binary_search(&j).is_err())
             .fold((0.0f64, 0usize), |(s, n), &j| (s + frame[j] as f64, n + 1));
         if n > 0 {
             frame[i] = (sum / n as f64) as f32;
