@@ -565,6 +565,7 @@ fn tracked(
     let mut frames = scaled(window, &scale);
     let to_gat =
         |f: &Vec<f32>| -> Vec<f32> { f.iter().map(|&z| forward(z as f64, p) as f32).collect() };
+    let given = guides;
     let mut guides = scaled(guides, &scale);
     let mut gat: Vec<Vec<f32>> = frames.iter().map(to_gat).collect();
     let limit = threshold();
@@ -792,6 +793,7 @@ fn tracked(
         }
     }
     let (first, last) = same_scene(&tracks, center, window.len(), &linked);
+    let (first, last) = alike(given, center, (first, last), w, h);
     let mut scale = scale;
     if (first, last) != (0, window.len() - 1) {
         // The trend of this scene's frames alone.
@@ -1324,6 +1326,134 @@ fn same_scene(
         last += 1;
     }
     (first, last)
+}
+
+/// The scene `first..=last` of frame `center` (`w` × `h`, `guides` the frames' single-frame
+/// estimates) narrowed to the frames whose whole frame looks like frame `center`'s. The tracking
+/// finds a cut only where the other scene's blocks are not found again near where they were: a
+/// cut to content of the same local kind (bars turned, texture for texture) passes it, and so
+/// does one to a scene so dim that a block's difference stays within its noise (camera B's cut
+/// at 0.5 e⁻, its second scene at 0.14 e⁻ a pixel, took the first in). Over the whole frame,
+/// though, the other scene does not correlate with this one: a neighbour whose 2×2-binned guide
+/// correlates with frame `center`'s less than [`LIKENESS_GATE`] times the next frame inward's
+/// (frame `center`'s best neighbour's, for its own neighbours), and by more than the
+/// correlation's noise, ends the scene on its side. Judged against the best neighbour alone, the
+/// test cut the far frames of diffusing particles, whose whole frames decorrelate frame by frame
+/// (`tune`'s particles −0.16 to −0.33 dB).
+fn alike(
+    guides: &[&[f32]],
+    center: usize,
+    (first, last): (usize, usize),
+    w: usize,
+    h: usize,
+) -> (usize, usize) {
+    let (own, bw, bh) = bin2(guides[center], w, h);
+    let like: Vec<Option<f64>> = (0..guides.len())
+        .map(|j| {
+            (j != center && (first..=last).contains(&j))
+                .then(|| likeness(&own, &bin2(guides[j], w, h).0, bw, bh, LIKENESS_SEARCH))
+        })
+        .collect();
+    let best = like
+        .iter()
+        .flatten()
+        .copied()
+        .fold(f64::NEG_INFINITY, f64::max);
+    // An estimated correlation over n pixels has a standard error of about 1/√n.
+    let margin = 4.0
+        / ((bw.saturating_sub(2 * LIKENESS_SEARCH) * bh.saturating_sub(2 * LIKENESS_SEARCH)).max(1)
+            as f64)
+            .sqrt();
+    // Against the next frame inward (frame `center`'s best neighbour for its own neighbours): a
+    // cut is an abrupt fall, a scene that changes (particles diffusing) falls frame by frame.
+    let inward = |j: usize| if j < center { j + 1 } else { j - 1 };
+    let reference = |j: usize| {
+        if inward(j) == center {
+            best
+        } else {
+            like[inward(j)].unwrap_or(best)
+        }
+    };
+    let other = |j: usize| {
+        let reference = reference(j);
+        reference >= LIKENESS_FLOOR
+            && like[j].is_some_and(|r| r < LIKENESS_GATE * reference && reference - r > margin)
+    };
+    let (mut first, mut last) = (first, last);
+    while first < center && (first..center).any(other) {
+        first += 1;
+    }
+    while last > center && (center + 1..=last).any(other) {
+        last -= 1;
+    }
+    (first, last)
+}
+
+/// A neighbour whose guide correlates with the frame's less than this times the best
+/// neighbour's (and by more than the estimate's noise) shows another scene ([`alike`]).
+const LIKENESS_GATE: f64 = 0.4;
+
+/// The correlation the next frame inward must reach for [`alike`] to judge a frame against it: a
+/// scene without structure (a uniform region) correlates from frame to frame only through its
+/// estimates' smooth residual noise, whose few independent samples the margin does not allow for.
+const LIKENESS_FLOOR: f64 = 0.5;
+
+/// The search for the best whole-pixel shift between two binned guides, ± binned px (6 px of
+/// the frame: two frames of a 3 px/frame drift).
+const LIKENESS_SEARCH: usize = 3;
+
+/// `v` (`w` × `h`) averaged over 2×2 blocks (an odd last row or column dropped), with its size.
+fn bin2(v: &[f32], w: usize, h: usize) -> (Vec<f32>, usize, usize) {
+    let (bw, bh) = (w / 2, h / 2);
+    let mut out = vec![0f32; bw * bh];
+    for y in 0..bh {
+        for x in 0..bw {
+            let (a, b) = (2 * y * w + 2 * x, (2 * y + 1) * w + 2 * x);
+            out[y * bw + x] = 0.25 * (v[a] + v[a + 1] + v[b] + v[b + 1]);
+        }
+    }
+    (out, bw, bh)
+}
+
+/// The largest correlation coefficient between `a` and `b` (`w` × `h`) over whole-pixel shifts
+/// of `b` within ±`r`, on `a`'s pixels `r` or more from its edges (0 for a frame too small, or
+/// one without contrast).
+fn likeness(a: &[f32], b: &[f32], w: usize, h: usize, r: usize) -> f64 {
+    if w <= 2 * r || h <= 2 * r {
+        return 0.0;
+    }
+    let ri = r as isize;
+    let shifts: Vec<(isize, isize)> = (-ri..=ri)
+        .flat_map(|dy| (-ri..=ri).map(move |dx| (dx, dy)))
+        .collect();
+    shifts
+        .par_iter()
+        .map(|&(dx, dy)| {
+            let (mut sa, mut sb, mut saa, mut sbb, mut sab, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+            for y in r..h - r {
+                let yb = (y as isize + dy) as usize;
+                for x in r..w - r {
+                    let xb = (x as isize + dx) as usize;
+                    let (p, q) = (a[y * w + x] as f64, b[yb * w + xb] as f64);
+                    sa += p;
+                    sb += q;
+                    saa += p * p;
+                    sbb += q * q;
+                    sab += p * q;
+                    n += 1.0;
+                }
+            }
+            let cov = sab / n - (sa / n) * (sb / n);
+            let (va, vb) = (saa / n - (sa / n).powi(2), sbb / n - (sb / n).powi(2));
+            if va > 0.0 && vb > 0.0 {
+                cov / (va * vb).sqrt()
+            } else {
+                0.0
+            }
+        })
+        .collect::<Vec<f64>>()
+        .into_iter()
+        .fold(0.0, f64::max)
 }
 
 /// Each of `frames` times its factor in `scale`.

@@ -8,7 +8,6 @@
 
 use std::collections::VecDeque;
 
-use rayon::prelude::*;
 use std::ops::Range;
 
 use emccd_classical::frame::vst_params;
@@ -111,8 +110,7 @@ pub fn denoise_frames(
 /// preprocessed frames within `k` of it, clipped at the recording's ends; `width` px wide,
 /// noise `noise`; `guides` each frame's [`guide`]): the frames of its scene — a scene cut or
 /// motion too fast to follow ends the scene, as the classical method's tracking finds it
-/// ([`emccd_classical::temporal::scene`]), and so does a neighbour whose whole frame does not
-/// correlate with this one ([`LIKENESS_GATE`]) — brought to its brightness along the scene's
+/// ([`emccd_classical::temporal::scene`]) — brought to its brightness along the scene's
 /// trend (bleaching), and the frames beyond the scene or the recording mirrored about the frame
 /// ([`mirror`]), as the network saw a movie's ends in training.
 pub fn net_window(
@@ -124,41 +122,7 @@ pub fn net_window(
     noise: PoissonGaussian,
 ) -> Vec<Vec<f32>> {
     let height = window[center].len() / width.max(1);
-    let mut sc = emccd_classical::temporal::scene(window, guides, center, width, height, noise);
-    // The tracking finds a cut only where the other scene's blocks are not found again near
-    // where they were; a cut to content of the same local kind (bars turned, texture for
-    // texture) passes it, and a network shown the whole frame would blend it in. Over the
-    // whole frame, though, the other scene does not correlate with this one.
-    let binned: Vec<(Vec<f32>, usize, usize)> =
-        guides.iter().map(|g| bin2(g, width, height)).collect();
-    let (bw, bh) = (binned[center].1, binned[center].2);
-    let like: Vec<Option<f64>> = (0..window.len())
-        .map(|j| {
-            (j != center && (sc.first..=sc.last).contains(&j))
-                .then(|| likeness(&binned[center].0, &binned[j].0, bw, bh, LIKENESS_SEARCH))
-        })
-        .collect();
-    let best = like
-        .iter()
-        .flatten()
-        .copied()
-        .fold(f64::NEG_INFINITY, f64::max);
-    // An estimated correlation over n pixels has a standard error of about 1/√n.
-    let margin = 4.0
-        / ((bw.saturating_sub(2 * LIKENESS_SEARCH) * bh.saturating_sub(2 * LIKENESS_SEARCH)).max(1)
-            as f64)
-            .sqrt();
-    let other = |j: usize| like[j].is_some_and(|r| r < LIKENESS_GATE * best && best - r > margin);
-    let scene = (sc.first, sc.last);
-    while sc.first < center && (sc.first..center).any(other) {
-        sc.first += 1;
-    }
-    while sc.last > center && (center + 1..=sc.last).any(other) {
-        sc.last -= 1;
-    }
-    if (sc.first, sc.last) != scene {
-        sc.scale = emccd_classical::temporal::brightness_trend(window, center, sc.first, sc.last);
-    }
+    let sc = emccd_classical::temporal::scene(window, guides, center, width, height, noise);
     let len = sc.last - sc.first + 1;
     let kk = k as isize;
     (-kk..=kk)
@@ -168,68 +132,6 @@ pub fn net_window(
             window[j].iter().map(|&v| v * s).collect()
         })
         .collect()
-}
-
-/// A neighbour whose guide correlates with the frame's less than this times the best
-/// neighbour's (and by more than the estimate's noise) shows another scene.
-const LIKENESS_GATE: f64 = 0.4;
-
-/// The search for the best whole-pixel shift between two binned guides, ± binned px (6 px of
-/// the frame: two frames of a 3 px/frame drift).
-const LIKENESS_SEARCH: usize = 3;
-
-/// `v` (`w` × `h`) averaged over 2×2 blocks (an odd last row or column dropped), with its size.
-fn bin2(v: &[f32], w: usize, h: usize) -> (Vec<f32>, usize, usize) {
-    let (bw, bh) = (w / 2, h / 2);
-    let mut out = vec![0f32; bw * bh];
-    for y in 0..bh {
-        for x in 0..bw {
-            let (a, b) = (2 * y * w + 2 * x, (2 * y + 1) * w + 2 * x);
-            out[y * bw + x] = 0.25 * (v[a] + v[a + 1] + v[b] + v[b + 1]);
-        }
-    }
-    (out, bw, bh)
-}
-
-/// The largest correlation coefficient between `a` and `b` (`w` × `h`) over whole-pixel shifts
-/// of `b` within ±`r`, on `a`'s pixels `r` or more from its edges (0 for a frame too small, or
-/// one without contrast).
-fn likeness(a: &[f32], b: &[f32], w: usize, h: usize, r: usize) -> f64 {
-    if w <= 2 * r || h <= 2 * r {
-        return 0.0;
-    }
-    let ri = r as isize;
-    let shifts: Vec<(isize, isize)> = (-ri..=ri)
-        .flat_map(|dy| (-ri..=ri).map(move |dx| (dx, dy)))
-        .collect();
-    shifts
-        .par_iter()
-        .map(|&(dx, dy)| {
-            let (mut sa, mut sb, mut saa, mut sbb, mut sab, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-            for y in r..h - r {
-                let yb = (y as isize + dy) as usize;
-                for x in r..w - r {
-                    let xb = (x as isize + dx) as usize;
-                    let (p, q) = (a[y * w + x] as f64, b[yb * w + xb] as f64);
-                    sa += p;
-                    sb += q;
-                    saa += p * p;
-                    sbb += q * q;
-                    sab += p * q;
-                    n += 1.0;
-                }
-            }
-            let cov = sab / n - (sa / n) * (sb / n);
-            let (va, vb) = (saa / n - (sa / n).powi(2), sbb / n - (sb / n).powi(2));
-            if va > 0.0 && vb > 0.0 {
-                cov / (va * vb).sqrt()
-            } else {
-                0.0
-            }
-        })
-        .collect::<Vec<f64>>()
-        .into_iter()
-        .fold(0.0, f64::max)
 }
 
 /// A cheap smooth estimate of a preprocessed frame `width` px wide, for the temporal network's
