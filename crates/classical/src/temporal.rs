@@ -1337,9 +1337,10 @@ fn same_scene(
 /// though, the other scene does not correlate with this one: a neighbour whose 2×2-binned guide
 /// correlates with frame `center`'s less than [`LIKENESS_GATE`] times the next frame inward's
 /// (frame `center`'s best neighbour's, for its own neighbours), and by more than the
-/// correlation's noise, ends the scene on its side. Judged against the best neighbour alone, the
-/// test cut the far frames of diffusing particles, whose whole frames decorrelate frame by frame
-/// (`tune`'s particles −0.16 to −0.33 dB).
+/// correlation's noise, ends the scene on its side, where that reference reaches
+/// [`LIKENESS_FLOOR`]. Judged against the best neighbour alone, the test cut the far frames of
+/// diffusing particles, whose whole frames decorrelate frame by frame (`tune`'s particles −0.16
+/// to −0.33 dB). About 0.1–0.2 s of a 512² frame's window of 25 (49 shifts of 24 binned guides).
 fn alike(
     guides: &[&[f32]],
     center: usize,
@@ -1389,8 +1390,8 @@ fn alike(
     (first, last)
 }
 
-/// A neighbour whose guide correlates with the frame's less than this times the best
-/// neighbour's (and by more than the estimate's noise) shows another scene ([`alike`]).
+/// A neighbour whose guide correlates with the frame's less than this times the next frame
+/// inward's (and by more than the estimate's noise) shows another scene ([`alike`]).
 const LIKENESS_GATE: f64 = 0.4;
 
 /// The correlation the next frame inward must reach for [`alike`] to judge a frame against it: a
