@@ -1340,7 +1340,7 @@ fn same_scene(
 /// correlation's noise, ends the scene on its side, where that reference reaches
 /// [`LIKENESS_FLOOR`]. Judged against the best neighbour alone, the test cut the far frames of
 /// diffusing particles, whose whole frames decorrelate frame by frame (`tune`'s particles −0.16
-/// to −0.33 dB). About 0.1–0.2 s of a 512² frame's window of 25 (49 shifts of 24 binned guides).
+/// to −0.33 dB). Its cost: 49 shifts of up to 24 binned guides a window (not yet benchmarked).
 fn alike(
     guides: &[&[f32]],
     center: usize,
