@@ -527,12 +527,6 @@ pub fn scene(
     Scene { first, last, scale }
 }
 
-/// Per window frame, the factor that brings it to frame `center`'s brightness along the trend
-/// of the frames `first..=last` (bleaching; [`Scene::scale`] over a narrower scene).
-pub fn brightness_trend(window: &[&[f32]], center: usize, first: usize, last: usize) -> Vec<f64> {
-    brightness(window, center, first..=last)
-}
-
 /// Whether `window` holds neighbours to track: more than one frame, each at least a block in
 /// size. Panics unless every frame of `window` has its guide and every frame and guide is
 /// `w × h`.
