@@ -490,6 +490,19 @@ pub fn scene(
     h: usize,
     p: PoissonGaussian,
 ) -> Scene {
+    scene_on_grid(window, guides, center, w, h, p, scene_step(w, h))
+}
+
+/// [`scene`] from the reference blocks every `step` px each way.
+fn scene_on_grid(
+    window: &[&[f32]],
+    guides: &[&[f32]],
+    center: usize,
+    w: usize,
+    h: usize,
+    p: PoissonGaussian,
+    step: usize,
+) -> Scene {
     if !trackable(window, guides, w, h) {
         return Scene {
             first: center,
@@ -497,7 +510,7 @@ pub fn scene(
             scale: vec![1.0; window.len()],
         };
     }
-    let t = tracked(window, guides, center, w, h, p, SCENE_STEP);
+    let t = tracked(window, guides, center, w, h, p, step);
     // The mean needs no more (a block that found no match adds nothing to it), but a method
     // that is shown whole frames does: a frame that fewer than half the blocks' tracks reached
     // is another scene too (a cut to a scene as bright, whose blocks' differences over their
@@ -538,10 +551,23 @@ fn trackable(window: &[&[f32]], guides: &[&[f32]], w: usize, h: usize) -> bool {
     window.len() > 1 && w >= N && h >= N
 }
 
-/// Distance between the reference blocks [`scene`] tracks, px: its decision is a median over
-/// the frame's blocks, which a quarter of the mean's blocks (every 4th px each way) still make
-/// from thousands at 512², in a quarter of the time.
-const SCENE_STEP: usize = 4;
+/// How many reference blocks [`scene`] tracks at least: as many as every 4th px each way of a
+/// 256² frame gives (63²), the size of the movie suite's frames, on which the gate was chosen.
+/// Its decisions are a median over the blocks and a count of those that reach each frame,
+/// whose precision depends on how many blocks there are, not on the frame's size.
+const SCENE_BLOCKS: usize = 63 * 63;
+
+/// Distance between the reference blocks [`scene`] tracks, px: every 4th px each way (a quarter
+/// of the mean's blocks), or every 8th (a block's width: they still tile the frame, and a
+/// block's neighbours are as far away) where that still leaves [`SCENE_BLOCKS`], as at 512² and
+/// larger, in a quarter of the time.
+fn scene_step(w: usize, h: usize) -> usize {
+    if positions(w, N, N).len() * positions(h, N, N).len() >= SCENE_BLOCKS {
+        N
+    } else {
+        4
+    }
+}
 
 /// Every reference block of `window[center]` (every `step` px each way) tracked outward
 /// through the window, the scene's frames found and brought to the centre's brightness.
@@ -2201,6 +2227,53 @@ mod tests {
                 (lanes - plain).abs() <= 1e-12 * plain.max(1.0),
                 "{len}: {lanes} vs {plain}"
             );
+        }
+    }
+
+    /// At 512² the scene is found from every 8th px as from every 4th: a drift's five frames are
+    /// all its scene, and a cut to a checkerboard of 3-px squares (nothing of the pattern lies
+    /// within a block's search in it) ends it, at about 10 counts per pixel. The sparser grid
+    /// still holds [`SCENE_BLOCKS`] blocks, and 256² keeps the denser one.
+    #[test]
+    fn the_scene_is_found_from_a_sparser_grid_of_as_many_blocks() {
+        let (w, h) = (512, 512);
+        assert_eq!((scene_step(w, h), scene_step(256, 256)), (N, 4));
+        assert!(positions(w, N, N).len() * positions(h, N, N).len() >= SCENE_BLOCKS);
+        let p = PoissonGaussian {
+            alpha: 1.0,
+            sigma: 0.5,
+            mu: 0.0,
+        };
+        let mut noise = gaussian(17);
+        let mut shoot = |truth: Vec<f32>| -> Vec<f32> {
+            truth
+                .iter()
+                .map(|&c| c + noise((c as f64 + 0.25).sqrt()))
+                .collect()
+        };
+        let board: Vec<f32> = (0..w * h)
+            .map(|i| 20.0 * (((i % w) / 3 + (i / w) / 3) % 2) as f32)
+            .collect();
+        let drift: Vec<Vec<f32>> = (0..5)
+            .map(|t| shoot(pattern(w, h, t as f64, t as f64 / 2.0)))
+            .collect();
+        let cut: Vec<Vec<f32>> = (0..5)
+            .map(|t| {
+                shoot(if t < 3 {
+                    pattern(w, h, 0.0, 0.0)
+                } else {
+                    board.clone()
+                })
+            })
+            .collect();
+        for (frames, want) in [(&drift, (0, 4)), (&cut, (0, 2))] {
+            let window: Vec<&[f32]> = frames.iter().map(Vec::as_slice).collect();
+            let guides: Vec<Vec<f32>> = frames.iter().map(|f| binomial(f, w)).collect();
+            let guides: Vec<&[f32]> = guides.iter().map(Vec::as_slice).collect();
+            let found = |step| scene_on_grid(&window, &guides, 2, w, h, p, step);
+            let (dense, sparse) = (found(4), found(N));
+            assert_eq!((sparse.first, sparse.last), want);
+            assert_eq!(sparse, dense);
         }
     }
 

@@ -62,6 +62,22 @@ pub fn denoise_frames(
     let mut held: VecDeque<Held> = VecDeque::with_capacity(2 * k + 1);
     let mut buf = vec![0f32; p.len()];
     let mut due = want.start;
+    let mut emit_units = |j: usize, mut out: Vec<f32>| {
+        if to_units != 1.0 {
+            out.iter_mut().for_each(|v| *v *= to_units);
+        }
+        emit(j, out)
+    };
+    let network = fd.model.filter(|_| fd.method == Method::TemporalNet);
+    // The network's input for the frame before: the previous frame's window as it is shown
+    // ([`net_window`]), a working buffer, not held frames. The network runs on it while the
+    // next frame's scene is found, so that the tracking's share of the two cores fills what
+    // the network's serial steps leave idle.
+    let mut shown_before: Option<(usize, Vec<Vec<f32>>)> = None;
+    let infer = |model, (j, shown): (usize, Vec<Vec<f32>>)| {
+        let window: Vec<&[f32]> = shown.iter().map(Vec::as_slice).collect();
+        (j, fd.inference(model).denoise_window(&window, exposure_s))
+    };
     for j in lo..hi {
         next(j, Some(&mut buf))?;
         held.push_back(prepare(fd, j, &buf, exposure_s, members).map_err(|e| e.at(at(j)))?);
@@ -74,18 +90,21 @@ pub fn denoise_frames(
             }
             let first = held.front().expect("the frame itself is held").index;
             let frames: Vec<&[f32]> = held.iter().map(|h| h.frame.as_slice()).collect();
-            let mut out = match fd.model.filter(|_| fd.method == Method::TemporalNet) {
+            let singles: Vec<&[f32]> = held.iter().map(|h| h.single.as_slice()).collect();
+            match network {
                 // The network's fixed window: the frame's scene, at its brightness.
                 Some(model) => {
-                    let guides: Vec<&[f32]> = held.iter().map(|h| h.single.as_slice()).collect();
-                    let shown = net_window(&frames, &guides, due - first, k, p.width, noise);
-                    let window: Vec<&[f32]> = shown.iter().map(Vec::as_slice).collect();
-                    fd.inference(model)
-                        .denoise_window(&window, exposure_s)
-                        .map_err(|e| e.at(at(due)))?
+                    let (shown, before) = rayon::join(
+                        || net_window(&frames, &singles, due - first, k, p.width, noise),
+                        || shown_before.take().map(|b| infer(model, b)),
+                    );
+                    if let Some((b, out)) = before {
+                        emit_units(b, out.map_err(|e| e.at(at(b)))?)?;
+                    }
+                    shown_before = Some((due, shown));
                 }
-                None => {
-                    let singles: Vec<&[f32]> = held.iter().map(|h| h.single.as_slice()).collect();
+                None => emit_units(
+                    due,
                     emccd_classical::temporal::estimate(
                         &frames,
                         &singles,
@@ -93,15 +112,15 @@ pub fn denoise_frames(
                         p.width,
                         p.height,
                         noise,
-                    )
-                }
-            };
-            if to_units != 1.0 {
-                out.iter_mut().for_each(|v| *v *= to_units);
+                    ),
+                )?,
             }
-            emit(due, out)?;
             due += 1;
         }
+    }
+    if let (Some(model), Some(last)) = (network, shown_before) {
+        let (b, out) = infer(model, last);
+        emit_units(b, out.map_err(|e| e.at(at(b)))?)?;
     }
     Ok(())
 }
