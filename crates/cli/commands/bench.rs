@@ -30,9 +30,10 @@ pub struct Args {
     pub denoise: Vec<String>,
     /// Instead, measure temporal denoising: this many frames of a scene (the first of
     /// --scenes) drifting across the virtual camera (1 px right per frame, 1 px down every
-    /// second frame), at 20 and 200 photons at its peak, denoised frame by frame by BM3D + GAT,
-    /// by `--method temporal` and by `--method temporal-net`: PSNR over the movie, seconds per
-    /// frame and the classical method's time over BM3D's.
+    /// second frame), at 20 and 200 photons at its peak, denoised frame by frame by BM3D + GAT
+    /// and by the `lowlight` network, by `--method temporal` and by `--method temporal-net`:
+    /// PSNR over the movie, seconds per frame, the classical method's time over BM3D's and the
+    /// temporal network's over the single-frame network's.
     #[arg(long, value_name = "FRAMES")]
     pub movie: Option<usize>,
     /// Instead, measure photon counting: this many 512² frames of the virtual camera at 0.1
@@ -212,7 +213,8 @@ fn movie_bench(
     println!("{}", crate::bench::movie::MovieRow::header());
     crate::bench::movie::movie(&profile, scene, frames, &mut |r| println!("{r}"))?;
     println!(
-        "(time ratio: temporal over BM3D per frame; {} CPU threads)",
+        "(time ratio: temporal over BM3D per frame; net: the single-frame `lowlight` network, \
+         t-net/net: temporal-net over it; {} CPU threads)",
         rayon::current_num_threads()
     );
     Ok(())

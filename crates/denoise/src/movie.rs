@@ -4,7 +4,8 @@
 //! of them (the window of `K` frames each side) are held at a time. A frame's window stays
 //! within its recording: the classical method's is clipped at the recording's ends; the
 //! network's (a fixed number of frames) shows the frame's scene at its brightness, the frames
-//! beyond the scene or the recording mirrored about the frame ([`net_window`]).
+//! beyond the scene or the recording mirrored about the frame ([`net_window`]). The network
+//! denoises one frame's window while the next frame's scene is found.
 
 use std::collections::VecDeque;
 
