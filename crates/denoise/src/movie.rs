@@ -80,11 +80,25 @@ pub fn denoise_frames(
         (j, fd.inference(model).denoise_window(&window, exposure_s))
     };
     for j in lo..hi {
-        next(j, Some(&mut buf))?;
-        held.push_back(prepare(fd, j, &buf, exposure_s, members).map_err(|e| e.at(at(j)))?);
-        // Every frame whose window is now complete (or ends at the last frame read). A frame
-        // is denoised as soon as frame `due + k` is read, so what is held past the frames
-        // before its window is exactly its window.
+        let read = next(j, Some(&mut buf))
+            .and_then(|()| prepare(fd, j, &buf, exposure_s, members).map_err(|e| e.at(at(j))));
+        let frame = match read {
+            Ok(frame) => frame,
+            Err(e) => {
+                // The frame before, whose window was complete, is handed over first (a shard
+                // resumed after the error starts after it).
+                if let (Some(model), Some(before)) = (network, shown_before.take()) {
+                    let (b, out) = infer(model, before);
+                    emit_units(b, out.map_err(|e| e.at(at(b)))?)?;
+                }
+                return Err(e);
+            }
+        };
+        held.push_back(frame);
+        // Every frame whose window is now complete (or ends at the last frame read). A frame's
+        // window is found as soon as frame `due + k` is read, so what is held past the frames
+        // before its window is exactly its window; the classical method denoises it then, the
+        // network while the next frame's window is found (or after the last).
         while due < want.end && (due + k <= j || j + 1 == hi) {
             while held.front().is_some_and(|h| h.index + k < due) {
                 held.pop_front();

@@ -91,6 +91,42 @@ fn mean(v: &[f32]) -> f64 {
     v.iter().map(|&x| x as f64).sum::<f64>() / v.len() as f64
 }
 
+/// A bad frame in the middle is named, and the frames whose windows were found before it are
+/// handed over first: the network denoises a frame's window while the next one's is found, so
+/// frame 2's (complete once frame 4 was read) is still waiting when frame 5 fails.
+#[test]
+fn a_bad_frame_in_the_middle_is_named_after_the_frames_before_it() {
+    let (p, m) = (profile(), model());
+    let mut raws = shoot(&p, &vec![scene(4.0); 7], 900);
+    raws[4][17] = f32::NAN;
+    let mut emitted = Vec::new();
+    let e = emccd_denoise::movie::denoise_frames(
+        &net(&p, &m),
+        EXPOSURE,
+        7,
+        0..7,
+        &|j| format!("nan.tif: frame {}", j + 1),
+        &mut |j, buf| {
+            if let Some(buf) = buf {
+                buf.copy_from_slice(&raws[j]);
+            }
+            Ok(())
+        },
+        &mut |j, _| {
+            emitted.push(j);
+            Ok(())
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("nan.tif: frame 5") && e.contains("non-finite value at pixel (17, 0)"),
+        "{e}"
+    );
+    // Frames 1 and 2 need frames up to 3 and 4; frame 3's window holds frame 5.
+    assert_eq!(emitted, vec![0, 1]);
+}
+
 #[test]
 fn a_streamed_stack_is_the_mirrored_windows_computed_in_memory() {
     let (p, m) = (profile(), model());
