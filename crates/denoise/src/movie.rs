@@ -63,7 +63,9 @@ pub fn denoise_frames(
     let mut held: VecDeque<Held> = VecDeque::with_capacity(2 * k + 1);
     let mut buf = vec![0f32; p.len()];
     let mut due = want.start;
-    let mut emit_units = |j: usize, mut out: Vec<f32>| {
+    // Frame `j`'s estimate handed over in `fd`'s units, or its error named.
+    let mut hand_over = |(j, out): (usize, Result<Vec<f32>>)| {
+        let mut out = out.map_err(|e| e.at(at(j)))?;
         if to_units != 1.0 {
             out.iter_mut().for_each(|v| *v *= to_units);
         }
@@ -88,8 +90,7 @@ pub fn denoise_frames(
                 // The frame before, whose window was complete, is handed over first (a shard
                 // resumed after the error starts after it).
                 if let (Some(model), Some(before)) = (network, shown_before.take()) {
-                    let (b, out) = infer(model, before);
-                    emit_units(b, out.map_err(|e| e.at(at(b)))?)?;
+                    hand_over(infer(model, before))?;
                 }
                 return Err(e);
             }
@@ -113,29 +114,28 @@ pub fn denoise_frames(
                         || net_window(&frames, &singles, due - first, k, p.width, noise),
                         || shown_before.take().map(|b| infer(model, b)),
                     );
-                    if let Some((b, out)) = before {
-                        emit_units(b, out.map_err(|e| e.at(at(b)))?)?;
+                    if let Some(before) = before {
+                        hand_over(before)?;
                     }
                     shown_before = Some((due, shown));
                 }
-                None => emit_units(
+                None => hand_over((
                     due,
-                    emccd_classical::temporal::estimate(
+                    Ok(emccd_classical::temporal::estimate(
                         &frames,
                         &singles,
                         due - first,
                         p.width,
                         p.height,
                         noise,
-                    ),
-                )?,
+                    )),
+                ))?,
             }
             due += 1;
         }
     }
     if let (Some(model), Some(last)) = (network, shown_before) {
-        let (b, out) = infer(model, last);
-        emit_units(b, out.map_err(|e| e.at(at(b)))?)?;
+        hand_over(infer(model, last))?;
     }
     Ok(())
 }
