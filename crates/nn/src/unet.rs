@@ -10,6 +10,12 @@ use burn::nn::{Initializer, LeakyRelu, LeakyReluConfig, PaddingConfig2d};
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
+mod cpu;
+pub use cpu::CpuUNet;
+
+/// The leaky ReLU's slope for negative inputs, after every 3×3 convolution.
+const LEAK: f64 = 0.2;
+
 /// Size of a U-Net (with the `clap` feature, `emccd train`'s U-Net flags; defaults
 /// [`UNetConfig::DEFAULT`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -142,7 +148,7 @@ impl Block {
         Block {
             c1: conv(i, o),
             c2: conv(o, o),
-            act: LeakyReluConfig::new().with_negative_slope(0.2).init(),
+            act: LeakyReluConfig::new().with_negative_slope(LEAK).init(),
         }
     }
 
