@@ -9,16 +9,16 @@ use crate::model::Net;
 use crate::unet::CpuUNet;
 
 /// How a tile goes through the network: a U-Net on the CPU through [`CpuUNet`] (the same
-/// network, three times faster than burn's CPU convolution), anything else through burn.
+/// network, faster than burn's CPU convolution: docs/networks.md), anything else through burn.
 enum Forward<'a> {
-    Cpu(Box<CpuUNet>),
+    Gemm(Box<CpuUNet>),
     Burn(&'a Net, &'a Device),
 }
 
 impl<'a> Forward<'a> {
     fn new(net: &'a Net, device: &'a Device) -> Forward<'a> {
         match net {
-            Net::UNet(u) if *device == Device::flex() => Forward::Cpu(Box::new(CpuUNet::new(u))),
+            Net::UNet(u) if *device == Device::flex() => Forward::Gemm(Box::new(CpuUNet::new(u))),
             _ => Forward::Burn(net, device),
         }
     }
@@ -26,7 +26,7 @@ impl<'a> Forward<'a> {
     /// The network's [H, W] output for a [C, H, W] input.
     fn run(&self, tile: Vec<f32>, [c, h, w]: [usize; 3]) -> Vec<f32> {
         match self {
-            Forward::Cpu(u) => u.forward(&tile, c, h, w),
+            Forward::Gemm(u) => u.forward(&tile, c, h, w),
             Forward::Burn(net, device) => {
                 let x = Tensor::<4>::from_data(TensorData::new(tile, [1, c, h, w]), *device);
                 net.forward(x)

@@ -4,8 +4,8 @@
 //!
 //! Why not burn's flex convolution: it copies its input to channels-last and into an im2col
 //! buffer at every layer and packs the buffer for each 512-pixel tile, which at this network's
-//! 16–32 full-resolution channels costs more than the products themselves (a 512² frame: 0.95 s
-//! through burn, a third of that here; docs/networks.md). Here every feature map is stored
+//! 16–32 full-resolution channels costs more than the products themselves (measured in
+//! docs/networks.md, "Backends"). Here every feature map is stored
 //! channels-last with a one-pixel border of zeros, so a 3×3 convolution is nine products of a
 //! shifted view of its input with one tap's weights — no copy at all — and the encoder writes
 //! its skip connection, and the up-sampling its output, straight into the decoder's
@@ -54,30 +54,30 @@ impl Map {
 struct Layer {
     ci: usize,
     co: usize,
-    w: Vec<f32>,
-    b: Vec<f32>,
-    /// Strides of the `in × out` matrix: between inputs, between outputs.
-    rs: usize,
-    cs: usize,
+    weights: Vec<f32>,
+    bias: Vec<f32>,
+    /// Strides of the `in × out` matrices: between inputs, between outputs.
+    in_stride: usize,
+    out_stride: usize,
     taps: usize,
 }
 
 impl Layer {
     fn new(weight: Tensor<4>, bias: Option<Tensor<1>>, transposed: bool) -> Layer {
-        let [a, b, kh, kw] = weight.dims();
+        let [d0, d1, kh, kw] = weight.dims();
         let taps = kh * kw;
-        let (ci, co, rs, cs) = if transposed {
-            (a, b, b * taps, taps)
+        let (ci, co, in_stride, out_stride) = if transposed {
+            (d0, d1, d1 * taps, taps)
         } else {
-            (b, a, taps, b * taps)
+            (d1, d0, taps, d1 * taps)
         };
         Layer {
             ci,
             co,
-            w: floats(weight),
-            b: bias.map(floats).unwrap_or_else(|| vec![0.0; co]),
-            rs,
-            cs,
+            weights: floats(weight),
+            bias: bias.map(floats).unwrap_or_else(|| vec![0.0; co]),
+            in_stride,
+            out_stride,
             taps,
         }
     }
@@ -95,7 +95,8 @@ impl Layer {
     ///
     /// # Safety
     /// m rows of `co` values at stride `dst_rs` from `dst`, and of `ci` at stride `lhs_rs`
-    /// from `lhs`, must lie inside their allocations, and `dst`'s must not overlap `lhs`.
+    /// from `lhs`, must lie inside their allocations, and `dst`'s must not overlap `lhs`. (The
+    /// weights' side is checked here.)
     #[allow(clippy::too_many_arguments)]
     unsafe fn product(
         &self,
@@ -107,7 +108,7 @@ impl Layer {
         lhs: *const f32,
         lhs_rs: usize,
     ) {
-        debug_assert!(t < self.taps);
+        assert!(t < self.taps && self.weights.len() == self.ci * self.co * self.taps);
         gemm(
             m,
             self.co,
@@ -119,9 +120,9 @@ impl Layer {
             lhs,
             1,
             lhs_rs as isize,
-            self.w.as_ptr().add(t),
-            self.cs as isize,
-            self.rs as isize,
+            self.weights.as_ptr().add(t),
+            self.out_stride as isize,
+            self.in_stride as isize,
             1.0,
             1.0,
             false,
@@ -142,45 +143,48 @@ fn floats<const D: usize>(t: Tensor<D>) -> Vec<f32> {
 /// `dst`'s channels `d_off..d_off + co` ← leaky ReLU(conv3×3(`src`'s channels
 /// `s_off..s_off + ci`) + bias). `dst` is a different map of the same size.
 fn conv3x3(src: &Map, s_off: usize, k: &Layer, dst: &mut Map, d_off: usize) {
-    let (h, w, cs, cd) = (src.h, src.w, src.c, dst.c);
-    debug_assert!((dst.h, dst.w) == (h, w) && s_off + k.ci <= cs && d_off + k.co <= cd);
+    let (h, w, c_src, c_dst) = (src.h, src.w, src.c, dst.c);
+    // What keeps every product inside its strip.
+    assert!(
+        (dst.h, dst.w) == (h, w) && s_off + k.ci <= c_src && d_off + k.co <= c_dst && k.taps == 9
+    );
     let wp = w + 2;
-    // At least four strips a thread, so that the deep levels' few rows still split evenly.
+    // Up to four strips a thread, so that the deep levels' few rows still split evenly.
     let rows = (STRIP_PIXELS / wp)
         .min(h.div_ceil(4 * rayon::current_num_threads()))
         .max(1);
     // Output pixel p of a strip is interior pixel (y0 + p / wp, p % wp): the two of each row
     // past its end land on the border, and are put back to zero below.
     let first = dst.at(0, 0);
-    let out = &mut dst.data[first..first + h * wp * cd];
-    out.par_chunks_mut(rows * wp * cd)
+    let out = &mut dst.data[first..first + h * wp * c_dst];
+    out.par_chunks_mut(rows * wp * c_dst)
         .enumerate()
         .for_each(|(s, strip)| {
-            let (y0, m) = (s * rows, strip.len() / cd);
+            let (y0, m) = (s * rows, strip.len() / c_dst);
             for t in 0..9 {
                 let (ky, kx) = (t / 3, t % 3);
-                let lhs = &src.data[((y0 + ky) * wp + kx) * cs + s_off..];
-                assert!((m - 1) * cs + k.ci <= lhs.len());
-                // SAFETY: m rows of co values at stride cd from d_off lie in `strip`; m rows of
-                // ci at stride cs lie in `lhs` (checked).
+                let lhs = &src.data[((y0 + ky) * wp + kx) * c_src + s_off..];
+                assert!((m - 1) * c_src + k.ci <= lhs.len());
+                // SAFETY: m rows of co values at stride c_dst from d_off lie in `strip`
+                // (asserted above); m rows of ci at stride c_src lie in `lhs` (checked).
                 unsafe {
                     k.product(
                         t,
                         m,
                         strip.as_mut_ptr().add(d_off),
-                        cd,
+                        c_dst,
                         t > 0,
                         lhs.as_ptr(),
-                        cs,
+                        c_src,
                     )
                 }
             }
-            for (p, px) in strip.chunks_exact_mut(cd).enumerate() {
+            for (p, px) in strip.chunks_exact_mut(c_dst).enumerate() {
                 let v = &mut px[d_off..d_off + k.co];
                 if p % wp >= w {
                     v.fill(0.0);
                 } else {
-                    for (v, b) in v.iter_mut().zip(&k.b) {
+                    for (v, b) in v.iter_mut().zip(&k.bias) {
                         let t = *v + b;
                         *v = if t >= 0.0 { t } else { LEAK as f32 * t };
                     }
@@ -203,18 +207,30 @@ fn rows_of(dst: &mut Map, f: impl Fn(usize, &mut [f32]) + Sync) {
 /// A stride-2 2×2 convolution of `src`'s channels `s_off..s_off + ci` into a new map of half
 /// the size (no activation: the next block's first convolution follows).
 fn down(src: &Map, s_off: usize, k: &Layer) -> Map {
+    assert!(s_off + k.ci <= src.c && k.taps == 4);
     let mut dst = Map::zeros(src.h / 2, src.w / 2, k.co);
-    let (cs, w2) = (src.c, dst.w);
+    let (c_src, w2) = (src.c, dst.w);
     rows_of(&mut dst, |y, row| {
         for t in 0..4 {
             let (i, j) = (t / 2, t % 2);
             let lhs = &src.data[src.at(2 * y + i, j) + s_off..];
-            assert!((w2 - 1) * 2 * cs + k.ci <= lhs.len());
-            // SAFETY: w2 rows of co in `row`; w2 rows of ci at stride 2·cs in `lhs` (checked).
-            unsafe { k.product(t, w2, row.as_mut_ptr(), k.co, t > 0, lhs.as_ptr(), 2 * cs) }
+            assert!((w2 - 1) * 2 * c_src + k.ci <= lhs.len());
+            // SAFETY: w2 rows of co in `row` (a row of dst); w2 rows of ci at stride 2·c_src
+            // in `lhs` (checked).
+            unsafe {
+                k.product(
+                    t,
+                    w2,
+                    row.as_mut_ptr(),
+                    k.co,
+                    t > 0,
+                    lhs.as_ptr(),
+                    2 * c_src,
+                )
+            }
         }
         for px in row.chunks_exact_mut(k.co) {
-            px.iter_mut().zip(&k.b).for_each(|(v, b)| *v += b);
+            px.iter_mut().zip(&k.bias).for_each(|(v, b)| *v += b);
         }
     });
     dst
@@ -223,28 +239,32 @@ fn down(src: &Map, s_off: usize, k: &Layer) -> Map {
 /// A stride-2 2×2 transposed convolution of `src` (all its channels) into channels
 /// `0..co` of `dst`, twice its size.
 fn up(src: &Map, k: &Layer, dst: &mut Map) {
-    debug_assert!((dst.h, dst.w) == (2 * src.h, 2 * src.w) && src.c == k.ci);
-    let (cd, w) = (dst.c, src.w);
+    // What keeps every product inside its row.
+    assert!(
+        (dst.h, dst.w) == (2 * src.h, 2 * src.w) && src.c == k.ci && k.co <= dst.c && k.taps == 4
+    );
+    let (c_dst, w) = (dst.c, src.w);
     rows_of(dst, |yy, row| {
         let (y, i) = (yy / 2, yy % 2);
         let lhs = &src.data[src.at(y, 0)..];
         for j in 0..2 {
             let t = i * 2 + j;
-            // SAFETY: w rows of co at stride 2·cd from pixel j lie in `row`; w rows of ci in `lhs`.
+            // SAFETY: w rows of co at stride 2·c_dst from pixel j lie in `row` (a row of dst,
+            // 2w pixels); w rows of ci lie in `lhs` (a row of src).
             unsafe {
                 k.product(
                     t,
                     w,
-                    row.as_mut_ptr().add(j * cd),
-                    2 * cd,
+                    row.as_mut_ptr().add(j * c_dst),
+                    2 * c_dst,
                     false,
                     lhs.as_ptr(),
                     k.ci,
                 )
             }
         }
-        for px in row.chunks_exact_mut(cd) {
-            px.iter_mut().zip(&k.b).for_each(|(v, b)| *v += b);
+        for px in row.chunks_exact_mut(c_dst) {
+            px.iter_mut().zip(&k.bias).for_each(|(v, b)| *v += b);
         }
     });
 }
@@ -262,38 +282,58 @@ pub struct CpuUNet {
     unshuffle: usize,
 }
 
-fn block(b: &Block) -> [Layer; 2] {
+fn block_layers(b: &Block) -> [Layer; 2] {
     [Layer::conv(&b.c1), Layer::conv(&b.c2)]
+}
+
+/// A [`Block`]'s two convolutions over all of `x`'s channels.
+fn block(b: &[Layer; 2], x: Map) -> Map {
+    let mut mid = Map::zeros(x.h, x.w, b[0].co);
+    conv3x3(&x, 0, &b[0], &mut mid, 0);
+    let mut y = Map::zeros(x.h, x.w, b[1].co);
+    conv3x3(&mid, 0, &b[1], &mut y, 0);
+    y
 }
 
 impl CpuUNet {
     /// `net`'s current weights, copied out of burn.
     pub fn new(net: &UNet) -> CpuUNet {
         CpuUNet {
-            enc: net.enc.iter().map(block).collect(),
+            enc: net.enc.iter().map(block_layers).collect(),
             down: net.down.iter().map(Layer::conv).collect(),
-            bottom: block(&net.bottom),
+            bottom: block_layers(&net.bottom),
             up: net.up.iter().map(Layer::transposed).collect(),
-            dec: net.dec.iter().map(block).collect(),
+            dec: net.dec.iter().map(block_layers).collect(),
             out: Layer::conv(&net.out),
             residual: net.residual,
             unshuffle: net.unshuffle,
         }
     }
 
-    /// [`UNet::forward`] of one `[channels, height, width]` input, channel-major (sides
-    /// multiples of the network's [`super::UNetConfig::multiple`]); returns the `[height,
-    /// width]` output.
+    /// [`UNet::forward`] of one `[channels, height, width]` input, channel-major; returns the
+    /// `[height, width]` output.
+    ///
+    /// # Panics
+    /// If the input is not `channels` planes of that size, `channels` not the network's, or a
+    /// side not a multiple of the network's [`super::UNetConfig::multiple`] (as burn would).
     pub fn forward(&self, input: &[f32], channels: usize, height: usize, width: usize) -> Vec<f32> {
         let u = self.unshuffle;
+        let multiple = u << self.enc.len();
+        assert!(
+            input.len() == channels * height * width
+                && channels * u * u == self.enc.first().unwrap_or(&self.bottom)[0].ci
+                && height.is_multiple_of(multiple)
+                && width.is_multiple_of(multiple),
+            "a {channels}×{height}×{width} input for a U-Net of {} inputs and sides multiples of {multiple}",
+            self.enc.first().unwrap_or(&self.bottom)[0].ci / (u * u)
+        );
         let (h, w) = (height / u, width / u);
-        debug_assert_eq!(input.len(), channels * height * width);
         // The input, each u×u block's pixels folded into channels (c·u + i)·u + j.
-        let mut x = Map::zeros(h, w, channels * u * u);
+        let mut feat = Map::zeros(h, w, channels * u * u);
         for y in 0..h {
             for xx in 0..w {
-                let at = x.at(y, xx);
-                let px = &mut x.data[at..at + x.c];
+                let at = feat.at(y, xx);
+                let px = &mut feat.data[at..at + feat.c];
                 for c in 0..channels {
                     for i in 0..u {
                         for j in 0..u {
@@ -307,41 +347,34 @@ impl CpuUNet {
         // Encoder: each level's block writes its skip into the second half of the decoder's
         // concatenated input (the first half is the up-sampled path, as in `Tensor::cat`).
         let mut cats = Vec::with_capacity(self.enc.len());
-        let mut below = x;
         for (e, d) in self.enc.iter().zip(&self.down) {
             let co = e[1].co;
-            let mut mid = Map::zeros(below.h, below.w, e[0].co);
-            conv3x3(&below, 0, &e[0], &mut mid, 0);
-            let mut cat = Map::zeros(below.h, below.w, 2 * co);
+            let mut mid = Map::zeros(feat.h, feat.w, e[0].co);
+            conv3x3(&feat, 0, &e[0], &mut mid, 0);
+            let mut cat = Map::zeros(feat.h, feat.w, 2 * co);
             conv3x3(&mid, 0, &e[1], &mut cat, co);
-            below = down(&cat, co, d);
+            feat = down(&cat, co, d);
             cats.push(cat);
         }
-        let mut mid = Map::zeros(below.h, below.w, self.bottom[0].co);
-        conv3x3(&below, 0, &self.bottom[0], &mut mid, 0);
-        let mut h_map = Map::zeros(below.h, below.w, self.bottom[1].co);
-        conv3x3(&mid, 0, &self.bottom[1], &mut h_map, 0);
+        feat = block(&self.bottom, feat);
         for (u_layer, d) in self.up.iter().zip(&self.dec) {
             let mut cat = cats.pop().expect("one skip per level");
-            up(&h_map, u_layer, &mut cat);
-            let mut mid = Map::zeros(cat.h, cat.w, d[0].co);
-            conv3x3(&cat, 0, &d[0], &mut mid, 0);
-            h_map = Map::zeros(cat.h, cat.w, d[1].co);
-            conv3x3(&mid, 0, &d[1], &mut h_map, 0);
+            up(&feat, u_layer, &mut cat);
+            feat = block(d, cat);
         }
         // The 1×1 output layer, unfolded back to full resolution, plus the residual channel.
-        let (ow, ob) = (&self.out.w, &self.out.b);
+        let (ow, ob) = (&self.out.weights, &self.out.bias);
         let uu = u * u;
         let mut out = vec![0f32; height * width];
         out.par_chunks_mut(width * u)
             .enumerate()
             .for_each(|(y, rows)| {
                 for xx in 0..w {
-                    let px = &h_map.data[h_map.at(y, xx)..][..h_map.c];
+                    let px = &feat.data[feat.at(y, xx)..][..feat.c];
                     for o in 0..uu {
                         let mut v = ob[o];
                         for (c, a) in px.iter().enumerate() {
-                            v += a * ow[o * h_map.c + c];
+                            v += a * ow[o * feat.c + c];
                         }
                         let (i, j) = (o / u, o % u);
                         let full = (u * y + i) * width + u * xx + j;
@@ -361,12 +394,15 @@ mod tests {
     use super::*;
     use crate::unet::UNetConfig;
 
-    /// Random weights (burn's initializers draw them) give every layer a say; the input is a
-    /// smooth pattern plus a ramp, on a non-square frame so that a mix-up of width and height
-    /// cannot pass.
-    fn agrees(cfg: UNetConfig, h: usize, w: usize) {
+    /// Random weights (burn's initializers draw them, output layer included) give every layer a
+    /// say; the input is a smooth pattern plus a ramp, on non-square frames so that a mix-up of
+    /// width and height cannot pass. `residual`: the input channel the output is added to, set
+    /// after building, since a network built with a residual other than 0 starts with its
+    /// output layer at zero (and would then return that channel whatever its layers did).
+    fn agrees(cfg: UNetConfig, residual: Option<usize>, h: usize, w: usize) {
         let d = crate::cpu();
-        let net = cfg.init(&d);
+        let mut net = cfg.init(&d);
+        net.residual = residual;
         let c = cfg.in_channels;
         let x: Vec<f32> = (0..c * h * w)
             .map(|i| ((i as f32 * 0.37).sin() + (i % w) as f32 / w as f32) * 0.8)
@@ -389,6 +425,12 @@ mod tests {
             .map(|(a, b)| (a - b).abs())
             .fold(0f32, f32::max);
         assert!(worst < 1e-4, "{cfg:?} {h}×{w}: differs by {worst}");
+        // The layers' part is not negligible beside the residual channel.
+        let base = residual.map_or(0.0, |r| x[r * h * w]);
+        assert!(
+            (got[0] - base).abs() > 1e-3,
+            "{cfg:?}: the layers add nothing"
+        );
     }
 
     #[test]
@@ -398,36 +440,36 @@ mod tests {
             levels: 2,
             ..UNetConfig::DEFAULT
         };
-        agrees(small, 24, 40);
-        // A temporal network's inputs and residual channel; a direct output; pixel-unshuffled.
-        agrees(
-            UNetConfig {
-                in_channels: 6,
-                residual: 2,
-                ..small
-            },
-            16,
-            32,
-        );
-        agrees(
-            UNetConfig {
-                direct: true,
-                ..small
-            },
-            32,
-            16,
-        );
-        agrees(
-            UNetConfig {
-                unshuffle: 2,
-                in_channels: 3,
-                residual: 2,
-                ..small
-            },
-            32,
-            48,
-        );
-        // The default size, four levels deep.
-        agrees(UNetConfig::DEFAULT, 32, 48);
+        agrees(small, Some(0), 24, 40);
+        // A temporal network's inputs and residual channel.
+        let movie = UNetConfig {
+            in_channels: 6,
+            ..small
+        };
+        agrees(movie, Some(2), 16, 32);
+        // A direct output (no residual).
+        agrees(small, None, 32, 16);
+        // Pixel-unshuffled, with a residual on the third input.
+        let folded = UNetConfig {
+            unshuffle: 2,
+            in_channels: 3,
+            ..small
+        };
+        agrees(folded, Some(2), 32, 48);
+        // The default size, four levels deep; at 16 × 32 its deepest map is 1 × 2 px.
+        agrees(UNetConfig::DEFAULT, Some(0), 32, 48);
+        agrees(UNetConfig::DEFAULT, Some(0), 16, 32);
+    }
+
+    #[test]
+    #[should_panic(expected = "sides multiples of 4")]
+    fn a_frame_the_network_cannot_take_is_refused() {
+        let cfg = UNetConfig {
+            channels: 4,
+            levels: 2,
+            ..UNetConfig::DEFAULT
+        };
+        let net = CpuUNet::new(&cfg.init(&crate::cpu()));
+        net.forward(&[0.0; 2 * 8 * 10], 2, 8, 10);
     }
 }
