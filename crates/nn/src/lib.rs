@@ -113,7 +113,8 @@ fn answers(device: &Device) -> bool {
 pub fn device_name(device: &Device) -> String {
     let d = format!("{device:?}");
     if d.contains("Flex") {
-        "flex CPU backend".into()
+        // A U-Net runs its own forward pass there (`unet::CpuUNet`), other networks burn's.
+        "the CPU (U-Nets by their gemm forward pass, others by burn's flex backend)".into()
     } else if d.contains("Wgpu") {
         "wgpu GPU backend".into()
     } else {
