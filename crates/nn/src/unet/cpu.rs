@@ -5,11 +5,10 @@
 //! Why not burn's flex convolution: it copies its input to channels-last and into an im2col
 //! buffer at every layer and packs the buffer for each 512-pixel tile, which at this network's
 //! 16–32 full-resolution channels costs more than the products themselves (measured in
-//! docs/networks.md, "Backends"). Here every feature map is stored
-//! channels-last with a one-pixel border of zeros, so a 3×3 convolution is nine products of a
-//! shifted view of its input with one tap's weights — no copy at all — and the encoder writes
-//! its skip connection, and the up-sampling its output, straight into the decoder's
-//! concatenated input.
+//! docs/networks.md, "Backends"). Here every feature map is stored channels-last with a
+//! one-pixel border of zeros, so a 3×3 convolution is nine products of a shifted view of its
+//! input with one tap's weights — no copy at all — and the encoder writes its skip connection,
+//! and the up-sampling its output, straight into the decoder's concatenated input.
 
 use burn::nn::conv::{Conv2d, ConvTranspose2d};
 use burn::prelude::*;
