@@ -89,6 +89,13 @@ impl Layer {
         Layer::new(c.weight.val(), c.bias.as_ref().map(|b| b.val()), true)
     }
 
+    /// Adds the bias to the first `co` values of every `stride` values of `pixels`.
+    fn add_bias(&self, pixels: &mut [f32], stride: usize) {
+        for px in pixels.chunks_exact_mut(stride) {
+            px.iter_mut().zip(&self.bias).for_each(|(v, b)| *v += b);
+        }
+    }
+
     /// `dst[m × co] (+)= lhs[m × ci] · tap t's weights`, row strides given, one thread (the
     /// callers split the work).
     ///
@@ -228,9 +235,7 @@ fn down(src: &Map, s_off: usize, k: &Layer) -> Map {
                 )
             }
         }
-        for px in row.chunks_exact_mut(k.co) {
-            px.iter_mut().zip(&k.bias).for_each(|(v, b)| *v += b);
-        }
+        k.add_bias(row, k.co);
     });
     dst
 }
@@ -262,9 +267,7 @@ fn up(src: &Map, k: &Layer, dst: &mut Map) {
                 )
             }
         }
-        for px in row.chunks_exact_mut(c_dst) {
-            px.iter_mut().zip(&k.bias).for_each(|(v, b)| *v += b);
-        }
+        k.add_bias(row, c_dst);
     });
 }
 
@@ -285,13 +288,12 @@ fn block_layers(b: &Block) -> [Layer; 2] {
     [Layer::conv(&b.c1), Layer::conv(&b.c2)]
 }
 
-/// A [`Block`]'s two convolutions over all of `x`'s channels.
-fn block(b: &[Layer; 2], x: Map) -> Map {
+/// A [`Block`]'s two convolutions over all of `x`'s channels, into `dst`'s channels from
+/// `d_off` on.
+fn block(b: &[Layer; 2], x: &Map, dst: &mut Map, d_off: usize) {
     let mut mid = Map::zeros(x.h, x.w, b[0].co);
-    conv3x3(&x, 0, &b[0], &mut mid, 0);
-    let mut y = Map::zeros(x.h, x.w, b[1].co);
-    conv3x3(&mid, 0, &b[1], &mut y, 0);
-    y
+    conv3x3(x, 0, &b[0], &mut mid, 0);
+    conv3x3(&mid, 0, &b[1], dst, d_off);
 }
 
 impl CpuUNet {
@@ -318,13 +320,13 @@ impl CpuUNet {
     pub fn forward(&self, input: &[f32], channels: usize, height: usize, width: usize) -> Vec<f32> {
         let u = self.unshuffle;
         let multiple = u << self.enc.len();
+        let inputs = self.enc.first().unwrap_or(&self.bottom)[0].ci / (u * u);
         assert!(
             input.len() == channels * height * width
-                && channels * u * u == self.enc.first().unwrap_or(&self.bottom)[0].ci
+                && channels == inputs
                 && height.is_multiple_of(multiple)
                 && width.is_multiple_of(multiple),
-            "a {channels}×{height}×{width} input for a U-Net of {} inputs and sides multiples of {multiple}",
-            self.enc.first().unwrap_or(&self.bottom)[0].ci / (u * u)
+            "a {channels}×{height}×{width} input for a U-Net of {inputs} inputs and sides multiples of {multiple}"
         );
         let (h, w) = (height / u, width / u);
         // The input, each u×u block's pixels folded into channels (c·u + i)·u + j.
@@ -348,18 +350,19 @@ impl CpuUNet {
         let mut cats = Vec::with_capacity(self.enc.len());
         for (e, d) in self.enc.iter().zip(&self.down) {
             let co = e[1].co;
-            let mut mid = Map::zeros(feat.h, feat.w, e[0].co);
-            conv3x3(&feat, 0, &e[0], &mut mid, 0);
             let mut cat = Map::zeros(feat.h, feat.w, 2 * co);
-            conv3x3(&mid, 0, &e[1], &mut cat, co);
+            block(e, &feat, &mut cat, co);
             feat = down(&cat, co, d);
             cats.push(cat);
         }
-        feat = block(&self.bottom, feat);
+        let mut bottom = Map::zeros(feat.h, feat.w, self.bottom[1].co);
+        block(&self.bottom, &feat, &mut bottom, 0);
+        feat = bottom;
         for (u_layer, d) in self.up.iter().zip(&self.dec) {
             let mut cat = cats.pop().expect("one skip per level");
             up(&feat, u_layer, &mut cat);
-            feat = block(d, cat);
+            feat = Map::zeros(cat.h, cat.w, d[1].co);
+            block(d, &cat, &mut feat, 0);
         }
         // The 1×1 output layer, unfolded back to full resolution, plus the residual channel.
         let (ow, ob) = (&self.out.weights, &self.out.bias);
