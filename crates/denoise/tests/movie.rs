@@ -3,6 +3,8 @@
 //! of context around them and so equal one process's output; a stack too short for its window
 //! uses the frames it has; a bad frame is an error naming it, with nothing left behind.
 
+mod common;
+
 use emccd_camera::{PhysicalParams, VirtualCamera};
 use emccd_classical::frame::{preprocess, vst_params};
 use emccd_denoise::stack::{denoise_file, denoise_shard, provenance};
@@ -223,26 +225,8 @@ fn a_bad_frame_in_the_middle_is_named_before_its_windows_run() {
     let p = profile();
     let mut raws = movie(5);
     raws[2][17] = f32::NAN;
-    let mut emitted = Vec::new();
-    let e = emccd_denoise::movie::denoise_frames(
-        &temporal(&p, 1),
-        EXPOSURE,
-        5,
-        0..5,
-        &|j| format!("nan.tif: frame {}", j + 1),
-        &mut |j, buf| {
-            if let Some(buf) = buf {
-                buf.copy_from_slice(&raws[j]);
-            }
-            Ok(())
-        },
-        &mut |j, _| {
-            emitted.push(j);
-            Ok(())
-        },
-    )
-    .unwrap_err()
-    .to_string();
+    let (e, emitted) = common::stream(&temporal(&p, 1), EXPOSURE, &raws);
+    let e = e.expect("a NaN frame is refused");
     assert!(
         e.contains("nan.tif: frame 3") && e.contains("non-finite value at pixel (17, 0)"),
         "{e}"

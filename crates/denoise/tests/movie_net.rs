@@ -7,6 +7,8 @@
 //! trend first), and nothing crosses a scene cut (the window ends at a neighbour of another
 //! scene), down to half an electron per pixel.
 
+mod common;
+
 use emccd_camera::{PhysicalParams, VirtualCamera};
 use emccd_classical::frame::preprocess;
 use emccd_denoise::movie::{guide, net_window};
@@ -99,26 +101,8 @@ fn a_bad_frame_in_the_middle_is_named_after_the_frames_before_it() {
     let (p, m) = (profile(), model());
     let mut raws = shoot(&p, &vec![scene(4.0); 7], 900);
     raws[4][17] = f32::NAN;
-    let mut emitted = Vec::new();
-    let e = emccd_denoise::movie::denoise_frames(
-        &net(&p, &m),
-        EXPOSURE,
-        7,
-        0..7,
-        &|j| format!("nan.tif: frame {}", j + 1),
-        &mut |j, buf| {
-            if let Some(buf) = buf {
-                buf.copy_from_slice(&raws[j]);
-            }
-            Ok(())
-        },
-        &mut |j, _| {
-            emitted.push(j);
-            Ok(())
-        },
-    )
-    .unwrap_err()
-    .to_string();
+    let (e, emitted) = common::stream(&net(&p, &m), EXPOSURE, &raws);
+    let e = e.expect("a NaN frame is refused");
     assert!(
         e.contains("nan.tif: frame 5") && e.contains("non-finite value at pixel (17, 0)"),
         "{e}"
