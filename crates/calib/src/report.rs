@@ -20,41 +20,52 @@ impl Calibration {
     /// leaves nothing behind itself): a failed run leaves nothing it created.
     pub fn save(&self, out: &Path, report: Option<&Path>) -> Result<CameraProfile> {
         let profile = self.profile()?;
-        // The report is written in full beside its folder, the profile saved, and only then the
-        // report moved into place: a run that fails or is stopped leaves neither a report of a
-        // profile that was never written nor a folder of its own.
-        let staged = report
-            .map(
-                |dir| -> std::result::Result<_, Box<dyn std::error::Error + Send + Sync>> {
-                    let stage = emccd_io::StagedDir::beside(dir)?;
-                    write(self, stage.path())?;
-                    Ok(stage)
-                },
-            )
-            .transpose()
-            .map_err(|source| Error::Write {
-                what: format!("the report to {}", report.unwrap_or(out).display()),
-                source,
-            })?;
-        profile.save(out).map_err(|e| Error::Write {
-            what: format!("the profile to {}", out.display()),
-            source: Box::new(e),
-        })?;
-        if let (Some(stage), Some(dir)) = (staged, report) {
-            stage.place().map_err(|e| Error::Write {
-                what: format!("the report to {}", dir.display()),
-                source: Box::new(e),
-            })?;
-        }
+        save_with_report(&profile, out, report, |dir| write(self, dir))?;
         Ok(profile)
     }
 }
 
-type Draw<'a> = DrawingArea<SVGBackend<'a>, plotters::coord::Shift>;
-type PlotResult = std::result::Result<(), Box<dyn std::error::Error>>;
+/// Writes `profile` into `out` and, where asked, a report (`write_report` into a folder) into
+/// `report`. The report is written in full beside its folder, the profile saved, and only then
+/// the report moved into place: a run that fails or is stopped leaves neither a report of a
+/// profile that was never written nor a folder of its own.
+pub(crate) fn save_with_report(
+    profile: &CameraProfile,
+    out: &Path,
+    report: Option<&Path>,
+    write_report: impl FnOnce(&Path) -> std::io::Result<()>,
+) -> Result<()> {
+    let staged = report
+        .map(
+            |dir| -> std::result::Result<_, Box<dyn std::error::Error + Send + Sync>> {
+                let stage = emccd_io::StagedDir::beside(dir)?;
+                write_report(stage.path())?;
+                Ok(stage)
+            },
+        )
+        .transpose()
+        .map_err(|source| Error::Write {
+            what: format!("the report to {}", report.unwrap_or(out).display()),
+            source,
+        })?;
+    profile.save(out).map_err(|e| Error::Write {
+        what: format!("the profile to {}", out.display()),
+        source: Box::new(e),
+    })?;
+    if let (Some(stage), Some(dir)) = (staged, report) {
+        stage.place().map_err(|e| Error::Write {
+            what: format!("the report to {}", dir.display()),
+            source: Box::new(e),
+        })?;
+    }
+    Ok(())
+}
+
+pub(crate) type Draw<'a> = DrawingArea<SVGBackend<'a>, plotters::coord::Shift>;
+pub(crate) type PlotResult = std::result::Result<(), Box<dyn std::error::Error>>;
 
 /// Renders one SVG chart into a string.
-fn svg(w: u32, h: u32, f: impl FnOnce(&Draw<'_>) -> PlotResult) -> String {
+pub(crate) fn svg(w: u32, h: u32, f: impl FnOnce(&Draw<'_>) -> PlotResult) -> String {
     let mut s = String::new();
     {
         let root = SVGBackend::with_string(&mut s, (w, h)).into_drawing_area();
@@ -71,7 +82,7 @@ fn svg(w: u32, h: u32, f: impl FnOnce(&Draw<'_>) -> PlotResult) -> String {
     s
 }
 
-fn range(v: impl Iterator<Item = f64> + Clone, log: bool) -> (f64, f64) {
+pub(crate) fn range(v: impl Iterator<Item = f64> + Clone, log: bool) -> (f64, f64) {
     let ok = |x: &f64| x.is_finite() && (!log || *x > 0.0);
     let lo = v.clone().filter(ok).fold(f64::INFINITY, f64::min);
     let hi = v.filter(ok).fold(f64::NEG_INFINITY, f64::max);
@@ -141,7 +152,7 @@ fn heat_map(map: &[f32], w: usize, h: usize, unit: &str) -> String {
     )
 }
 
-fn esc(s: &str) -> String {
+pub(crate) fn esc(s: &str) -> String {
     s.replace('&', "&amp;")
         .replace('<', "&lt;")
         .replace('>', "&gt;")
@@ -416,7 +427,7 @@ fn gain_plots(c: &Calibration) -> (String, String) {
     (hist, gains)
 }
 
-fn row(out: &mut String, name: &str, value: String, note: &str) {
+pub(crate) fn row(out: &mut String, name: &str, value: String, note: &str) {
     let _ = writeln!(
         out,
         "<tr><td>{}</td><td>{}</td><td>{}</td></tr>",

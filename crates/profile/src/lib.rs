@@ -277,6 +277,9 @@ pub struct ProfileSummary {
     pub fingerprint: String,
 }
 
+/// The provenance source of a profile characterized from a recording.
+pub const RECORDING_SOURCE: &str = "characterized from a recording";
+
 /// The largest EM gain a profile may hold (EMCCD registers reach about 1000; some modes more).
 pub const MAX_EM_GAIN: f64 = 1e4;
 /// The longest exposure a profile may hold, seconds (about 2.8 hours).
@@ -380,6 +383,13 @@ impl CameraProfile {
     /// preprocessing removes with it. A modeled profile's pattern is the bias alone.
     pub fn fpn_holds_spurious(&self) -> bool {
         self.provenance.source == "calibrated"
+    }
+
+    /// Whether the profile was characterized from a recording (`emccd calibrate
+    /// --from-recording`, or a command run without `--profile`) rather than calibrated from a
+    /// calibration acquisition.
+    pub fn from_recording(&self) -> bool {
+        self.provenance.source == RECORDING_SOURCE
     }
 
     /// Whether bias frames were calibrated (FPN and read-noise maps exist).

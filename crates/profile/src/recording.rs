@@ -38,6 +38,12 @@ impl Recording {
         let checked = match (exposure_s, info.metadata.exposure_s) {
             (Some(t), _) => Ok((t, source)),
             (None, Some(t)) => Ok((t, "the file header")),
+            // A profile characterized from a recording holds one fixed pattern, flat in
+            // exposure: where the header says nothing, the recording is taken at its exposure.
+            (None, None) if profile.from_recording() && profile.exposures_s.len() == 1 => Ok((
+                profile.exposures_s[0],
+                "the profile characterized from a recording",
+            )),
             (None, None) => Err(Error::Parameter(format!(
                 "the header records no exposure; pass {source}"
             ))),

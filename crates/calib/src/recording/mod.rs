@@ -1,0 +1,691 @@
+//! A camera characterized from a recording itself: no bias, flat or blooming stacks.
+//!
+//! At EMCCD light levels a recording carries its own calibration (Harpsøe et al. 2012, Foi et
+//! al. 2008, applied to the EM register):
+//!
+//! 1. **The darkest pixels** are chosen by their neighbours' mean (never by their own values,
+//!    so the choice leaves their distribution as it is).
+//! 2. **The register's gain and the read noise**: their differences — two frames of one pixel
+//!    in a movie, two neighbouring pixels in one frame — cancel the bias and the fixed pattern;
+//!    the Gaussian core is the read noise, the exponential tails the single electrons' mean
+//!    output `K` in DN ([`em::Form::Differences`]).
+//! 3. **The bias**: the zero-electron peak of the same pixels' values, with `K` known
+//!    ([`em::Form::Values`]).
+//! 4. **The photon-transfer slope** `s = K·f²`: in a movie, the temporal variance of blocks
+//!    against their level ([`ptc`]), where the scene holds still; in one frame, `2K` (the
+//!    theoretical excess noise of a many-stage register, `f² = 2`).
+//!
+//! What cannot be estimated is said (no dark pixels: no bias; too few electrons in them: no
+//! gain), never guessed.
+
+pub mod em;
+pub mod ptc;
+pub mod report;
+
+use emccd_profile::{CameraProfile, FpnFit, FpnForm, ProfileMaps, Provenance};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::{Error, Result};
+
+/// A number and its standard error (NaN where none could be given).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Estimate {
+    /// The value.
+    pub value: f64,
+    /// Its standard error.
+    pub se: f64,
+}
+
+impl Estimate {
+    fn new(value: f64, se: f64) -> Estimate {
+        Estimate { value, se }
+    }
+}
+
+/// Where the photon-transfer slope came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SlopeFrom {
+    /// The movie's temporal mean–variance line.
+    TemporalPtc,
+    /// Twice the register's single-electron gain (one frame: `f² = 2` assumed).
+    EmTail,
+}
+
+/// The fewest values of dark pixels a characterization uses.
+pub const MIN_DARK_VALUES: usize = 2000;
+/// The largest number of values held ([`frames_to_hold`]): 32 M, 128 MB of `f32`.
+pub const MAX_VALUES: usize = 1 << 25;
+
+/// How many of a recording's `frames` of `width × height` a characterization reads: all, up to
+/// [`MAX_VALUES`] values (at least one frame).
+pub fn frames_to_hold(frames: usize, width: usize, height: usize) -> usize {
+    frames.min((MAX_VALUES / (width * height).max(1)).max(1))
+}
+
+/// What a recording says about its camera.
+#[derive(Clone, Debug, Serialize)]
+pub struct Characterization {
+    /// Frame width, px.
+    pub width: usize,
+    /// Frame height, px.
+    pub height: usize,
+    /// Frames used.
+    pub frames: usize,
+    /// The bias (the zero-electron peak), DN.
+    pub bias_dn: Estimate,
+    /// The read noise of one value, DN: in a movie the temporal read noise (the fixed pattern
+    /// cancelled); in one frame the read noise and the pixel-to-pixel pattern together.
+    pub read_noise_dn: Estimate,
+    /// The spread of the bias from pixel to pixel, DN, where a movie separates it.
+    pub pattern_dn: Option<f64>,
+    /// The register's mean output per electron, DN (`K`, the EM tail's scale).
+    pub gain_dn: Option<Estimate>,
+    /// The photon-transfer slope `s = K·f²`, DN per DN.
+    pub slope_dn: Estimate,
+    /// Where the slope came from.
+    pub slope_from: SlopeFrom,
+    /// `f² = s/K`, where both were measured.
+    pub excess_f2: Option<Estimate>,
+    /// Electrons per frame in the darkest pixels (their light, dark current and clock-induced
+    /// charge: an upper bound on the spurious charge).
+    pub dark_electrons: Estimate,
+    /// The recording's mean light level, photoelectrons per pixel per frame (`s/2` DN each, the
+    /// profile's conversion).
+    pub mean_electrons: f64,
+    /// The value at which the recording saturates, where it reaches one.
+    pub saturation_dn: Option<f64>,
+    /// The pooled values of the dark pixels, and their fit.
+    #[serde(skip)]
+    pub values: em::Histogram,
+    /// The values' fit.
+    #[serde(skip)]
+    pub values_fit: em::Fit,
+    /// The dark pixels' differences, and their fit.
+    #[serde(skip)]
+    pub differences: em::Histogram,
+    /// The differences' fit.
+    #[serde(skip)]
+    pub differences_fit: em::Fit,
+    /// The movie's photon-transfer curve.
+    #[serde(skip)]
+    pub curve: Option<ptc::Curve>,
+    /// What a reader should know: assumptions made, what could not be measured.
+    pub notes: Vec<String>,
+}
+
+/// Characterizes the camera from `frames` (each `width × height`, raw DN, one or more).
+pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<Characterization> {
+    let n = width * height;
+    if frames.is_empty() {
+        return Err(Error::Fit("the recording holds no frames".into()));
+    }
+    if let Some(f) = frames.iter().position(|f| f.len() != n) {
+        return Err(Error::Fit(format!(
+            "frame {} holds {} values, not {width}×{height}",
+            f + 1,
+            frames[f].len()
+        )));
+    }
+    if width < 8 || height < 8 || frames.len() * n < 4 * MIN_DARK_VALUES {
+        return Err(Error::Fit(format!(
+            "{width}×{height} px × {} frame(s) is too little to characterize a camera from: its darkest tenth must hold at least {MIN_DARK_VALUES} values (a recording of at least {} values, e.g. 32×32 px × 8 frames); calibrate the camera (`emccd calibrate`) or pass --profile",
+            frames.len(),
+            10 * MIN_DARK_VALUES
+        )));
+    }
+    if let Some((f, i)) = frames
+        .iter()
+        .enumerate()
+        .find_map(|(f, v)| v.iter().position(|x| !x.is_finite()).map(|i| (f, i)))
+    {
+        return Err(Error::Fit(format!(
+            "frame {} has a non-finite value at pixel ({}, {})",
+            f + 1,
+            i % width,
+            i / width
+        )));
+    }
+    let mut notes = Vec::new();
+    let saturation = saturation(frames);
+    let ceiling = saturation.unwrap_or(f64::INFINITY);
+    let saturated = frames
+        .par_iter()
+        .map(|f| f.iter().filter(|&&v| v as f64 >= ceiling).count())
+        .sum::<usize>();
+    if saturated * 2 > frames.len() * n {
+        return Err(Error::Fit(format!(
+            "{:.0} % of the values are at the recording's maximum ({} DN): it is saturated, and a saturated pixel says nothing about the camera's noise; record at a lower light level or EM gain, or pass --profile",
+            100.0 * saturated as f64 / (frames.len() * n) as f64,
+            ceiling
+        )));
+    }
+
+    // 1. The darkest pixels, chosen by their neighbours.
+    let (dark, dark_pairs) = darkest(frames, width, height, ceiling);
+    let movie = frames.len() >= 2;
+
+    // 2. Differences: the register's gain and the read noise.
+    let diffs: Vec<f64> = if movie {
+        dark.iter()
+            .flat_map(|&i| {
+                frames
+                    .chunks_exact(2)
+                    .map(move |p| p[1][i] as f64 - p[0][i] as f64)
+            })
+            .collect()
+    } else {
+        dark_pairs
+            .iter()
+            .map(|&i| frames[0][i + 1] as f64 - frames[0][i] as f64)
+            .collect()
+    };
+    if diffs.len() < MIN_DARK_VALUES / 2 {
+        return Err(Error::Fit(format!(
+            "only {} differences of dark pixels: too few to measure the read noise and the register's gain; a longer recording, a larger frame, or --profile",
+            diffs.len()
+        )));
+    }
+    let (differences, d0) = difference_start(&diffs);
+    let differences_fit = em::fit(em::Form::Differences, &differences, d0, em::Free { gain: true, spread: false })
+        .ok_or_else(|| Error::Fit("the dark pixels' differences could not be fitted (no Gaussian core of read noise): this does not look like an EMCCD recording; pass --profile".into()))?;
+    let df = differences_fit.params;
+    let events = df.electrons * differences_fit.values * 2.0;
+    let gain_known = events >= 300.0 && differences_fit.se.gain < 0.25 * df.gain;
+    if !gain_known {
+        notes.push(format!(
+            "the dark pixels hold about {events:.0} electrons: too few to measure the register's gain from its tail"
+        ));
+    }
+
+    // 3. The zero-electron peak of their values: the bias.
+    let values: Vec<f64> = dark
+        .iter()
+        .flat_map(|&i| frames.iter().map(move |f| f[i] as f64))
+        .collect();
+    let (values_hist, v0) = value_start(&values, df.sigma, df.gain);
+    let values_fit = em::fit(em::Form::Values, &values_hist, v0, em::Free { gain: !gain_known, spread: false })
+        .ok_or_else(|| Error::Fit("the dark pixels' values have no zero-electron peak that could be fitted; pass --profile".into()))?;
+    let vf = values_fit.params;
+    let zeros = (-vf.electrons).exp() * values_fit.values;
+    if zeros < 500.0 || !(values_fit.se.bias < vf.sigma) {
+        return Err(Error::Fit(format!(
+            "no zero-electron peak: the darkest pixels hold about {:.1} electrons a frame, so the bias cannot be told from the signal (a recording with a dark background, or a few frames with the shutter closed, shows it); calibrate the camera (`emccd calibrate`) or pass --profile",
+            vf.electrons
+        )));
+    }
+
+    // 4. The photon-transfer slope.
+    let curve = if movie {
+        ptc::curve(frames, width, height, ceiling)
+    } else {
+        None
+    };
+    let (slope, slope_from) = match &curve {
+        Some(c) if c.slope > 0.0 && c.slope_se.is_finite() && c.slope_se < 0.2 * c.slope => {
+            (Estimate::new(c.slope, c.slope_se), SlopeFrom::TemporalPtc)
+        }
+        _ if gain_known => {
+            if movie {
+                notes.push("the movie's mean–variance line could not be fitted (too little still scene): the slope is twice the register's gain".into());
+            }
+            notes.push("the photon-transfer slope is 2K: the excess noise of a many-stage register (f² = 2) is assumed, not measured".into());
+            (
+                Estimate::new(2.0 * df.gain, 2.0 * differences_fit.se.gain),
+                SlopeFrom::EmTail,
+            )
+        }
+        _ => {
+            return Err(Error::Fit(format!(
+                "the DN per photoelectron could not be measured: the dark pixels hold too few electrons for the register's tail{}; a longer movie of a still scene, or --profile",
+                if movie { " and the movie too little still scene for its mean–variance line" } else { ", and one frame has no mean–variance line" }
+            )))
+        }
+    };
+    let gain_dn = gain_known.then(|| Estimate::new(df.gain, differences_fit.se.gain));
+    let excess_f2 = gain_dn
+        .filter(|_| slope_from == SlopeFrom::TemporalPtc)
+        .map(|g| {
+            let f2 = slope.value / g.value;
+            Estimate::new(
+                f2,
+                f2 * ((slope.se / slope.value).powi(2) + (g.se / g.value).powi(2)).sqrt(),
+            )
+        });
+    let (read_noise_dn, pattern_dn) = if movie {
+        (
+            Estimate::new(df.sigma, differences_fit.se.sigma),
+            Some((vf.sigma.powi(2) - df.sigma.powi(2)).max(0.0).sqrt()),
+        )
+    } else {
+        notes.push(
+            "from one frame the read noise holds the pixel-to-pixel fixed pattern too".into(),
+        );
+        (Estimate::new(df.sigma, differences_fit.se.sigma), None)
+    };
+
+    // The light level, in the profile's photoelectrons (s/2 DN each).
+    // Per frame in parallel, then summed in order: the same number for any thread count.
+    let per_frame: Vec<(f64, usize)> = frames
+        .par_iter()
+        .map(|f| {
+            f.iter()
+                .filter(|&&v| (v as f64) < ceiling)
+                .fold((0.0, 0usize), |(s, c), &v| (s + v as f64, c + 1))
+        })
+        .collect();
+    let (sum, count) = per_frame
+        .iter()
+        .fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let mean_electrons = (sum / count.max(1) as f64 - vf.bias) / (slope.value / 2.0);
+    if saturation.is_some() && saturated > 0 {
+        notes.push(format!(
+            "{saturated} values at the recording's maximum ({ceiling} DN) were left out as saturated"
+        ));
+    }
+    Ok(Characterization {
+        width,
+        height,
+        frames: frames.len(),
+        bias_dn: Estimate::new(vf.bias, values_fit.se.bias),
+        read_noise_dn,
+        pattern_dn,
+        gain_dn,
+        slope_dn: slope,
+        slope_from,
+        excess_f2,
+        dark_electrons: Estimate::new(df.electrons, differences_fit.se.electrons),
+        mean_electrons,
+        saturation_dn: saturation,
+        values: values_hist,
+        values_fit,
+        differences,
+        differences_fit,
+        curve,
+        notes,
+    })
+}
+
+/// The recording's maximum, where enough values sit on it to be a ceiling (at least 3, and one
+/// in 10⁵): an ADC's or a full well's, not a bright pixel's.
+fn saturation(frames: &[Vec<f32>]) -> Option<f64> {
+    let max = frames
+        .par_iter()
+        .map(|f| f.iter().copied().fold(f32::MIN, f32::max))
+        .reduce(|| f32::MIN, f32::max);
+    let at = frames
+        .par_iter()
+        .map(|f| f.iter().filter(|&&v| v == max).count())
+        .sum::<usize>();
+    let all = frames.len() * frames[0].len();
+    (at >= 3 && at * 100_000 >= all).then_some(max as f64)
+}
+
+/// The darkest pixels by their neighbours' mean over all frames: the pixels whose eight
+/// neighbours' mean is in the lowest tenth (more where that holds too few values), and the
+/// horizontal pairs `(i, i + 1)` whose ten neighbours' mean is. Pixels with a saturated value
+/// are left out.
+fn darkest(
+    frames: &[Vec<f32>],
+    width: usize,
+    height: usize,
+    ceiling: f64,
+) -> (Vec<usize>, Vec<usize>) {
+    let n = width * height;
+    let nf = frames.len() as f64;
+    let mean: Vec<f64> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let mut s = 0.0;
+            for f in frames {
+                let v = f[i] as f64;
+                if v >= ceiling {
+                    return f64::NAN;
+                }
+                s += v;
+            }
+            s / nf
+        })
+        .collect();
+    let at = |x: usize, y: usize| mean[y * width + x];
+    let mut centre = Vec::new();
+    let mut pairs = Vec::new();
+    for y in 1..height - 1 {
+        for x in 1..width - 1 {
+            let mut s = 0.0;
+            for (dx, dy) in [
+                (0, 0),
+                (1, 0),
+                (2, 0),
+                (0, 1),
+                (2, 1),
+                (0, 2),
+                (1, 2),
+                (2, 2),
+            ] {
+                s += at(x + dx - 1, y + dy - 1);
+            }
+            if at(x, y).is_finite() && s.is_finite() {
+                centre.push((s / 8.0, y * width + x));
+            }
+            // The pair (x, x + 1) on even columns, judged by the ring of ten around it.
+            if x % 2 == 1 && x + 2 < width {
+                let mut r = 0.0;
+                for dx in 0..4 {
+                    r += at(x - 1 + dx, y - 1) + at(x - 1 + dx, y + 1);
+                }
+                r += at(x - 1, y) + at(x + 2, y);
+                if at(x, y).is_finite() && at(x + 1, y).is_finite() && r.is_finite() {
+                    pairs.push((r / 10.0, y * width + x));
+                }
+            }
+        }
+    }
+    let pick = |mut v: Vec<(f64, usize)>, per: usize| -> Vec<usize> {
+        v.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let want = (v.len() / 10)
+            .max(MIN_DARK_VALUES.div_ceil(per) * 2)
+            .min(v.len() / 2)
+            .max(1);
+        let mut keep: Vec<usize> = v.into_iter().take(want).map(|p| p.1).collect();
+        keep.sort_unstable();
+        keep
+    };
+    let per = frames.len();
+    (pick(centre, per), pick(pairs, 1))
+}
+
+/// The differences' histogram (to where the register's tail has fallen far below one count) and
+/// a start for their fit: the core's scale from the median |d|, the tail's from the mean
+/// excess beyond five core widths.
+fn difference_start(d: &[f64]) -> (em::Histogram, em::Params) {
+    let abs: Vec<f64> = d.iter().map(|v| v.abs()).collect();
+    let med = emccd_profile::median(abs.iter().copied()).unwrap_or(1.0);
+    let sigma = (1.4826 * med / std::f64::consts::SQRT_2).max(0.5);
+    let t = 5.0 * sigma * std::f64::consts::SQRT_2;
+    let beyond: Vec<f64> = abs.iter().filter(|&&a| a > t).map(|a| a - t).collect();
+    let gain = if beyond.len() >= 20 {
+        (beyond.iter().sum::<f64>() / beyond.len() as f64).max(sigma)
+    } else {
+        3.0 * sigma
+    };
+    let share = beyond.len() as f64 / d.len() as f64;
+    let electrons = (share / (2.0 * (-t / gain).exp())).clamp(1e-4, 2.0);
+    let reach = (emccd_profile::percentile(abs.iter().copied(), 0.9999).unwrap_or(t))
+        .max(12.0 * sigma)
+        .min(12.0 * sigma + 40.0 * gain)
+        .min(30_000.0)
+        .ceil() as i64;
+    (
+        em::Histogram::of(d.iter().copied(), -reach, reach),
+        em::Params {
+            bias: 0.0,
+            sigma,
+            electrons,
+            spread: 0.0,
+            gain,
+            outliers: 1e-4,
+        },
+    )
+}
+
+/// The values' histogram and a start for their fit: the peak from the median and the lower
+/// quartile (below the peak only read noise reaches), the gain from the differences.
+fn value_start(v: &[f64], sigma_d: f64, gain: f64) -> (em::Histogram, em::Params) {
+    let med = emccd_profile::median(v.iter().copied()).unwrap_or(0.0);
+    let q25 = emccd_profile::percentile(v.iter().copied(), 0.25).unwrap_or(med - sigma_d);
+    let q10 = emccd_profile::percentile(v.iter().copied(), 0.10).unwrap_or(med - sigma_d);
+    // The lower half of a normal: the 10th percentile is 1.28 σ below its centre.
+    let sigma = ((med - q25) / 0.6745).max(sigma_d).max(0.5);
+    let bias = (q10 + 1.2816 * sigma).min(med);
+    let lo = (bias - 12.0 * sigma).floor() as i64;
+    let hi = (bias + 12.0 * sigma + 30.0 * gain)
+        .min(bias + 30_000.0)
+        .ceil() as i64;
+    let above = v.iter().filter(|&&x| x > bias + 4.0 * sigma).count() as f64 / v.len() as f64;
+    (
+        em::Histogram::of(v.iter().copied(), lo, hi),
+        em::Params {
+            bias,
+            sigma,
+            electrons: above.clamp(1e-4, 3.0),
+            spread: 0.0,
+            gain,
+            outliers: 1e-4,
+        },
+    )
+}
+
+/// The regime a light level is in.
+pub fn regime(mean_electrons: f64) -> &'static str {
+    if mean_electrons < 0.2 {
+        "photon counting"
+    } else if mean_electrons <= 30.0 {
+        "low light"
+    } else {
+        "bright (above the EMCCD regime)"
+    }
+}
+
+impl Characterization {
+    /// DN per photoelectron as the profile converts (`s/2`).
+    pub fn dn_per_electron(&self) -> f64 {
+        self.slope_dn.value / 2.0
+    }
+
+    /// One line for a person: the numbers the denoiser will use, and the light level.
+    pub fn summary_line(&self) -> String {
+        let gain = match self.gain_dn {
+            Some(g) => format!(", register {:.1} ± {:.1} DN/e⁻", g.value, g.se),
+            None => String::new(),
+        };
+        format!(
+            "{:.2} DN per e⁻ (slope {:.2} ± {:.2} DN from {}{gain}), bias {:.1} ± {:.1} DN, read noise {:.2} ± {:.2} DN; {:.2} e⁻ per pixel per frame: {}",
+            self.dn_per_electron(),
+            self.slope_dn.value,
+            self.slope_dn.se,
+            match self.slope_from {
+                SlopeFrom::TemporalPtc => format!("{} frames' mean–variance", self.frames),
+                SlopeFrom::EmTail => "the EM tail".to_string(),
+            },
+            self.bias_dn.value,
+            self.bias_dn.se,
+            self.read_noise_dn.value,
+            self.read_noise_dn.se,
+            self.mean_electrons,
+            regime(self.mean_electrons)
+        )
+    }
+
+    /// The camera profile these numbers make: a bias map (the peak, flat), one read-noise map at
+    /// `exposure_s`, the slope, no blooming; `em_gain` from the file's header where it records
+    /// one (0: unknown). `source` names the recording(s) in the provenance.
+    pub fn profile(
+        &self,
+        source: &str,
+        exposure_s: f64,
+        em_gain: Option<f64>,
+        adc_max_dn: f64,
+    ) -> Result<CameraProfile> {
+        let n = self.width * self.height;
+        let g = em_gain.unwrap_or(0.0);
+        let mut notes = format!(
+            "characterized from the recording {source} by `emccd calibrate --from-recording` ({} frames): {}",
+            self.frames,
+            self.summary_line()
+        );
+        for note in &self.notes {
+            notes.push_str("; ");
+            notes.push_str(note);
+        }
+        let p = CameraProfile {
+            camera: format!("characterized from {source}"),
+            em_gain: g,
+            width: self.width,
+            height: self.height,
+            ptc_slope_dn: Some(self.slope_dn.value),
+            f_range: [1.3, std::f64::consts::SQRT_2],
+            quantization_dn: 1.0,
+            adc_max_dn,
+            fpn: FpnFit {
+                form: FpnForm::Constant,
+                base_exposure_s: exposure_s,
+                shared_theta: [0.0; 4],
+            },
+            blooming: None,
+            exposures_s: vec![exposure_s],
+            eld: None,
+            // The dark pixels' electrons hold their light too, so the spurious charge is not
+            // known: counting asks for it (--cic) rather than take an upper bound for it.
+            pgn: None,
+            provenance: Provenance {
+                source: RECORDING_SOURCE.into(),
+                notes,
+            },
+            maps: ProfileMaps {
+                fpn_base: vec![self.bias_dn.value as f32; n],
+                fpn_theta: Vec::new(),
+                read_noise: vec![vec![self.read_noise_dn.value as f32; n]],
+            },
+        };
+        p.validate()
+            .map_err(|e| Error::Fit(format!("the characterized profile is inconsistent: {e}")))?;
+        Ok(p)
+    }
+}
+
+impl Characterization {
+    /// Writes `profile` (made by [`Characterization::profile`]) into `out` and, where asked, the
+    /// report into `report`; a failed run leaves nothing it created.
+    pub fn save(
+        &self,
+        profile: &CameraProfile,
+        source: &str,
+        out: &std::path::Path,
+        report: Option<&std::path::Path>,
+    ) -> Result<()> {
+        crate::report::save_with_report(profile, out, report, |dir| {
+            report::write(self, source, dir)
+        })
+    }
+}
+
+/// The frames of one or more recordings of one camera, read for characterization, with what
+/// their headers say.
+pub struct Frames {
+    /// The frames (raw DN), at most [`MAX_VALUES`] values, shared evenly among the files.
+    pub frames: Vec<Vec<f32>>,
+    /// Frame width, px.
+    pub width: usize,
+    /// Frame height, px.
+    pub height: usize,
+    /// The files' exposure, where their headers agree on one.
+    pub exposure_s: Option<f64>,
+    /// The files' EM gain setting, where their headers agree on one.
+    pub em_gain: Option<f64>,
+    /// The largest value the files' sample type holds (the ADC's range for integer samples).
+    pub adc_max_dn: f64,
+    /// The files, for messages and provenance.
+    pub source: String,
+}
+
+/// Reads the first frames of each of `paths` (one camera: the same frame size), at most
+/// [`MAX_VALUES`] values in all.
+pub fn read(paths: &[&std::path::Path]) -> Result<Frames> {
+    if paths.is_empty() {
+        return Err(Error::Fit("no recording to characterize".into()));
+    }
+    let mut readers = Vec::with_capacity(paths.len());
+    for &p in paths {
+        let r = emccd_io::open(p).map_err(|e| Error::io(p, e))?;
+        readers.push((p, r));
+    }
+    let first = readers[0].1.info().clone();
+    let (width, height) = (first.width, first.height);
+    for (p, r) in &readers[1..] {
+        let i = r.info();
+        if (i.width, i.height) != (width, height) {
+            return Err(Error::input(p, format!(
+                "frames are {}×{}, those of {} are {width}×{height}: one characterization is for one camera and readout",
+                i.width, i.height, paths[0].display()
+            )));
+        }
+    }
+    let agree = |f: &dyn Fn(&emccd_io::StackInfo) -> Option<f64>| -> Option<f64> {
+        let v = f(readers[0].1.info())?;
+        readers
+            .iter()
+            .all(|(_, r)| f(r.info()).is_some_and(|w| (w - v).abs() <= 1e-9 * v.abs()))
+            .then_some(v)
+    };
+    let exposure_s = agree(&|i| i.metadata.exposure_s);
+    let em_gain = agree(&|i| i.metadata.em_gain);
+    let adc_max_dn = readers
+        .iter()
+        .map(|(_, r)| match r.info().pixel_type {
+            emccd_io::PixelType::U8 => 255.0,
+            emccd_io::PixelType::U16 | emccd_io::PixelType::I16 => 65535.0,
+            _ => 2f64.powi(32),
+        })
+        .fold(0.0, f64::max);
+    let total = frames_to_hold(
+        readers.iter().map(|(_, r)| r.info().frames).sum(),
+        width,
+        height,
+    );
+    let share = total.div_ceil(readers.len()).max(1);
+    let mut frames = Vec::new();
+    for (p, r) in &mut readers {
+        for _ in 0..share.min(r.info().frames) {
+            let mut buf = vec![0f32; width * height];
+            if !r.read_frame(&mut buf).map_err(|e| Error::io(p, e))? {
+                break;
+            }
+            frames.push(buf);
+        }
+    }
+    let source = paths
+        .iter()
+        .map(|p| p.display().to_string())
+        .collect::<Vec<_>>()
+        .join(", ");
+    Ok(Frames {
+        frames,
+        width,
+        height,
+        exposure_s,
+        em_gain,
+        adc_max_dn,
+        source,
+    })
+}
+
+/// Exposure a profile made from a recording whose header records none is given: the fixed
+/// pattern it holds is the recording's own, flat in exposure, so the number only labels it.
+pub const NOMINAL_EXPOSURE_S: f64 = 1.0;
+
+impl Frames {
+    /// Characterizes the camera from these frames ([`characterize`]), each error naming the
+    /// files.
+    pub fn characterize(&self) -> Result<Characterization> {
+        characterize(&self.frames, self.width, self.height)
+            .map_err(|e| Error::Fit(format!("{}: {e}", self.source)))
+    }
+
+    /// The profile of `c` (characterized from these frames) at their exposure (or
+    /// [`NOMINAL_EXPOSURE_S`]) and EM gain.
+    pub fn profile(&self, c: &Characterization) -> Result<CameraProfile> {
+        c.profile(
+            &self.source,
+            self.exposure_s.unwrap_or(NOMINAL_EXPOSURE_S),
+            self.em_gain,
+            self.adc_max_dn,
+        )
+    }
+}
+
+pub use emccd_profile::RECORDING_SOURCE;
+
+#[cfg(test)]
+mod tests;

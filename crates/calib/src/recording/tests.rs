@@ -1,0 +1,215 @@
+//! The characterization against cameras of known truth: frames drawn from the
+//! Poisson–Gamma–Normal chain (photoelectrons, an exponential per electron out of the register,
+//! Gaussian read noise, a bias, whole DN, a 16-bit ceiling) over fluorescence-like scenes.
+
+use super::*;
+use rand::{Rng, SeedableRng};
+use rand_distr::{Distribution, Gamma, Normal, Poisson};
+
+/// A camera: DN per electron out of the register, read noise, bias (DN).
+#[derive(Clone, Copy)]
+struct Camera {
+    k: f64,
+    sigma: f64,
+    bias: f64,
+}
+
+/// The issue's camera: 75 DN per photoelectron, bias 500 DN, read noise 11 DN.
+const USER: Camera = Camera {
+    k: 75.0,
+    sigma: 11.0,
+    bias: 500.0,
+};
+/// A low-gain, low-noise one: 15 DN per electron, 5 DN read noise, bias 100 DN.
+const LOW: Camera = Camera {
+    k: 15.0,
+    sigma: 5.0,
+    bias: 100.0,
+};
+
+/// Cells on a dark background: blobs of 3–8 px over 3 % of the brightest level, scaled to a
+/// mean of `mean` electrons per pixel; `(dx, dy)` shifts it (px) for moving scenes.
+fn scene(w: usize, h: usize, mean: f64, shift: (f64, f64), seed: u64) -> Vec<f64> {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+    let blobs: Vec<(f64, f64, f64, f64)> = (0..(w * h / 600).max(4))
+        .map(|_| {
+            (
+                rng.random::<f64>() * w as f64,
+                rng.random::<f64>() * h as f64,
+                rng.random_range(3.0..8.0),
+                rng.random_range(0.3..1.0),
+            )
+        })
+        .collect();
+    let mut s: Vec<f64> = (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as f64 - shift.0, (i / w) as f64 - shift.1);
+            0.03 + blobs
+                .iter()
+                .map(|&(bx, by, r, a)| {
+                    a * (-((x - bx).powi(2) + (y - by).powi(2)) / (2.0 * r * r)).exp()
+                })
+                .sum::<f64>()
+        })
+        .collect();
+    let m = s.iter().sum::<f64>() / s.len() as f64;
+    s.iter_mut().for_each(|v| *v *= mean / m);
+    s
+}
+
+/// One frame of `scene` (electrons) through `cam`.
+fn frame(cam: Camera, scene: &[f64], rng: &mut rand_pcg::Pcg64) -> Vec<f32> {
+    let noise = Normal::new(0.0, cam.sigma).unwrap();
+    scene
+        .iter()
+        .map(|&l| {
+            let n = if l > 0.0 {
+                Poisson::new(l).unwrap().sample(rng) as u32
+            } else {
+                0
+            };
+            let em = if n > 0 {
+                Gamma::new(n as f64, cam.k).unwrap().sample(rng)
+            } else {
+                0.0
+            };
+            (cam.bias + em + noise.sample(rng))
+                .round()
+                .clamp(0.0, 65535.0) as f32
+        })
+        .collect()
+}
+
+/// A movie of `frames` frames; `drift` px a frame to the right.
+fn movie(
+    cam: Camera,
+    w: usize,
+    h: usize,
+    mean: f64,
+    frames: usize,
+    drift: f64,
+    seed: u64,
+) -> Vec<Vec<f32>> {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed + 1000);
+    (0..frames)
+        .map(|t| {
+            frame(
+                cam,
+                &scene(w, h, mean, (drift * t as f64, 0.0), seed),
+                &mut rng,
+            )
+        })
+        .collect()
+}
+
+/// The targets of issue 67: the slope (2K, this camera's f² being 2) within 5 %, the bias
+/// within 1 DN, the read noise within 5 %.
+fn check(c: &Characterization, cam: Camera, what: &str) {
+    let s = 2.0 * cam.k;
+    assert!(
+        (c.slope_dn.value / s - 1.0).abs() < 0.05,
+        "{what}: slope {} ± {} vs {s}",
+        c.slope_dn.value,
+        c.slope_dn.se
+    );
+    assert!(
+        (c.bias_dn.value - cam.bias).abs() < 1.0,
+        "{what}: bias {} ± {}",
+        c.bias_dn.value,
+        c.bias_dn.se
+    );
+    // Where the darkest pixels hold a few electrons a frame (16 e⁻ on average) the core of
+    // read noise is small and the fit says so in its error: the truth within four of them.
+    let tol = (0.05 * cam.sigma).max(4.0 * c.read_noise_dn.se);
+    assert!(
+        (c.read_noise_dn.value - cam.sigma).abs() < tol,
+        "{what}: read noise {} ± {}",
+        c.read_noise_dn.value,
+        c.read_noise_dn.se
+    );
+}
+
+#[test]
+fn a_still_movie_gives_its_camera_at_every_level() {
+    for (i, &mean) in [0.5, 1.0, 4.0, 16.0].iter().enumerate() {
+        for (j, cam) in [USER, LOW].into_iter().enumerate() {
+            let frames = movie(cam, 128, 128, mean, 20, 0.0, (10 * i + j) as u64);
+            let c = characterize(&frames, 128, 128).unwrap();
+            check(&c, cam, &format!("{mean} e⁻, camera {j}"));
+            assert_eq!(c.slope_from, SlopeFrom::TemporalPtc);
+            assert!(
+                (c.mean_electrons / mean - 1.0).abs() < 0.05,
+                "{mean}: {}",
+                c.mean_electrons
+            );
+            // The temporal line's error is honest: the truth within four of them.
+            assert!(
+                (c.slope_dn.value - 2.0 * cam.k).abs() < 4.0 * c.slope_dn.se,
+                "{mean} e⁻: {} ± {}",
+                c.slope_dn.value,
+                c.slope_dn.se
+            );
+        }
+    }
+}
+
+#[test]
+fn a_drifting_movie_gives_its_camera() {
+    for (i, &mean) in [1.0, 4.0].iter().enumerate() {
+        let frames = movie(USER, 128, 128, mean, 20, 1.3, 40 + i as u64);
+        let c = characterize(&frames, 128, 128).unwrap();
+        check(&c, USER, &format!("drift at {mean} e⁻"));
+    }
+}
+
+#[test]
+fn one_frame_gives_its_camera_at_low_light() {
+    // At 4 e⁻ the darkest pixels hold about half an electron and their rates differ: the read
+    // noise comes out about 9 % high there (docs/calibration.md), so the targets are held at
+    // 0.5 and 1 e⁻.
+    for (i, &mean) in [0.5, 1.0].iter().enumerate() {
+        let frames = movie(USER, 256, 256, mean, 1, 0.0, 60 + i as u64);
+        let c = characterize(&frames, 256, 256).unwrap();
+        assert_eq!(c.slope_from, SlopeFrom::EmTail);
+        check(&c, USER, &format!("one frame at {mean} e⁻"));
+    }
+}
+
+#[test]
+fn what_cannot_be_estimated_is_said() {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+    // Bright everywhere: no zero-electron pixel.
+    let bright: Vec<Vec<f32>> = (0..8)
+        .map(|_| frame(USER, &vec![25.0; 64 * 64], &mut rng))
+        .collect();
+    let e = characterize(&bright, 64, 64).unwrap_err().to_string();
+    assert!(e.contains("no zero-electron peak"), "{e}");
+    // Saturated.
+    let sat = vec![vec![65535.0f32; 64 * 64]; 4];
+    let e = characterize(&sat, 64, 64).unwrap_err().to_string();
+    assert!(e.contains("saturated"), "{e}");
+    // One frame of 8×8.
+    let e = characterize(&[vec![500.0; 64]], 8, 8)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("too little"), "{e}");
+    // A photograph: smooth, noiseless, 8-bit.
+    let photo: Vec<f32> = (0..128 * 128)
+        .map(|i| {
+            (((i % 128) as f64 * 0.05).sin() * 60.0 + 120.0 + (i / 128) as f64 * 0.3).round() as f32
+        })
+        .collect();
+    let e = characterize(&[photo], 128, 128).unwrap_err().to_string();
+    assert!(!e.is_empty());
+}
+
+#[test]
+fn the_profile_says_where_it_came_from() {
+    let frames = movie(USER, 64, 64, 1.0, 16, 0.0, 80);
+    let c = characterize(&frames, 64, 64).unwrap();
+    let p = c.profile("rec.tif", 0.01, Some(300.0), 65535.0).unwrap();
+    assert_eq!(p.provenance.source, RECORDING_SOURCE);
+    assert!((p.bias_dn() - c.bias_dn.value).abs() < 1e-3);
+    assert_eq!(p.ptc_slope_dn, Some(c.slope_dn.value));
+    assert!(p.summary_text().contains("characterized from"));
+}
