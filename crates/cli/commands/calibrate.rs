@@ -22,11 +22,21 @@ use crate::common::progress;
 /// exposure_s may be left out where the file's header records it (SIF). Any subset works:
 /// flats alone give the photon-transfer slope, bias alone the FPN and read noise; what is missing
 /// is reported and left out of the profile. Nothing is written unless every input is good.
+///
+/// Without a calibration acquisition, --from-recording FILE... characterizes the camera from
+/// plain recordings (movies or single frames at EMCCD light levels, with some dark background):
+/// the bias and read noise from the dark pixels' zero-electron peak and their differences, the
+/// DN per photoelectron from a movie's temporal mean–variance (or, from one frame, from the EM
+/// register's tail). Several files are one camera and readout, pooled.
 #[derive(clap::Args, Debug)]
 #[command(verbatim_doc_comment)]
 pub struct Args {
     /// The calibration manifest (TOML).
-    pub manifest: PathBuf,
+    #[arg(required_unless_present = "from_recording", conflicts_with = "from_recording")]
+    pub manifest: Option<PathBuf>,
+    /// Characterize the camera from these recordings instead of a calibration acquisition.
+    #[arg(long, num_args = 1.., value_name = "FILE")]
+    pub from_recording: Vec<PathBuf>,
     /// Output profile directory (profile.toml + maps.safetensors).
     #[arg(short, long)]
     pub out: PathBuf,
@@ -49,7 +59,10 @@ impl Progress for Bar {
 
 pub fn run(a: Args) -> Result<()> {
     crate::common::refuse_replacing(&a.out, "profile.toml", "a camera profile", a.force)?;
-    let m = Manifest::load(&a.manifest)?;
+    let Some(manifest) = &a.manifest else {
+        return from_recording(&a);
+    };
+    let m = Manifest::load(manifest)?;
     let bar = Bar(progress(emccd_calib::total_frames(&m), "frames"));
     let cal = emccd_calib::calibrate(&m, &a.options, &bar);
     bar.0.finish_and_clear();
@@ -59,6 +72,33 @@ pub fn run(a: Args) -> Result<()> {
     }
     cal.save(&a.out, a.report.as_deref())?;
     print!("{}", cal.summary());
+    eprintln!("profile written to {}", a.out.display());
+    if let Some(dir) = &a.report {
+        eprintln!("report written to {}", dir.join("index.html").display());
+    }
+    Ok(())
+}
+
+/// `--from-recording`: the camera characterized from the recordings, written as a profile (and
+/// a report).
+fn from_recording(a: &Args) -> Result<()> {
+    let paths: Vec<&std::path::Path> = a.from_recording.iter().map(PathBuf::as_path).collect();
+    for out in std::iter::once(&a.out).chain(a.report.as_ref()) {
+        if let Some(p) = paths.iter().find(|p| p.starts_with(out) || *p == out) {
+            anyhow::bail!(
+                "{}: is an input (or inside one of the outputs); write the profile and report elsewhere",
+                p.display()
+            );
+        }
+    }
+    let frames = emccd_calib::recording::read(&paths)?;
+    let c = frames.characterize()?;
+    let profile = frames.profile(&c)?;
+    c.save(&profile, &frames.source, &a.out, a.report.as_deref())?;
+    println!("{}: {}", frames.source, c.summary_line());
+    for n in &c.notes {
+        println!("  note: {n}");
+    }
     eprintln!("profile written to {}", a.out.display());
     if let Some(dir) = &a.report {
         eprintln!("report written to {}", dir.join("index.html").display());

@@ -254,10 +254,30 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
             )
         });
     let (read_noise_dn, pattern_dn) = if movie {
-        (
-            Estimate::new(df.sigma, differences_fit.se.sigma),
-            Some((vf.sigma.powi(2) - df.sigma.powi(2)).max(0.0).sqrt()),
-        )
+        let temporal = Estimate::new(df.sigma, differences_fit.se.sigma);
+        let peak = Estimate::new(vf.sigma, values_fit.se.sigma);
+        // Where the dark pixels hold a few electrons a frame the differences' core is small:
+        // the peak's width (an upper bound, holding the pattern) is taken where it is the
+        // better measured.
+        let better = |e: Estimate| e.se.is_finite() && e.se < 0.1 * e.value;
+        if better(temporal) || !better(peak) {
+            if !better(temporal) {
+                notes.push(format!(
+                    "the read noise is poorly measured ({:.2} ± {:.2} DN): the darkest pixels hold {:.1} electrons a frame",
+                    temporal.value, temporal.se, df.electrons
+                ));
+            }
+            (
+                temporal,
+                Some((vf.sigma.powi(2) - df.sigma.powi(2)).max(0.0).sqrt()),
+            )
+        } else {
+            notes.push(format!(
+                "the read noise is the zero-electron peak's width ({:.2} ± {:.2} DN, the pixel-to-pixel pattern included): the frame differences' core, {:.2} ± {:.2} DN, is poorly measured where the darkest pixels hold {:.1} electrons a frame",
+                peak.value, peak.se, temporal.value, temporal.se, df.electrons
+            ));
+            (peak, None)
+        }
     } else {
         notes.push(
             "from one frame the read noise holds the pixel-to-pixel fixed pattern too".into(),
