@@ -213,3 +213,37 @@ fn the_profile_says_where_it_came_from() {
     assert_eq!(p.ptc_slope_dn, Some(c.slope_dn.value));
     assert!(p.summary_text().contains("characterized from"));
 }
+
+/// A recording on disk to a profile folder and its report, as `calibrate --from-recording`
+/// writes them: the profile loads back, says where it came from, and takes the recording's own
+/// exposure where its header records none.
+#[test]
+fn a_file_becomes_a_profile_and_a_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("rec.tif");
+    let frames = movie(LOW, 64, 64, 1.0, 12, 0.0, 90);
+    let mut w = emccd_io::StackWriter::create(&path, 64, 64, emccd_io::SampleFormat::U16, Some(12)).unwrap();
+    for f in &frames {
+        w.write_frame(f).unwrap();
+    }
+    w.finish().unwrap();
+    let read = read(&[path.as_path()]).unwrap();
+    assert_eq!(read.frames.len(), 12);
+    assert_eq!(read.adc_max_dn, 65535.0);
+    let c = read.characterize().unwrap();
+    check(&c, LOW, "from a file");
+    let p = read.profile(&c).unwrap();
+    let (out, rep) = (dir.path().join("prof"), dir.path().join("rep"));
+    c.save(&p, &read.source, &out, Some(&rep)).unwrap();
+    let back = CameraProfile::load(&out).unwrap();
+    assert!(back.from_recording());
+    assert_eq!(back.ptc_slope_dn, p.ptc_slope_dn);
+    let html = std::fs::read_to_string(rep.join("index.html")).unwrap();
+    assert!(html.contains("zero-electron peak") && html.contains("<svg"), "report");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(rep.join("results.json")).unwrap()).unwrap();
+    assert!((json["slope_dn"]["value"].as_f64().unwrap() - c.slope_dn.value).abs() < 1e-9);
+    // Opened through its own profile, the header's missing exposure is the profile's.
+    let r = emccd_profile::Recording::open(&path, &back, None, "--exposure-s", false).unwrap();
+    assert_eq!(r.exposure, NOMINAL_EXPOSURE_S);
+}
