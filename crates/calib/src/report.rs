@@ -564,16 +564,18 @@ fn fitted_rows(c: &Calibration, t: &mut String) {
     }
 }
 
+/// The style both reports' pages share.
+pub(crate) const STYLE: &str = "body{font-family:sans-serif;max-width:1200px;margin:20px auto;color:#222} h2{border-bottom:1px solid #ccc;margin-top:32px}\
+table{border-collapse:collapse;font-size:14px} td,th{border:1px solid #ccc;padding:3px 8px;text-align:left}\
+.row{display:flex;flex-wrap:wrap;gap:16px;align-items:flex-start} .heat{display:flex;gap:6px;align-items:stretch}\
+.bar{display:flex;flex-direction:column;justify-content:space-between;font-size:12px} .bar div{flex:1;width:16px;margin:2px 0}\
+.missing{background:#fff4e0;padding:6px 10px} .warn{background:#fde8e8;padding:6px 10px}";
+
 /// The page up to the fitted-numbers table: title, style, what was not calibrated, warnings.
 fn page_head(c: &Calibration, h: &mut String) {
     let _ = write!(
         h,
-        "<!doctype html><html><head><meta charset=utf-8><title>emccd calibration — {cam}</title><style>\
-body{{font-family:sans-serif;max-width:1200px;margin:20px auto;color:#222}} h2{{border-bottom:1px solid #ccc;margin-top:32px}}\
-table{{border-collapse:collapse;font-size:14px}} td,th{{border:1px solid #ccc;padding:3px 8px;text-align:left}}\
-.row{{display:flex;flex-wrap:wrap;gap:16px;align-items:flex-start}} .heat{{display:flex;gap:6px;align-items:stretch}}\
-.bar{{display:flex;flex-direction:column;justify-content:space-between;font-size:12px}} .bar div{{flex:1;width:16px;margin:2px 0}}\
-.missing{{background:#fff4e0;padding:6px 10px}} .warn{{background:#fde8e8;padding:6px 10px}}</style></head><body>\
+        "<!doctype html><html><head><meta charset=utf-8><title>emccd calibration — {cam}</title><style>{STYLE}</style></head><body>\
 <h1>Calibration of {cam}</h1><p>EM gain {g} · {w}×{hh} px · manifest <code>{man}</code></p>",
         cam = esc(&c.camera),
         g = c.em_gain,

@@ -32,7 +32,10 @@ use crate::common::progress;
 #[command(verbatim_doc_comment)]
 pub struct Args {
     /// The calibration manifest (TOML).
-    #[arg(required_unless_present = "from_recording", conflicts_with = "from_recording")]
+    #[arg(
+        required_unless_present = "from_recording",
+        conflicts_with = "from_recording"
+    )]
     pub manifest: Option<PathBuf>,
     /// Characterize the camera from these recordings instead of a calibration acquisition.
     #[arg(long, num_args = 1.., value_name = "FILE")]
@@ -83,8 +86,21 @@ pub fn run(a: Args) -> Result<()> {
 /// a report).
 fn from_recording(a: &Args) -> Result<()> {
     let paths: Vec<&std::path::Path> = a.from_recording.iter().map(PathBuf::as_path).collect();
+    // The profile and the report are folders, replaced as a whole: no input may be one or lie
+    // inside one, however the paths are spelled.
+    let absolute = |p: &std::path::Path| -> PathBuf {
+        std::fs::canonicalize(p)
+            .or_else(|_| {
+                let name = p.file_name().unwrap_or_default();
+                let parent = p.parent().filter(|d| !d.as_os_str().is_empty());
+                std::fs::canonicalize(parent.unwrap_or(std::path::Path::new(".")))
+                    .map(|d| d.join(name))
+            })
+            .unwrap_or_else(|_| p.to_path_buf())
+    };
     for out in std::iter::once(&a.out).chain(a.report.as_ref()) {
-        if let Some(p) = paths.iter().find(|p| p.starts_with(out) || *p == out) {
+        let dir = absolute(out);
+        if let Some(p) = paths.iter().find(|p| absolute(p).starts_with(&dir)) {
             anyhow::bail!(
                 "{}: is an input (or inside one of the outputs); write the profile and report elsewhere",
                 p.display()

@@ -130,9 +130,9 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
     }
     if width < 8 || height < 8 || frames.len() * n < 4 * MIN_DARK_VALUES {
         return Err(Error::Fit(format!(
-            "{width}×{height} px × {} frame(s) is too little to characterize a camera from: its darkest tenth must hold at least {MIN_DARK_VALUES} values (a recording of at least {} values, e.g. 32×32 px × 8 frames); calibrate the camera (`emccd calibrate`) or pass --profile",
+            "{width}×{height} px × {} frame(s) is too little to characterize a camera from: it needs at least {} values (e.g. 32×32 px × 8 frames), so that its darkest pixels hold {MIN_DARK_VALUES}; calibrate the camera (`emccd calibrate`) or pass --profile",
             frames.len(),
-            10 * MIN_DARK_VALUES
+            4 * MIN_DARK_VALUES
         )));
     }
     if let Some((f, i)) = frames
@@ -148,12 +148,11 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
         )));
     }
     let mut notes = Vec::new();
-    let saturation = saturation(frames);
+    let (saturation, saturated) = match saturation(frames) {
+        Some((max, at)) => (Some(max), at),
+        None => (None, 0),
+    };
     let ceiling = saturation.unwrap_or(f64::INFINITY);
-    let saturated = frames
-        .par_iter()
-        .map(|f| f.iter().filter(|&&v| v as f64 >= ceiling).count())
-        .sum::<usize>();
     if saturated * 2 > frames.len() * n {
         return Err(Error::Fit(format!(
             "{:.0} % of the values are at the recording's maximum ({} DN): it is saturated, and a saturated pixel says nothing about the camera's noise; record at a lower light level or EM gain, or pass --profile",
@@ -299,7 +298,7 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
         .iter()
         .fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     let mean_electrons = (sum / count.max(1) as f64 - vf.bias) / (slope.value / 2.0);
-    if saturation.is_some() && saturated > 0 {
+    if saturated > 0 {
         notes.push(format!(
             "{saturated} values at the recording's maximum ({ceiling} DN) were left out as saturated"
         ));
@@ -328,8 +327,8 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
 }
 
 /// The recording's maximum, where enough values sit on it to be a ceiling (at least 3, and one
-/// in 10⁵): an ADC's or a full well's, not a bright pixel's.
-fn saturation(frames: &[Vec<f32>]) -> Option<f64> {
+/// in 10⁵): an ADC's or a full well's, not a bright pixel's; with the number of values on it.
+fn saturation(frames: &[Vec<f32>]) -> Option<(f64, usize)> {
     let max = frames
         .par_iter()
         .map(|f| f.iter().copied().fold(f32::MIN, f32::max))
@@ -339,7 +338,7 @@ fn saturation(frames: &[Vec<f32>]) -> Option<f64> {
         .map(|f| f.iter().filter(|&&v| v == max).count())
         .sum::<usize>();
     let all = frames.len() * frames[0].len();
-    (at >= 3 && at * 100_000 >= all).then_some(max as f64)
+    (at >= 3 && at * 100_000 >= all).then_some((max as f64, at))
 }
 
 /// The darkest pixels by their neighbours' mean over all frames: the pixels whose eight
@@ -489,6 +488,20 @@ pub fn regime(mean_electrons: f64) -> &'static str {
 }
 
 impl Characterization {
+    /// Writes `profile` (made by [`Characterization::profile`]) into `out` and, where asked, the
+    /// report into `report`; a failed run leaves nothing it created.
+    pub fn save(
+        &self,
+        profile: &CameraProfile,
+        source: &str,
+        out: &std::path::Path,
+        report: Option<&std::path::Path>,
+    ) -> Result<()> {
+        crate::report::save_with_report(profile, out, report, |dir| {
+            report::write(self, source, dir)
+        })
+    }
+
     /// DN per photoelectron as the profile converts (`s/2`).
     pub fn dn_per_electron(&self) -> f64 {
         self.slope_dn.value / 2.0
@@ -572,22 +585,6 @@ impl Characterization {
         p.validate()
             .map_err(|e| Error::Fit(format!("the characterized profile is inconsistent: {e}")))?;
         Ok(p)
-    }
-}
-
-impl Characterization {
-    /// Writes `profile` (made by [`Characterization::profile`]) into `out` and, where asked, the
-    /// report into `report`; a failed run leaves nothing it created.
-    pub fn save(
-        &self,
-        profile: &CameraProfile,
-        source: &str,
-        out: &std::path::Path,
-        report: Option<&std::path::Path>,
-    ) -> Result<()> {
-        crate::report::save_with_report(profile, out, report, |dir| {
-            report::write(self, source, dir)
-        })
     }
 }
 

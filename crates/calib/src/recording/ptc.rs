@@ -104,7 +104,7 @@ pub fn curve(frames: &[Vec<f32>], width: usize, height: usize, ceiling: f64) -> 
     // block first and then again to the still ones.
     let all: Vec<&Point> = points.iter().collect();
     let (mut slope, mut intercept) = weighted(&all)?;
-    let mut still: Vec<Point> = points.clone();
+    let mut still: Vec<Point> = Vec::new();
     for _ in 0..2 {
         still = points
             .iter()

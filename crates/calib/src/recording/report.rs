@@ -10,7 +10,7 @@ use plotters::prelude::*;
 
 use super::em::{self, Form, Histogram};
 use super::Characterization;
-use crate::report::{esc, range, row, svg};
+use crate::report::{esc, range, row, svg, STYLE};
 
 /// A histogram (log counts) with the fit's expected counts over it.
 fn histogram_plot(
@@ -185,10 +185,7 @@ pub fn write(c: &Characterization, source: &str, dir: &Path) -> std::io::Result<
     let mut h = String::new();
     let _ = write!(
         h,
-        "<!doctype html><html><head><meta charset=utf-8><title>emccd characterization — {src}</title><style>\
-body{{font-family:sans-serif;max-width:1200px;margin:20px auto;color:#222}} h2{{border-bottom:1px solid #ccc;margin-top:32px}}\
-table{{border-collapse:collapse;font-size:14px}} td,th{{border:1px solid #ccc;padding:3px 8px;text-align:left}}\
-.row{{display:flex;flex-wrap:wrap;gap:16px;align-items:flex-start}} .missing{{background:#fff4e0;padding:6px 10px}}</style></head><body>\
+        "<!doctype html><html><head><meta charset=utf-8><title>emccd characterization — {src}</title><style>{STYLE}</style></head><body>\
 <h1>Camera characterized from {src}</h1><p>{w}×{hh} px · {f} frame(s) · no calibration acquisition: every number below comes from the recording itself</p>",
         src = esc(source),
         w = c.width,

@@ -222,7 +222,8 @@ fn a_file_becomes_a_profile_and_a_report() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("rec.tif");
     let frames = movie(LOW, 64, 64, 1.0, 12, 0.0, 90);
-    let mut w = emccd_io::StackWriter::create(&path, 64, 64, emccd_io::SampleFormat::U16, Some(12)).unwrap();
+    let mut w = emccd_io::StackWriter::create(&path, 64, 64, emccd_io::SampleFormat::U16, Some(12))
+        .unwrap();
     for f in &frames {
         w.write_frame(f).unwrap();
     }
@@ -239,7 +240,10 @@ fn a_file_becomes_a_profile_and_a_report() {
     assert!(back.from_recording());
     assert_eq!(back.ptc_slope_dn, p.ptc_slope_dn);
     let html = std::fs::read_to_string(rep.join("index.html")).unwrap();
-    assert!(html.contains("zero-electron peak") && html.contains("<svg"), "report");
+    assert!(
+        html.contains("zero-electron peak") && html.contains("<svg"),
+        "report"
+    );
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(rep.join("results.json")).unwrap()).unwrap();
     assert!((json["slope_dn"]["value"].as_f64().unwrap() - c.slope_dn.value).abs() < 1e-9);
