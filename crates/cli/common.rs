@@ -138,12 +138,21 @@ pub fn counting_note(level: f64) -> Option<String> {
     })
 }
 
-/// How a recording is read through a camera profile: the flags `denoise` and `count` share.
+/// How a recording is read through a camera profile: the flags `denoise`, `count` and `adapt`
+/// share.
 #[derive(clap::Args, Debug)]
 pub struct RecordingArgs {
-    /// Camera profile (`default` = the bundled iXon 897 model).
-    #[arg(long, default_value = "default")]
-    pub profile: String,
+    /// Camera profile: a folder made by `emccd calibrate`, or `default` for the bundled iXon 897
+    /// model. Without it the camera is characterized from the inputs themselves (their dark
+    /// pixels' zero-electron peak and EM tail, a movie's mean–variance; all inputs together, so
+    /// they must come from one camera at one setting) and the numbers are printed and recorded
+    /// with the output. A profile given is checked against the inputs first.
+    #[arg(long)]
+    pub profile: Option<String>,
+    /// Use --profile even where the inputs disagree with it (another bias, gain, read noise or EM
+    /// gain than the profile's; refused otherwise).
+    #[arg(long)]
+    pub force: bool,
     /// Exposure in seconds, where the file header does not record it (overrides the header).
     #[arg(long, allow_negative_numbers = true)]
     pub exposure_s: Option<f64>,
@@ -154,7 +163,112 @@ pub struct RecordingArgs {
     pub extrapolate: bool,
 }
 
+/// The camera profile a command reads its recordings through, and how it came about.
+pub struct ChosenProfile {
+    /// The profile.
+    pub profile: CameraProfile,
+    /// How messages and the outputs' provenance name it: the `--profile` argument, or
+    /// [`CHARACTERIZED`].
+    pub name: String,
+    /// The characterization's one-line summary, where the camera was characterized from the
+    /// inputs.
+    pub summary: Option<String>,
+}
+
+/// `text` in ASCII, as TIFF descriptions and FITS headers hold it: the units' and errors'
+/// signs spelled out.
+fn ascii(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    for c in text.chars() {
+        match c {
+            '⁻' | '–' | '−' => out.push('-'),
+            '±' => out.push_str("+/-"),
+            '×' => out.push('x'),
+            '²' => out.push_str("^2"),
+            c if c.is_ascii() => out.push(c),
+            _ => out.push('?'),
+        }
+    }
+    out
+}
+
+/// The name of a profile characterized from a command's own inputs.
+pub const CHARACTERIZED: &str = "characterized from the recording";
+
+impl ChosenProfile {
+    /// The lines the outputs record about it (a TIFF's description, a FITS header, a store's
+    /// attributes).
+    pub fn notes(&self) -> Vec<String> {
+        let mut n = vec![format!("profile={}", self.name)];
+        n.extend(
+            self.summary
+                .iter()
+                .map(|s| format!("characterization={}", ascii(s))),
+        );
+        n
+    }
+}
+
 impl RecordingArgs {
+    /// The profile for `inputs`: `--profile`'s, checked against them (unless `--force`), or,
+    /// without one, the camera characterized from them (its summary printed).
+    pub fn choose_profile(&self, inputs: &[std::path::PathBuf]) -> Result<ChosenProfile> {
+        let paths: Vec<&Path> = inputs.iter().map(|p| p.as_path()).collect();
+        let Some(arg) = &self.profile else {
+            let mut frames = emccd_calib::recording::read(&paths)?;
+            frames.exposure_s = self.exposure_s.or(frames.exposure_s);
+            let c = frames
+                .characterize()
+                .context("no --profile given, so the camera is characterized from the inputs")?;
+            let profile = frames.profile(&c)?;
+            let summary = c.summary_line();
+            eprintln!(
+                "{}: camera characterized from the recording (no --profile): {summary}",
+                frames.source
+            );
+            for n in &c.notes {
+                eprintln!("  note: {n}");
+            }
+            return Ok(ChosenProfile {
+                profile,
+                name: CHARACTERIZED.into(),
+                summary: Some(summary),
+            });
+        };
+        let profile = load_profile(arg)?;
+        if !self.force {
+            self.check_fit(&profile, arg, &paths)?;
+        }
+        Ok(ChosenProfile {
+            profile,
+            name: arg.clone(),
+            summary: None,
+        })
+    }
+
+    /// Refuses `profile` where the inputs, characterized, disagree with it
+    /// ([`emccd_calib::recording::Frames::misfit`]). Inputs that cannot be compared with it
+    /// (bright everywhere, too small, another size) are let through with a note: opening them
+    /// checks the rest.
+    fn check_fit(&self, profile: &CameraProfile, arg: &str, paths: &[&Path]) -> Result<()> {
+        let misfit = emccd_calib::recording::read(paths).and_then(|mut f| {
+            f.exposure_s = self.exposure_s.or(f.exposure_s);
+            Ok((f.misfit(profile), f.source))
+        });
+        match misfit {
+            Ok((Ok(off), source)) if !off.is_empty() => anyhow::bail!(
+                "{}",
+                emccd_calib::recording::misfit_message(&source, arg, &off, "--force")
+            ),
+            Ok((Err(why), source)) => {
+                eprintln!("note: {source}: not checked against profile {arg}: {why}")
+            }
+            Err(e) => eprintln!("note: not checked against profile {arg}: {e}"),
+            Ok(_) => {}
+        }
+        Ok(())
+    }
+
     /// Opens `input` through `profile` ([`open_recording`]: its warnings printed).
     pub fn open(&self, input: &Path, profile: &CameraProfile) -> Result<Recording> {
         open_recording(input, profile, self.exposure_s, self.extrapolate)

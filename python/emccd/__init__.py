@@ -4,7 +4,7 @@ The same libraries as the ``emccd`` command, on numpy arrays::
 
     import emccd
     frames, meta = emccd.read("cells.sif")           # [frames, h, w] float32, header dict
-    clean = emccd.denoise(frames, exposure_s=meta["exposure_s"])   # bundled default profile
+    clean = emccd.denoise(frames)     # the camera characterized from the frames themselves
     emccd.write("cells_denoised.tif", clean)
 
 Errors are :class:`EmccdError` with the message the command line prints. Long calls release the
@@ -143,7 +143,7 @@ def calibrate(
 
 def denoise(
     frames: np.ndarray,
-    profile: ProfileLike = "default",
+    profile: Optional[ProfileLike] = None,
     model: Optional[str] = None,
     method: Optional[str] = None,
     exposure_s: Optional[float] = None,
@@ -155,10 +155,15 @@ def denoise(
     extrapolate: bool = False,
     progress: Progress = None,
     window: Optional[int] = None,
+    force: bool = False,
 ) -> np.ndarray:
     """Denoises raw EMCCD frames (DN as the camera wrote them; 2-D or 3-D, any integer or float
     dtype) as ``emccd denoise`` does: blooming and the fixed pattern are removed with the
-    profile, then the method runs. Returns float32 of the input's shape, in DN above bias
+    profile, then the method runs. ``profile``: a profile folder, ``"default"`` (the bundled
+    iXon 897) or a :class:`Profile`; checked against the frames, which are refused where they
+    disagree with it (another bias, gain or read noise) unless ``force=True``. Without one the
+    camera is characterized from the frames themselves (their dark pixels' zero-electron peak
+    and EM tail, a stack's mean–variance), and its numbers are issued as a warning. Returns float32 of the input's shape, in DN above bias
     (``units="dn"``) or photoelectrons (``"electrons"``).
 
     ``method``: ``blend`` (the default with no model on a single frame: iterative BM3D and the
@@ -168,23 +173,19 @@ def denoise(
     before and after it too), ``temporal-net`` (a network on each frame and the 2 before and
     after it: bundled model ``movie``) or ``none`` (preprocessing only). ``model``: a bundled
     model (``default``, ``microscopy``, ``lowlight``, ``hybrid``, ``movie``) or a model file; a model alone picks the method it was trained
-    for. ``exposure_s`` is required (arrays carry no header; :func:`read` returns it in the
-    metadata). ``progress(done, total)`` is called after each frame; an exception it raises
+    for. ``exposure_s`` is required with a calibrated profile (arrays carry no header;
+    :func:`read` returns it in the metadata). ``progress(done, total)`` is called after each frame; an exception it raises
     stops the work and is raised here. The CLI's warnings are issued as ``UserWarning``.
     """
     import warnings
 
-    if exposure_s is None:
-        raise EmccdError(
-            "the exposure is unknown: pass exposure_s (seconds; emccd.read returns the header's as meta['exposure_s'])"
-        )
     a = np.asarray(frames)
     two_d = a.ndim == 2
     stack = _stack(a, "frames")
     out, notes = _emccd.denoise(
         stack,
-        load_profile(profile),
-        float(exposure_s),
+        None if profile is None else load_profile(profile),
+        None if exposure_s is None else float(exposure_s),
         model,
         method,
         units,
@@ -194,6 +195,7 @@ def denoise(
         bool(extrapolate),
         progress,
         None if window is None else int(window),
+        bool(force),
     )
     for n in notes:
         warnings.warn(n, stacklevel=2)
@@ -202,7 +204,7 @@ def denoise(
 
 def count(
     frames: np.ndarray,
-    profile: ProfileLike = "default",
+    profile: Optional[ProfileLike] = None,
     exposure_s: Optional[float] = None,
     *,
     threshold: str = "likelihood",
@@ -212,6 +214,7 @@ def count(
     cic: Optional[float] = None,
     dark: Optional[float] = None,
     read_noise: str = "auto",
+    force: bool = False,
 ) -> Tuple[np.ndarray, np.ndarray]:
     """Photon counting of raw EMCCD frames (a 3-D stack in DN as the camera wrote them), as
     ``emccd count`` does: each frame preprocessed with the profile, each pixel thresholded, and
@@ -224,17 +227,16 @@ def count(
     neither, replace the profile's where its calibration did not measure them. ``read_noise``:
     ``"camera"`` (one read noise for every pixel, the calibration's fit beneath the spurious
     charge), ``"pixel"`` (each pixel's std map) or ``"auto"`` (``"pixel"`` where the profile's
-    maps at two exposures agree pixel by pixel, else ``"camera"``). The threshold chosen and what it predicts
-    (false events, missed photo-electrons) are kept in ``emccd.count.last_notes``."""
-    if exposure_s is None:
-        raise EmccdError(
-            "the exposure is unknown: pass exposure_s (seconds; emccd.read returns the header's as meta['exposure_s'])"
-        )
+    maps at two exposures agree pixel by pixel, else ``"camera"``). ``profile``, ``exposure_s``
+    and ``force`` as for :func:`denoise`: without a profile the camera is characterized from the
+    frames, and the rate then includes the spurious charge unless ``cic`` and ``dark`` are given.
+    The threshold chosen and what it predicts (false events, missed photo-electrons) are kept
+    in ``emccd.count.last_notes``."""
     stack = _stack(np.asarray(frames), "frames")
     rate, se, notes = _emccd.count(
         stack,
-        load_profile(profile),
-        float(exposure_s),
+        None if profile is None else load_profile(profile),
+        None if exposure_s is None else float(exposure_s),
         str(threshold),
         None if per is None else int(per),
         bool(analog),
@@ -242,6 +244,7 @@ def count(
         None if cic is None else float(cic),
         None if dark is None else float(dark),
         str(read_noise),
+        bool(force),
     )
     count.last_notes = list(notes)
     if per is None:

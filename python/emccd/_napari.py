@@ -65,14 +65,15 @@ def _make_widget_class():
 
     class DenoiseWidget(Container):
         """Denoise the selected EMCCD recording with a camera profile (a calibrated profile
-        folder, or the bundled default), the method and model of ``emccd denoise``, and the
+        folder, the bundled default, or none: the camera characterized from the recording), the method and model of ``emccd denoise``, and the
         exposure from the file's header; runs in a worker thread and adds a new layer."""
 
         def __init__(self, napari_viewer):
             self.viewer = napari_viewer
             self.image = create_widget(annotation=Image, label="recording")
-            self.profile = LineEdit(value="default", label="profile",
-                                    tooltip="A profile folder from `emccd calibrate`, or `default` (bundled iXon 897)")
+            self.profile = LineEdit(value="", label="profile",
+                                    tooltip="A profile folder from `emccd calibrate`, `default` (bundled iXon 897), "
+                                            "or empty: the camera characterized from the recording itself")
             default = f"(default: {emccd.DEFAULT_METHOD}; {emccd.DEFAULT_MOVIE_METHOD} on a time series)"
             self.method = ComboBox(choices=[default] + list(emccd.METHODS), label="method")
             self.model = ComboBox(choices=["(method's own)"] + list(emccd.BUNDLED_MODELS), label="model")
@@ -120,7 +121,7 @@ def _make_widget_class():
             model = self.model.value
             method = None if method.startswith("(") else method
             req = {
-                "profile": self.profile.value.strip() or "default",
+                "profile": self.profile.value.strip() or None,
                 "method": method,
                 "model": None if model.startswith("(") else model,
                 "exposure_s": float(self.exposure.value),

@@ -401,18 +401,68 @@ fn calibrate(
     })
 }
 
+/// The profile `raw` (whole frames of `w × h`) is read through, the exposure it was taken at
+/// and the notes to issue: `profile` checked against the frames (refused where they disagree,
+/// unless `force`), or, without one, the camera characterized from the frames themselves (at
+/// `exposure_s`, or a nominal second where none is given: the profile holds one fixed pattern).
+fn through(
+    profile: Option<&Profile>,
+    raw: &[f32],
+    w: usize,
+    h: usize,
+    exposure_s: Option<f64>,
+    force: bool,
+) -> anyhow::Result<(CameraProfile, f64, Vec<String>)> {
+    use emccd_calib::recording::{misfit_message, Frames, NOMINAL_EXPOSURE_S};
+    const SOURCE: &str = "the frames given";
+    let frames = Frames::in_memory(raw, w, h, exposure_s, SOURCE);
+    let Some(profile) = profile else {
+        let c = frames.characterize()?;
+        let p = frames.profile(&c)?;
+        let mut notes = vec![format!(
+            "camera characterized from the frames (no profile given): {}",
+            c.summary_line()
+        )];
+        notes.extend(c.notes.iter().cloned());
+        return Ok((p, exposure_s.unwrap_or(NOMINAL_EXPOSURE_S), notes));
+    };
+    let p = profile.inner.clone();
+    let exposure_s = match exposure_s {
+        Some(t) => t,
+        None if p.from_recording() && p.exposures_s.len() == 1 => p.exposures_s[0],
+        None => anyhow::bail!(
+            "the exposure is unknown: pass exposure_s (seconds; emccd.read returns the header's as meta['exposure_s'])"
+        ),
+    };
+    let mut notes = Vec::new();
+    if !force {
+        let frames = Frames {
+            exposure_s: Some(exposure_s),
+            ..frames
+        };
+        match frames.misfit(&p) {
+            Ok(off) if !off.is_empty() => {
+                anyhow::bail!("{}", misfit_message(SOURCE, "given", &off, "force=True"))
+            }
+            Ok(_) => {}
+            Err(why) => notes.push(format!("not checked against the profile: {why}")),
+        }
+    }
+    Ok((p, exposure_s, notes))
+}
+
 /// Denoises raw frames [frames, height, width] (DN, the profile's size) taken with
 /// `exposure_s`, as `emccd denoise` does: returns float32 frames in DN above bias or
 /// photoelectrons, and the warnings the CLI would print. `method="temporal"` estimates each
 /// frame from the `window` frames before and after it too (the frames are one recording).
 #[pyfunction]
-#[pyo3(signature = (frames, profile, exposure_s, model=None, method=None, units="dn", tile=512, overlap=32, ensemble=1, extrapolate=false, progress=None, window=None))]
+#[pyo3(signature = (frames, profile, exposure_s, model=None, method=None, units="dn", tile=512, overlap=32, ensemble=1, extrapolate=false, progress=None, window=None, force=false))]
 #[allow(clippy::too_many_arguments)]
 fn denoise<'py>(
     py: Python<'py>,
     frames: PyReadonlyArray3<'py, f32>,
-    profile: &Profile,
-    exposure_s: f64,
+    profile: Option<&Profile>,
+    exposure_s: Option<f64>,
     model: Option<String>,
     method: Option<String>,
     units: &str,
@@ -422,8 +472,15 @@ fn denoise<'py>(
     extrapolate: bool,
     progress: Option<Py<PyAny>>,
     window: Option<usize>,
+    force: bool,
 ) -> PyResult<(Bound<'py, PyArray3<f32>>, Vec<String>)> {
-    let p = &profile.inner;
+    let a = frames.as_array();
+    let (f, h, w) = a.dim();
+    let raw: Vec<f32> = a.iter().copied().collect();
+    let (p, exposure_s, mut notes) = py
+        .detach(|| through(profile, &raw, w, h, exposure_s, force))
+        .map_err(err)?;
+    let p = &p;
     let method = method
         .map(|m| m.parse::<Method>())
         .transpose()
@@ -434,9 +491,6 @@ fn denoise<'py>(
         .map_err(|e| err(anyhow::anyhow!("tile {tile}: {e}")))?;
     emccd_denoise::check_ensemble(ensemble)
         .map_err(|e| err(anyhow::anyhow!("ensemble {ensemble}: {e}")))?;
-    let a = frames.as_array();
-    let (f, h, w) = a.dim();
-    let raw: Vec<f32> = a.iter().copied().collect();
     let cb = Callback::new(progress, f as u64);
     let r = py.detach(|| -> anyhow::Result<(Vec<f32>, Vec<String>)> {
         let mut warnings = Vec::new();
@@ -473,6 +527,8 @@ fn denoise<'py>(
         return Err(e);
     }
     let (out, warnings) = r.map_err(err)?;
+    notes.extend(warnings);
+    let warnings = notes;
     let arr = Array3::from_shape_vec((f, h, w), out).map_err(|e| err(anyhow::anyhow!("{e}")))?;
     Ok((arr.into_pyarray(py), warnings))
 }
@@ -482,14 +538,14 @@ fn denoise<'py>(
 /// per frame) and its standard error, each [outputs, h, w] (one output per `per` frames, or one
 /// for the whole stack), and notes (the threshold and what it predicts).
 #[pyfunction]
-#[pyo3(signature = (frames, profile, exposure_s, threshold="likelihood", per=None, analog=false, extrapolate=false, cic=None, dark=None, read_noise="auto"))]
+#[pyo3(signature = (frames, profile, exposure_s, threshold="likelihood", per=None, analog=false, extrapolate=false, cic=None, dark=None, read_noise="auto", force=false))]
 #[allow(clippy::too_many_arguments)]
 #[allow(clippy::type_complexity)]
 fn count<'py>(
     py: Python<'py>,
     frames: PyReadonlyArray3<'py, f32>,
-    profile: &Profile,
-    exposure_s: f64,
+    profile: Option<&Profile>,
+    exposure_s: Option<f64>,
     threshold: &str,
     per: Option<usize>,
     analog: bool,
@@ -497,12 +553,12 @@ fn count<'py>(
     cic: Option<f64>,
     dark: Option<f64>,
     read_noise: &str,
+    force: bool,
 ) -> PyResult<(
     Bound<'py, PyArray3<f32>>,
     Bound<'py, PyArray3<f32>>,
     Vec<String>,
 )> {
-    let p = &profile.inner;
     let threshold: emccd_count::Threshold = threshold
         .parse()
         .map_err(|e: String| err(anyhow::anyhow!(e)))?;
@@ -514,7 +570,16 @@ fn count<'py>(
     let raw: Vec<f32> = a.iter().copied().collect();
     let r = py.detach(
         || -> anyhow::Result<(Vec<f32>, Vec<f32>, usize, Vec<String>)> {
-            let mut notes = Vec::new();
+            let (p, exposure_s, mut notes) = through(profile, &raw, w, h, exposure_s, force)?;
+            let p = &p;
+            // A recording cannot tell spurious electrons from light: without the data
+            // sheet's numbers they stay in the rate.
+            let spurious = cic.zip(dark).or_else(|| {
+                (p.from_recording() && p.pgn.is_none()).then(|| {
+                    notes.push("the clock-induced charge and dark current cannot be told from light in a recording: the rate includes them (pass cic and dark from the camera's data sheet to remove them)".into());
+                    (0.0, 0.0)
+                })
+            });
             if let Some(wn) = p.check_frames(w, h, exposure_s, "exposure_s", extrapolate)? {
                 notes.push(wn);
             }
@@ -522,7 +587,7 @@ fn count<'py>(
                 threshold,
                 per,
                 analog,
-                spurious: cic.zip(dark),
+                spurious,
                 read_noise,
             };
             let c = emccd_count::count_stack(p, &raw, exposure_s, &req)?;

@@ -40,6 +40,8 @@ def test_denoise_widget_adds_a_denoised_layer(data, make_napari_viewer, qtbot):
     (layer,) = viewer.open(str(data.joinpath(*SIF)), plugin="emccd")
     _, widget = viewer.window.add_plugin_dock_widget("emccd", "Denoise EMCCD")
     assert widget.exposure.value == pytest.approx(1.0)  # from the SIF header
+    assert widget.request()["profile"] is None  # by default the camera is characterized from the recording
+    widget.profile.value = "default"  # a bias frame holds no electrons to characterize the camera from
     widget.method.value = "bm3d"
     widget.extrapolate.value = True  # 1 s is past the bundled profile's calibrated exposures
     widget.run_button.clicked()
@@ -49,7 +51,7 @@ def test_denoise_widget_adds_a_denoised_layer(data, make_napari_viewer, qtbot):
     assert out.data.shape == (512, 512) and np.isfinite(out.data).all()
     assert widget.bar.value == widget.bar.max == 1
     with pytest.warns(UserWarning, match="outside the calibrated range"):
-        expected = emccd.denoise(layer.data, method="bm3d", exposure_s=1.0, extrapolate=True)
+        expected = emccd.denoise(layer.data, "default", method="bm3d", exposure_s=1.0, extrapolate=True)
     assert "outside the calibrated range" in widget.status.value  # the widget shows the warning
     np.testing.assert_array_equal(out.data, expected)
     # a bad request reports in the widget and adds nothing

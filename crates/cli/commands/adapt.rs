@@ -7,13 +7,14 @@ use emccd_nn::Adaptation;
 use emccd_train::adapt::{adapt, AdaptConfig, AdaptData, AdaptRun, Recorded, Start};
 use emccd_train::RunPaths;
 
-use crate::common::{load_profile, open_recording, progress, step_progress};
+use crate::common::{progress, step_progress, RecordingArgs};
 
 /// Adapt a denoising network to your own recording, with no clean images: the frames are
 /// preprocessed as `denoise` does (blooming, fixed pattern), averaged (the scene must be static
 /// over the frames given), the average is denoised with iterative BM3D at its own, N times
 /// lower, noise, and the model is fine-tuned on pairs synthesized from that scene estimate with
-/// the calibrated profile's exact noise chain at the recording's light level. The output is an
+/// the profile's exact noise chain at the recording's light level (the calibrated profile, or without
+/// --profile the camera characterized from the recordings). The output is an
 /// ordinary model file (`emccd denoise --model OUT`) that records what it was adapted on and
 /// from which model. A checkpoint is kept in OUT.ckpt/; --resume continues an interrupted run.
 /// The more frames, the better the scene estimate: 20–50 is a good range.
@@ -28,15 +29,8 @@ pub struct Args {
     /// with --method neighbors any recordings of the camera.
     #[arg(required = true, num_args = 1..)]
     pub inputs: Vec<PathBuf>,
-    /// The camera's profile (`emccd calibrate`), or `default`.
-    #[arg(long)]
-    pub profile: String,
-    /// Exposure time (s); default: from each file's header.
-    #[arg(long)]
-    pub exposure_s: Option<f64>,
-    /// Allow an exposure outside the profile's calibrated dark-current range.
-    #[arg(long)]
-    pub extrapolate: bool,
+    #[command(flatten)]
+    pub recording: RecordingArgs,
     /// The model to start from: a bundled one (`lowlight`, `default`, `microscopy`) or a model
     /// file. `lowlight` is the best network at a few photoelectrons per pixel.
     #[arg(long, default_value = "lowlight")]
@@ -59,10 +53,11 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let profile = load_profile(&a.profile)?;
+    let chosen = a.recording.choose_profile(&a.inputs)?;
+    let profile = chosen.profile;
     profile
         .require_complete()
-        .with_context(|| format!("profile {}: it cannot preprocess frames", a.profile))?;
+        .with_context(|| format!("profile {}: it cannot preprocess frames", chosen.name))?;
     let scratch = a.from_scratch;
     let cfg = AdaptConfig {
         lr: a.lr.unwrap_or(AdaptConfig::default_lr(scratch)),
@@ -84,7 +79,7 @@ pub fn run(a: Args) -> Result<()> {
         Recorded::MEMORY_BUDGET,
     );
     for input in &a.inputs {
-        let recording = open_recording(input, &profile, a.exposure_s, a.extrapolate)?;
+        let recording = a.recording.open(input, &profile)?;
         let pb = progress(recording.info.frames as u64, "reading");
         rec.add_recording(&profile, recording, &mut || pb.inc(1))?;
         pb.finish_and_clear();

@@ -4,12 +4,11 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use emccd_count::{Camera, Counter, Threshold};
-use emccd_profile::CameraProfile;
 
 use emccd_io::zarr::{Shard, ZarrStackSpec, ZarrStackWriter};
 use serde_json::json;
 
-use crate::common::{load_profile, progress, RecordingArgs};
+use crate::common::{progress, ChosenProfile, RecordingArgs};
 
 /// Count photons: below a few tenths of a photo-electron per pixel per frame (faint sources,
 /// single molecules at high frame rates), read every preprocessed pixel of every frame as a
@@ -93,7 +92,16 @@ struct Job {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let profile = load_profile(&a.recording.profile)?;
+    let chosen = a.recording.choose_profile(&a.inputs)?;
+    let profile = &chosen.profile;
+    // A recording cannot tell spurious electrons from light: without the data sheet's numbers
+    // they stay in the rates, and the output says so.
+    let spurious = spurious(&a).or_else(|| {
+        (profile.from_recording() && profile.pgn.is_none()).then(|| {
+            eprintln!("note: the clock-induced charge and dark current cannot be told from light in a recording: the rates include them (pass --cic and --dark from the camera's data sheet to remove them)");
+            (0.0, 0.0)
+        })
+    });
     let several = a.inputs.len() > 1;
     if several && a.uncertainty.is_some() {
         bail!("--uncertainty names one file: give one input");
@@ -147,9 +155,9 @@ pub fn run(a: Args) -> Result<()> {
     // for the light level).
     let mut jobs = Vec::with_capacity(a.inputs.len());
     for (input, out) in a.inputs.iter().zip(outs) {
-        let mut rec = a.recording.open(input, &profile)?;
-        let camera = Camera::from_profile(&profile, rec.exposure, spurious(&a), a.read_noise)
-            .map_err(|e| anyhow::anyhow!("profile {}: {e}", a.recording.profile))?;
+        let mut rec = a.recording.open(input, profile)?;
+        let camera = Camera::from_profile(profile, rec.exposure, spurious, a.read_noise)
+            .map_err(|e| anyhow::anyhow!("profile {}: {e}", chosen.name))?;
         if let Some(n) = a.per {
             if n as usize > rec.info.frames {
                 bail!(
@@ -159,7 +167,7 @@ pub fn run(a: Args) -> Result<()> {
                 );
             }
         }
-        let level = emccd_count::light_level(&profile, &mut rec, emccd_count::LEVEL_FRAMES)?
+        let level = emccd_count::light_level(profile, &mut rec, emccd_count::LEVEL_FRAMES)?
             - camera.unremoved();
         jobs.push(Job {
             input: input.clone(),
@@ -171,13 +179,13 @@ pub fn run(a: Args) -> Result<()> {
         });
     }
     if zarr {
-        return count_zarr(&a, &profile, &jobs[0]);
+        return count_zarr(&a, &chosen, &jobs[0]);
     }
     let made = several && !a.out.exists();
     if several {
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     }
-    let done = count_all(&a, &profile, &jobs);
+    let done = count_all(&a, &chosen, &jobs);
     if done.is_err() && made {
         let _ = std::fs::remove_dir(&a.out); // only if empty: it was made for this run
     }
@@ -185,11 +193,11 @@ pub fn run(a: Args) -> Result<()> {
 }
 
 /// Counts every job into staged files; places them all once every one is done.
-fn count_all(a: &Args, profile: &CameraProfile, jobs: &[Job]) -> Result<()> {
+fn count_all(a: &Args, chosen: &ChosenProfile, jobs: &[Job]) -> Result<()> {
     let mut staged = Vec::new();
     let mut summaries = Vec::new();
     for job in jobs {
-        let (files, summary) = count_one(a, profile, job)?;
+        let (files, summary) = count_one(a, chosen, job)?;
         staged.extend(files);
         summaries.push(summary);
     }
@@ -319,9 +327,10 @@ fn finite(se: &[f32]) -> Vec<f32> {
 
 fn count_one(
     a: &Args,
-    profile: &CameraProfile,
+    chosen: &ChosenProfile,
     job: &Job,
 ) -> Result<(Vec<emccd_io::Staged>, String)> {
+    let profile = &chosen.profile;
     let (cam, level) = (&job.camera, job.level);
     let mut counter = counter(a, job)?;
     let d = describe(a, job, &counter);
@@ -338,7 +347,7 @@ fn count_one(
             exposure_s: Some(job.exposure),
             ..Default::default()
         });
-        w.set_notes(&d.notes);
+        w.set_notes(&[d.notes.clone(), chosen.notes()].concat());
         Ok(w)
     };
     let mut rate_w = create(&job.out)?;
@@ -413,7 +422,8 @@ fn regime(level: f64, threshold: Threshold) -> String {
 /// standard errors into `--uncertainty`'s), skipping output frames already complete there.
 /// A store this run made alone and could not finish because of the data is removed; one
 /// stopped while writing (a full disk) stays to be resumed, as a shard's does.
-fn count_zarr(a: &Args, profile: &CameraProfile, job: &Job) -> Result<()> {
+fn count_zarr(a: &Args, chosen: &ChosenProfile, job: &Job) -> Result<()> {
+    let profile = &chosen.profile;
     let shard = a.shard.unwrap_or(Shard::ALL);
     let mut counter = counter(a, job)?;
     let d = describe(a, job, &counter);
@@ -446,7 +456,8 @@ fn count_zarr(a: &Args, profile: &CameraProfile, job: &Job) -> Result<()> {
         provenance: made_of(what),
         notes: json!({
             "input": job.input.display().to_string(),
-            "profile": a.recording.profile,
+            "profile": chosen.name,
+            "characterization": chosen.summary,
             "notes": d.notes,
         }),
     };

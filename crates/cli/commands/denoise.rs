@@ -7,12 +7,11 @@ use emccd_denoise::stack::{denoise_to_zarr, ZarrOutput};
 use emccd_denoise::{Method, Resolved, Units};
 use emccd_io::zarr::Shard;
 use emccd_nn::tile::Tiling;
-use emccd_profile::CameraProfile;
 
-use crate::common::{load_profile, progress, RecordingArgs};
+use crate::common::{progress, ChosenProfile, RecordingArgs};
 
 /// Denoise raw EMCCD frames: remove blooming and the fixed pattern with the camera profile (paper
-/// eq. 4), then denoise. By default a recording of several frames (a movie) runs `temporal`: each
+/// eq. 4; without --profile the camera is characterized from the inputs themselves), then denoise. By default a recording of several frames (a movie) runs `temporal`: each
 /// frame estimated from the 12 before and after it too (blocks tracked along the motion, averaged,
 /// denoised at the mean's noise), or from the 3 nearest each side where the frame's own data, held
 /// out of both, finds them clearly better (a deforming scene); above `blend` on every kind of
@@ -89,18 +88,19 @@ fn parse_ensemble(s: &str) -> std::result::Result<usize, String> {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let profile = load_profile(&a.recording.profile)?;
     let r = emccd_denoise::resolve(a.method, a.model.as_deref(), crate::common::load_model)?;
     let window = r.window(a.window.map(usize::from))?;
+    let chosen = a.recording.choose_profile(&a.inputs)?;
+    let profile = &chosen.profile;
     // The profile's fitness for denoising, checked before anything is opened or written.
-    r.denoiser(&profile, 1, a.tiling, a.ensemble, a.units, window)
-        .map_err(|e| anyhow::anyhow!("profile {}: {e}", a.recording.profile))?;
+    r.denoiser(profile, 1, a.tiling, a.ensemble, a.units, window)
+        .map_err(|e| anyhow::anyhow!("profile {}: {e}", chosen.name))?;
     let zarr = emccd_io::Format::from_extension(&a.out) == Some(emccd_io::Format::Zarr);
     if a.shard.is_some() && !zarr {
         bail!("--shard needs a .zarr output (-o OUT.zarr): only a Zarr store is written by several processes at once");
     }
     if zarr {
-        return run_zarr(&a, &r, &profile, window);
+        return run_zarr(&a, &r, &chosen, window);
     }
     let several = a.inputs.len() > 1;
     if several && a.out.exists() && !a.out.is_dir() {
@@ -117,15 +117,15 @@ pub fn run(a: Args) -> Result<()> {
     // without a slope, denoises as before).
     let mut notes = Vec::with_capacity(a.inputs.len());
     for input in &a.inputs {
-        let mut rec = a.recording.open(input, &profile)?;
-        let level = emccd_count::light_level(&profile, &mut rec, 4).ok();
+        let mut rec = a.recording.open(input, profile)?;
+        let level = emccd_count::light_level(profile, &mut rec, 4).ok();
         notes.push(level.and_then(crate::common::counting_note));
     }
     let made = several && !a.out.exists();
     if several {
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     }
-    let done = denoise_files(&a, &r, &profile, window, &outs, &notes);
+    let done = denoise_files(&a, &r, &chosen, window, &outs, &notes);
     if done.is_err() && made {
         let _ = std::fs::remove_dir(&a.out); // only if empty: it was made for this run
     }
@@ -137,17 +137,26 @@ pub fn run(a: Args) -> Result<()> {
 fn denoise_files(
     a: &Args,
     r: &Resolved,
-    profile: &CameraProfile,
+    chosen: &ChosenProfile,
     window: usize,
     outs: &[PathBuf],
     notes: &[Option<String>],
 ) -> Result<()> {
+    let profile = &chosen.profile;
+    let mut lines = vec![format!("software=emccd {}", env!("CARGO_PKG_VERSION"))];
+    lines.extend(
+        r.model_name
+            .iter()
+            .filter(|_| r.model.is_some())
+            .map(|m| format!("model={m}")),
+    );
+    lines.extend(chosen.notes());
     let mut staged = Vec::with_capacity(outs.len());
     for ((input, out), note) in a.inputs.iter().zip(outs).zip(notes) {
         if let Some(n) = note {
             eprintln!("note: {}: {n}", input.display());
         }
-        let rec = a.recording.reopen(input, &profile)?;
+        let rec = a.recording.reopen(input, profile)?;
         let frames = rec.info.frames;
         let asked = a.window.map(usize::from);
         for n in [
@@ -162,7 +171,8 @@ fn denoise_files(
         let fd = r.denoiser(profile, frames, a.tiling, a.ensemble, a.units, window)?;
         warn_profile(r, &fd);
         let pb = progress(rec.info.frames as u64, "frames");
-        let done = emccd_denoise::stack::denoise_file_staged(&fd, rec, out, &mut || pb.inc(1));
+        let done =
+            emccd_denoise::stack::denoise_file_staged(&fd, rec, out, &lines, &mut || pb.inc(1));
         pb.finish_and_clear();
         let (frames, file) = done?;
         staged.push((input, frames, file));
@@ -187,12 +197,14 @@ fn warn_profile(r: &Resolved, fd: &emccd_denoise::Denoiser) {
 
 /// Denoises the inputs, one logical stack in the order given, into one OME-Zarr store: this
 /// process's shard of the frames, skipping frames already complete.
-fn run_zarr(a: &Args, r: &Resolved, profile: &CameraProfile, window: usize) -> Result<()> {
+fn run_zarr(a: &Args, r: &Resolved, chosen: &ChosenProfile, window: usize) -> Result<()> {
+    let profile = &chosen.profile;
     let shard = a.shard.unwrap_or(Shard::ALL);
     let out = ZarrOutput {
         path: &a.out,
         shard,
-        profile_arg: &a.recording.profile,
+        profile_arg: &chosen.name,
+        characterization: chosen.summary.as_deref(),
         model_name: r.model_name.as_deref(),
         software: &format!("emccd {}", env!("CARGO_PKG_VERSION")),
     };
@@ -201,7 +213,7 @@ fn run_zarr(a: &Args, r: &Resolved, profile: &CameraProfile, window: usize) -> R
     let inputs = a
         .inputs
         .iter()
-        .map(|p| a.recording.open(p, &profile))
+        .map(|p| a.recording.open(p, profile))
         .collect::<Result<Vec<_>>>()?;
     // The store is one stack: the default runs temporally when any of its recordings is a
     // movie (each frame's window stays within its own recording).

@@ -106,6 +106,7 @@ pub fn zarr_spec(
         notes: json!({
             "inputs": inputs.iter().map(|i| i.path.display().to_string()).collect::<Vec<_>>(),
             "profile": out.profile_arg,
+            "characterization": out.characterization,
             "model": out.model_name.filter(|_| fd.model.is_some()),
         }),
     })
@@ -130,6 +131,8 @@ pub struct ZarrOutput<'a> {
     pub shard: emccd_io::zarr::Shard,
     /// The profile as the user named it.
     pub profile_arg: &'a str,
+    /// What the camera was characterized as, where the profile was made from the inputs.
+    pub characterization: Option<&'a str>,
     /// The model as the user named it, where one runs.
     pub model_name: Option<&'a str>,
     /// The program and its version ([`provenance`]).
@@ -347,17 +350,20 @@ pub fn denoise_file(
     out: &Path,
     on_frame: &mut dyn FnMut(),
 ) -> Result<usize> {
-    let (frames, staged) = denoise_file_staged(fd, input, out, on_frame)?;
+    let (frames, staged) = denoise_file_staged(fd, input, out, &[], on_frame)?;
     staged.place()?;
     Ok(frames)
 }
 
 /// [`denoise_file`], the finished stack left beside `out` for the caller to place: a run over
-/// several inputs places its outputs only once every input has been denoised.
+/// several inputs places its outputs only once every input has been denoised. `notes` are
+/// `key=value` lines the stack records after its own (method, units, profile fingerprint): a
+/// TIFF's description, a FITS header's HISTORY.
 pub fn denoise_file_staged(
     fd: &Denoiser,
     mut input: Recording,
     out: &Path,
+    notes: &[String],
     on_frame: &mut dyn FnMut(),
 ) -> Result<(usize, emccd_io::Staged)> {
     let (width, height, frames) = (input.info.width, input.info.height, input.info.frames);
@@ -368,6 +374,16 @@ pub fn denoise_file_staged(
         emccd_io::SampleFormat::F32,
         Some(frames),
     )?;
+    let own = [
+        format!("method={}", fd.method.name()),
+        format!("units={}", fd.units.describe()),
+        format!("profile_fingerprint={}", fd.profile.fingerprint_hex()),
+    ];
+    w.set_notes(
+        &own.into_iter()
+            .chain(notes.iter().cloned())
+            .collect::<Vec<_>>(),
+    );
     let name = input.path.display().to_string();
     let at = |j: usize| format!("{name}: frame {}", j + 1);
     if fd.method.temporal() {

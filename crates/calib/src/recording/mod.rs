@@ -18,6 +18,8 @@
 //! What cannot be estimated is said (no dark pixels: no bias; too few electrons in them: no
 //! gain), never guessed.
 
+pub mod bias_map;
+pub mod check;
 pub mod em;
 pub mod ptc;
 pub mod report;
@@ -73,8 +75,11 @@ pub struct Characterization {
     pub height: usize,
     /// Frames used.
     pub frames: usize,
-    /// The bias (the zero-electron peak), DN.
+    /// The bias (the zero-electron peak of the darkest pixels), DN.
     pub bias_dn: Estimate,
+    /// The bias across the frame (tiles' zero-electron peaks), the profile's bias map.
+    #[serde(skip)]
+    pub bias_map: bias_map::BiasMap,
     /// The read noise of one value, DN: in a movie the temporal read noise (the fixed pattern
     /// cancelled); in one frame the read noise and the pixel-to-pixel pattern together.
     pub read_noise_dn: Estimate,
@@ -215,6 +220,16 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
         )));
     }
 
+    // The bias across the frame, each tile's peak with the whole frame's width and gain.
+    let bias_map = bias_map::fit(frames, width, height, ceiling, vf.bias, vf.sigma, vf.gain);
+    if bias_map.fitted > 1 && bias_map.range_dn > 0.5 * vf.sigma {
+        notes.push(format!(
+            "the bias drifts across the frame by {:.1} DN (the zero-electron peaks of {} of {} tiles of {} px): the profile's bias map follows it",
+            bias_map.range_dn, bias_map.fitted, bias_map.tiles, bias_map.tile
+        ));
+    }
+    let map_mean = bias_map.values.iter().map(|&v| v as f64).sum::<f64>() / n as f64;
+
     // 4. The photon-transfer slope.
     let curve = if movie {
         ptc::curve(frames, width, height, ceiling)
@@ -297,7 +312,7 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
     let (sum, count) = per_frame
         .iter()
         .fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-    let mean_electrons = (sum / count.max(1) as f64 - vf.bias) / (slope.value / 2.0);
+    let mean_electrons = (sum / count.max(1) as f64 - map_mean) / (slope.value / 2.0);
     if saturated > 0 {
         notes.push(format!(
             "{saturated} values at the recording's maximum ({ceiling} DN) were left out as saturated"
@@ -308,6 +323,7 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
         height,
         frames: frames.len(),
         bias_dn: Estimate::new(vf.bias, values_fit.se.bias),
+        bias_map,
         read_noise_dn,
         pattern_dn,
         gain_dn,
@@ -544,7 +560,7 @@ impl Characterization {
         let n = self.width * self.height;
         let g = em_gain.unwrap_or(0.0);
         let mut notes = format!(
-            "characterized from the recording {source} by `emccd calibrate --from-recording` ({} frames): {}",
+            "characterized from the recording {source} ({} frames): {}",
             self.frames,
             self.summary_line()
         );
@@ -577,7 +593,7 @@ impl Characterization {
                 notes,
             },
             maps: ProfileMaps {
-                fpn_base: vec![self.bias_dn.value as f32; n],
+                fpn_base: self.bias_map.values.clone(),
                 fpn_theta: Vec::new(),
                 read_noise: vec![vec![self.read_noise_dn.value as f32; n]],
             },
@@ -636,6 +652,29 @@ pub fn read(paths: &[&std::path::Path]) -> Result<Frames> {
             .all(|(_, r)| f(r.info()).is_some_and(|w| (w - v).abs() <= 1e-9 * v.abs()))
             .then_some(v)
     };
+    // One characterization is one camera setting: headers that record different exposures or
+    // EM gains are different dark currents and gains, pooled into nonsense.
+    for (what, get) in [
+        (
+            "exposure",
+            (|i: &emccd_io::StackInfo| i.metadata.exposure_s) as fn(&_) -> _,
+        ),
+        ("EM gain", |i: &emccd_io::StackInfo| i.metadata.em_gain),
+    ] {
+        let recorded: Vec<(&std::path::Path, f64)> = readers
+            .iter()
+            .filter_map(|(p, r)| get(r.info()).map(|v| (*p, v)))
+            .collect();
+        let Some(&(p, a)) = recorded.first() else {
+            continue;
+        };
+        if let Some(&(q, b)) = recorded.iter().find(|y| (y.1 - a).abs() > 1e-9 * a.abs()) {
+            return Err(Error::input(q, format!(
+                "its header records {what} {b}, that of {} {a}: one characterization is for one camera setting; characterize (or denoise) the recordings of each setting apart",
+                p.display()
+            )));
+        }
+    }
     let exposure_s = agree(&|i| i.metadata.exposure_s);
     let em_gain = agree(&|i| i.metadata.em_gain);
     let adc_max_dn = readers
@@ -683,6 +722,63 @@ pub fn read(paths: &[&std::path::Path]) -> Result<Frames> {
 pub const NOMINAL_EXPOSURE_S: f64 = 1.0;
 
 impl Frames {
+    /// Frames already in memory (`values`: whole frames of `width × height`, raw DN), the
+    /// first [`frames_to_hold`] of them; `source` names them in messages and the provenance.
+    pub fn in_memory(
+        values: &[f32],
+        width: usize,
+        height: usize,
+        exposure_s: Option<f64>,
+        source: &str,
+    ) -> Frames {
+        let n = (width * height).max(1);
+        let frames: Vec<Vec<f32>> = values
+            .chunks_exact(n)
+            .take(frames_to_hold(values.len() / n, width, height))
+            .map(<[f32]>::to_vec)
+            .collect();
+        let top = frames.iter().flatten().fold(0f32, |m, &v| m.max(v));
+        Frames {
+            frames,
+            width,
+            height,
+            exposure_s,
+            em_gain: None,
+            adc_max_dn: if top <= 65535.0 {
+                65535.0
+            } else {
+                2f64.powi(32)
+            },
+            source: source.to_string(),
+        }
+    }
+
+    /// What disagrees between `profile` and these frames ([`disagreements`], at the frames'
+    /// exposure, else the exposure of a profile made from a recording), or `Err` with why they
+    /// could not be compared: the frames do not characterize the camera (bright everywhere,
+    /// too few), they are not the profile's size, or no exposure is known.
+    pub fn misfit(&self, profile: &CameraProfile) -> std::result::Result<Vec<String>, String> {
+        if (self.width, self.height) != (profile.width, profile.height) {
+            return Err(format!(
+                "the frames are {}×{}, the profile's {}×{}",
+                self.width, self.height, profile.width, profile.height
+            ));
+        }
+        let exposure = self
+            .exposure_s
+            .or_else(|| {
+                (profile.from_recording() && profile.exposures_s.len() == 1)
+                    .then(|| profile.exposures_s[0])
+            })
+            .ok_or("no exposure is known")?;
+        let c = characterize(&self.frames, self.width, self.height).map_err(|e| {
+            let why = e.to_string();
+            // The advice to pass a profile is no advice here.
+            why.split("; calibrate").next().unwrap_or(&why).to_string()
+        })?;
+        Ok(disagreements(&c, profile, exposure, self.em_gain))
+    }
+
     /// Characterizes the camera from these frames ([`characterize`]), each error naming the
     /// files.
     pub fn characterize(&self) -> Result<Characterization> {
@@ -702,6 +798,7 @@ impl Frames {
     }
 }
 
+pub use check::{disagreements, misfit_message};
 pub use emccd_profile::RECORDING_SOURCE;
 
 #[cfg(test)]

@@ -209,7 +209,10 @@ fn the_profile_says_where_it_came_from() {
     let c = characterize(&frames, 64, 64).unwrap();
     let p = c.profile("rec.tif", 0.01, Some(300.0), 65535.0).unwrap();
     assert_eq!(p.provenance.source, RECORDING_SOURCE);
-    assert!((p.bias_dn() - c.bias_dn.value).abs() < 1e-3);
+    assert_eq!(
+        p.bias_dn(),
+        emccd_profile::median(c.bias_map.values.iter().copied()).unwrap()
+    );
     assert_eq!(p.ptc_slope_dn, Some(c.slope_dn.value));
     assert!(p.summary_text().contains("characterized from"));
 }
@@ -250,4 +253,100 @@ fn a_file_becomes_a_profile_and_a_report() {
     // Opened through its own profile, the header's missing exposure is the profile's.
     let r = emccd_profile::Recording::open(&path, &back, None, "--exposure-s", false).unwrap();
     assert_eq!(r.exposure, NOMINAL_EXPOSURE_S);
+}
+
+/// `cam`'s own profile, `w × h`: its bias, read noise and slope (2K) as the truth has them, the
+/// rest as a characterization makes it.
+fn truth_profile(cam: Camera, c: &Characterization) -> CameraProfile {
+    let mut p = c.profile("truth", 0.01, Some(300.0), 65535.0).unwrap();
+    p.maps.fpn_base.fill(cam.bias as f32);
+    p.maps.read_noise[0].fill(cam.sigma as f32);
+    p.ptc_slope_dn = Some(2.0 * cam.k);
+    p
+}
+
+#[test]
+fn a_profile_that_does_not_fit_is_named_and_the_right_one_never() {
+    let (w, h) = (128, 128);
+    for (what, frames) in [
+        ("a movie", movie(USER, w, h, 1.0, 20, 0.0, 90)),
+        ("one frame", movie(USER, 2 * w, 2 * h, 1.0, 1, 0.0, 91)),
+    ] {
+        let (w, h) = if frames.len() == 1 {
+            (2 * w, 2 * h)
+        } else {
+            (w, h)
+        };
+        let c = characterize(&frames, w, h).unwrap();
+        let right = truth_profile(USER, &c);
+        let off = |p: &CameraProfile| disagreements(&c, p, 0.01, Some(300.0));
+        assert!(off(&right).is_empty(), "{what}: {:?}", off(&right));
+        // Another camera's bias: 10 read-noise σ away (the mark).
+        let mut p = right.clone();
+        p.maps.fpn_base.fill((USER.bias + 10.0 * USER.sigma) as f32);
+        let d = off(&p);
+        assert!(d.len() == 1 && d[0].starts_with("bias"), "{what}: {d:?}");
+        // Another gain: 30 % off either way is caught in a movie; one frame leaves the excess
+        // noise factor (30 % besides 3 errors of its gain, check.rs) unknown, so only a gain
+        // twice or half the profile's (EM gain 300 against 150) is caught there.
+        let factor = if frames.len() > 1 { 1.3 } else { 2.0 };
+        for f in [factor, 1.0 / factor] {
+            let mut p = right.clone();
+            p.ptc_slope_dn = Some(2.0 * USER.k * f);
+            let d = off(&p);
+            assert!(
+                d.len() == 1 && d[0].starts_with("gain"),
+                "{what} ×{f}: {d:?}"
+            );
+        }
+        // A noisier readout's profile: the recording's read noise below the profile's.
+        let mut p = right.clone();
+        p.maps.read_noise[0].fill((1.5 * USER.sigma) as f32);
+        let d = off(&p);
+        assert!(
+            d.len() == 1 && d[0].starts_with("read noise"),
+            "{what}: {d:?}"
+        );
+        // The header's EM gain against the profile's.
+        let d = disagreements(&c, &right, 0.01, Some(1000.0));
+        assert!(
+            d.len() == 1 && d[0].contains("EM gain 1000"),
+            "{what}: {d:?}"
+        );
+    }
+}
+
+#[test]
+fn a_bias_that_drifts_across_the_frame_is_followed() {
+    // 20 DN from the first row to the last (a gradient like the bundled profile's, 35 DN over
+    // 512 rows), on a movie and on one frame.
+    let drift = 20.0;
+    for (frames, side, seed) in [(20, 128, 100), (1, 256, 101)] {
+        let mut m = movie(USER, side, side, 1.0, frames, 0.0, seed);
+        for f in &mut m {
+            for (i, v) in f.iter_mut().enumerate() {
+                *v += (drift * (i / side) as f64 / (side - 1) as f64).round() as f32;
+            }
+        }
+        let c = characterize(&m, side, side).unwrap();
+        let map = &c.bias_map;
+        assert!(map.fitted > 1, "{frames} frames: {map:?}");
+        // Each row's bias within 1 DN (the target), a tile's peak being known to about
+        // a tenth of the read noise and the gradient being linear.
+        for y in (0..side).step_by(side / 16) {
+            let want = USER.bias + drift * y as f64 / (side - 1) as f64;
+            let got = map.values[y * side + side / 2] as f64;
+            assert!(
+                (got - want).abs() < 1.0,
+                "{frames} frames, row {y}: {got} vs {want}"
+            );
+        }
+        assert!(
+            c.notes
+                .iter()
+                .any(|n| n.contains("drifts across the frame")),
+            "{:?}",
+            c.notes
+        );
+    }
 }
