@@ -209,6 +209,122 @@ pub fn fit(
     }
 }
 
+/// Fewest frames a movie needs for each pixel's own bias: fewer leave each pixel's peak
+/// known to worse than half the read noise even where every frame holds no electron.
+pub const MIN_PIXEL_FRAMES: usize = 8;
+
+/// The most frames each pixel's bias is estimated from (enough for its error to be a fraction of
+/// the pattern's; more only cost time).
+const MAX_PIXEL_FRAMES: usize = 64;
+
+/// How each pixel's own bias was estimated ([`refine`]).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PixelBias {
+    /// The pixel-to-pixel spread of the bias about the smooth map, DN (measured: the spread of
+    /// the pixels' own peaks less their errors).
+    pub pattern_dn: f64,
+    /// The median share of a pixel's own offset kept (the rest is the smooth map's).
+    pub kept: f64,
+}
+
+/// Each pixel's own bias in a movie, laid on `map`: the zero-electron peak of the pixel's values
+/// over the frames, found by a two-class mixture (no electron: `N(b, σ²)`; electrons: the
+/// register's exponential of mean `gain` beyond `b`, blurred by the read noise) with the smooth
+/// map as its start, then shrunk towards the map by its error against the pattern's measured
+/// spread (`τ²/(τ² + se²)`), so a pixel that holds light in most frames keeps the map and a dark
+/// one its own peak. Moving scenes do not bias it: frames in which the pixel holds electrons are
+/// the second class, whatever their number. `sigma` is the temporal read noise (the frame
+/// differences'), values at or above `ceiling` are left out. None where the pattern is not
+/// measurable (no spread beyond the peaks' errors).
+pub fn refine(
+    frames: &[Vec<f32>],
+    map: &mut BiasMap,
+    sigma: f64,
+    gain: f64,
+    ceiling: f64,
+) -> Option<PixelBias> {
+    if frames.len() < MIN_PIXEL_FRAMES || !(sigma > 0.0 && gain > 0.0) {
+        return None;
+    }
+    let use_frames = &frames[..frames.len().min(MAX_PIXEL_FRAMES)];
+    let s2 = sigma * sigma;
+    let norm = 1.0 / (sigma * (2.0 * std::f64::consts::PI).sqrt());
+    // One electron's output plus read noise, at x DN above the bias: an exponentially modified
+    // Gaussian, exp(σ²/2K² − x/K)·Φ(x/σ − σ/K)/K.
+    let one = |x: f64| -> f64 {
+        let z = x / sigma - sigma / gain;
+        let log = s2 / (2.0 * gain * gain) - x / gain;
+        (log.min(700.0)).exp() * 0.5 * libm::erfc(-z / std::f64::consts::SQRT_2) / gain
+    };
+    let own: Vec<(f64, f64)> = (0..map.values.len())
+        .into_par_iter()
+        .map(|i| {
+            let mut b = map.values[i] as f64;
+            let mut w = 0.5;
+            let mut weight = 0.0;
+            for _ in 0..6 {
+                let (mut sr, mut srv, mut n) = (0.0, 0.0, 0.0);
+                for f in use_frames {
+                    let v = f[i] as f64;
+                    if v >= ceiling {
+                        continue;
+                    }
+                    let x = v - b;
+                    let zero = w * norm * (-x * x / (2.0 * s2)).exp();
+                    let more = (1.0 - w) * one(x);
+                    let r = if zero + more > 0.0 {
+                        zero / (zero + more)
+                    } else {
+                        0.0
+                    };
+                    sr += r;
+                    srv += r * v;
+                    n += 1.0;
+                }
+                if sr < 1e-9 || n == 0.0 {
+                    return (b, f64::INFINITY);
+                }
+                b = srv / sr;
+                w = (sr / n).clamp(0.01, 0.99);
+                weight = sr;
+            }
+            (b, sigma / weight.sqrt())
+        })
+        .collect();
+    // The pattern's spread: the own peaks' spread about the map less their errors, over the
+    // pixels known to better than the read noise.
+    let good: Vec<(f64, f64)> = own
+        .iter()
+        .zip(&map.values)
+        .filter(|((_, se), _)| *se < sigma)
+        .map(|(&(b, se), &m)| (b - m as f64, se))
+        .collect();
+    if good.len() < 100 {
+        return None;
+    }
+    let mean_d = good.iter().map(|g| g.0).sum::<f64>() / good.len() as f64;
+    let var = good.iter().map(|g| (g.0 - mean_d).powi(2)).sum::<f64>() / good.len() as f64;
+    let noise = good.iter().map(|g| g.1 * g.1).sum::<f64>() / good.len() as f64;
+    let tau2 = var - noise;
+    if !(tau2 > 0.0) {
+        return None;
+    }
+    let mut kept: Vec<f64> = Vec::with_capacity(own.len());
+    for (m, &(b, se)) in map.values.iter_mut().zip(&own) {
+        let g = if se.is_finite() {
+            tau2 / (tau2 + se * se)
+        } else {
+            0.0
+        };
+        *m = (*m as f64 + g * (b - *m as f64)) as f32;
+        kept.push(g);
+    }
+    Some(PixelBias {
+        pattern_dn: tau2.sqrt(),
+        kept: emccd_profile::median(kept).unwrap_or(0.0),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -228,7 +228,6 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
             bias_map.range_dn, bias_map.fitted, bias_map.tiles, bias_map.tile
         ));
     }
-    let map_mean = bias_map.values.iter().map(|&v| v as f64).sum::<f64>() / n as f64;
 
     // 4. The photon-transfer slope.
     let curve = if movie {
@@ -299,6 +298,23 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
         (Estimate::new(df.sigma, differences_fit.se.sigma), None)
     };
 
+    // Each pixel's own bias, in a movie whose pixel-to-pixel pattern shows beyond the peaks'
+    // errors: laid on the smooth map.
+    let mut bias_map = bias_map;
+    let pixel_bias = if movie {
+        bias_map::refine(frames, &mut bias_map, df.sigma, vf.gain, ceiling)
+    } else {
+        None
+    };
+    if let Some(pb) = pixel_bias {
+        notes.push(format!(
+            "each pixel's own bias (its zero-electron frames' peak) is laid on the smooth map: a pixel-to-pixel pattern of {:.2} DN, the median pixel keeping {:.0} % of its own offset",
+            pb.pattern_dn,
+            100.0 * pb.kept
+        ));
+    }
+    let map_mean = bias_map.values.iter().map(|&v| v as f64).sum::<f64>() / n as f64;
+
     // The light level, in the profile's photoelectrons (s/2 DN each).
     // Per frame in parallel, then summed in order: the same number for any thread count.
     let per_frame: Vec<(f64, usize)> = frames
@@ -325,7 +341,7 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
         bias_dn: Estimate::new(vf.bias, values_fit.se.bias),
         bias_map,
         read_noise_dn,
-        pattern_dn,
+        pattern_dn: pixel_bias.map(|p| p.pattern_dn).or(pattern_dn),
         gain_dn,
         slope_dn: slope,
         slope_from,

@@ -350,3 +350,36 @@ fn a_bias_that_drifts_across_the_frame_is_followed() {
         );
     }
 }
+
+#[test]
+fn a_movie_maps_each_dark_pixels_own_bias() {
+    // A pixel-to-pixel pattern of 4 DN beside 11 DN of read noise, on a still movie of 32 frames.
+    let (side, frames, tau) = (128, 32, 4.0);
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(110);
+    let pattern: Vec<f64> = (0..side * side)
+        .map(|_| Normal::new(0.0, tau).unwrap().sample(&mut rng))
+        .collect();
+    let light = scene(side, side, 1.0, (0.0, 0.0), 111);
+    let mut m = movie(USER, side, side, 1.0, frames, 0.0, 111);
+    for f in &mut m {
+        for (v, p) in f.iter_mut().zip(&pattern) {
+            *v += p.round() as f32;
+        }
+    }
+    let c = characterize(&m, side, side).unwrap();
+    let pattern_dn = c.pattern_dn.unwrap();
+    assert!((pattern_dn / tau - 1.0).abs() < 0.2, "pattern {pattern_dn}");
+    // The background's pixels (its fifth with the least light, a few tenths of an electron a
+    // frame) spend most frames at zero electrons: their own peak is known to about
+    // σ/√(zero frames) ≈ 2.5 DN and kept by τ²/(τ² + se²) ≈ 0.7, which leaves about
+    // se·τ/√(τ² + se²) ≈ 2.1 DN of the pattern, about half its 4 DN.
+    let mut order: Vec<usize> = (0..side * side).collect();
+    order.sort_by(|&a, &b| light[a].total_cmp(&light[b]));
+    let dark = &order[..side * side / 5];
+    eprintln!("background {:.2} e⁻ a frame", light[dark[dark.len() - 1]]);
+    let rms = |f: &dyn Fn(usize) -> f64| {
+        (dark.iter().map(|&i| f(i).powi(2)).sum::<f64>() / dark.len() as f64).sqrt()
+    };
+    let left = rms(&|i| c.bias_map.values[i] as f64 - (USER.bias + pattern[i].round()));
+    assert!(left < 0.6 * tau, "pattern left {left} of {tau}");
+}
