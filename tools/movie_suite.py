@@ -24,7 +24,7 @@ and moves as the full run; only the noise is drawn anew.
 
 Usage: python3 tools/movie_suite.py [OUT] [--cameras lowlight-a,lowlight-b] [--levels 0.5,1,4,16]
            [--motions static,drift,...] [--frames 16] [--size 256] [--methods bm3d,blend,temporal]
-           [--no-bm4d] [--fast]
+           [--no-bm4d] [--fast] [--uncalibrated temporal,bm3d]
 --fast: the simulator's fast gain mode without its partial CIC, for the calibration acquisition
 and the movies alike (tools/unseen_camera.py --fast): several times quicker, for validation
 runs; the reported tables are made without it.
@@ -155,6 +155,8 @@ def main():
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--methods", default="bm3d,blend,temporal")
     ap.add_argument("--no-bm4d", action="store_true")
+    ap.add_argument("--uncalibrated", default="", help="methods also run with no --profile (the camera "
+                    "characterized from each movie itself), scored here as METHOD@rec")
     ap.add_argument("--fast", action="store_true", help="fast gain mode, no partial CIC in the register")
     ap.add_argument("--seed", type=int, default=11)
     a = ap.parse_args()
@@ -189,7 +191,7 @@ def main():
         mdir = cdir / "movies"
         mdir.mkdir(parents=True, exist_ok=True)
         # The movies, their truth stacks and pairs.toml: movie pairs `emccd evaluate` scores.
-        pairs, bm4d_rows = [], {}
+        pairs, bm4d_rows, rec_rows = [], {}, {}
         # Every motion's clean movie is made, in MOTIONS' order, so that a run of a few motions
         # has the same scenes and moves as the full run (its noise is drawn anew).
         clean = {}
@@ -222,6 +224,17 @@ def main():
                     bm4d_rows[(motion, level)] = (psnr(est, truth),
                                                   (time.perf_counter() - t) / a.frames * (512 * 512) / (n * n),
                                                   float(est.mean() / truth.mean()))
+                for m in filter(None, a.uncalibrated.split(",")):
+                    out_path = mdir / f"{stem}_{m}_rec.tif"
+                    t = time.perf_counter()
+                    r = subprocess.run([str(exe), "denoise", str(mdir / f"{stem}.tif"), "--method", m,
+                                        "-o", str(out_path)], check=True, capture_output=True, text=True)
+                    sec = (time.perf_counter() - t) / a.frames * (512 * 512) / (n * n)
+                    est = tifffile.imread(out_path).reshape(truth.shape).astype(np.float64)
+                    said = next((l for l in r.stderr.splitlines() if "characterized from the recording" in l), "")
+                    rec_rows[(motion, level, m)] = (psnr(est, truth), sec, float(est.mean() / truth.mean()),
+                                                    said.split("(no --profile): ")[-1])
+                    print(f"{cam_name} {stem} {m}@rec: {rec_rows[(motion, level, m)]}", file=sys.stderr)
                 print(f"{cam_name} {stem}: made" + (f", bm4d {bm4d_rows[(motion, level)][0]:.2f} dB"
                                                       if (motion, level) in bm4d_rows else ""), file=sys.stderr)
         with open(mdir / "pairs.toml", "w") as f:
@@ -244,11 +257,16 @@ def main():
                         row["mean_ratio"][sc["method"]] = sc.get("mean_ratio")
                 if (motion, level) in bm4d_rows:
                     row["psnr"]["bm4d"], row["s_per_512"]["bm4d"], row["mean_ratio"]["bm4d"] = bm4d_rows[(motion, level)]
+                for m in filter(None, a.uncalibrated.split(",")):
+                    k = f"{m}@rec"
+                    row["psnr"][k], row["s_per_512"][k], row["mean_ratio"][k], row["characterized"] = \
+                        rec_rows[(motion, level, m)]
                 rows.append(row)
                 print(json.dumps(row), file=sys.stderr)
         (a.out / "results.json").write_text(json.dumps(rows, indent=1))
     cols = ["input", "bm3d", "blend", "bm4d"] + [m for m in methods if m not in ("bm3d", "blend")]
     cols = [c for c in cols if c == "input" or c in methods or (c == "bm4d" and not a.no_bm4d)]
+    cols += [f"{m}@rec" for m in filter(None, a.uncalibrated.split(","))]
     lines = ["| camera | motion | mean e⁻ | " + " | ".join(cols) + " |", "|---" * (3 + len(cols)) + "|"]
     for r in rows:
         lines.append(f"| {r['camera']} | {r['motion']} | {r['level']:g} | "

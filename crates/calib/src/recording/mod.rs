@@ -197,6 +197,16 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
     let df = differences_fit.params;
     let events = df.electrons * differences_fit.values * 2.0;
     let gain_known = events >= 300.0 && differences_fit.se.gain < 0.25 * df.gain;
+    // Bias frames (shutter closed, or the EM register off): no electrons in the dark pixels and
+    // no light anywhere. Their bias and read noise are measured, the DN per electron cannot be.
+    if events < 30.0 {
+        if let Some((bias, sigma)) = no_light(frames, df.sigma, ceiling) {
+            return Err(Error::Fit(format!(
+                "these frames hold no light (bias frames): bias {bias:.2} DN, read noise {sigma:.3} DN{}; the DN per photoelectron needs electrons: characterize a recording with light (or `emccd calibrate` with flat stacks)",
+                if movie { " (the frame differences')" } else { " (neighbouring pixels', the pattern included)" }
+            )));
+        }
+    }
     if !gain_known {
         notes.push(format!(
             "the dark pixels hold about {events:.0} electrons: too few to measure the register's gain from its tail"
@@ -371,6 +381,26 @@ fn saturation(frames: &[Vec<f32>]) -> Option<(f64, usize)> {
         .sum::<usize>();
     let all = frames.len() * frames[0].len();
     (at >= 3 && at * 100_000 >= all).then_some((max as f64, at))
+}
+
+/// Where `frames` hold no light at all, their bias (the median value) and read noise
+/// (`sigma`, the dark pixels' differences'): the whole recording's mean within half a read-noise
+/// σ of its median, as a Gaussian's is. None where anything is lit.
+fn no_light(frames: &[Vec<f32>], sigma: f64, ceiling: f64) -> Option<(f64, f64)> {
+    let per_frame: Vec<(f64, usize)> = frames
+        .par_iter()
+        .map(|f| {
+            f.iter()
+                .filter(|&&v| (v as f64) < ceiling)
+                .fold((0.0, 0usize), |(s, c), &v| (s + v as f64, c + 1))
+        })
+        .collect();
+    let (sum, count) = per_frame
+        .iter()
+        .fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let mean = sum / count.max(1) as f64;
+    let median = emccd_profile::median(frames.iter().flatten().copied())?;
+    ((mean - median).abs() < 0.5 * sigma).then_some((median, sigma))
 }
 
 /// The darkest pixels by their neighbours' mean over all frames: the pixels whose eight

@@ -184,6 +184,12 @@ fn what_cannot_be_estimated_is_said() {
         .collect();
     let e = characterize(&bright, 64, 64).unwrap_err().to_string();
     assert!(e.contains("no zero-electron peak"), "{e}");
+    // Bias frames: no electrons anywhere; their bias and read noise are said.
+    let dark: Vec<Vec<f32>> = (0..8)
+        .map(|_| frame(USER, &vec![0.0; 64 * 64], &mut rng))
+        .collect();
+    let e = characterize(&dark, 64, 64).unwrap_err().to_string();
+    assert!(e.contains("no light") && e.contains("bias 500."), "{e}");
     // Saturated.
     let sat = vec![vec![65535.0f32; 64 * 64]; 4];
     let e = characterize(&sat, 64, 64).unwrap_err().to_string();
