@@ -220,3 +220,27 @@ def test_photon_counting_of_a_faint_stack(scene, profile):
         emccd.count(raw, prof, exposure_s=0.01, threshold="three")
     with pytest.raises(emccd.EmccdError, match="frames per output"):
         emccd.count(raw, prof, exposure_s=0.01, per=301)
+
+
+def test_without_a_profile_the_frames_characterize_their_camera(data, profile):
+    # A dim fluorescence field (a dark background) on the virtual camera, 8 frames.
+    img, _ = emccd.read(data / "clean" / "microscopy" / "fmd-confocal-bpae" / "field1-avg50.png")
+    scene = img[0][:128, :128] / img[0].max()
+    raw, truth = emccd.simulate_pairs(scene, profile=profile, mean_electrons=1.0, exposure_s=0.01, frames=8, seed=7)
+    with pytest.warns(UserWarning, match="camera characterized from the frames"):
+        out = emccd.denoise(raw, method="bm3d")
+    assert out.shape == raw.shape and np.isfinite(out).all()
+    # The mean within 10 % of the truth's (the bias surface's error is a fraction of a DN on a
+    # mean of 10 DN; tests/denoise.rs measures the same on the CLI).
+    assert out.mean() == pytest.approx(truth.mean(), rel=0.1)
+    # The right profile fits; one whose gain and read noise are half the frames' does not.
+    right = profile.crop(0, 0, 128, 128)
+    emccd.denoise(raw, right, method="none", exposure_s=0.01)
+    doubled = (raw - right.bias_dn) * 2 + right.bias_dn
+    with pytest.raises(emccd.EmccdError, match="does not fit profile given"):
+        emccd.denoise(doubled, right, method="none", exposure_s=0.01)
+    emccd.denoise(doubled, right, method="none", exposure_s=0.01, force=True)
+    # Counting too: the rate holds the spurious charge, and says so.
+    rate, _ = emccd.count(raw)
+    assert np.isfinite(rate).all()
+    assert any("cannot be told from light" in n for n in emccd.count.last_notes)

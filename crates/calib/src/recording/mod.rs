@@ -197,12 +197,13 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
     let df = differences_fit.params;
     let events = df.electrons * differences_fit.values * 2.0;
     let gain_known = events >= 300.0 && differences_fit.se.gain < 0.25 * df.gain;
-    // Bias frames (shutter closed, or the EM register off): no electrons in the dark pixels and
-    // no light anywhere. Their bias and read noise are measured, the DN per electron cannot be.
-    if events < 30.0 {
+    // Bias frames (shutter closed, or the EM register off): too few electrons in the dark
+    // pixels for the register's tail and no light anywhere. Their bias and read noise are
+    // measured, the DN per electron cannot be.
+    if !gain_known {
         if let Some((bias, sigma)) = no_light(frames, df.sigma, ceiling) {
             return Err(Error::Fit(format!(
-                "these frames hold no light (bias frames): bias {bias:.2} DN, read noise {sigma:.3} DN{}; the DN per photoelectron needs electrons: characterize a recording with light (or `emccd calibrate` with flat stacks)",
+                "these frames hold no measurable light (bias frames, or too dim): bias {bias:.2} DN, read noise {sigma:.3} DN{}; the DN per photoelectron needs electrons: characterize a recording with light (or `emccd calibrate` with flat stacks)",
                 if movie { " (the frame differences')" } else { " (neighbouring pixels', the pattern included)" }
             )));
         }
@@ -383,9 +384,10 @@ fn saturation(frames: &[Vec<f32>]) -> Option<(f64, usize)> {
     (at >= 3 && at * 100_000 >= all).then_some((max as f64, at))
 }
 
-/// Where `frames` hold no light at all, their bias (the median value) and read noise
-/// (`sigma`, the dark pixels' differences'): the whole recording's mean within half a read-noise
-/// σ of its median, as a Gaussian's is. None where anything is lit.
+/// Where `frames` hold no light at all, their bias (the median value) and read noise (the
+/// standard deviation of frame differences over √2, or of neighbouring pixels' in one frame):
+/// the whole recording's mean within half the dark pixels' read noise `sigma` of its median, as
+/// a Gaussian's is. None where anything is lit.
 fn no_light(frames: &[Vec<f32>], sigma: f64, ceiling: f64) -> Option<(f64, f64)> {
     let per_frame: Vec<(f64, usize)> = frames
         .par_iter()
@@ -400,7 +402,25 @@ fn no_light(frames: &[Vec<f32>], sigma: f64, ceiling: f64) -> Option<(f64, f64)>
         .fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     let mean = sum / count.max(1) as f64;
     let median = emccd_profile::median(frames.iter().flatten().copied())?;
-    ((mean - median).abs() < 0.5 * sigma).then_some((median, sigma))
+    if (mean - median).abs() >= 0.5 * sigma {
+        return None;
+    }
+    let pairs: Vec<(f32, f32)> = if frames.len() >= 2 {
+        frames
+            .chunks_exact(2)
+            .flat_map(|p| p[0].iter().copied().zip(p[1].iter().copied()))
+            .collect()
+    } else {
+        frames[0].chunks_exact(2).map(|p| (p[0], p[1])).collect()
+    };
+    let d: Vec<f64> = pairs
+        .into_iter()
+        .filter(|&(a, b)| (a as f64) < ceiling && (b as f64) < ceiling)
+        .map(|(a, b)| (a - b) as f64)
+        .collect();
+    let m = d.iter().sum::<f64>() / d.len().max(1) as f64;
+    let var = d.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (d.len().max(2) - 1) as f64;
+    Some((median, (var / 2.0).sqrt()))
 }
 
 /// The darkest pixels by their neighbours' mean over all frames: the pixels whose eight
