@@ -122,11 +122,24 @@ fn inputs_are_never_overwritten_and_outputs_never_shared() {
         .collect();
     // The output is the input itself, spelled the same or differently.
     fails_with(
-        &emccd(&["denoise", "x.tif", "-o", "x.tif"], d),
+        &emccd(
+            &["denoise", "--profile", "default", "x.tif", "-o", "x.tif"],
+            d,
+        ),
         "is the input",
     );
     fails_with(
-        &emccd(&["denoise", "x.tif", "-o", "./a/../x.tif"], d),
+        &emccd(
+            &[
+                "denoise",
+                "--profile",
+                "default",
+                "x.tif",
+                "-o",
+                "./a/../x.tif",
+            ],
+            d,
+        ),
         "is the input",
     );
     // An input reached through a symbolic link is the same file.
@@ -134,7 +147,16 @@ fn inputs_are_never_overwritten_and_outputs_never_shared() {
     {
         fails_with(
             &emccd(
-                &["denoise", "link.tif", "-o", "x.tif", "--exposure-s", "0.01"],
+                &[
+                    "denoise",
+                    "--profile",
+                    "default",
+                    "link.tif",
+                    "-o",
+                    "x.tif",
+                    "--exposure-s",
+                    "0.01",
+                ],
                 d,
             ),
             "is the input",
@@ -147,19 +169,50 @@ fn inputs_are_never_overwritten_and_outputs_never_shared() {
     // A hard link to an input is the input too.
     fails_with(
         &emccd(
-            &["denoise", "hard.tif", "-o", "y.tif", "--exposure-s", "0.01"],
+            &[
+                "denoise",
+                "--profile",
+                "default",
+                "hard.tif",
+                "-o",
+                "y.tif",
+                "--exposure-s",
+                "0.01",
+            ],
             d,
         ),
         "is the input",
     );
     // Two inputs with one file name from different folders.
     fails_with(
-        &emccd(&["denoise", "a/x.tif", "b/x.tif", "-o", "out"], d),
+        &emccd(
+            &[
+                "denoise",
+                "--profile",
+                "default",
+                "a/x.tif",
+                "b/x.tif",
+                "-o",
+                "out",
+            ],
+            d,
+        ),
         "would both be written",
     );
     // An input that is another input's output, in the output folder.
     fails_with(
-        &emccd(&["denoise", "y.tif", "out/y_denoised.tif", "-o", "out"], d),
+        &emccd(
+            &[
+                "denoise",
+                "--profile",
+                "default",
+                "y.tif",
+                "out/y_denoised.tif",
+                "-o",
+                "out",
+            ],
+            d,
+        ),
         "is the input",
     );
     // `synthesize` writes noise onto an image: never over that image.
@@ -231,7 +284,19 @@ fn exposures_must_be_positive_seconds_and_near_the_calibration() {
     raw_frame(d, "neg.tif", Some(-1.0));
     for t in ["-1", "0", "NaN", "inf"] {
         fails_with(
-            &emccd(&["denoise", "x.tif", "-o", "o.tif", "--exposure-s", t], d),
+            &emccd(
+                &[
+                    "denoise",
+                    "--profile",
+                    "default",
+                    "x.tif",
+                    "-o",
+                    "o.tif",
+                    "--exposure-s",
+                    t,
+                ],
+                d,
+            ),
             "must be a positive number of seconds",
         );
     }
@@ -261,6 +326,8 @@ fn exposures_must_be_positive_seconds_and_near_the_calibration() {
     let o = emccd(
         &[
             "denoise",
+            "--profile",
+            "default",
             "x.tif",
             "-o",
             "nodir/o.tif",
@@ -273,13 +340,25 @@ fn exposures_must_be_positive_seconds_and_near_the_calibration() {
     assert!(!String::from_utf8_lossy(&o.stderr).contains(".tmp"));
     // From a header it is the same error, saying where the number came from.
     fails_with(
-        &emccd(&["denoise", "neg.tif", "-o", "o.tif"], d),
+        &emccd(
+            &["denoise", "--profile", "default", "neg.tif", "-o", "o.tif"],
+            d,
+        ),
         "from the file header",
     );
     // Far outside the calibrated range the fixed pattern is a guess: an error unless asked for.
     fails_with(
         &emccd(
-            &["denoise", "x.tif", "-o", "o.tif", "--exposure-s", "10"],
+            &[
+                "denoise",
+                "--profile",
+                "default",
+                "x.tif",
+                "-o",
+                "o.tif",
+                "--exposure-s",
+                "10",
+            ],
             d,
         ),
         "--extrapolate",
@@ -292,7 +371,19 @@ fn exposures_must_be_positive_seconds_and_near_the_calibration() {
         ["--ensemble", "3"],
         ["--ensemble", "0"],
     ] {
-        let o = emccd(&["denoise", "x.tif", "-o", "o.tif", args[0], args[1]], d);
+        let o = emccd(
+            &[
+                "denoise",
+                "--profile",
+                "default",
+                "x.tif",
+                "-o",
+                "o.tif",
+                args[0],
+                args[1],
+            ],
+            d,
+        );
         assert_eq!(o.status.code(), Some(2), "{args:?}");
     }
     assert!(!d.join("o.tif").exists());
@@ -595,7 +686,16 @@ fn the_bad_input_corpus_is_refused_cleanly() {
             n => n,
         };
         let runs: Vec<Vec<&str>> = if name.starts_with("frames-") {
-            let mut v = vec![vec!["denoise", name, "-o", "out.tif", "--method", "net"]];
+            let mut v = vec![vec![
+                "denoise",
+                "--profile",
+                "default",
+                name,
+                "-o",
+                "out.tif",
+                "--method",
+                "net",
+            ]];
             // `info` describes a header (it marks a bad exposure, tested below; it reads no
             // frame), and an explicit exposure overrides the header's: the bad-exposure file is
             // only wrong without one.
@@ -624,6 +724,8 @@ fn the_bad_input_corpus_is_refused_cleanly() {
             // model or profile.
             let mut v = vec![vec![
                 "denoise",
+                "--profile",
+                "default",
                 "good.tif",
                 "-o",
                 "out.tif",
@@ -635,6 +737,8 @@ fn the_bad_input_corpus_is_refused_cleanly() {
             if flag == "--profile" {
                 v.push(vec![
                     "count",
+                    "--profile",
+                    "default",
                     "good.tif",
                     "-o",
                     "out.tif",
@@ -688,7 +792,7 @@ fn adapt_refuses_mismatched_recordings_and_writes_nothing() {
     .unwrap();
     let before = files(d);
     let adapt = |args: &[&str]| {
-        let mut a = vec!["adapt", "--steps", "2"];
+        let mut a = vec!["adapt", "--profile", "default", "--steps", "2"];
         a.extend_from_slice(args);
         emccd(&a, d)
     };
@@ -906,7 +1010,7 @@ fn denoising_several_inputs_is_all_or_nothing() {
     bytes[2880 + 4000..2880 + 4004].copy_from_slice(&f32::NAN.to_be_bytes());
     std::fs::write(d.join("nan.fits"), bytes).unwrap();
     let denoise = |inputs: &[&str], out: &str| {
-        let mut args = vec!["denoise"];
+        let mut args = vec!["denoise", "--profile", "default"];
         args.extend_from_slice(inputs);
         args.extend_from_slice(&["-o", out, "--method", "none", "--exposure-s", "0.01"]);
         emccd(&args, d)
@@ -956,7 +1060,16 @@ fn messages_name_what_is_wrong() {
     std::fs::create_dir(d.join("folder")).unwrap();
     let run = |args: &[&str]| emccd(args, d);
     for model in ["folder", "/dev/null"] {
-        let o = run(&["denoise", "a.tif", "-o", "x.tif", "--model", model]);
+        let o = run(&[
+            "denoise",
+            "--profile",
+            "default",
+            "a.tif",
+            "-o",
+            "x.tif",
+            "--model",
+            model,
+        ]);
         fails_with(&o, "not a model file");
     }
     std::fs::write(
@@ -970,7 +1083,15 @@ fn messages_name_what_is_wrong() {
     );
     fails_with(
         &run(&[
-            "denoise", "a.tif", "b.tif", "-o", "a.tif", "--method", "none",
+            "denoise",
+            "--profile",
+            "default",
+            "a.tif",
+            "b.tif",
+            "-o",
+            "a.tif",
+            "--method",
+            "none",
         ]),
         "is a file; several inputs",
     );
@@ -987,7 +1108,16 @@ fn messages_name_what_is_wrong() {
         ]),
         "0.01 is given twice",
     );
-    let o = run(&["denoise", "a.tif", "-o", "x.tif", "--exposure-s", "1e-300"]);
+    let o = run(&[
+        "denoise",
+        "--profile",
+        "default",
+        "a.tif",
+        "-o",
+        "x.tif",
+        "--exposure-s",
+        "1e-300",
+    ]);
     fails_with(&o, "exposure 1e-300 s");
     assert!(String::from_utf8_lossy(&o.stderr).len() < 400);
     assert!(!d.join("acq").exists() && !d.join("p").exists() && !d.join("x.tif").exists());
@@ -1076,7 +1206,16 @@ fn a_value_beyond_float32_says_so() {
     bytes.resize(bytes.len().div_ceil(2880) * 2880, 0);
     std::fs::write(d.join("big.fits"), bytes).unwrap();
     let o = emccd(
-        &["denoise", "big.fits", "-o", "x.tif", "--method", "none"],
+        &[
+            "denoise",
+            "--profile",
+            "default",
+            "big.fits",
+            "-o",
+            "x.tif",
+            "--method",
+            "none",
+        ],
         d,
     );
     fails_with(&o, "pixel (7, 0) (inf; a float64 beyond float32");
@@ -1116,8 +1255,26 @@ fn special_files_are_refused_not_waited_on() {
     for input in inputs {
         for args in [
             &["info", input][..],
-            &["denoise", input, "-o", "o.tif", "--exposure-s", "0.01"][..],
-            &["count", input, "-o", "o.tif", "--exposure-s", "0.01"][..],
+            &[
+                "denoise",
+                "--profile",
+                "default",
+                input,
+                "-o",
+                "o.tif",
+                "--exposure-s",
+                "0.01",
+            ][..],
+            &[
+                "count",
+                "--profile",
+                "default",
+                input,
+                "-o",
+                "o.tif",
+                "--exposure-s",
+                "0.01",
+            ][..],
         ] {
             fails_with(
                 &emccd_or_kill(args, d),
@@ -1243,7 +1400,18 @@ fn a_binned_recording_asks_for_a_binned_calibration() {
     let dir = tempfile::tempdir().unwrap();
     let sif = common::data("emccd-real/andor-sif/ixon897_binned_gain56.sif");
     for cmd in ["denoise", "count"] {
-        let o = emccd(&[cmd, sif.to_str().unwrap(), "-o", "o.tif"], dir.path());
+        // A given profile (without one, the binned frames are characterized as they are).
+        let o = emccd(
+            &[
+                cmd,
+                sif.to_str().unwrap(),
+                "-o",
+                "o.tif",
+                "--profile",
+                "default",
+            ],
+            dir.path(),
+        );
         fails_with(&o, "binned 2×2 on the chip");
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(
@@ -1285,7 +1453,18 @@ fn outputs_in_the_way_are_found_before_any_work() {
     // (`denoise` writes the inputs into one store there, and refuses one it did not make;
     // `count` writes one counted stack into a store.)
     fails_with(
-        &emccd(&["count", "a.tif", "b.tif", "-o", "s.zarr"], d),
+        &emccd(
+            &[
+                "count",
+                "--profile",
+                "default",
+                "a.tif",
+                "b.tif",
+                "-o",
+                "s.zarr",
+            ],
+            d,
+        ),
         "a .zarr output holds one counted stack: give one input",
     );
     assert_eq!(files(&d.join("s.zarr")), ["zarr.json"]);
@@ -1432,7 +1611,16 @@ fn stale_temporary_outputs_are_swept() {
         common::age(&d.join(old));
     }
     ok(&emccd(
-        &["denoise", "a.tif", "-o", "o.tif", "--method", "none"],
+        &[
+            "denoise",
+            "--profile",
+            "default",
+            "a.tif",
+            "-o",
+            "o.tif",
+            "--method",
+            "none",
+        ],
         d,
     ));
     ok(&emccd(

@@ -298,19 +298,36 @@ fn real_ixon_bias_read_noise_matches_an_independent_estimate() {
     // give no DN per photoelectron (nothing is written), but their bias and read noise, which
     // agree with the calibration's bias statistics to the targets (1 DN, 5 %).
     let o = emccd(
-        &["calibrate", "--from-recording", sif.to_str().unwrap(), "-o", "rec"],
+        &[
+            "calibrate",
+            "--from-recording",
+            sif.to_str().unwrap(),
+            "-o",
+            "rec",
+        ],
         d,
     );
     assert_eq!(o.status.code(), Some(2));
     let err = String::from_utf8_lossy(&o.stderr);
     let number = |after: &str| -> f64 {
         let at = err.find(after).unwrap_or_else(|| panic!("{after}: {err}")) + after.len();
-        err[at..].split_whitespace().next().unwrap().parse().unwrap()
+        err[at..]
+            .split_whitespace()
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap()
     };
     let (bias, read) = (number("): bias "), number("read noise "));
     let median = res["bias"][0]["median_dn"].as_f64().unwrap();
-    assert!((bias - median).abs() < 1.0, "bias {bias} vs the calibration's {median}");
-    assert!((read / rms - 1.0).abs() < 0.05, "read noise {read} vs {rms}");
+    assert!(
+        (bias - median).abs() < 1.0,
+        "bias {bias} vs the calibration's {median}"
+    );
+    assert!(
+        (read / rms - 1.0).abs() < 0.05,
+        "read noise {read} vs {rms}"
+    );
     assert!(err.contains("no light"), "{err}");
     assert!(!d.join("rec").exists());
 }

@@ -70,6 +70,8 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
     ok(&emccd(
         &[
             "denoise",
+            "--profile",
+            "default",
             noisy,
             "-o",
             "den.tif",
@@ -85,6 +87,8 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
     ok(&emccd(
         &[
             "denoise",
+            "--profile",
+            "default",
             noisy,
             "-o",
             "den_e.fits",
@@ -103,6 +107,8 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
     ok(&emccd(
         &[
             "denoise",
+            "--profile",
+            "default",
             noisy,
             "-o",
             "den2.tif",
@@ -186,6 +192,8 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
     let o = emccd(
         &[
             "denoise",
+            "--profile",
+            "default",
             "small.tif",
             "-o",
             "x.tif",
@@ -211,6 +219,8 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
         let o = emccd(
             &[
                 "denoise",
+                "--profile",
+                "default",
                 noisy,
                 "-o",
                 "y.tif",
@@ -232,6 +242,8 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
     let o = emccd(
         &[
             "denoise",
+            "--profile",
+            "default",
             "small.tif",
             "-o",
             "x.tif",

@@ -1,4 +1,4 @@
-//! `emccd profile show|init-default|crop`.
+//! `emccd profile show|init-default|crop|export`.
 
 use std::path::PathBuf;
 
@@ -50,10 +50,65 @@ pub enum Cmd {
         #[arg(long)]
         force: bool,
     },
+    /// Write a profile's camera numbers (baseline, electrons per A/D count before EM gain, EM
+    /// gain, read noise, spurious charge) in the form a localization tool takes: a camera entry
+    /// for Picasso's config.yaml, DECODE's `Camera:` block, ThunderSTORM's `Camera setup` macro
+    /// line, or SMAP's Camera Manager values; units in comments. To stdout, or -o FILE.
+    Export {
+        /// A profile directory, or `default`.
+        profile: String,
+        /// The tool: picasso, thunderstorm, decode or smap.
+        #[arg(long)]
+        to: emccd_profile::export::Tool,
+        /// The EM gain setting, where the profile does not record it (or to override it).
+        #[arg(long)]
+        em_gain: Option<f64>,
+        /// Pixel size in the sample, nm (the tools need it; a profile does not hold it).
+        #[arg(long)]
+        pixel_size_nm: Option<f64>,
+        /// Write here instead of stdout.
+        #[arg(short, long)]
+        out: Option<PathBuf>,
+        /// Replace an existing output file.
+        #[arg(long)]
+        force: bool,
+    },
 }
 
 pub fn run(c: Cmd) -> Result<()> {
     match c {
+        Cmd::Export {
+            profile,
+            to,
+            em_gain,
+            pixel_size_nm,
+            out,
+            force,
+        } => {
+            for (what, v) in [("--em-gain", em_gain), ("--pixel-size-nm", pixel_size_nm)] {
+                if let Some(v) = v.filter(|v| !(v.is_finite() && *v > 0.0)) {
+                    anyhow::bail!("{what} {v}: a positive number");
+                }
+            }
+            let p = load_profile(&profile)?;
+            let extra = emccd_profile::export::Extra {
+                em_gain,
+                pixel_size_nm,
+            };
+            let text = emccd_profile::export::export(&p, to, &extra)
+                .with_context(|| format!("profile {profile}"))?;
+            match out {
+                None => print!("{text}"),
+                Some(path) => {
+                    if path.exists() && !force {
+                        anyhow::bail!("{}: exists; pass --force to replace it", path.display());
+                    }
+                    emccd_io::write_atomic(&path, text.as_bytes())?;
+                    eprintln!("wrote {to:?} camera settings to {}", path.display());
+                }
+            }
+            Ok(())
+        }
         Cmd::Show { profile, json } => {
             let p = load_profile(&profile)?;
             if json {

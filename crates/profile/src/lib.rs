@@ -31,6 +31,7 @@
 mod blooming;
 mod default;
 mod error;
+pub mod export;
 mod fpn;
 pub mod manifest;
 mod recording;

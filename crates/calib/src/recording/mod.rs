@@ -145,11 +145,17 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
         .enumerate()
         .find_map(|(f, v)| v.iter().position(|x| !x.is_finite()).map(|i| (f, i)))
     {
+        let v = frames[f][i];
         return Err(Error::Fit(format!(
-            "frame {} has a non-finite value at pixel ({}, {})",
+            "frame {}: a non-finite value at pixel ({}, {}) ({v}{})",
             f + 1,
             i % width,
-            i / width
+            i / width,
+            if v.is_infinite() {
+                "; a float64 beyond float32's ±3.4e38 reads as ±inf"
+            } else {
+                ""
+            }
         )));
     }
     let mut notes = Vec::new();
