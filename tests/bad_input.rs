@@ -534,7 +534,7 @@ fn closed_pipes_are_no_panic_and_lose_no_work() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("rc=0") && !err.contains("panicked"), "{err}");
     let o = run(
-        r#"(sleep 0.5; "$0" denoise a.tif b.tif -o out --method bm3d 2>&1; echo "rc=$?" > rc.txt) | true"#,
+        r#"(sleep 0.5; "$0" denoise a.tif b.tif -o out --profile default --method bm3d 2>&1; echo "rc=$?" > rc.txt) | true"#,
     );
     let rc = std::fs::read_to_string(d.join("rc.txt")).unwrap();
     assert_eq!(rc.trim(), "rc=0", "{}", String::from_utf8_lossy(&o.stderr));
@@ -792,7 +792,7 @@ fn adapt_refuses_mismatched_recordings_and_writes_nothing() {
     .unwrap();
     let before = files(d);
     let adapt = |args: &[&str]| {
-        let mut a = vec!["adapt", "--profile", "default", "--steps", "2"];
+        let mut a = vec!["adapt", "--steps", "2"];
         a.extend_from_slice(args);
         emccd(&a, d)
     };

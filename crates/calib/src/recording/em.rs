@@ -102,7 +102,9 @@ struct Model<'a> {
 impl<'a> Model<'a> {
     fn new(form: Form, hist: &'a Histogram, pad: f64) -> Model<'a> {
         let len = hist.counts.len();
-        let pad = pad.ceil().max(16.0) as usize;
+        // Room against wrap-around, but never more than the window itself: a tail scale far
+        // beyond the window (a fit wandering off) must not make every evaluation huge.
+        let pad = pad.min(len as f64).ceil().max(16.0) as usize;
         let n = (len + 2 * pad).next_power_of_two();
         let plan = RealFftPlanner::<f64>::new().plan_fft_inverse(n);
         let scratch = std::cell::RefCell::new((

@@ -503,6 +503,10 @@ fn darkest(
     (pick(centre, per), pick(pairs, 1))
 }
 
+/// The widest histogram window a fit is made on, DN: the cost of every likelihood evaluation
+/// grows with it.
+const MAX_WINDOW: f64 = 16_384.0;
+
 /// The differences' histogram (to where the register's tail has fallen far below one count) and
 /// a start for their fit: the core's scale from the median |d|, the tail's from the mean
 /// excess beyond five core widths.
@@ -522,7 +526,7 @@ fn difference_start(d: &[f64]) -> (em::Histogram, em::Params) {
     let reach = (emccd_profile::percentile(abs.iter().copied(), 0.9999).unwrap_or(t))
         .max(12.0 * sigma)
         .min(12.0 * sigma + 40.0 * gain)
-        .min(30_000.0)
+        .min(MAX_WINDOW)
         .ceil() as i64;
     (
         em::Histogram::of(d.iter().copied(), -reach, reach),
@@ -547,8 +551,10 @@ fn value_start(v: &[f64], sigma_d: f64, gain: f64) -> (em::Histogram, em::Params
     let sigma = ((med - q25) / 0.6745).max(sigma_d).max(0.5);
     let bias = (q10 + 1.2816 * sigma).min(med);
     let lo = (bias - 12.0 * sigma).floor() as i64;
-    let hi = (bias + 12.0 * sigma + 30.0 * gain)
-        .min(bias + 30_000.0)
+    // The register's tail to 30 scales, the scale taken at most 40 read-noise σ (EM gain
+    // 1000 behind a quiet amplifier): a wider window is data that is no EMCCD's.
+    let hi = (bias + 12.0 * sigma + 30.0 * gain.min(40.0 * sigma))
+        .min(bias + MAX_WINDOW)
         .ceil() as i64;
     let above = v.iter().filter(|&&x| x > bias + 4.0 * sigma).count() as f64 / v.len() as f64;
     (

@@ -207,6 +207,10 @@ fn what_cannot_be_estimated_is_said() {
         .collect();
     let e = characterize(&[photo], 128, 128).unwrap_err().to_string();
     assert!(!e.is_empty());
+    // A synthetic sawtooth (whole steps of 30 DN): its fits once wandered to a register scale
+    // far beyond the data and took minutes; now refused like any other non-EMCCD frame.
+    let saw: Vec<f32> = (0..512 * 512).map(|i| 500.0 + (i % 13) as f32 * 30.0).collect();
+    assert!(characterize(&[saw], 512, 512).is_err());
 }
 
 #[test]
