@@ -210,8 +210,9 @@ impl ChosenProfile {
 }
 
 impl RecordingArgs {
-    /// The profile for `inputs`: `--profile`'s, checked against them (unless `--force`), or,
-    /// without one, the camera characterized from them (its summary printed).
+    /// The profile for `inputs`: `--profile`'s, or, without one, the camera characterized from
+    /// them (its summary printed). A given profile is checked against the inputs by
+    /// [`RecordingArgs::check_fit`] once they have been opened through it.
     pub fn choose_profile(&self, inputs: &[std::path::PathBuf]) -> Result<ChosenProfile> {
         let paths: Vec<&Path> = inputs.iter().map(|p| p.as_path()).collect();
         let Some(arg) = &self.profile else {
@@ -236,9 +237,6 @@ impl RecordingArgs {
             });
         };
         let profile = load_profile(arg)?;
-        if !self.force {
-            self.check_fit(&profile, arg, &paths)?;
-        }
         Ok(ChosenProfile {
             profile,
             name: arg.clone(),
@@ -250,21 +248,30 @@ impl RecordingArgs {
     /// ([`emccd_calib::recording::Frames::misfit`]). Inputs that cannot be compared with it
     /// (bright everywhere, too small, another size) are let through with a note: opening them
     /// checks the rest.
-    fn check_fit(&self, profile: &CameraProfile, arg: &str, paths: &[&Path]) -> Result<()> {
-        let misfit = emccd_calib::recording::read(paths).and_then(|mut f| {
+    /// Call once the inputs have opened through the profile (their size and exposure checked),
+    /// before anything is written; nothing to do for a profile characterized from them, or with
+    /// `--force`.
+    pub fn check_fit(&self, chosen: &ChosenProfile, inputs: &[std::path::PathBuf]) -> Result<()> {
+        if self.force || chosen.summary.is_some() {
+            return Ok(());
+        }
+        let (profile, arg) = (&chosen.profile, &chosen.name);
+        let paths: Vec<&Path> = inputs.iter().map(|p| p.as_path()).collect();
+        let misfit = emccd_calib::recording::read(&paths).map(|mut f| {
             f.exposure_s = self.exposure_s.or(f.exposure_s);
-            Ok((f.misfit(profile), f.source))
+            (f.misfit(profile), f.source)
         });
         match misfit {
             Ok((Ok(off), source)) if !off.is_empty() => anyhow::bail!(
                 "{}",
                 emccd_calib::recording::misfit_message(&source, arg, &off, "--force")
             ),
-            Ok((Err(why), source)) => {
-                eprintln!("note: {source}: not checked against profile {arg}: {why}")
-            }
-            Err(e) => eprintln!("note: not checked against profile {arg}: {e}"),
-            Ok(_) => {}
+            // The first clause of why: the rest advises a profile, which was given.
+            Ok((Err(why), source)) => eprintln!(
+                "note: {source}: not checked against profile {arg} ({})",
+                why.split([':', ';']).next().unwrap_or(&why)
+            ),
+            Err(_) | Ok(_) => {}
         }
         Ok(())
     }

@@ -54,7 +54,7 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     let chosen = a.recording.choose_profile(&a.inputs)?;
-    let profile = chosen.profile;
+    let profile = chosen.profile.clone();
     profile
         .require_complete()
         .with_context(|| format!("profile {}: it cannot preprocess frames", chosen.name))?;
@@ -79,7 +79,11 @@ pub fn run(a: Args) -> Result<()> {
         Recorded::MEMORY_BUDGET,
     );
     for input in &a.inputs {
-        let recording = a.recording.open(input, &profile)?;
+        a.recording.open(input, &profile)?;
+    }
+    a.recording.check_fit(&chosen, &a.inputs)?;
+    for input in &a.inputs {
+        let recording = a.recording.reopen(input, &profile)?;
         let pb = progress(recording.info.frames as u64, "reading");
         rec.add_recording(&profile, recording, &mut || pb.inc(1))?;
         pb.finish_and_clear();

@@ -178,6 +178,7 @@ pub fn run(a: Args) -> Result<()> {
             level,
         });
     }
+    a.recording.check_fit(&chosen, &a.inputs)?;
     if zarr {
         return count_zarr(&a, &chosen, &jobs[0]);
     }

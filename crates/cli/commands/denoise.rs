@@ -121,6 +121,7 @@ pub fn run(a: Args) -> Result<()> {
         let level = emccd_count::light_level(profile, &mut rec, 4).ok();
         notes.push(level.and_then(crate::common::counting_note));
     }
+    a.recording.check_fit(&chosen, &a.inputs)?;
     let made = several && !a.out.exists();
     if several {
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
@@ -215,6 +216,7 @@ fn run_zarr(a: &Args, r: &Resolved, chosen: &ChosenProfile, window: usize) -> Re
         .iter()
         .map(|p| a.recording.open(p, profile))
         .collect::<Result<Vec<_>>>()?;
+    a.recording.check_fit(chosen, &a.inputs)?;
     // The store is one stack: the default runs temporally when any of its recordings is a
     // movie (each frame's window stays within its own recording).
     let longest = inputs.iter().map(|i| i.info.frames).max().unwrap_or(1);

@@ -189,7 +189,7 @@ fn what_cannot_be_estimated_is_said() {
         .map(|_| frame(USER, &vec![0.0; 64 * 64], &mut rng))
         .collect();
     let e = characterize(&dark, 64, 64).unwrap_err().to_string();
-    assert!(e.contains("no light") && e.contains("bias 500."), "{e}");
+    assert!(e.contains("no measurable light") && e.contains("bias 500."), "{e}");
     // Saturated.
     let sat = vec![vec![65535.0f32; 64 * 64]; 4];
     let e = characterize(&sat, 64, 64).unwrap_err().to_string();
@@ -209,7 +209,9 @@ fn what_cannot_be_estimated_is_said() {
     assert!(!e.is_empty());
     // A synthetic sawtooth (whole steps of 30 DN): its fits once wandered to a register scale
     // far beyond the data and took minutes; now refused like any other non-EMCCD frame.
-    let saw: Vec<f32> = (0..512 * 512).map(|i| 500.0 + (i % 13) as f32 * 30.0).collect();
+    let saw: Vec<f32> = (0..512 * 512)
+        .map(|i| 500.0 + (i % 13) as f32 * 30.0)
+        .collect();
     assert!(characterize(&[saw], 512, 512).is_err());
 }
 
