@@ -252,9 +252,37 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
     } else {
         None
     };
+    // A slope an EM register cannot make with the gain its tail shows (f² = s/K outside 1–2.5
+    // beyond three errors: a flat or dim scene spans too few levels for the line) is not used.
+    let emccd_like = |c: &ptc::Curve| -> bool {
+        if !gain_known {
+            return true;
+        }
+        let f2 = c.slope / df.gain;
+        let se = f2
+            * ((c.slope_se / c.slope).powi(2) + (differences_fit.se.gain / df.gain).powi(2))
+                .sqrt();
+        f2 + 3.0 * se >= 1.0 && f2 - 3.0 * se <= 2.5
+    };
     let (slope, slope_from) = match &curve {
-        Some(c) if c.slope > 0.0 && c.slope_se.is_finite() && c.slope_se < 0.2 * c.slope => {
+        Some(c)
+            if c.slope > 0.0
+                && c.slope_se.is_finite()
+                && c.slope_se < 0.2 * c.slope
+                && emccd_like(c) =>
+        {
             (Estimate::new(c.slope, c.slope_se), SlopeFrom::TemporalPtc)
+        }
+        Some(c) if gain_known && c.slope > 0.0 && c.slope_se < 0.2 * c.slope => {
+            notes.push(format!(
+                "the movie's mean–variance slope, {:.2} ± {:.2} DN, is no EM register's with the gain its tail shows ({:.2} DN per electron: f² = {:.2}); the slope is twice the register's gain",
+                c.slope, c.slope_se, df.gain, c.slope / df.gain
+            ));
+            notes.push("the photon-transfer slope is 2K: the excess noise of a many-stage register (f² = 2) is assumed, not measured".into());
+            (
+                Estimate::new(2.0 * df.gain, 2.0 * differences_fit.se.gain),
+                SlopeFrom::EmTail,
+            )
         }
         _ if gain_known => {
             if movie {
