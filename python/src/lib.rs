@@ -442,7 +442,7 @@ fn through(
         };
         match frames.misfit(&p) {
             Ok(off) if !off.is_empty() => {
-                anyhow::bail!("{}", misfit_message(SOURCE, "given", &off, "force=True"))
+                anyhow::bail!("{}", misfit_message(SOURCE, &p.camera, &off, "force=True"))
             }
             Ok(_) => {}
             Err(why) => notes.push(format!("not checked against the profile: {why}")),

@@ -260,8 +260,7 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
         }
         let f2 = c.slope / df.gain;
         let se = f2
-            * ((c.slope_se / c.slope).powi(2) + (differences_fit.se.gain / df.gain).powi(2))
-                .sqrt();
+            * ((c.slope_se / c.slope).powi(2) + (differences_fit.se.gain / df.gain).powi(2)).sqrt();
         f2 + 3.0 * se >= 1.0 && f2 - 3.0 * se <= 2.5
     };
     let (slope, slope_from) = match &curve {

@@ -189,7 +189,10 @@ fn what_cannot_be_estimated_is_said() {
         .map(|_| frame(USER, &vec![0.0; 64 * 64], &mut rng))
         .collect();
     let e = characterize(&dark, 64, 64).unwrap_err().to_string();
-    assert!(e.contains("no measurable light") && e.contains("bias 500."), "{e}");
+    assert!(
+        e.contains("no measurable light") && e.contains("bias 500."),
+        "{e}"
+    );
     // Saturated.
     let sat = vec![vec![65535.0f32; 64 * 64]; 4];
     let e = characterize(&sat, 64, 64).unwrap_err().to_string();
