@@ -34,7 +34,7 @@ def refused(exe, path, profile, out):
 def main():
     out = Path(sys.argv[1])
     exe = ROOT / "target/release/emccd"
-    cams = sorted(p.parent.name for p in out.glob("*/profile/profile.toml"))
+    cams = sorted(p.parent.parent.name for p in out.glob("*/profile/profile.toml"))
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)

@@ -385,7 +385,9 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
         bias_dn: Estimate::new(vf.bias, values_fit.se.bias),
         bias_map,
         read_noise_dn,
-        pattern_dn: pixel_bias.map(|p| p.pattern_dn).or(pattern_dn),
+        // Where the read noise is the frame differences' core (the pattern then measurable),
+        // the pixels' own peaks measure the pattern better than the peak's width.
+        pattern_dn: pattern_dn.map(|p| pixel_bias.map_or(p, |b| b.pattern_dn)),
         gain_dn,
         slope_dn: slope,
         slope_from,
