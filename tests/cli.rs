@@ -443,3 +443,38 @@ fn the_binary_works_copied_anywhere() {
     assert!(err.contains("nosuch: model not found"), "{err}");
     assert!(!err.contains(&needle), "{err}");
 }
+
+/// `profile export`: each tool's block on stdout or into a file (replaced only with `--force`),
+/// an unknown tool named with the known ones, and an EM gain the profile lacks asked for.
+#[test]
+fn profile_export_writes_each_tools_camera_block() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = ok(&emccd(
+        &["profile", "export", "default", "--to", "decode"],
+        d,
+    ));
+    assert!(
+        out.contains("Camera:") && out.contains("em_gain: 300"),
+        "{out}"
+    );
+    for tool in ["picasso", "thunderstorm", "smap"] {
+        let args = [
+            "profile", "export", "default", "--to", tool, "-o", "cam.txt", "--force",
+        ];
+        ok(&emccd(&args, d));
+        assert!(std::fs::read_to_string(d.join("cam.txt"))
+            .unwrap()
+            .is_ascii());
+    }
+    let o = emccd(
+        &[
+            "profile", "export", "default", "--to", "smap", "-o", "cam.txt",
+        ],
+        d,
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--force"));
+    let o = emccd(&["profile", "export", "default", "--to", "imagej"], d);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("picasso, thunderstorm, decode and smap"));
+}
