@@ -266,12 +266,13 @@ impl RecordingArgs {
                 "{}",
                 emccd_calib::recording::misfit_message(&source, arg, &off, "--force")
             ),
-            // The first clause of why: the rest advises a profile, which was given.
+            // Why, without its advice to pass a profile (one was given).
             Ok((Err(why), source)) => eprintln!(
                 "note: {source}: not checked against profile {arg} ({})",
-                why.split([':', ';']).next().unwrap_or(&why)
+                why.split("; ").next().unwrap_or(&why)
             ),
-            Err(_) | Ok(_) => {}
+            Err(e) => eprintln!("note: not checked against profile {arg} ({e})"),
+            Ok(_) => {}
         }
         Ok(())
     }

@@ -60,7 +60,7 @@ pub enum Cmd {
         /// The tool: picasso, thunderstorm, decode or smap.
         #[arg(long)]
         to: emccd_profile::export::Tool,
-        /// The EM gain setting, where the profile does not record it (or to override it).
+        /// The EM gain setting, where the profile does not record it.
         #[arg(long)]
         em_gain: Option<f64>,
         /// Pixel size in the sample, nm (the tools need it; a profile does not hold it).

@@ -58,6 +58,13 @@ struct Numbers {
 
 fn numbers(p: &CameraProfile, extra: &Extra) -> Result<Numbers> {
     let k = p.dn_per_electron()?;
+    // K holds at the gain the profile was made at: another gain is another profile.
+    if let Some(g) = extra.em_gain.filter(|&g| p.em_gain > 0.0 && g != p.em_gain) {
+        return Err(Error::Parameter(format!(
+            "--em-gain {g}: the profile was calibrated at EM gain {}, and its DN per photoelectron holds at that gain only; calibrate (or characterize) the camera at EM gain {g}",
+            p.em_gain
+        )));
+    }
     let em_gain = extra.em_gain.unwrap_or(p.em_gain);
     if !(em_gain >= 1.0 && em_gain.is_finite()) {
         return Err(Error::Parameter(
@@ -275,5 +282,18 @@ mod tests {
         .unwrap();
         assert!(t.contains("em_gain: 300"), "{t}");
         assert!(t.contains("# pixel size: not in a camera profile"), "{t}");
+        // Another gain than the profile's own is refused: its K holds at its own gain.
+        let p = crate::default_profile();
+        let e = export(
+            &p,
+            Tool::Picasso,
+            &Extra {
+                em_gain: Some(1000.0),
+                ..Default::default()
+            },
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("calibrated at EM gain 300"), "{e}");
     }
 }

@@ -33,7 +33,8 @@ pub struct BiasMap {
 }
 
 /// The tiles' side for `frames` frames: enough pixels that a tenth of them over all frames
-/// holds [`MIN_TILE_VALUES`] values, 32–128 px (32 from one frame on).
+/// holds [`MIN_TILE_VALUES`] values, at least 32 px (32 for any frame count at today's
+/// [`MIN_TILE_VALUES`]).
 fn tile_side(frames: usize) -> usize {
     let px = (10 * MIN_TILE_VALUES) as f64 / frames.max(1) as f64;
     ((px.sqrt() / 16.0).ceil() as usize * 16).clamp(32, 128)
@@ -148,25 +149,34 @@ pub fn fit(
         .collect();
     let peaks: Vec<(f64, f64, f64, f64)> = peaks.into_iter().flatten().collect();
     let fitted = peaks.len();
-    // The surface's terms in the frame's unit coordinates: 1, x, y (and x², xy, y²).
-    let terms = |x: f64, y: f64, p: usize| -> [f64; 6] {
-        let t = [
-            1.0,
-            x - 0.5,
-            y - 0.5,
-            (x - 0.5).powi(2),
-            (x - 0.5) * (y - 0.5),
-            (y - 0.5).powi(2),
-        ];
+    // The surface's terms in the frame's unit coordinates: 1, x, y, and from 12 fitted tiles
+    // x², xy, y²; a direction gets a term only where the tiles span it (a strip of one row of
+    // tiles has no y to fit, and a y² term there would swing the map at its edges).
+    let quadratic = fitted >= 12;
+    let used: Vec<usize> = [
+        (0, true),
+        (1, gx >= 2),
+        (2, gy >= 2),
+        (3, quadratic && gx >= 3),
+        (4, quadratic && gx >= 2 && gy >= 2),
+        (5, quadratic && gy >= 3),
+    ]
+    .into_iter()
+    .filter_map(|(k, on)| on.then_some(k))
+    .collect();
+    let p = used.len();
+    let terms = |x: f64, y: f64, _: usize| -> [f64; 6] {
+        let (u, v) = (x - 0.5, y - 0.5);
+        let all = [1.0, u, v, u * u, u * v, v * v];
         let mut out = [0.0; 6];
-        out[..p].copy_from_slice(&t[..p]);
+        for (slot, &k) in used.iter().enumerate() {
+            out[slot] = all[k];
+        }
         out
     };
-    let p = match fitted {
-        0..=2 => return flat(fitted),
-        3..=11 => 3,
-        _ => 6,
-    };
+    if fitted < p.max(3) {
+        return flat(fitted);
+    }
     let mut ata = vec![0.0; p * p];
     let mut atb = vec![0.0; p];
     for &(x, y, b, se) in &peaks {
@@ -185,7 +195,14 @@ pub fn fit(
     let coef: Vec<f64> = (0..p)
         .map(|r| (0..p).map(|c| inv[r * p + c] * atb[c]).sum())
         .collect();
-    let at = |x: f64, y: f64| -> f64 { terms(x, y, p).iter().zip(&coef).map(|(t, c)| t * c).sum() };
+    // Never beyond the peaks themselves (by more than the read noise): the surface interpolates
+    // the tiles, it does not extrapolate a curvature.
+    let lo_peak = peaks.iter().map(|q| q.2).fold(f64::INFINITY, f64::min) - sigma;
+    let hi_peak = peaks.iter().map(|q| q.2).fold(f64::NEG_INFINITY, f64::max) + sigma;
+    let at = |x: f64, y: f64| -> f64 {
+        let v: f64 = terms(x, y, p).iter().zip(&coef).map(|(t, c)| t * c).sum();
+        v.clamp(lo_peak, hi_peak)
+    };
     let values: Vec<f32> = (0..n)
         .into_par_iter()
         .map(|i| {

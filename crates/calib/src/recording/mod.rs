@@ -345,7 +345,7 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
     // Each pixel's own bias, in a movie whose pixel-to-pixel pattern shows beyond the peaks'
     // errors: laid on the smooth map.
     let mut bias_map = bias_map;
-    let pixel_bias = if movie {
+    let pixel_bias = if movie && pattern_dn.is_some() {
         bias_map::refine(frames, &mut bias_map, df.sigma, vf.gain, ceiling)
     } else {
         None
@@ -767,12 +767,9 @@ pub fn read(paths: &[&std::path::Path]) -> Result<Frames> {
             )));
         }
     }
+    // What the headers that record it say (they agree: checked above).
     let agree = |f: &dyn Fn(&emccd_io::StackInfo) -> Option<f64>| -> Option<f64> {
-        let v = f(readers[0].1.info())?;
-        readers
-            .iter()
-            .all(|(_, r)| f(r.info()).is_some_and(|w| (w - v).abs() <= 1e-9 * v.abs()))
-            .then_some(v)
+        readers.iter().find_map(|(_, r)| f(r.info()))
     };
     // One characterization is one camera setting: headers that record different exposures or
     // EM gains are different dark currents and gains, pooled into nonsense.

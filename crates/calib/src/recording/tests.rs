@@ -398,3 +398,18 @@ fn a_movie_maps_each_dark_pixels_own_bias() {
     let left = rms(&|i| c.bias_map.values[i] as f64 - (USER.bias + pattern[i].round()));
     assert!(left < 0.6 * tau, "pattern left {left} of {tau}");
 }
+
+#[test]
+fn a_strip_frame_keeps_a_flat_bias_flat() {
+    // 512 × 40 px (one row of tiles): no y terms to swing the map at its top and bottom rows.
+    // Each row's mean (the surface; single pixels carry their own peaks' noise, shrunk) within
+    // half a DN, a few of the surface's errors.
+    let (w, h) = (512, 40);
+    let m = movie(USER, w, h, 1.0, 20, 0.0, 120);
+    let c = characterize(&m, w, h).unwrap();
+    for y in 0..h {
+        let row = &c.bias_map.values[y * w..(y + 1) * w];
+        let mean = row.iter().map(|&v| v as f64).sum::<f64>() / w as f64;
+        assert!((mean - USER.bias).abs() < 0.5, "row {y}: {mean}");
+    }
+}
