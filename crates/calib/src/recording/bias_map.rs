@@ -40,7 +40,8 @@ fn tile_side(frames: usize) -> usize {
     ((px.sqrt() / 16.0).ceil() as usize * 16).clamp(32, 128)
 }
 
-/// The bias map of `frames` (`width × height`, values at or above `ceiling` saturated), given
+/// The bias map of `frames` (`width × height`; `mean` each pixel's mean over
+/// them, NaN where a value is saturated), given
 /// the whole frame's peak `bias`, its width `sigma` and the register's gain `gain` (DN per
 /// electron): a surface through the tiles' peaks, weighted by their errors — quadratic where
 /// twelve tiles or more show a peak, a plane from three, else `bias` flat. A surface rather
@@ -48,9 +49,9 @@ fn tile_side(frames: usize) -> usize {
 /// to a fraction of that.
 pub fn fit(
     frames: &[Vec<f32>],
+    mean: &[f64],
     width: usize,
     height: usize,
-    ceiling: f64,
     bias: f64,
     sigma: f64,
     gain: f64,
@@ -69,21 +70,6 @@ pub fn fit(
         return flat(0);
     }
     let n = width * height;
-    let nf = frames.len() as f64;
-    let mean: Vec<f64> = (0..n)
-        .into_par_iter()
-        .map(|i| {
-            let mut s = 0.0;
-            for f in frames {
-                let v = f[i] as f64;
-                if v >= ceiling {
-                    return f64::NAN;
-                }
-                s += v;
-            }
-            s / nf
-        })
-        .collect();
     let span = |k: usize, g: usize, len: usize| (k * len / g, (k + 1) * len / g);
     // Each tile's own darkest tenth by the eight neighbours' mean (never the pixel's own values,
     // which would pick the pixels whose noise happened to be low).

@@ -173,7 +173,8 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
     }
 
     // 1. The darkest pixels, chosen by their neighbours.
-    let (dark, dark_pairs) = darkest(frames, width, height, ceiling);
+    let means = pixel_means(frames, ceiling);
+    let (dark, dark_pairs) = darkest(frames, &means, width, height);
     let movie = frames.len() >= 2;
 
     // 2. Differences: the register's gain and the read noise.
@@ -238,7 +239,7 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
     }
 
     // The bias across the frame, each tile's peak with the whole frame's width and gain.
-    let bias_map = bias_map::fit(frames, width, height, ceiling, vf.bias, vf.sigma, vf.gain);
+    let bias_map = bias_map::fit(frames, &means, width, height, vf.bias, vf.sigma, vf.gain);
     if bias_map.fitted > 1 && bias_map.range_dn > 0.5 * vf.sigma {
         notes.push(format!(
             "the bias drifts across the frame by {:.1} DN (the zero-electron peaks of {} of {} tiles of {} px): the profile's bias map follows it",
@@ -360,19 +361,8 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
     let map_mean = bias_map.values.iter().map(|&v| v as f64).sum::<f64>() / n as f64;
 
     // The light level, in the profile's photoelectrons (s/2 DN each).
-    // Per frame in parallel, then summed in order: the same number for any thread count.
-    let per_frame: Vec<(f64, usize)> = frames
-        .par_iter()
-        .map(|f| {
-            f.iter()
-                .filter(|&&v| (v as f64) < ceiling)
-                .fold((0.0, 0usize), |(s, c), &v| (s + v as f64, c + 1))
-        })
-        .collect();
-    let (sum, count) = per_frame
-        .iter()
-        .fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-    let mean_electrons = (sum / count.max(1) as f64 - map_mean) / (slope.value / 2.0);
+    let (mean, _) = mean_below(frames, ceiling);
+    let mean_electrons = (mean - map_mean) / (slope.value / 2.0);
     if saturated > 0 {
         notes.push(format!(
             "{saturated} values at the recording's maximum ({ceiling} DN) were left out as saturated"
@@ -419,11 +409,29 @@ fn saturation(frames: &[Vec<f32>]) -> Option<(f64, usize)> {
     (at >= 3 && at * 100_000 >= all).then_some((max as f64, at))
 }
 
-/// Where `frames` hold no light at all, their bias (the median value) and read noise (the
-/// standard deviation of frame differences over √2, or of neighbouring pixels' in one frame):
-/// the whole recording's mean within half the dark pixels' read noise `sigma` of its median, as
-/// a Gaussian's is. None where anything is lit.
-fn no_light(frames: &[Vec<f32>], sigma: f64, ceiling: f64) -> Option<(f64, f64)> {
+/// Each pixel's mean over the frames (NaN where one of its values is at or above `ceiling`,
+/// saturated): what the darkest pixels are chosen by, through their neighbours.
+fn pixel_means(frames: &[Vec<f32>], ceiling: f64) -> Vec<f64> {
+    let nf = frames.len() as f64;
+    (0..frames[0].len())
+        .into_par_iter()
+        .map(|i| {
+            let mut s = 0.0;
+            for f in frames {
+                let v = f[i] as f64;
+                if v >= ceiling {
+                    return f64::NAN;
+                }
+                s += v;
+            }
+            s / nf
+        })
+        .collect()
+}
+
+/// The mean of all values below `ceiling`, and their number: per frame in parallel, then summed
+/// in order, the same for any thread count.
+fn mean_below(frames: &[Vec<f32>], ceiling: f64) -> (f64, usize) {
     let per_frame: Vec<(f64, usize)> = frames
         .par_iter()
         .map(|f| {
@@ -435,7 +443,15 @@ fn no_light(frames: &[Vec<f32>], sigma: f64, ceiling: f64) -> Option<(f64, f64)>
     let (sum, count) = per_frame
         .iter()
         .fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-    let mean = sum / count.max(1) as f64;
+    (sum / count.max(1) as f64, count)
+}
+
+/// Where `frames` hold no light at all, their bias (the median value) and read noise (the
+/// standard deviation of frame differences over √2, or of neighbouring pixels' in one frame):
+/// the whole recording's mean within half the dark pixels' read noise `sigma` of its median, as
+/// a Gaussian's is. None where anything is lit.
+fn no_light(frames: &[Vec<f32>], sigma: f64, ceiling: f64) -> Option<(f64, f64)> {
+    let (mean, count) = mean_below(frames, ceiling);
     let median = emccd_profile::median(frames.iter().flatten().copied())?;
     if (mean - median).abs() >= 0.5 * sigma {
         return None;
@@ -479,26 +495,10 @@ fn no_light(frames: &[Vec<f32>], sigma: f64, ceiling: f64) -> Option<(f64, f64)>
 /// are left out.
 fn darkest(
     frames: &[Vec<f32>],
+    mean: &[f64],
     width: usize,
     height: usize,
-    ceiling: f64,
 ) -> (Vec<usize>, Vec<usize>) {
-    let n = width * height;
-    let nf = frames.len() as f64;
-    let mean: Vec<f64> = (0..n)
-        .into_par_iter()
-        .map(|i| {
-            let mut s = 0.0;
-            for f in frames {
-                let v = f[i] as f64;
-                if v >= ceiling {
-                    return f64::NAN;
-                }
-                s += v;
-            }
-            s / nf
-        })
-        .collect();
     let at = |x: usize, y: usize| mean[y * width + x];
     let mut centre = Vec::new();
     let mut pairs = Vec::new();
