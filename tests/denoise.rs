@@ -565,6 +565,40 @@ fn without_a_profile_the_recording_characterizes_its_camera() {
         );
     }
 
+    // The data sheet's spurious charge is subtracted from the bias: 0.1 e⁻ a frame at 10 ms,
+    // and `none` is linear, so the output drops by it to its rounding.
+    let plain = |out: &str, extra: &[&str]| {
+        let mut all = vec![
+            "denoise",
+            noisy,
+            "--method",
+            "none",
+            "--units",
+            "electrons",
+            "--exposure-s",
+            "0.01",
+            "-o",
+            out,
+        ];
+        all.extend_from_slice(extra);
+        emccd(&all, d)
+    };
+    let o = plain("kept.tif", &[]);
+    ok(&o);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("the output keeps them"));
+    let o = plain("less.tif", &["--cic", "0.05", "--dark", "5"]);
+    ok(&o);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("spurious charge removed: 0.1000 e⁻"));
+    let drop = mean("kept.tif") - mean("less.tif");
+    assert!((drop - 0.1).abs() < 1e-4, "the output dropped by {drop} e⁻");
+    let o = plain(
+        "x.tif",
+        &["--cic", "0.05", "--dark", "5", "--profile", "truth"],
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no --profile"));
+    assert!(!d.join("x.tif").exists());
+
     // Another camera's profile: refused, naming what disagrees, and nothing written.
     let o = run(&["-o", "other.tif", "--profile", "other"]);
     assert_eq!(o.status.code(), Some(2));

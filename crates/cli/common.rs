@@ -161,6 +161,15 @@ pub struct RecordingArgs {
     /// is a guess, and so is the output).
     #[arg(long)]
     pub extrapolate: bool,
+    /// Clock-induced charge, e⁻ per pixel per frame, from the camera's data sheet (given with
+    /// --dark). A recording cannot tell it, or the dark current, from light: without --profile
+    /// they stay in the output unless given, and `denoise` and `adapt` then subtract them from
+    /// the characterized bias. `count` takes them in place of a profile's own.
+    #[arg(long, requires = "dark")]
+    pub cic: Option<f64>,
+    /// Dark current, e⁻ per pixel per second, with --cic.
+    #[arg(long, requires = "cic")]
+    pub dark: Option<f64>,
 }
 
 /// The camera profile a command reads its recordings through, and how it came about.
@@ -213,22 +222,48 @@ impl RecordingArgs {
     /// The profile for `inputs`: `--profile`'s, or, without one, the camera characterized from
     /// them (its summary printed). A given profile is checked against the inputs by
     /// [`RecordingArgs::check_fit`] once they have been opened through it.
-    pub fn choose_profile(&self, inputs: &[std::path::PathBuf]) -> Result<ChosenProfile> {
+    /// `subtract_spurious` (`denoise`, `adapt`): the spurious charge given (`--cic`, `--dark`)
+    /// is subtracted from a characterized camera's bias
+    /// ([`emccd_calib::recording::remove_spurious`]), and refused with a profile, which holds
+    /// or models its own; without it, a note says that the output keeps it.
+    pub fn choose_profile(
+        &self,
+        inputs: &[std::path::PathBuf],
+        subtract_spurious: bool,
+    ) -> Result<ChosenProfile> {
         let paths: Vec<&Path> = inputs.iter().map(|p| p.as_path()).collect();
+        let spurious = self.spurious().filter(|_| subtract_spurious);
+        if let (Some(arg), Some(_)) = (&self.profile, spurious) {
+            anyhow::bail!(
+                "--cic and --dark are for a camera characterized from the recording (no --profile): profile {arg}'s bias holds or models its own spurious charge"
+            );
+        }
         let Some(arg) = &self.profile else {
             let mut frames = emccd_calib::recording::read(&paths)?;
             frames.exposure_s = self.exposure_s.or(frames.exposure_s);
             let c = frames
                 .characterize()
                 .context("no --profile given, so the camera is characterized from the inputs")?;
-            let profile = frames.profile(&c)?;
-            let summary = c.summary_line();
+            let mut profile = frames.profile(&c)?;
+            let mut summary = c.summary_line();
             eprintln!(
                 "{}: camera characterized from the recording (no --profile): {summary}",
                 frames.source
             );
             for n in &c.notes {
                 eprintln!("  note: {n}");
+            }
+            if let Some((cic, dark)) = spurious {
+                let said = emccd_calib::recording::remove_spurious(
+                    &mut profile,
+                    cic,
+                    dark,
+                    frames.exposure_s,
+                )?;
+                eprintln!("  {said}");
+                summary = format!("{summary}; {said}");
+            } else if subtract_spurious {
+                eprintln!("  note: the clock-induced charge and dark current cannot be told from light in a recording: the output keeps them (pass --cic and --dark from the camera's data sheet to remove them)");
             }
             return Ok(ChosenProfile {
                 profile,
@@ -242,6 +277,12 @@ impl RecordingArgs {
             name: arg.clone(),
             summary: None,
         })
+    }
+
+    /// The spurious electrons' sources given (`--cic`, `--dark`); the library that takes them
+    /// checks them.
+    pub fn spurious(&self) -> Option<(f64, f64)> {
+        self.cic.zip(self.dark)
     }
 
     /// Refuses `profile` where the inputs, characterized, disagree with it

@@ -155,6 +155,8 @@ def denoise(
     extrapolate: bool = False,
     progress: Progress = None,
     window: Optional[int] = None,
+    cic: Optional[float] = None,
+    dark: Optional[float] = None,
     force: bool = False,
 ) -> np.ndarray:
     """Denoises raw EMCCD frames (DN as the camera wrote them; 2-D or 3-D, any integer or float
@@ -163,8 +165,11 @@ def denoise(
     iXon 897) or a :class:`Profile`; checked against the frames, which are refused where they
     disagree with it (another bias, gain or read noise) unless ``force=True``. Without one the
     camera is characterized from the frames themselves (their dark pixels' zero-electron peak
-    and EM tail, a stack's mean–variance), and its numbers are issued as a warning. Returns float32 of the input's shape, in DN above bias
-    (``units="dn"``) or photoelectrons (``"electrons"``).
+    and EM tail, a stack's mean–variance), and its numbers are issued as a warning; the
+    clock-induced charge and dark current cannot be told from light there, so they stay in the
+    output unless ``cic`` (e⁻ per pixel per frame) and ``dark`` (e⁻ per pixel per second), from
+    the camera's data sheet, are given (no profile only). Returns float32 of the input's shape,
+    in DN above bias (``units="dn"``) or photoelectrons (``"electrons"``).
 
     ``method``: ``blend`` (the default with no model on a single frame: iterative BM3D and the
     ``lowlight`` network averaged, the most accurate at low light; a 3-D stack of more than one
@@ -195,6 +200,8 @@ def denoise(
         bool(extrapolate),
         progress,
         None if window is None else int(window),
+        None if cic is None else float(cic),
+        None if dark is None else float(dark),
         bool(force),
     )
     for n in notes:

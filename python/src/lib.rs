@@ -456,7 +456,7 @@ fn through(
 /// photoelectrons, and the warnings the CLI would print. `method="temporal"` estimates each
 /// frame from the `window` frames before and after it too (the frames are one recording).
 #[pyfunction]
-#[pyo3(signature = (frames, profile, exposure_s, model=None, method=None, units="dn", tile=512, overlap=32, ensemble=1, extrapolate=false, progress=None, window=None, force=false))]
+#[pyo3(signature = (frames, profile, exposure_s, model=None, method=None, units="dn", tile=512, overlap=32, ensemble=1, extrapolate=false, progress=None, window=None, cic=None, dark=None, force=false))]
 #[allow(clippy::too_many_arguments)]
 fn denoise<'py>(
     py: Python<'py>,
@@ -472,14 +472,32 @@ fn denoise<'py>(
     extrapolate: bool,
     progress: Option<Py<PyAny>>,
     window: Option<usize>,
+    cic: Option<f64>,
+    dark: Option<f64>,
     force: bool,
 ) -> PyResult<(Bound<'py, PyArray3<f32>>, Vec<String>)> {
     let a = frames.as_array();
     let (f, h, w) = a.dim();
     let raw: Vec<f32> = a.iter().copied().collect();
-    let (p, exposure_s, mut notes) = py
+    let spurious = match (cic, dark) {
+        (None, None) => None,
+        (Some(c), Some(d)) if profile.is_none() => Some((c, d)),
+        (Some(_), Some(_)) => return Err(err(anyhow::anyhow!(
+            "cic and dark are for a camera characterized from the frames (no profile): a profile's bias holds or models its own spurious charge"
+        ))),
+        _ => return Err(err(anyhow::anyhow!("cic and dark are given together"))),
+    };
+    let exposure_given = exposure_s;
+    let (mut p, exposure_s, mut notes) = py
         .detach(|| through(profile, &raw, w, h, exposure_s, force))
         .map_err(err)?;
+    match spurious {
+        Some((c, d)) => notes.push(
+            emccd_calib::recording::remove_spurious(&mut p, c, d, exposure_given).map_err(err)?,
+        ),
+        None if profile.is_none() => notes.push("the clock-induced charge and dark current cannot be told from light in the frames: the output keeps them (pass cic and dark from the camera's data sheet to remove them)".into()),
+        None => {}
+    }
     let p = &p;
     let method = method
         .map(|m| m.parse::<Method>())

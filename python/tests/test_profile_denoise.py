@@ -233,6 +233,18 @@ def test_without_a_profile_the_frames_characterize_their_camera(data, profile):
     # The mean within 10 % of the truth's (the bias surface's error is a fraction of a DN on a
     # mean of 10 DN; tests/denoise.rs measures the same on the CLI).
     assert out.mean() == pytest.approx(truth.mean(), rel=0.1)
+    # The data sheet's spurious charge is subtracted: the output (DN above bias) drops by it,
+    # 0.1 e⁻ a frame at s/2 DN each (method "none" is linear, so exactly, to rounding).
+    with pytest.warns(UserWarning, match="output keeps them"):
+        kept = emccd.denoise(raw, method="none")
+    with pytest.warns(UserWarning, match="spurious charge removed"):
+        less = emccd.denoise(raw, method="none", exposure_s=0.01, cic=0.05, dark=5.0)
+    k = emccd.denoise(raw, method="none", units="electrons", exposure_s=0.01, cic=0.05, dark=5.0)
+    assert (kept.mean() - less.mean()) / (less.mean() / k.mean()) == pytest.approx(0.1, rel=1e-4)
+    with pytest.raises(emccd.EmccdError, match="exposure is unknown"):
+        emccd.denoise(raw, method="none", cic=0.05, dark=5.0)
+    with pytest.raises(emccd.EmccdError, match="no profile"):
+        emccd.denoise(raw, "default", method="none", exposure_s=0.01, cic=0.05, dark=5.0)
     # The right profile fits; one whose gain and read noise are half the frames' does not.
     right = profile.crop(0, 0, 128, 128)
     emccd.denoise(raw, right, method="none", exposure_s=0.01)

@@ -4,6 +4,7 @@
 pub mod bsd68;
 pub mod calib;
 pub mod camera;
+pub mod characterize;
 pub mod count;
 pub mod denoise;
 pub mod movie;

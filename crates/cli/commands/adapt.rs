@@ -53,7 +53,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let chosen = a.recording.choose_profile(&a.inputs)?;
+    let chosen = a.recording.choose_profile(&a.inputs, true)?;
     let profile = chosen.profile.clone();
     profile
         .require_complete()

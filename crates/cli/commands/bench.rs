@@ -6,7 +6,7 @@ use emccd_camera::VirtualCamera;
 /// Benchmarks. By default: synthesis throughput in Mpix/s on 512×512 frames of the default
 /// camera, and the same frames through the Python `emccd-detect` package
 /// (EMCCDDetect.sim_sub_frame) where it is installed, printing the ratio. --calibration,
-/// --denoise, --movie, --count, --bm3d and --archive measure the other stages instead.
+/// --characterize, --denoise, --movie, --count, --bm3d and --archive measure the other stages instead.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Frames per measurement (after one warm-up frame).
@@ -42,7 +42,13 @@ pub struct Args {
     /// preprocessing alone: megapixels per second.
     #[arg(long, value_name = "FRAMES")]
     pub count: Option<usize>,
-    /// With --denoise, --movie or --count: the virtual camera's truth profile, also used to
+    /// Instead, measure the characterization a command without --profile makes: this many
+    /// frames of the --profile camera (512² for the default) at 1 e⁻ per pixel in the mean
+    /// (a dim background and bright patches), beside one pass over the same values (each
+    /// pixel's mean), and the numbers found beside the camera's.
+    #[arg(long, value_name = "FRAMES")]
+    pub characterize: Option<usize>,
+    /// With --denoise, --movie, --count or --characterize: the virtual camera's truth profile, also used to
     /// denoise and count.
     #[arg(long, default_value = "default")]
     pub profile: String,
@@ -246,6 +252,21 @@ pub fn run(a: Args) -> Result<()> {
             crate::bench::count::LEVEL
         );
         println!("{}", crate::bench::count::count(&profile, frames)?);
+        println!("({} CPU threads)", rayon::current_num_threads());
+        return Ok(());
+    }
+    if let Some(frames) = a.characterize {
+        let profile = crate::common::load_profile(&a.profile)?;
+        println!(
+            "camera: {} ({}×{}), 10 ms",
+            profile.camera, profile.width, profile.height
+        );
+        let t = crate::bench::characterize::characterize(
+            &profile,
+            frames,
+            crate::bench::characterize::LEVEL,
+        )?;
+        println!("{t}");
         println!("({} CPU threads)", rayon::current_num_threads());
         return Ok(());
     }

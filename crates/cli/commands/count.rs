@@ -58,14 +58,6 @@ pub struct Args {
     /// every shard chooses the same threshold (from the stack's first frames).
     #[arg(long, value_name = "I/N")]
     pub shard: Option<Shard>,
-    /// Clock-induced charge, e⁻ per pixel per frame, where the profile does not record it (its
-    /// [pgn] section, which `emccd calibrate` fills from bias and flat stacks): from the
-    /// camera's data sheet. Given with --dark; replaces the profile's.
-    #[arg(long, requires = "dark")]
-    pub cic: Option<f64>,
-    /// Dark current, e⁻ per pixel per second, with --cic.
-    #[arg(long, requires = "cic")]
-    pub dark: Option<f64>,
     /// Each pixel's read noise: `camera` (one for every pixel: the calibration's fit beneath the
     /// spurious charge, as an EMCCD reads every pixel through one amplifier), `pixel` (each
     /// pixel's std map at the exposure, which also holds the few spurious events its bias
@@ -92,16 +84,6 @@ struct Job {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let chosen = a.recording.choose_profile(&a.inputs)?;
-    let profile = &chosen.profile;
-    // A recording cannot tell spurious electrons from light: without the data sheet's numbers
-    // they stay in the rates, and the output says so.
-    let spurious = spurious(&a).or_else(|| {
-        (profile.from_recording() && profile.pgn.is_none()).then(|| {
-            eprintln!("note: the clock-induced charge and dark current cannot be told from light in a recording: the rates include them (pass --cic and --dark from the camera's data sheet to remove them)");
-            (0.0, 0.0)
-        })
-    });
     let several = a.inputs.len() > 1;
     if several && a.uncertainty.is_some() {
         bail!("--uncertainty names one file: give one input");
@@ -117,6 +99,17 @@ pub fn run(a: Args) -> Result<()> {
             a.out.display()
         );
     }
+    let given = a.recording.spurious();
+    let chosen = a.recording.choose_profile(&a.inputs, false)?;
+    let profile = &chosen.profile;
+    // A recording cannot tell spurious electrons from light: without the data sheet's numbers
+    // they stay in the rates, and the output says so.
+    let spurious = given.or_else(|| {
+        (profile.from_recording() && profile.pgn.is_none()).then(|| {
+            eprintln!("note: the clock-induced charge and dark current cannot be told from light in a recording: the rates include them (pass --cic and --dark from the camera's data sheet to remove them)");
+            (0.0, 0.0)
+        })
+    });
     if let Some(u) = &a.uncertainty {
         if is_zarr(u) != zarr {
             bail!(
@@ -442,8 +435,8 @@ fn count_zarr(a: &Args, chosen: &ChosenProfile, job: &Job) -> Result<()> {
             "frames_per_output": d.per,
             "analog": a.analog,
             "read_noise": format!("{:?}", a.read_noise),
-            "cic_e": a.cic,
-            "dark_e_per_s": a.dark,
+            "cic_e": a.recording.cic,
+            "dark_e_per_s": a.recording.dark,
         })
     };
     let spec = |path: &Path, what: &str| ZarrStackSpec {
@@ -582,9 +575,4 @@ fn number(v: f64) -> String {
     } else {
         format!("{v:.2e}")
     }
-}
-
-/// The spurious electrons' sources given on the command line, if they are.
-fn spurious(a: &Args) -> Option<(f64, f64)> {
-    a.cic.zip(a.dark)
 }

@@ -90,15 +90,15 @@ fn parse_ensemble(s: &str) -> std::result::Result<usize, String> {
 pub fn run(a: Args) -> Result<()> {
     let r = emccd_denoise::resolve(a.method, a.model.as_deref(), crate::common::load_model)?;
     let window = r.window(a.window.map(usize::from))?;
-    let chosen = a.recording.choose_profile(&a.inputs)?;
-    let profile = &chosen.profile;
-    // The profile's fitness for denoising, checked before anything is opened or written.
-    r.denoiser(profile, 1, a.tiling, a.ensemble, a.units, window)
-        .map_err(|e| anyhow::anyhow!("profile {}: {e}", chosen.name))?;
     let zarr = emccd_io::Format::from_extension(&a.out) == Some(emccd_io::Format::Zarr);
     if a.shard.is_some() && !zarr {
         bail!("--shard needs a .zarr output (-o OUT.zarr): only a Zarr store is written by several processes at once");
     }
+    let chosen = a.recording.choose_profile(&a.inputs, true)?;
+    let profile = &chosen.profile;
+    // The profile's fitness for denoising, checked before anything is opened or written.
+    r.denoiser(profile, 1, a.tiling, a.ensemble, a.units, window)
+        .map_err(|e| anyhow::anyhow!("profile {}: {e}", chosen.name))?;
     if zarr {
         return run_zarr(&a, &r, &chosen, window);
     }

@@ -6,13 +6,16 @@
 
 use rayon::prelude::*;
 
-use super::{em, value_start};
+use super::{em, value_start, TILE_TAIL};
 
 /// The fewest values of a tile's darkest pixels its peak is fitted from: the peak's position to
 /// about a sixth of the read noise (σ/√N₀ with N₀ ≥ 40 zero-electron values); the surface
 /// through many tiles averages that down. Small, so that one frame of 128² px still holds
 /// sixteen tiles.
 const MIN_TILE_VALUES: usize = 100;
+
+/// Tiles across the frame's shorter side, at most.
+const MAX_GRID: usize = 8;
 
 /// The fewest zero-electron values a tile's peak is accepted with.
 const MIN_TILE_ZEROS: f64 = 40.0;
@@ -56,7 +59,9 @@ pub fn fit(
     sigma: f64,
     gain: f64,
 ) -> BiasMap {
-    let side = tile_side(frames.len());
+    // At most about 8 × 8 tiles: a quadratic surface is fitted through them, and every tile
+    // is a likelihood fit (most of the characterization's time on large frames).
+    let side = tile_side(frames.len()).max((width.min(height) / MAX_GRID).next_multiple_of(16));
     // Whole tiles of equal size (the last is not a sliver).
     let (gx, gy) = ((width / side).max(1), (height / side).max(1));
     let flat = |fitted| BiasMap {
@@ -107,7 +112,7 @@ pub fn fit(
                 .iter()
                 .flat_map(|&(_, i)| frames.iter().map(move |f| f[i] as f64))
                 .collect();
-            let (hist, start) = value_start(&values, sigma, gain);
+            let (hist, start) = value_start(&values, sigma, gain, TILE_TAIL);
             let fit = em::fit(
                 em::Form::Values,
                 &hist,
@@ -230,6 +235,66 @@ pub struct PixelBias {
     pub kept: f64,
 }
 
+/// The odds of one electron against none for a value `x` DN above the bias, tabulated: the
+/// per-pixel mixture evaluates them for every frame of every pixel, and the exact form costs
+/// two exponentials and an erfc each.
+struct Odds {
+    /// `one(x) / none(x)` at `x = lo + k·step`.
+    odds: Vec<f64>,
+    lo: f64,
+    step: f64,
+}
+
+impl Odds {
+    /// Beyond ±`SPAN` read-noise σ the table is clamped (below: no electron; above: one).
+    const SPAN: f64 = 8.0;
+    /// Table points per σ: the odds' log changes by at most about `SPAN` per σ, so linear
+    /// interpolation between points errs by under (8/256)²/8, about 10⁻⁴ of the odds.
+    const PER_SIGMA: f64 = 256.0;
+
+    fn new(sigma: f64, gain: f64) -> Odds {
+        let (lo, step) = (-Self::SPAN * sigma, sigma / Self::PER_SIGMA);
+        let s2 = sigma * sigma;
+        let norm = 1.0 / (sigma * (2.0 * std::f64::consts::PI).sqrt());
+        // No electron: N(0, σ²). One electron's output plus read noise: an exponentially
+        // modified Gaussian, exp(σ²/2K² − x/K)·Φ(x/σ − σ/K)/K.
+        let ln_one = |x: f64| -> f64 {
+            let z = x / sigma - sigma / gain;
+            s2 / (2.0 * gain * gain) - x / gain
+                + (0.5 * libm::erfc(-z / std::f64::consts::SQRT_2))
+                    .max(1e-300)
+                    .ln()
+                - gain.ln()
+        };
+        let ln_none = |x: f64| norm.ln() - x * x / (2.0 * s2);
+        let points = (2.0 * Self::SPAN * Self::PER_SIGMA) as usize + 1;
+        let odds = (0..points)
+            .map(|k| {
+                let x = lo + k as f64 * step;
+                (ln_one(x) - ln_none(x)).min(700.0).exp()
+            })
+            .collect();
+        Odds { odds, lo, step }
+    }
+
+    /// The share of a value `x` DN above the bias that belongs to the no-electron class, with
+    /// `prior` = P(electrons)/P(none).
+    fn zero_share(&self, x: f64, prior: f64) -> f64 {
+        let t = (x - self.lo) / self.step;
+        let last = self.odds.len() - 1;
+        let odds = if t <= 0.0 {
+            self.odds[0]
+        } else if t >= last as f64 {
+            return 0.0;
+        } else {
+            let k = t as usize;
+            let f = t - k as f64;
+            self.odds[k] + f * (self.odds[k + 1] - self.odds[k])
+        };
+        1.0 / (1.0 + prior * odds)
+    }
+}
+
 /// Each pixel's own bias in a movie, laid on `map`: the zero-electron peak of the pixel's values
 /// over the frames, found by a two-class mixture (no electron: `N(b, σ²)`; electrons: the
 /// register's exponential of mean `gain` beyond `b`, blurred by the read noise) with the smooth
@@ -250,48 +315,63 @@ pub fn refine(
         return None;
     }
     let use_frames = &frames[..frames.len().min(MAX_PIXEL_FRAMES)];
-    let s2 = sigma * sigma;
-    let norm = 1.0 / (sigma * (2.0 * std::f64::consts::PI).sqrt());
-    // One electron's output plus read noise, at x DN above the bias: an exponentially modified
-    // Gaussian, exp(σ²/2K² − x/K)·Φ(x/σ − σ/K)/K.
-    let one = |x: f64| -> f64 {
-        let z = x / sigma - sigma / gain;
-        let log = s2 / (2.0 * gain * gain) - x / gain;
-        (log.min(700.0)).exp() * 0.5 * libm::erfc(-z / std::f64::consts::SQRT_2) / gain
-    };
-    let own: Vec<(f64, f64)> = (0..map.values.len())
-        .into_par_iter()
-        .map(|i| {
-            let mut b = map.values[i] as f64;
-            let mut w = 0.5;
-            let mut weight = 0.0;
-            for _ in 0..6 {
-                let (mut sr, mut srv, mut n) = (0.0, 0.0, 0.0);
-                for f in use_frames {
-                    let v = f[i] as f64;
-                    if v >= ceiling {
-                        continue;
-                    }
-                    let x = v - b;
-                    let zero = w * norm * (-x * x / (2.0 * s2)).exp();
-                    let more = (1.0 - w) * one(x);
-                    let r = if zero + more > 0.0 {
-                        zero / (zero + more)
-                    } else {
-                        0.0
-                    };
-                    sr += r;
-                    srv += r * v;
-                    n += 1.0;
-                }
-                if sr < 1e-9 || n == 0.0 {
-                    return (b, f64::INFINITY);
-                }
-                b = srv / sr;
-                w = (sr / n).clamp(0.01, 0.99);
-                weight = sr;
+    let odds = Odds::new(sigma, gain);
+    let nf = use_frames.len();
+    // One pixel's mixture over its values (those below the ceiling): its peak and the peak's
+    // error.
+    let peak = |start: f64, values: &[f64]| -> (f64, f64) {
+        let mut b = start;
+        let mut w = 0.5;
+        let mut weight = 0.0;
+        let n = values.len() as f64;
+        for _ in 0..6 {
+            let (mut sr, mut srv) = (0.0, 0.0);
+            let prior = (1.0 - w) / w;
+            for &v in values {
+                let r = odds.zero_share(v - b, prior);
+                sr += r;
+                srv += r * v;
             }
-            (b, sigma / weight.sqrt())
+            if sr < 1e-9 {
+                return (b, f64::INFINITY);
+            }
+            let step = srv / sr - b;
+            b += step;
+            w = (sr / n).clamp(0.01, 0.99);
+            weight = sr;
+            if step.abs() < 1e-3 * sigma {
+                break;
+            }
+        }
+        (b, sigma / weight.sqrt())
+    };
+    // Pixels in runs whose values are gathered frame after frame, so that each pixel's
+    // iterations read one contiguous slice.
+    const RUN: usize = 512;
+    let own: Vec<(f64, f64)> = map
+        .values
+        .par_chunks(RUN)
+        .enumerate()
+        .flat_map_iter(|(r, starts)| {
+            let first = r * RUN;
+            let mut gathered = vec![0.0f64; starts.len() * nf];
+            let mut kept = vec![0usize; starts.len()];
+            for f in use_frames {
+                for (j, &v) in f[first..first + starts.len()].iter().enumerate() {
+                    if (v as f64) < ceiling {
+                        gathered[j * nf + kept[j]] = v as f64;
+                        kept[j] += 1;
+                    }
+                }
+            }
+            starts
+                .iter()
+                .enumerate()
+                .map(|(j, &start)| match kept[j] {
+                    0 => (start as f64, f64::INFINITY),
+                    k => peak(start as f64, &gathered[j * nf..j * nf + k]),
+                })
+                .collect::<Vec<_>>()
         })
         .collect();
     // The pattern's spread: the own peaks' spread about the map less their errors, over the

@@ -96,6 +96,8 @@ struct Model<'a> {
     /// Where the window's first bin sits on the cyclic grid.
     offset: usize,
     plan: std::sync::Arc<dyn realfft::ComplexToReal<f64>>,
+    /// The spectrum of one bin (a sinc) at each frequency: the same for every evaluation.
+    sinc: Vec<f64>,
     scratch: std::cell::RefCell<(Vec<Complex64>, Vec<f64>, Vec<Complex64>)>,
 }
 
@@ -107,6 +109,17 @@ impl<'a> Model<'a> {
         let pad = pad.min(len as f64).ceil().max(16.0) as usize;
         let n = (len + 2 * pad).next_power_of_two();
         let plan = RealFftPlanner::<f64>::new().plan_fft_inverse(n);
+        let step = 2.0 * std::f64::consts::PI / n as f64;
+        let sinc = (0..n / 2 + 1)
+            .map(|k| {
+                let h = step * k as f64 / 2.0;
+                if k == 0 {
+                    1.0
+                } else {
+                    h.sin() / h
+                }
+            })
+            .collect();
         let scratch = std::cell::RefCell::new((
             plan.make_input_vec(),
             plan.make_output_vec(),
@@ -118,6 +131,7 @@ impl<'a> Model<'a> {
             n,
             offset: pad,
             plan,
+            sinc,
             scratch,
         }
     }
@@ -135,13 +149,8 @@ impl<'a> Model<'a> {
             Form::Values => p.bias - (self.hist.origin - self.offset as i64) as f64,
             Form::Differences => -(self.hist.origin - self.offset as i64) as f64,
         };
-        for (k, v) in spec.iter_mut().enumerate() {
+        for (k, (v, &sinc)) in spec.iter_mut().zip(&self.sinc).enumerate() {
             let t = step * k as f64;
-            let sinc = if k == 0 {
-                1.0
-            } else {
-                (t / 2.0).sin() / (t / 2.0)
-            };
             // φ(−t): the inverse FFT sums e^{+itk}, the density needs e^{−itk}.
             let phi_e = Complex64::new(1.0, p.gain * t).inv();
             // The electrons' part, log E_λ[e^{λu}] for λ ~ Gamma(1/ν, cν): c·u as ν → 0.

@@ -226,7 +226,7 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
         .iter()
         .flat_map(|&i| frames.iter().map(move |f| f[i] as f64))
         .collect();
-    let (values_hist, v0) = value_start(&values, df.sigma, df.gain);
+    let (values_hist, v0) = value_start(&values, df.sigma, df.gain, WHOLE_TAIL);
     let values_fit = em::fit(em::Form::Values, &values_hist, v0, em::Free { gain: !gain_known, spread: false })
         .ok_or_else(|| Error::Fit("the dark pixels' values have no zero-electron peak that could be fitted; pass --profile".into()))?;
     let vf = values_fit.params;
@@ -249,7 +249,7 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
 
     // 4. The photon-transfer slope.
     let curve = if movie {
-        ptc::curve(frames, width, height, ceiling)
+        ptc::curve(frames, width, height, ceiling, &bias_map.values)
     } else {
         None
     };
@@ -587,7 +587,15 @@ fn difference_start(d: &[f64]) -> (em::Histogram, em::Params) {
 
 /// The values' histogram and a start for their fit: the peak from the median and the lower
 /// quartile (below the peak only read noise reaches), the gain from the differences.
-fn value_start(v: &[f64], sigma_d: f64, gain: f64) -> (em::Histogram, em::Params) {
+/// The register's tail in the whole frame's values' window, in its scales: where the dark
+/// pixels' electrons are (their number is fitted from it).
+const WHOLE_TAIL: f64 = 30.0;
+/// The same for a tile's peak, its gain known: the tail's start separates the peak from the
+/// electrons, and a short window makes each of the many tiles' fits cheap (the model is
+/// normalized to the window).
+pub(crate) const TILE_TAIL: f64 = 4.0;
+
+fn value_start(v: &[f64], sigma_d: f64, gain: f64, tail: f64) -> (em::Histogram, em::Params) {
     let med = emccd_profile::median(v.iter().copied()).unwrap_or(0.0);
     let q25 = emccd_profile::percentile(v.iter().copied(), 0.25).unwrap_or(med - sigma_d);
     let q10 = emccd_profile::percentile(v.iter().copied(), 0.10).unwrap_or(med - sigma_d);
@@ -595,9 +603,9 @@ fn value_start(v: &[f64], sigma_d: f64, gain: f64) -> (em::Histogram, em::Params
     let sigma = ((med - q25) / 0.6745).max(sigma_d).max(0.5);
     let bias = (q10 + 1.2816 * sigma).min(med);
     let lo = (bias - 12.0 * sigma).floor() as i64;
-    // The register's tail to 30 scales, the scale taken at most 40 read-noise σ (EM gain
+    // The register's tail to `tail` scales, the scale taken at most 40 read-noise σ (EM gain
     // 1000 behind a quiet amplifier): a wider window is data that is no EMCCD's.
-    let hi = (bias + 12.0 * sigma + 30.0 * gain.min(40.0 * sigma))
+    let hi = (bias + 12.0 * sigma + tail * gain.min(40.0 * sigma))
         .min(bias + MAX_WINDOW)
         .ceil() as i64;
     let above = v.iter().filter(|&&x| x > bias + 4.0 * sigma).count() as f64 / v.len() as f64;
@@ -652,7 +660,7 @@ impl Characterization {
             None => String::new(),
         };
         format!(
-            "{:.2} DN per e⁻ (slope {:.2} ± {:.2} DN from {}{gain}), bias {:.1} ± {:.1} DN, read noise {:.2} ± {:.2} DN; {:.2} e⁻ per pixel per frame: {}",
+            "{:.2} DN per e⁻ (slope {:.2} ± {:.2} DN from {}{gain}), bias {:.1} ± {:.1} DN, read noise {:.2} ± {:.2} DN; {:.2} e⁻ per pixel per frame: {}; the darkest pixels {:.3} e⁻ per frame (light and spurious charge)",
             self.dn_per_electron(),
             self.slope_dn.value,
             self.slope_dn.se,
@@ -665,7 +673,8 @@ impl Characterization {
             self.read_noise_dn.value,
             self.read_noise_dn.se,
             self.mean_electrons,
-            regime(self.mean_electrons)
+            regime(self.mean_electrons),
+            self.dark_electrons.value
         )
     }
 
@@ -724,6 +733,49 @@ impl Characterization {
             .map_err(|e| Error::Fit(format!("the characterized profile is inconsistent: {e}")))?;
         Ok(p)
     }
+}
+
+/// Raises the bias of `profile` (characterized from a recording) by the mean signal of the
+/// spurious charge a data sheet gives (`cic` e⁻ per frame, `dark` e⁻ per second): a recording
+/// cannot tell it from light, and a calibrated profile's bias frames hold it, so that the
+/// output then holds light alone. `exposure_s`: the recording's, where known (the dark current's
+/// share needs it). Returns what was removed, in words.
+pub fn remove_spurious(
+    profile: &mut CameraProfile,
+    cic: f64,
+    dark: f64,
+    exposure_s: Option<f64>,
+) -> Result<String> {
+    if !profile.from_recording() || profile.exposures_s.len() != 1 {
+        return Err(Error::Fit(
+            "the spurious charge is removed from a camera characterized from a recording only: a calibrated profile's bias holds its own".into(),
+        ));
+    }
+    if !((0.0..=10.0).contains(&cic) && (0.0..=1e5).contains(&dark)) {
+        return Err(Error::Fit(format!(
+            "clock-induced charge {cic} e⁻ per frame and dark current {dark} e⁻/s must be 0–10 and 0–10⁵"
+        )));
+    }
+    let exposure = match exposure_s {
+        Some(t) => t,
+        None if dark == 0.0 => 0.0,
+        None => {
+            return Err(Error::Fit(
+                "the recording's exposure is unknown (its header records none), and so is the dark current's share: give the exposure, or the dark current as 0".into(),
+            ))
+        }
+    };
+    let electrons = cic + dark * exposure;
+    let dn = electrons
+        * profile
+            .dn_per_electron()
+            .map_err(|e| Error::Fit(e.to_string()))?;
+    for b in &mut profile.maps.fpn_base {
+        *b += dn as f32;
+    }
+    Ok(format!(
+        "spurious charge removed: {electrons:.4} e⁻ per frame (CIC {cic}, dark current {dark} e⁻/s at {exposure} s), {dn:.2} DN"
+    ))
 }
 
 /// The frames of one or more recordings of one camera, read for characterization, with what

@@ -24,7 +24,7 @@ const CHI2_MOTION: f64 = 16.27;
 /// One block of one frame pair.
 #[derive(Clone, Copy, Debug)]
 pub struct Point {
-    /// The block's level from other frames, DN.
+    /// The block's level above the bias from other frames, DN.
     pub level: f64,
     /// Half the variance of the block's frame difference, DN².
     pub variance: f64,
@@ -47,7 +47,7 @@ pub struct Curve {
     pub slope: f64,
     /// Its standard error (delete-a-group jackknife over strips of the frame).
     pub slope_se: f64,
-    /// The intercept `σ² − s·b`, DN².
+    /// The intercept, the read noise's variance `σ²`, DN².
     pub intercept: f64,
     /// Its standard error.
     pub intercept_se: f64,
@@ -62,9 +62,19 @@ pub struct Curve {
 /// Jackknife groups: horizontal strips of the frame.
 const GROUPS: usize = 8;
 
-/// The curve from `frames` (each `width × height`, at least two), leaving out blocks that hold
-/// a value at or above `ceiling` (saturation). `None` without enough blocks to fit a line.
-pub fn curve(frames: &[Vec<f32>], width: usize, height: usize, ceiling: f64) -> Option<Curve> {
+/// The curve from `frames` (each `width × height`, at least two), the levels above `bias` (the
+/// bias map, DN per pixel), leaving out blocks that hold a value at or above `ceiling`
+/// (saturation). `None` without enough blocks to fit a line. The levels are taken above the
+/// bias map because a bias that drifts across the frame spreads the raw levels without
+/// raising the variance: errors in the levels that flatten the line (a 20 DN drift under a
+/// 1 e⁻ scene halved it).
+pub fn curve(
+    frames: &[Vec<f32>],
+    width: usize,
+    height: usize,
+    ceiling: f64,
+    bias: &[f32],
+) -> Option<Curve> {
     let nf = frames.len();
     if nf < 2 {
         return None;
@@ -73,6 +83,7 @@ pub fn curve(frames: &[Vec<f32>], width: usize, height: usize, ceiling: f64) -> 
     if bw * bh < 4 {
         return None;
     }
+    let sums = BlockSums::new(frames, bias, width, bw, bh, ceiling);
     // Each pair's points in parallel, in a fixed order (the same result for any thread count).
     let per_pair: Vec<(Vec<Point>, usize)> = (0..nf - 1)
         .into_par_iter()
@@ -82,7 +93,7 @@ pub fn curve(frames: &[Vec<f32>], width: usize, height: usize, ceiling: f64) -> 
             let mut left = 0;
             for by in 0..bh {
                 for bx in 0..bw {
-                    match block(frames, &others, t, width, bx, by, ceiling) {
+                    match block(frames, &sums, &others, t, width, bx, by, ceiling) {
                         Some(mut p) => {
                             p.group = by * GROUPS / bh;
                             pts.push(p)
@@ -179,10 +190,61 @@ fn level_frames(t: usize, nf: usize) -> Vec<usize> {
     others
 }
 
+/// Each block's sums in each frame, computed once: a block's level is averaged over eight
+/// frames for each of the movie's pairs, and its quarters' means over two.
+struct BlockSums {
+    /// Blocks per frame.
+    blocks: usize,
+    /// Per frame and block: the values' sum, or NaN where one is at or above the ceiling.
+    sum: Vec<f64>,
+    /// Per frame and block: the four quarters' sums.
+    quarters: Vec<[f64; 4]>,
+    /// Per block: the bias map's sum.
+    bias: Vec<f64>,
+}
+
+impl BlockSums {
+    fn new(
+        frames: &[Vec<f32>],
+        bias: &[f32],
+        width: usize,
+        bw: usize,
+        bh: usize,
+        ceiling: f64,
+    ) -> BlockSums {
+        let blocks = bw * bh;
+        let of = |v: &[f32], k: usize| -> (f64, [f64; 4]) {
+            let (bx, by) = (k % bw, k / bw);
+            let (mut sum, mut quarter) = (0.0, [0.0f64; 4]);
+            for y in 0..BLOCK {
+                for x in 0..BLOCK {
+                    let value = v[(by * BLOCK + y) * width + bx * BLOCK + x] as f64;
+                    sum += if value >= ceiling { f64::NAN } else { value };
+                    quarter[(y / (BLOCK / 2)) * 2 + x / (BLOCK / 2)] += value;
+                }
+            }
+            (sum, quarter)
+        };
+        let (sum, quarters): (Vec<f64>, Vec<[f64; 4]>) = (0..frames.len() * blocks)
+            .into_par_iter()
+            .map(|j| of(&frames[j / blocks], j % blocks))
+            .unzip();
+        let bias = (0..blocks).map(|k| of(bias, k).0).collect();
+        BlockSums {
+            blocks,
+            sum,
+            quarters,
+            bias,
+        }
+    }
+}
+
 /// Block `(bx, by)` of the pair `(t, t + 1)`: its level, half-variance and motion statistic;
 /// `None` where it is saturated or flat (no noise at all).
+#[allow(clippy::too_many_arguments)]
 fn block(
     frames: &[Vec<f32>],
+    sums: &BlockSums,
     others: &[usize],
     t: usize,
     width: usize,
@@ -191,16 +253,21 @@ fn block(
     ceiling: f64,
 ) -> Option<Point> {
     let (a, b) = (&frames[t], &frames[t + 1]);
+    let k = by * (width / BLOCK) + bx;
+    let at = |f: usize| f * sums.blocks + k;
     // The motion test's two frames: the level's two, where they are not the pair itself.
     let own = others.len() < 2 || others.contains(&t);
     let (m0, m1) = if own {
-        (a, b)
+        (t, t + 1)
     } else {
-        (&frames[others[0]], &frames[others[1]])
+        (others[0], others[1])
     };
-    let mut level = 0.0;
+    let level =
+        others.iter().map(|&o| sums.sum[at(o)]).sum::<f64>() / others.len() as f64 - sums.bias[k];
+    if !level.is_finite() {
+        return None;
+    }
     let mut d = [0.0f64; BLOCK * BLOCK];
-    let mut quarter = [0.0f64; 4];
     for y in 0..BLOCK {
         for x in 0..BLOCK {
             let i = (by * BLOCK + y) * width + bx * BLOCK + x;
@@ -208,20 +275,11 @@ fn block(
             if va >= ceiling || vb >= ceiling {
                 return None;
             }
-            let mut l = 0.0;
-            for &o in others {
-                let v = frames[o][i] as f64;
-                if v >= ceiling {
-                    return None;
-                }
-                l += v;
-            }
-            level += l / others.len() as f64;
-            let di = vb - va;
-            d[y * BLOCK + x] = di;
-            quarter[(y / (BLOCK / 2)) * 2 + x / (BLOCK / 2)] += m1[i] as f64 - m0[i] as f64;
+            d[y * BLOCK + x] = vb - va;
         }
     }
+    let quarter: [f64; 4] =
+        std::array::from_fn(|j| sums.quarters[at(m1)][j] - sums.quarters[at(m0)][j]);
     let n = (BLOCK * BLOCK) as f64;
     let mean = d.iter().sum::<f64>() / n;
     let var = d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);

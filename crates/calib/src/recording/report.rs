@@ -84,7 +84,7 @@ fn ptc_plot(c: &Characterization) -> String {
             .y_label_area_size(60)
             .build_cartesian_2d(x0..x1, y0.max(0.0)..y1)?;
         ch.configure_mesh()
-            .x_desc("level from the neighbouring frames (DN)")
+            .x_desc("level above the bias map, from the neighbouring frames (DN)")
             .y_desc("½ variance of the difference (DN²)")
             .draw()?;
         ch.draw_series(

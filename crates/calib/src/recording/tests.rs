@@ -367,6 +367,29 @@ fn a_bias_that_drifts_across_the_frame_is_followed() {
 }
 
 #[test]
+fn a_bias_drift_does_not_flatten_the_mean_variance_line() {
+    // 20 DN from the first row to the last under a scene whose light spans about as much (15 DN
+    // per electron at 1 e⁻): levels taken in raw DN spread with the drift and not with the
+    // variance, and the line came out at 0.6 of its slope on such a camera.
+    let (side, drift) = (128, 20.0);
+    let mut m = movie(LOW, side, side, 1.0, 20, 0.0, 120);
+    for f in &mut m {
+        for (i, v) in f.iter_mut().enumerate() {
+            *v += (drift * (i / side) as f64 / (side - 1) as f64).round() as f32;
+        }
+    }
+    let c = characterize(&m, side, side).unwrap();
+    assert_eq!(c.slope_from, SlopeFrom::TemporalPtc, "{:?}", c.notes);
+    let s = 2.0 * LOW.k;
+    assert!(
+        (c.slope_dn.value - s).abs() < (0.05 * s).max(4.0 * c.slope_dn.se),
+        "slope {} ± {} vs {s}",
+        c.slope_dn.value,
+        c.slope_dn.se
+    );
+}
+
+#[test]
 fn a_movie_maps_each_dark_pixels_own_bias() {
     // A pixel-to-pixel pattern of 4 DN beside 11 DN of read noise, on a still movie of 32 frames.
     let (side, frames, tau) = (128, 32, 4.0);
