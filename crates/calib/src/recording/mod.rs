@@ -253,8 +253,10 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
     } else {
         None
     };
-    // A slope an EM register cannot make with the gain its tail shows (f² = s/K outside 1–2.5
-    // beyond three errors: a flat or dim scene spans too few levels for the line) is not used.
+    // A slope an EM register cannot make with the gain its tail shows (f² = s/K outside
+    // 1.5–2.5 beyond three errors) is not used: a register of gain G has f² = 2 − 1/G, so 1.5
+    // at G = 2 already, and a line below that is one a flat or dim scene flattened (its levels
+    // span little more than the bias map's own errors: 0.4 of the slope at 0.05 e⁻).
     let emccd_like = |c: &ptc::Curve| -> bool {
         if !gain_known {
             return true;
@@ -262,7 +264,7 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
         let f2 = c.slope / df.gain;
         let se = f2
             * ((c.slope_se / c.slope).powi(2) + (differences_fit.se.gain / df.gain).powi(2)).sqrt();
-        f2 + 3.0 * se >= 1.0 && f2 - 3.0 * se <= 2.5
+        f2 + 3.0 * se >= 1.5 && f2 - 3.0 * se <= 2.5
     };
     let (slope, slope_from) = match &curve {
         Some(c)
