@@ -182,6 +182,8 @@ pub struct ChosenProfile {
     /// The characterization's one-line summary, where the camera was characterized from the
     /// inputs.
     pub summary: Option<String>,
+    /// The spurious charge subtracted from its bias (`--cic`, `--dark`), in words.
+    pub spurious: Option<String>,
 }
 
 /// `text` in ASCII, as TIFF descriptions and FITS headers hold it: the units' and errors'
@@ -214,38 +216,50 @@ impl ChosenProfile {
                 .iter()
                 .map(|s| format!("characterization={}", ascii(s))),
         );
+        n.extend(
+            self.spurious
+                .iter()
+                .map(|s| format!("spurious={}", ascii(s))),
+        );
         n
     }
 }
 
 impl RecordingArgs {
+    /// The spurious electrons' sources given (`--cic`, `--dark`); the library that takes them
+    /// checks them.
+    pub fn spurious(&self) -> Option<(f64, f64)> {
+        self.cic.zip(self.dark)
+    }
+
     /// The profile for `inputs`: `--profile`'s, or, without one, the camera characterized from
     /// them (its summary printed). A given profile is checked against the inputs by
     /// [`RecordingArgs::check_fit`] once they have been opened through it.
     /// `subtract_spurious` (`denoise`, `adapt`): the spurious charge given (`--cic`, `--dark`)
-    /// is subtracted from a characterized camera's bias
-    /// ([`emccd_calib::recording::remove_spurious`]), and refused with a profile, which holds
-    /// or models its own; without it, a note says that the output keeps it.
+    /// is subtracted from the bias of a camera characterized from a recording (these inputs, or
+    /// a profile `calibrate --from-recording` made; [`emccd_calib::recording::remove_spurious`])
+    /// and refused with a calibrated or modeled profile, which holds or models its own; without
+    /// it, a note says that the output keeps it.
     pub fn choose_profile(
         &self,
         inputs: &[std::path::PathBuf],
         subtract_spurious: bool,
     ) -> Result<ChosenProfile> {
+        use emccd_calib::recording::{remove_spurious, spurious_electrons};
         let paths: Vec<&Path> = inputs.iter().map(|p| p.as_path()).collect();
         let spurious = self.spurious().filter(|_| subtract_spurious);
-        if let (Some(arg), Some(_)) = (&self.profile, spurious) {
-            anyhow::bail!(
-                "--cic and --dark are for a camera characterized from the recording (no --profile): profile {arg}'s bias holds or models its own spurious charge"
-            );
-        }
+        const KEPT: &str = "the clock-induced charge and dark current cannot be told from light in a recording: the output keeps them (pass --cic and --dark from the camera's data sheet to remove them)";
         let Some(arg) = &self.profile else {
             let mut frames = emccd_calib::recording::read(&paths)?;
             frames.exposure_s = self.exposure_s.or(frames.exposure_s);
+            if let Some((cic, dark)) = spurious {
+                spurious_electrons(cic, dark, frames.exposure_s)?;
+            }
             let c = frames
                 .characterize()
                 .context("no --profile given, so the camera is characterized from the inputs")?;
             let mut profile = frames.profile(&c)?;
-            let mut summary = c.summary_line();
+            let summary = c.summary_line();
             eprintln!(
                 "{}: camera characterized from the recording (no --profile): {summary}",
                 frames.source
@@ -253,36 +267,49 @@ impl RecordingArgs {
             for n in &c.notes {
                 eprintln!("  note: {n}");
             }
-            if let Some((cic, dark)) = spurious {
-                let said = emccd_calib::recording::remove_spurious(
-                    &mut profile,
-                    cic,
-                    dark,
-                    frames.exposure_s,
-                )?;
-                eprintln!("  {said}");
-                summary = format!("{summary}; {said}");
-            } else if subtract_spurious {
-                eprintln!("  note: the clock-induced charge and dark current cannot be told from light in a recording: the output keeps them (pass --cic and --dark from the camera's data sheet to remove them)");
-            }
+            let removed = match spurious {
+                Some((cic, dark)) => {
+                    let said = remove_spurious(&mut profile, cic, dark, frames.exposure_s)?;
+                    eprintln!("  {said}");
+                    Some(said)
+                }
+                None => {
+                    if subtract_spurious {
+                        eprintln!("  note: {KEPT}");
+                    }
+                    None
+                }
+            };
             return Ok(ChosenProfile {
                 profile,
                 name: CHARACTERIZED.into(),
                 summary: Some(summary),
+                spurious: removed,
             });
         };
-        let profile = load_profile(arg)?;
+        let mut profile = load_profile(arg)?;
+        let mut removed = None;
+        match spurious {
+            Some(_) if !profile.from_recording() => anyhow::bail!(
+                "--cic and --dark are for a camera characterized from a recording (no --profile, or one `calibrate --from-recording` made): profile {arg}'s bias holds or models its own spurious charge"
+            ),
+            Some((cic, dark)) => {
+                // The profile's exposure is its recording's (or a nominal one where that
+                // recorded none: then give --exposure-s for the dark current).
+                let exposure = self.exposure_s.or(profile.exposures_s.first().copied());
+                let said = remove_spurious(&mut profile, cic, dark, exposure)?;
+                eprintln!("profile {arg}: {said}");
+                removed = Some(said);
+            }
+            None if subtract_spurious && profile.from_recording() => eprintln!("note: {KEPT}"),
+            None => {}
+        }
         Ok(ChosenProfile {
             profile,
             name: arg.clone(),
             summary: None,
+            spurious: removed,
         })
-    }
-
-    /// The spurious electrons' sources given (`--cic`, `--dark`); the library that takes them
-    /// checks them.
-    pub fn spurious(&self) -> Option<(f64, f64)> {
-        self.cic.zip(self.dark)
     }
 
     /// Refuses `profile` where the inputs, characterized, disagree with it

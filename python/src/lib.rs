@@ -479,23 +479,32 @@ fn denoise<'py>(
     let a = frames.as_array();
     let (f, h, w) = a.dim();
     let raw: Vec<f32> = a.iter().copied().collect();
+    // Subtracted from a camera characterized from a recording (these frames, or a profile
+    // `calibrate --from-recording` made); a calibrated or modeled profile holds or models its own.
+    let recorded = profile.is_none_or(|p| p.inner.from_recording());
     let spurious = match (cic, dark) {
         (None, None) => None,
-        (Some(c), Some(d)) if profile.is_none() => Some((c, d)),
+        (Some(c), Some(d)) if recorded => {
+            emccd_profile::check_spurious(c, d).map_err(err)?;
+            Some((c, d))
+        }
         (Some(_), Some(_)) => return Err(err(anyhow::anyhow!(
-            "cic and dark are for a camera characterized from the frames (no profile): a profile's bias holds or models its own spurious charge"
+            "cic and dark are for a camera characterized from a recording (no profile, or one `calibrate --from-recording` made): this profile's bias holds or models its own spurious charge"
         ))),
-        _ => return Err(err(anyhow::anyhow!("cic and dark are given together"))),
+        _ => return Err(err(anyhow::anyhow!("cic and dark must be given together"))),
     };
     let exposure_given = exposure_s;
     let (mut p, exposure_s, mut notes) = py
         .detach(|| through(profile, &raw, w, h, exposure_s, force))
         .map_err(err)?;
     match spurious {
-        Some((c, d)) => notes.push(
-            emccd_calib::recording::remove_spurious(&mut p, c, d, exposure_given).map_err(err)?,
-        ),
-        None if profile.is_none() => notes.push("the clock-induced charge and dark current cannot be told from light in the frames: the output keeps them (pass cic and dark from the camera's data sheet to remove them)".into()),
+        Some((c, d)) => {
+            let exposure = exposure_given.or(profile.map(|_| exposure_s));
+            notes.push(
+                emccd_calib::recording::remove_spurious(&mut p, c, d, exposure).map_err(err)?,
+            )
+        }
+        None if recorded => notes.push("the clock-induced charge and dark current cannot be told from light in the frames: the output keeps them (pass cic and dark from the camera's data sheet to remove them)".into()),
         None => {}
     }
     let p = &p;

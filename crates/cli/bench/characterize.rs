@@ -132,29 +132,18 @@ pub fn characterize(
     let c =
         emccd_calib::recording::characterize(&raw, w, h).map_err(|e| Error::Data(e.to_string()))?;
     let characterize_s = clock.elapsed().as_secs_f64();
-    let median = |v: &[f32]| {
-        let mut v: Vec<f32> = v.to_vec();
-        v.sort_by(f32::total_cmp);
-        v[v.len() / 2] as f64
-    };
+    let median = |v: &[f32]| emccd_profile::median(v.iter().copied()).unwrap_or(f64::NAN);
     let mut fpn = vec![0f32; w * h];
     profile.fpn_at(exposure, &mut fpn);
     // The bias as the camera reads it: the smear adds a share of each column's mean, the fixed
     // pattern's too.
     emccd_profile::apply_blooming(&mut fpn, w, profile.blooming_factor(exposure));
-    // The read-noise map at the exposure nearest the movie's.
-    let nearest = (0..profile.exposures_s.len())
-        .min_by(|&a, &b| {
-            let off = |i: usize| (profile.exposures_s[i] / exposure).ln().abs();
-            off(a).total_cmp(&off(b))
-        })
-        .ok_or_else(|| Error::Data("the profile has no read-noise maps".into()))?;
     let truth = [
         profile
             .dn_per_electron()
             .map_err(|e| Error::Data(e.to_string()))?,
         median(&fpn),
-        median(&profile.maps.read_noise[nearest]),
+        median(profile.read_noise_near(exposure)),
     ];
     let found = [
         c.dn_per_electron(),

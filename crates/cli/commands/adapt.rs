@@ -53,11 +53,6 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let chosen = a.recording.choose_profile(&a.inputs, true)?;
-    let profile = chosen.profile.clone();
-    profile
-        .require_complete()
-        .with_context(|| format!("profile {}: it cannot preprocess frames", chosen.name))?;
     let scratch = a.from_scratch;
     let cfg = AdaptConfig {
         lr: a.lr.unwrap_or(AdaptConfig::default_lr(scratch)),
@@ -72,6 +67,11 @@ pub fn run(a: Args) -> Result<()> {
         emccd_io::refuse_overwrite(&a.out, file, "the --init model")?;
     }
     let init_meta = init.read_meta()?;
+    let chosen = a.recording.choose_profile(&a.inputs, true)?;
+    let profile = chosen.profile.clone();
+    profile
+        .require_complete()
+        .with_context(|| format!("profile {}: it cannot preprocess frames", chosen.name))?;
     let mut rec = Recorded::new(
         cfg.method,
         &profile,

@@ -99,17 +99,6 @@ pub fn run(a: Args) -> Result<()> {
             a.out.display()
         );
     }
-    let given = a.recording.spurious();
-    let chosen = a.recording.choose_profile(&a.inputs, false)?;
-    let profile = &chosen.profile;
-    // A recording cannot tell spurious electrons from light: without the data sheet's numbers
-    // they stay in the rates, and the output says so.
-    let spurious = given.or_else(|| {
-        (profile.from_recording() && profile.pgn.is_none()).then(|| {
-            eprintln!("note: the clock-induced charge and dark current cannot be told from light in a recording: the rates include them (pass --cic and --dark from the camera's data sheet to remove them)");
-            (0.0, 0.0)
-        })
-    });
     if let Some(u) = &a.uncertainty {
         if is_zarr(u) != zarr {
             bail!(
@@ -143,6 +132,20 @@ pub fn run(a: Args) -> Result<()> {
             emccd_io::refuse_overwrite(u, p, "an input or the output")?;
         }
     }
+    let given = a.recording.spurious();
+    if let Some((cic, dark)) = given {
+        emccd_profile::check_spurious(cic, dark)?;
+    }
+    let chosen = a.recording.choose_profile(&a.inputs, false)?;
+    let profile = &chosen.profile;
+    // A recording cannot tell spurious electrons from light: without the data sheet's numbers
+    // they stay in the rates, and the output says so.
+    let spurious = given.or_else(|| {
+        (profile.from_recording() && profile.pgn.is_none()).then(|| {
+            eprintln!("note: the clock-induced charge and dark current cannot be told from light in a recording: the rates include them (pass --cic and --dark from the camera's data sheet to remove them)");
+            (0.0, 0.0)
+        })
+    });
     // Every input checked before anything is written: its header, size, exposure, the
     // profile's numbers at that exposure, --per against its length, and its first frames (read
     // for the light level).

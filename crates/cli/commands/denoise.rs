@@ -94,6 +94,18 @@ pub fn run(a: Args) -> Result<()> {
     if a.shard.is_some() && !zarr {
         bail!("--shard needs a .zarr output (-o OUT.zarr): only a Zarr store is written by several processes at once");
     }
+    let several = a.inputs.len() > 1;
+    if !zarr && several && a.out.exists() && !a.out.is_dir() {
+        bail!(
+            "{}: is a file; several inputs are written into a folder (-o FOLDER), one NAME_denoised.tif each",
+            a.out.display()
+        );
+    }
+    let outs = if zarr {
+        Vec::new()
+    } else {
+        emccd_io::output_paths(&a.inputs, &a.out, several.then_some("_denoised.tif"))?
+    };
     let chosen = a.recording.choose_profile(&a.inputs, true)?;
     let profile = &chosen.profile;
     // The profile's fitness for denoising, checked before anything is opened or written.
@@ -102,14 +114,6 @@ pub fn run(a: Args) -> Result<()> {
     if zarr {
         return run_zarr(&a, &r, &chosen, window);
     }
-    let several = a.inputs.len() > 1;
-    if several && a.out.exists() && !a.out.is_dir() {
-        bail!(
-            "{}: is a file; several inputs are written into a folder (-o FOLDER), one NAME_denoised.tif each",
-            a.out.display()
-        );
-    }
-    let outs = emccd_io::output_paths(&a.inputs, &a.out, several.then_some("_denoised.tif"))?;
     // All or nothing: every input is opened and checked (its header, size and exposure) before
     // anything is written, and the outputs are placed only once every input is denoised, so an
     // input that fails halfway (truncated, a non-finite value) leaves every output as it was.

@@ -187,11 +187,7 @@ impl Camera {
                 ))
             }
         };
-        if !(cic >= 0.0 && cic <= 10.0 && dark >= 0.0 && dark <= 1e5) {
-            return Err(Error(format!(
-                "clock-induced charge {cic} e⁻ per frame and dark current {dark} e⁻/s must be 0–10 and 0–10⁵"
-            )));
-        }
+        emccd_profile::check_spurious(cic, dark).map_err(|e| Error(e.to_string()))?;
         let map = profile.read_noise_near(exposure_s);
         let one = match &profile.pgn {
             // Measured beneath the spurious charge, before the ADC's rounding.

@@ -306,6 +306,17 @@ pub fn check_exposure(exposure_s: f64) -> Result<()> {
     Ok(())
 }
 
+/// Clock-induced charge (e⁻ per pixel per frame) and dark current (e⁻ per pixel per second) a
+/// camera can have, as a data sheet or a flag gives them: 0–10 and 0–10⁵.
+pub fn check_spurious(cic: f64, dark: f64) -> Result<()> {
+    if !((0.0..=10.0).contains(&cic) && (0.0..=1e5).contains(&dark)) {
+        return Err(Error::Parameter(format!(
+            "clock-induced charge {cic} e⁻ per frame and dark current {dark} e⁻/s must be 0–10 and 0–10⁵"
+        )));
+    }
+    Ok(())
+}
+
 /// Median of `f32` or `f64` values, NaNs ignored (the mean of the middle two for an even
 /// count); `None` when no value is left, so each caller says what an empty set means.
 pub fn median<T: Into<f64>>(values: impl IntoIterator<Item = T>) -> Option<f64> {

@@ -59,8 +59,9 @@ pub fn fit(
     sigma: f64,
     gain: f64,
 ) -> BiasMap {
-    // At most about 8 × 8 tiles: a quadratic surface is fitted through them, and every tile
-    // is a likelihood fit (most of the characterization's time on large frames).
+    // At most 8 tiles across the shorter side (8 × 8 on a square frame): a quadratic surface is
+    // fitted through them, and every tile is a likelihood fit (most of the characterization's
+    // time on large frames).
     let side = tile_side(frames.len()).max((width.min(height) / MAX_GRID).next_multiple_of(16));
     // Whole tiles of equal size (the last is not a sliver).
     let (gx, gy) = ((width / side).max(1), (height / side).max(1));
@@ -246,7 +247,8 @@ struct Odds {
 }
 
 impl Odds {
-    /// Beyond ±`SPAN` read-noise σ the table is clamped (below: no electron; above: one).
+    /// Beyond ±`SPAN` read-noise σ the table is clamped: below, the odds are held at their
+    /// value at −`SPAN` σ; above, the value is an electron's.
     const SPAN: f64 = 8.0;
     /// Table points per σ: the odds' log changes by at most about `SPAN` per σ, so linear
     /// interpolation between points errs by under (8/256)²/8, about 10⁻⁴ of the odds.

@@ -587,8 +587,6 @@ fn difference_start(d: &[f64]) -> (em::Histogram, em::Params) {
     )
 }
 
-/// The values' histogram and a start for their fit: the peak from the median and the lower
-/// quartile (below the peak only read noise reaches), the gain from the differences.
 /// The register's tail in the whole frame's values' window, in its scales: where the dark
 /// pixels' electrons are (their number is fitted from it).
 const WHOLE_TAIL: f64 = 30.0;
@@ -597,6 +595,8 @@ const WHOLE_TAIL: f64 = 30.0;
 /// normalized to the window).
 pub(crate) const TILE_TAIL: f64 = 4.0;
 
+/// The values' histogram and a start for their fit: the peak from the median and the lower
+/// quartile (below the peak only read noise reaches), the gain from the differences.
 fn value_start(v: &[f64], sigma_d: f64, gain: f64, tail: f64) -> (em::Histogram, em::Params) {
     let med = emccd_profile::median(v.iter().copied()).unwrap_or(0.0);
     let q25 = emccd_profile::percentile(v.iter().copied(), 0.25).unwrap_or(med - sigma_d);
@@ -737,6 +737,20 @@ impl Characterization {
     }
 }
 
+/// The spurious electrons per frame a data sheet's `cic` (e⁻ per frame) and `dark` (e⁻ per
+/// second) make at `exposure_s`; an error where they are out of range, or where the dark
+/// current counts and the exposure is not known.
+pub fn spurious_electrons(cic: f64, dark: f64, exposure_s: Option<f64>) -> Result<f64> {
+    emccd_profile::check_spurious(cic, dark).map_err(|e| Error::Fit(e.to_string()))?;
+    match exposure_s {
+        Some(t) => Ok(cic + dark * t),
+        None if dark == 0.0 => Ok(cic),
+        None => Err(Error::Fit(
+            "the exposure is not known (no header or argument gives it), and so is not the dark current's share: give the exposure, or the dark current as 0".into(),
+        )),
+    }
+}
+
 /// Raises the bias of `profile` (characterized from a recording) by the mean signal of the
 /// spurious charge a data sheet gives (`cic` e⁻ per frame, `dark` e⁻ per second): a recording
 /// cannot tell it from light, and a calibrated profile's bias frames hold it, so that the
@@ -753,21 +767,8 @@ pub fn remove_spurious(
             "the spurious charge is removed from a camera characterized from a recording only: a calibrated profile's bias holds its own".into(),
         ));
     }
-    if !((0.0..=10.0).contains(&cic) && (0.0..=1e5).contains(&dark)) {
-        return Err(Error::Fit(format!(
-            "clock-induced charge {cic} e⁻ per frame and dark current {dark} e⁻/s must be 0–10 and 0–10⁵"
-        )));
-    }
-    let exposure = match exposure_s {
-        Some(t) => t,
-        None if dark == 0.0 => 0.0,
-        None => {
-            return Err(Error::Fit(
-                "the recording's exposure is unknown (its header records none), and so is the dark current's share: give the exposure, or the dark current as 0".into(),
-            ))
-        }
-    };
-    let electrons = cic + dark * exposure;
+    let electrons = spurious_electrons(cic, dark, exposure_s)?;
+    let exposure = exposure_s.unwrap_or(0.0);
     let dn = electrons
         * profile
             .dn_per_electron()

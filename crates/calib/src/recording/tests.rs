@@ -370,7 +370,7 @@ fn a_bias_that_drifts_across_the_frame_is_followed() {
 fn a_bias_drift_does_not_flatten_the_mean_variance_line() {
     // 20 DN from the first row to the last under a scene whose light spans about as much (15 DN
     // per electron at 1 e⁻): levels taken in raw DN spread with the drift and not with the
-    // variance, and the line came out at 0.6 of its slope on such a camera.
+    // variance, and the line came out at 0.56 of its slope on this camera.
     let (side, drift) = (128, 20.0);
     let mut m = movie(LOW, side, side, 1.0, 20, 0.0, 120);
     for f in &mut m {
