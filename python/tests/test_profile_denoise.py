@@ -100,7 +100,7 @@ def test_denoise_releases_the_interpreter(pair):
 
 def test_bad_requests_raise_clear_errors(pair, profile):
     raw, _, prof = pair
-    with pytest.raises(emccd.EmccdError, match="exposure is not known"):
+    with pytest.raises(emccd.EmccdError, match="exposure is unknown"):
         emccd.denoise(raw, prof)
     with pytest.raises(emccd.EmccdError, match="profile's sensor is 512×512"):
         emccd.denoise(raw, profile, exposure_s=0.01)
