@@ -23,6 +23,7 @@ pub mod check;
 pub mod em;
 pub mod ptc;
 pub mod report;
+pub mod smear;
 
 use emccd_profile::{CameraProfile, FpnFit, FpnForm, ProfileMaps, Provenance};
 use rayon::prelude::*;
@@ -54,6 +55,10 @@ pub enum SlopeFrom {
     /// Twice the register's single-electron gain (one frame: `f² = 2` assumed).
     EmTail,
 }
+
+/// The relative spread of the excess noise `f² = 2 − 1/G` about 2 among registers whose
+/// single-electron tail is measurable (G of 50 and up): the error `2K` carries as a slope.
+const F2_SPREAD: f64 = 0.02;
 
 /// The fewest values of dark pixels a characterization uses.
 pub const MIN_DARK_VALUES: usize = 2000;
@@ -101,6 +106,8 @@ pub struct Characterization {
     pub mean_electrons: f64,
     /// The value at which the recording saturates, where it reaches one.
     pub saturation_dn: Option<f64>,
+    /// Frame-transfer smear, where the frame is large enough to look for it ([`smear`]).
+    pub smear: Option<smear::Smear>,
     /// The pooled values of the dark pixels, and their fit.
     #[serde(skip)]
     pub values: em::Histogram,
@@ -302,18 +309,19 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
     } else {
         None
     };
-    // A slope an EM register cannot make with the gain its tail shows (f² = s/K outside
-    // 1.5–2.5 beyond three errors) is not used: a register of gain G has f² = 2 − 1/G, so 1.5
-    // at G = 2 already, and a line below that is one a flat or dim scene flattened (its levels
-    // span little more than the bias map's own errors: 0.4 of the slope at 0.05 e⁻).
+    // Where the register's tail gives K, the movie's line is used where it agrees with 2K (the
+    // tail's error with 2 % for the register's f², 1.96–2 at the gains a measurable tail takes)
+    // within three errors and is the more precise of the two. A register of gain G has
+    // f² = 2 − 1/G; a line off that is one the scene bent: a flat or dim scene flattens it (its
+    // levels span little more than the bias map's own errors: 0.4 of the slope at 0.05 e⁻),
+    // point sources drifting through the blocks faster than the motion test sees (0.8–0.85 of
+    // it at 1 px a frame on emccd-detect camera A). The tail's 2K is then the better number.
+    let tail_se =
+        2.0 * df.gain * ((differences_fit.se.gain / df.gain).powi(2) + F2_SPREAD.powi(2)).sqrt();
     let emccd_like = |c: &ptc::Curve| -> bool {
-        if !gain_known {
-            return true;
-        }
-        let f2 = c.slope / df.gain;
-        let se = f2
-            * ((c.slope_se / c.slope).powi(2) + (differences_fit.se.gain / df.gain).powi(2)).sqrt();
-        f2 + 3.0 * se >= 1.5 && f2 - 3.0 * se <= 2.5
+        !gain_known
+            || ((c.slope - 2.0 * df.gain).abs() <= 3.0 * c.slope_se.hypot(tail_se)
+                && c.slope_se <= tail_se)
     };
     let (slope, slope_from) = match &curve {
         Some(c)
@@ -325,13 +333,20 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
             (Estimate::new(c.slope, c.slope_se), SlopeFrom::TemporalPtc)
         }
         Some(c) if gain_known && c.slope > 0.0 && c.slope_se < 0.2 * c.slope => {
-            notes.push(format!(
-                "the movie's mean–variance slope, {:.2} ± {:.2} DN, is no EM register's with the gain its tail shows ({:.2} DN per electron: f² = {:.2}); the slope is twice the register's gain",
-                c.slope, c.slope_se, df.gain, c.slope / df.gain
-            ));
+            notes.push(if (c.slope - 2.0 * df.gain).abs() <= 3.0 * c.slope_se.hypot(tail_se) {
+                format!(
+                    "the movie's mean–variance slope, {:.2} ± {:.2} DN, is less precise than twice the register's gain ({:.2} DN per electron), which is taken",
+                    c.slope, c.slope_se, df.gain
+                )
+            } else {
+                format!(
+                    "the movie's mean–variance slope, {:.2} ± {:.2} DN, is no EM register's with the gain its tail shows ({:.2} DN per electron: f² = {:.2}; the scene moves or is flat); the slope is twice the register's gain",
+                    c.slope, c.slope_se, df.gain, c.slope / df.gain
+                )
+            });
             notes.push("the photon-transfer slope is 2K: the excess noise of a many-stage register (f² = 2) is assumed, not measured".into());
             (
-                Estimate::new(2.0 * df.gain, 2.0 * differences_fit.se.gain),
+                Estimate::new(2.0 * df.gain, tail_se),
                 SlopeFrom::EmTail,
             )
         }
@@ -341,7 +356,7 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
             }
             notes.push("the photon-transfer slope is 2K: the excess noise of a many-stage register (f² = 2) is assumed, not measured".into());
             (
-                Estimate::new(2.0 * df.gain, 2.0 * differences_fit.se.gain),
+                Estimate::new(2.0 * df.gain, tail_se),
                 SlopeFrom::EmTail,
             )
         }
@@ -352,6 +367,34 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
             )))
         }
     };
+    // Smear: a share of each column's mean in all its pixels, measured above each pixel's bias, its
+    // noise from the slope.
+    let smear = smear::estimate(
+        frames,
+        &means,
+        &bias_map.values,
+        width,
+        height,
+        (df.sigma, slope.value),
+    );
+    match smear {
+        Some(sm) if sm.significant => notes.push(format!(
+            "frame-transfer smear: each pixel holds {:.2} ± {:.2} % of its column's mean (from {} columns), removed as the profile's blooming",
+            100.0 * sm.factor.value,
+            100.0 * sm.factor.se,
+            sm.columns
+        )),
+        Some(sm) if sm.factor.se.is_finite() && sm.factor.se < 0.01 => {}
+        Some(sm) => notes.push(format!(
+            "frame-transfer smear could not be measured{}: the scene has no compact bright objects whose columns stand out from their neighbours'; none is removed",
+            if sm.factor.se.is_finite() {
+                format!(" ({:.1} ± {:.1} %)", 100.0 * sm.factor.value, 100.0 * sm.factor.se)
+            } else {
+                String::new()
+            }
+        )),
+        None => {}
+    }
     let gain_dn = gain_known.then(|| Estimate::new(df.gain, differences_fit.se.gain));
     let excess_f2 = gain_dn
         .filter(|_| slope_from == SlopeFrom::TemporalPtc)
@@ -389,6 +432,7 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
         dark_electrons: Estimate::new(df.electrons, differences_fit.se.electrons),
         mean_electrons,
         saturation_dn: saturation,
+        smear,
         values: values_hist,
         values_fit,
         differences,
@@ -682,8 +726,8 @@ impl Characterization {
         )
     }
 
-    /// The camera profile these numbers make: a bias map (the peak, flat), one read-noise map at
-    /// `exposure_s`, the slope, no blooming; `em_gain` from the file's header where it records
+    /// The camera profile these numbers make: a bias map, one read-noise map at `exposure_s`,
+    /// the slope, the smear as blooming at `exposure_s` where it was measured; `em_gain` from the file's header where it records
     /// one (0: unknown). `source` names the recording(s) in the provenance.
     pub fn profile(
         &self,
@@ -703,6 +747,17 @@ impl Characterization {
             notes.push_str("; ");
             notes.push_str(note);
         }
+        // Measured smear is the profile's blooming at this one exposure; the bias map, measured
+        // with it, is un-bloomed so that preprocessing B⁻¹(D) − FPN equals B⁻¹(D − bias).
+        let mut fpn_base = self.bias_map.values.clone();
+        let blooming = self.smear.filter(|s| s.significant).map(|s| {
+            emccd_profile::remove_blooming(&mut fpn_base, self.width, s.factor.value);
+            emccd_profile::BloomingFit {
+                a: s.factor.value * exposure_s,
+                b: -1.0,
+                range_s: Some([exposure_s, exposure_s]),
+            }
+        });
         let p = CameraProfile {
             camera: format!("characterized from {source}"),
             em_gain: g,
@@ -717,7 +772,7 @@ impl Characterization {
                 base_exposure_s: exposure_s,
                 shared_theta: [0.0; 4],
             },
-            blooming: None,
+            blooming,
             exposures_s: vec![exposure_s],
             eld: None,
             // The dark pixels' electrons hold their light too, so the spurious charge is not
@@ -728,7 +783,7 @@ impl Characterization {
                 notes,
             },
             maps: ProfileMaps {
-                fpn_base: self.bias_map.values.clone(),
+                fpn_base,
                 fpn_theta: Vec::new(),
                 read_noise: vec![vec![self.read_noise_dn.value as f32; n]],
             },

@@ -436,3 +436,98 @@ fn a_strip_frame_keeps_a_flat_bias_flat() {
         assert!((mean - USER.bias).abs() < 0.5, "row {y}: {mean}");
     }
 }
+
+/// Point sources (1–2 px, brightness heavy-tailed) on a dark sky, drifting `drift` px a frame
+/// to the right, with frame-transfer smear `x` (each pixel gains `x` times its column's mean
+/// light): photoelectrons per pixel, frame by frame.
+fn smeared_stars(
+    w: usize,
+    h: usize,
+    frames: usize,
+    drift: f64,
+    x: f64,
+    seed: u64,
+) -> Vec<Vec<f64>> {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+    let stars: Vec<(f64, f64, f64, f64)> = (0..w * h / 300)
+        .map(|_| {
+            (
+                rng.random::<f64>() * w as f64,
+                rng.random::<f64>() * h as f64,
+                rng.random_range(1.0..2.0),
+                // Pareto-like brightness: a few bright stars among many faint ones.
+                20.0 / rng.random_range(0.1f64..1.0).powf(1.2),
+            )
+        })
+        .collect();
+    (0..frames)
+        .map(|t| {
+            let mut s: Vec<f64> = (0..w * h)
+                .map(|i| {
+                    let (px, py) = ((i % w) as f64 - drift * t as f64, (i / w) as f64);
+                    0.02 + stars
+                        .iter()
+                        .map(|&(sx, sy, r, a)| {
+                            let dx = (px - sx).rem_euclid(w as f64);
+                            let (dx, dy) = (dx.min(w as f64 - dx), py - sy);
+                            if dx.abs() > 8.0 || dy.abs() > 8.0 {
+                                return 0.0;
+                            }
+                            a * (-(dx * dx + dy * dy) / (2.0 * r * r)).exp()
+                        })
+                        .sum::<f64>()
+                })
+                .collect();
+            let cols: Vec<f64> = (0..w)
+                .map(|c| (0..h).map(|y| s[y * w + c]).sum::<f64>() / h as f64)
+                .collect();
+            for (i, v) in s.iter_mut().enumerate() {
+                *v += x * cols[i % w];
+            }
+            s
+        })
+        .collect()
+}
+
+#[test]
+fn smear_is_measured_where_the_scene_shows_it_and_never_made_up() {
+    let (w, h) = (256, 256);
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(77);
+    let shoot = |scenes: &[Vec<f64>], rng: &mut rand_pcg::Pcg64| -> Vec<Vec<f32>> {
+        scenes.iter().map(|s| frame(USER, s, rng)).collect()
+    };
+    // Drifting stars with 5 % smear: the factor within four of its errors, and those errors
+    // small enough to remove it by.
+    let frames = shoot(&smeared_stars(w, h, 20, 1.0, 0.05, 3), &mut rng);
+    let c = characterize(&frames, w, h).unwrap();
+    let sm = c.smear.expect("a 256² movie is searched for smear");
+    assert!(sm.significant, "{sm:?}");
+    assert!(
+        (sm.factor.value - 0.05).abs() < 4.0 * sm.factor.se && sm.factor.se < 0.01,
+        "{sm:?}"
+    );
+    // The profile removes it as blooming at the recording's exposure, the bias map un-bloomed.
+    let p = c.profile("stars", 0.01, None, 65535.0).unwrap();
+    assert!((p.blooming_factor(0.01) - sm.factor.value).abs() < 1e-12);
+    let unbloomed = p.maps.fpn_base.iter().map(|&v| v as f64).sum::<f64>() / (w * h) as f64;
+    let map = c.bias_map.values.iter().map(|&v| v as f64).sum::<f64>() / (w * h) as f64;
+    assert!((unbloomed - map / (1.0 + sm.factor.value)).abs() < 1e-3 * map);
+    // The same stars without smear, drifting or still, and cells: none claimed.
+    for (what, scenes) in [
+        ("drifting stars", smeared_stars(w, h, 20, 1.0, 0.0, 3)),
+        ("still stars", smeared_stars(w, h, 20, 0.0, 0.0, 4)),
+        (
+            "drifting cells",
+            (0..20)
+                .map(|t| scene(w, h, 2.0, (t as f64, 0.0), 5))
+                .collect(),
+        ),
+    ] {
+        let frames = shoot(&scenes, &mut rng);
+        let c = characterize(&frames, w, h).unwrap();
+        let sm = c.smear;
+        assert!(sm.is_some_and(|s| !s.significant), "{what}: {sm:?}");
+        let p = c.profile(what, 0.01, None, 65535.0).unwrap();
+        assert!(p.blooming.is_none(), "{what}");
+    }
+}
