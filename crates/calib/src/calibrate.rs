@@ -966,7 +966,12 @@ impl Calibration {
             maps: ProfileMaps {
                 fpn_base,
                 fpn_theta,
-                read_noise: self.bias.iter().map(|b| b.std.clone()).collect(),
+                // Few frames leave each pixel's std noisy and their median low: shrunk.
+                read_noise: self
+                    .bias
+                    .iter()
+                    .map(|b| crate::read_noise::shrunk(&b.std, b.frames))
+                    .collect(),
             },
         };
         p.validate()

@@ -54,6 +54,7 @@ pub mod gain_series;
 pub use emccd_profile::manifest;
 pub mod normality;
 pub mod ptc;
+pub mod read_noise;
 pub mod recording;
 pub mod report;
 pub mod spurious;

@@ -48,6 +48,24 @@ impl Calibration {
                 / c.bias.len() as f64)
                 .sqrt();
             let _ = writeln!(out, "  read noise           {:.3} DN median std, {rms:.3} DN rms (over pixels and {} exposures)", emccd_profile::median(rn).unwrap_or(0.0), c.bias.len());
+            // What few frames cost: each pixel's std as measured and as the profile holds it.
+            if let Some((raw, shrunk)) = crate::read_noise::pixel_error(&b.std, b.frames) {
+                let map = crate::read_noise::shrunk(&b.std, b.frames);
+                let held = if shrunk < 0.1 * raw {
+                    "the pixels' own spread is below what the frames resolve: the map holds the frame's".to_string()
+                } else {
+                    format!("± {:.1} % shrunk towards the frame's", 100.0 * shrunk)
+                };
+                let _ = writeln!(
+                    out,
+                    "  read-noise map       {:.3} DN median at {} s ({} frames: each pixel ± {:.1} % as measured, {held}; the FPN map ± {:.2} DN a pixel)",
+                    emccd_profile::median(map.iter().copied()).unwrap_or(0.0),
+                    b.exposure_s,
+                    b.frames,
+                    100.0 * raw,
+                    b.read_noise_rms_dn / (b.frames as f64).sqrt()
+                );
+            }
         }
         if let Some(f) = &c.spurious {
             let dark = if f.dark_se.is_finite() {
