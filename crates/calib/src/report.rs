@@ -657,7 +657,7 @@ fn fpn_section(c: &Calibration, h: &mut String) {
 /// charge and the read noise beneath it where they were fitted.
 fn read_noise_section(c: &Calibration, h: &mut String) {
     if let Some(b) = c.bias.first() {
-        let _ = write!(h, "<h2>Read noise (paper Fig. 4)</h2><div class=row><div><p>read-noise std at {} s</p>{}</div>{}</div><table><tr><th>exposure s</th><th>frames</th><th>FPN median DN</th><th>read-noise median DN</th><th>read-noise rms DN</th><th>spurious e⁻ per frame</th><th>read noise beneath DN</th></tr>", b.exposure_s, heat_map(&b.std, c.width, c.height, "DN"), qq_plot(c));
+        let _ = write!(h, "<h2>Read noise (paper Fig. 4)</h2><div class=row><div><p>read-noise std at {} s</p>{}</div>{}</div><table><tr><th>exposure s</th><th>frames</th><th>FPN median DN</th><th>read-noise median DN</th><th>read-noise rms DN</th><th>profile's map median DN</th><th>per pixel ± % (measured / shrunk)</th><th>FPN per pixel ± DN</th><th>spurious e⁻ per frame</th><th>read noise beneath DN</th></tr>", b.exposure_s, heat_map(&b.std, c.width, c.height, "DN"), qq_plot(c));
         for l in &c.bias {
             let fit = c
                 .spurious
@@ -669,10 +669,23 @@ fn read_noise_section(c: &Calibration, h: &mut String) {
                     format!("{:.3}", f.read_sigma_dn),
                 )
             });
+            // What the stack's frame count costs: the profile's (shrunk) map and each pixel's
+            // error in it and in the fixed pattern.
+            let map = crate::read_noise::shrunk(&l.std, l.frames);
+            let (raw, shrunk) =
+                crate::read_noise::pixel_error(&l.std, l.frames).unwrap_or((f64::NAN, f64::NAN));
             let _ = write!(
                 h,
-                "<tr><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.3}</td><td>{:.3}</td><td>{e}</td><td>{r}</td></tr>",
-                l.exposure_s, l.frames, l.median_dn, l.read_noise_median_dn, l.read_noise_rms_dn
+                "<tr><td>{}</td><td>{}</td><td>{:.2}</td><td>{:.3}</td><td>{:.3}</td><td>{:.3}</td><td>{:.1} / {:.1}</td><td>{:.2}</td><td>{e}</td><td>{r}</td></tr>",
+                l.exposure_s,
+                l.frames,
+                l.median_dn,
+                l.read_noise_median_dn,
+                l.read_noise_rms_dn,
+                emccd_profile::median(map.iter().copied()).unwrap_or(f64::NAN),
+                100.0 * raw,
+                100.0 * shrunk,
+                l.read_noise_rms_dn / (l.frames as f64).sqrt()
             );
         }
         h.push_str("</table>");
