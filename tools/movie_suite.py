@@ -24,7 +24,7 @@ and moves as the full run; only the noise is drawn anew.
 
 Usage: python3 tools/movie_suite.py [OUT] [--cameras lowlight-a,lowlight-b] [--levels 0.5,1,4,16]
            [--motions static,drift,...] [--frames 16] [--size 256] [--methods bm3d,blend,temporal]
-           [--no-bm4d] [--fast] [--uncalibrated temporal,bm3d]
+           [--no-bm4d] [--fast] [--uncalibrated temporal,bm3d] [--data-sheet]
 --fast: the simulator's fast gain mode without its partial CIC, for the calibration acquisition
 and the movies alike (tools/unseen_camera.py --fast): several times quicker, for validation
 runs; the reported tables are made without it.
@@ -157,6 +157,9 @@ def main():
     ap.add_argument("--no-bm4d", action="store_true")
     ap.add_argument("--uncalibrated", default="", help="methods also run with no --profile (the camera "
                     "characterized from each movie itself), scored here as METHOD@rec")
+    ap.add_argument("--data-sheet", action="store_true", help="give the METHOD@rec runs the camera's "
+                    "spurious charge as a data sheet would (--cic, --dark, --exposure-s): a recording cannot "
+                    "tell it from light")
     ap.add_argument("--fast", action="store_true", help="fast gain mode, no partial CIC in the register")
     ap.add_argument("--seed", type=int, default=11)
     a = ap.parse_args()
@@ -227,8 +230,11 @@ def main():
                 for m in filter(None, a.uncalibrated.split(",")):
                     out_path = mdir / f"{stem}_{m}_rec.tif"
                     t = time.perf_counter()
+                    sheet = (["--cic", str(cam["cic"]), "--dark", str(cam["dark_current"]), "--exposure-s",
+                              str(EXPOSURE)] if a.data_sheet else [])
                     r = subprocess.run([str(exe), "denoise", str(mdir / f"{stem}.tif"), "--method", m,
-                                        "-o", str(out_path)], check=True, capture_output=True, text=True)
+                                        "-o", str(out_path), "--force"] + sheet,
+                                       check=True, capture_output=True, text=True)
                     sec = (time.perf_counter() - t) / a.frames * (512 * 512) / (n * n)
                     est = tifffile.imread(out_path).reshape(truth.shape).astype(np.float64)
                     said = next((l for l in r.stderr.splitlines() if "characterized from the recording" in l), "")

@@ -184,6 +184,9 @@ pub struct ChosenProfile {
     pub summary: Option<String>,
     /// The spurious charge subtracted from its bias (`--cic`, `--dark`), in words.
     pub spurious: Option<String>,
+    /// Frame-transfer smear measured on the inputs and put into a profile that had no blooming
+    /// calibration ([`RecordingArgs::check_fit`]), in words.
+    pub smear: Option<String>,
 }
 
 /// `text` in ASCII, as TIFF descriptions and FITS headers hold it: the units' and errors'
@@ -221,6 +224,7 @@ impl ChosenProfile {
                 .iter()
                 .map(|s| format!("spurious={}", ascii(s))),
         );
+        n.extend(self.smear.iter().map(|s| format!("smear={}", ascii(s))));
         n
     }
 }
@@ -285,6 +289,7 @@ impl RecordingArgs {
                 name: CHARACTERIZED.into(),
                 summary: Some(summary),
                 spurious: removed,
+                smear: None,
             });
         };
         let mut profile = load_profile(arg)?;
@@ -309,37 +314,54 @@ impl RecordingArgs {
             name: arg.clone(),
             summary: None,
             spurious: removed,
+            smear: None,
         })
     }
 
     /// Refuses `profile` where the inputs, characterized, disagree with it
     /// ([`emccd_calib::recording::Frames::misfit`]). Inputs that cannot be compared with it
     /// (bright everywhere, too small, another size) are let through with a note: opening them
-    /// checks the rest.
+    /// checks the rest. `add_smear` (`denoise`): a frame-transfer smear the inputs show goes
+    /// into a profile without a blooming calibration
+    /// ([`emccd_calib::recording::add_measured_smear`]), said and recorded.
     /// Call once the inputs have opened through the profile (their size and exposure checked),
     /// before anything is written; nothing to do for a profile characterized from them, or with
     /// `--force`.
-    pub fn check_fit(&self, chosen: &ChosenProfile, inputs: &[std::path::PathBuf]) -> Result<()> {
+    pub fn check_fit(
+        &self,
+        chosen: &mut ChosenProfile,
+        inputs: &[std::path::PathBuf],
+        add_smear: bool,
+    ) -> Result<()> {
         if self.force || chosen.summary.is_some() {
             return Ok(());
         }
-        let (profile, arg) = (&chosen.profile, &chosen.name);
+        let arg = chosen.name.clone();
         let paths: Vec<&Path> = inputs.iter().map(|p| p.as_path()).collect();
         let misfit = emccd_calib::recording::read(&paths).map(|mut f| {
             f.exposure_s = self.exposure_s.or(f.exposure_s);
-            (f.misfit(profile), f.source)
+            let exposure = f.checked_exposure(&chosen.profile);
+            (f.misfit(&chosen.profile), f.source, exposure)
         });
         match misfit {
-            Ok((Ok(off), source)) if !off.is_empty() => anyhow::bail!(
+            Ok((Ok((off, _)), source, _)) if !off.is_empty() => anyhow::bail!(
                 "{}",
-                emccd_calib::recording::misfit_message(&source, arg, &off, "--force")
+                emccd_calib::recording::misfit_message(&source, &arg, &off, "--force")
             ),
             // Why, without its advice to pass a profile (one was given).
-            Ok((Err(why), source)) => eprintln!(
+            Ok((Err(why), source, _)) => eprintln!(
                 "note: {source}: not checked against profile {arg} ({})",
                 why.split("; ").next().unwrap_or(&why)
             ),
             Err(e) => eprintln!("note: not checked against profile {arg} ({e})"),
+            Ok((Ok((_, c)), source, Some(exposure))) if add_smear => {
+                if let Some(said) =
+                    emccd_calib::recording::add_measured_smear(&mut chosen.profile, &c, exposure)
+                {
+                    eprintln!("{source}: {said}");
+                    chosen.smear = Some(said);
+                }
+            }
             Ok(_) => {}
         }
         Ok(())

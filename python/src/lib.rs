@@ -441,7 +441,7 @@ fn through(
             ..frames
         };
         match frames.misfit(&p) {
-            Ok(off) if !off.is_empty() => {
+            Ok((off, _)) if !off.is_empty() => {
                 anyhow::bail!("{}", misfit_message(SOURCE, &p.camera, &off, "force=True"))
             }
             Ok(_) => {}

@@ -67,7 +67,7 @@ pub fn run(a: Args) -> Result<()> {
         emccd_io::refuse_overwrite(&a.out, file, "the --init model")?;
     }
     let init_meta = init.read_meta()?;
-    let chosen = a.recording.choose_profile(&a.inputs, true)?;
+    let mut chosen = a.recording.choose_profile(&a.inputs, true)?;
     let profile = chosen.profile.clone();
     profile
         .require_complete()
@@ -81,7 +81,7 @@ pub fn run(a: Args) -> Result<()> {
     for input in &a.inputs {
         a.recording.open(input, &profile)?;
     }
-    a.recording.check_fit(&chosen, &a.inputs)?;
+    a.recording.check_fit(&mut chosen, &a.inputs, false)?;
     for input in &a.inputs {
         let recording = a.recording.reopen(input, &profile)?;
         let pb = progress(recording.info.frames as u64, "reading");

@@ -136,7 +136,7 @@ pub fn run(a: Args) -> Result<()> {
     if let Some((cic, dark)) = given {
         emccd_profile::check_spurious(cic, dark)?;
     }
-    let chosen = a.recording.choose_profile(&a.inputs, false)?;
+    let mut chosen = a.recording.choose_profile(&a.inputs, false)?;
     let profile = &chosen.profile;
     // A recording cannot tell spurious electrons from light: without the data sheet's numbers
     // they stay in the rates, and the output says so.
@@ -174,7 +174,7 @@ pub fn run(a: Args) -> Result<()> {
             level,
         });
     }
-    a.recording.check_fit(&chosen, &a.inputs)?;
+    a.recording.check_fit(&mut chosen, &a.inputs, false)?;
     if zarr {
         return count_zarr(&a, &chosen, &jobs[0]);
     }

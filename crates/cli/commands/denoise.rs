@@ -106,13 +106,13 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         emccd_io::output_paths(&a.inputs, &a.out, several.then_some("_denoised.tif"))?
     };
-    let chosen = a.recording.choose_profile(&a.inputs, true)?;
+    let mut chosen = a.recording.choose_profile(&a.inputs, true)?;
     let profile = &chosen.profile;
     // The profile's fitness for denoising, checked before anything is opened or written.
     r.denoiser(profile, 1, a.tiling, a.ensemble, a.units, window)
         .map_err(|e| anyhow::anyhow!("profile {}: {e}", chosen.name))?;
     if zarr {
-        return run_zarr(&a, &r, &chosen, window);
+        return run_zarr(&a, &r, &mut chosen, window);
     }
     // All or nothing: every input is opened and checked (its header, size and exposure) before
     // anything is written, and the outputs are placed only once every input is denoised, so an
@@ -125,7 +125,7 @@ pub fn run(a: Args) -> Result<()> {
         let level = emccd_count::light_level(profile, &mut rec, 4).ok();
         notes.push(level.and_then(crate::common::counting_note));
     }
-    a.recording.check_fit(&chosen, &a.inputs)?;
+    a.recording.check_fit(&mut chosen, &a.inputs, true)?;
     let made = several && !a.out.exists();
     if several {
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
@@ -202,14 +202,14 @@ fn warn_profile(r: &Resolved, fd: &emccd_denoise::Denoiser) {
 
 /// Denoises the inputs, one logical stack in the order given, into one OME-Zarr store: this
 /// process's shard of the frames, skipping frames already complete.
-fn run_zarr(a: &Args, r: &Resolved, chosen: &ChosenProfile, window: usize) -> Result<()> {
-    let profile = &chosen.profile;
+fn run_zarr(a: &Args, r: &Resolved, chosen: &mut ChosenProfile, window: usize) -> Result<()> {
     let shard = a.shard.unwrap_or(Shard::ALL);
+    let (name, summary) = (chosen.name.clone(), chosen.summary.clone());
     let out = ZarrOutput {
         path: &a.out,
         shard,
-        profile_arg: &chosen.name,
-        characterization: chosen.summary.as_deref(),
+        profile_arg: &name,
+        characterization: summary.as_deref(),
         model_name: r.model_name.as_deref(),
         software: &format!("emccd {}", env!("CARGO_PKG_VERSION")),
     };
@@ -218,9 +218,10 @@ fn run_zarr(a: &Args, r: &Resolved, chosen: &ChosenProfile, window: usize) -> Re
     let inputs = a
         .inputs
         .iter()
-        .map(|p| a.recording.open(p, profile))
+        .map(|p| a.recording.open(p, &chosen.profile))
         .collect::<Result<Vec<_>>>()?;
-    a.recording.check_fit(chosen, &a.inputs)?;
+    a.recording.check_fit(chosen, &a.inputs, true)?;
+    let profile = &chosen.profile;
     // The store is one stack: the default runs temporally when any of its recordings is a
     // movie (each frame's window stays within its own recording).
     let longest = inputs.iter().map(|i| i.info.frames).max().unwrap_or(1);

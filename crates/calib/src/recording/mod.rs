@@ -747,18 +747,7 @@ impl Characterization {
             notes.push_str("; ");
             notes.push_str(note);
         }
-        // Measured smear is the profile's blooming at this one exposure; the bias map, measured
-        // with it, is un-bloomed so that preprocessing B⁻¹(D) − FPN equals B⁻¹(D − bias).
-        let mut fpn_base = self.bias_map.values.clone();
-        let blooming = self.smear.filter(|s| s.significant).map(|s| {
-            emccd_profile::remove_blooming(&mut fpn_base, self.width, s.factor.value);
-            emccd_profile::BloomingFit {
-                a: s.factor.value * exposure_s,
-                b: -1.0,
-                range_s: Some([exposure_s, exposure_s]),
-            }
-        });
-        let p = CameraProfile {
+        let mut p = CameraProfile {
             camera: format!("characterized from {source}"),
             em_gain: g,
             width: self.width,
@@ -772,7 +761,7 @@ impl Characterization {
                 base_exposure_s: exposure_s,
                 shared_theta: [0.0; 4],
             },
-            blooming,
+            blooming: None,
             exposures_s: vec![exposure_s],
             eld: None,
             // The dark pixels' electrons hold their light too, so the spurious charge is not
@@ -783,11 +772,15 @@ impl Characterization {
                 notes,
             },
             maps: ProfileMaps {
-                fpn_base,
+                fpn_base: self.bias_map.values.clone(),
                 fpn_theta: Vec::new(),
                 read_noise: vec![vec![self.read_noise_dn.value as f32; n]],
             },
         };
+        // Measured smear is the profile's blooming at this one exposure.
+        if let Some(s) = self.smear.filter(|s| s.significant) {
+            smear::into_profile(&mut p, s.factor.value, exposure_s);
+        }
         p.validate()
             .map_err(|e| Error::Fit(format!("the characterized profile is inconsistent: {e}")))?;
         Ok(p)
@@ -985,10 +978,14 @@ impl Frames {
     }
 
     /// What disagrees between `profile` and these frames ([`disagreements`], at the frames'
-    /// exposure, else the exposure of a profile made from a recording), or `Err` with why they
-    /// could not be compared: the frames do not characterize the camera (bright everywhere,
-    /// too few), they are not the profile's size, or no exposure is known.
-    pub fn misfit(&self, profile: &CameraProfile) -> std::result::Result<Vec<String>, String> {
+    /// exposure, else the exposure of a profile made from a recording), with the
+    /// characterization it was judged by, or `Err` with why they could not be compared: the
+    /// frames do not characterize the camera (bright everywhere, too few), they are not the
+    /// profile's size, or no exposure is known.
+    pub fn misfit(
+        &self,
+        profile: &CameraProfile,
+    ) -> std::result::Result<(Vec<String>, Characterization), String> {
         if (self.width, self.height) != (profile.width, profile.height) {
             return Err(format!(
                 "the frames are {}×{}, the profile's {}×{}",
@@ -996,18 +993,24 @@ impl Frames {
             ));
         }
         let exposure = self
-            .exposure_s
-            .or_else(|| {
-                (profile.from_recording() && profile.exposures_s.len() == 1)
-                    .then(|| profile.exposures_s[0])
-            })
+            .checked_exposure(profile)
             .ok_or("no exposure is known")?;
         let c = characterize(&self.frames, self.width, self.height).map_err(|e| {
             let why = e.to_string();
             // The advice to pass a profile is no advice here.
             why.split("; calibrate").next().unwrap_or(&why).to_string()
         })?;
-        Ok(disagreements(&c, profile, exposure, self.em_gain))
+        let off = disagreements(&c, profile, exposure, self.em_gain);
+        Ok((off, c))
+    }
+
+    /// The exposure these frames are compared with `profile` at: theirs, else that of a profile
+    /// made from a recording.
+    pub fn checked_exposure(&self, profile: &CameraProfile) -> Option<f64> {
+        self.exposure_s.or_else(|| {
+            (profile.from_recording() && profile.exposures_s.len() == 1)
+                .then(|| profile.exposures_s[0])
+        })
     }
 
     /// Characterizes the camera from these frames ([`characterize`]), each error naming the
@@ -1030,6 +1033,26 @@ impl Frames {
 }
 
 pub use check::{disagreements, misfit_message};
+
+/// Where `profile` measured no blooming (no blooming stacks) and `c`, characterized from a
+/// recording at `exposure_s`, shows frame-transfer smear, puts it into the profile
+/// ([`smear::into_profile`]) and says so; `None` where nothing was added.
+pub fn add_measured_smear(
+    profile: &mut CameraProfile,
+    c: &Characterization,
+    exposure_s: f64,
+) -> Option<String> {
+    let s = c.smear.filter(|s| s.significant)?;
+    if profile.blooming.is_some() {
+        return None;
+    }
+    smear::into_profile(profile, s.factor.value, exposure_s);
+    Some(format!(
+        "frame-transfer smear measured on the recording: each pixel holds {:.2} ± {:.2} % of its column's mean, removed (the profile has no blooming calibration)",
+        100.0 * s.factor.value,
+        100.0 * s.factor.se
+    ))
+}
 pub use emccd_profile::RECORDING_SOURCE;
 
 #[cfg(test)]

@@ -219,6 +219,31 @@ pub fn estimate(
     })
 }
 
+/// Puts a smear factor `x` measured on a recording at `exposure_s` into `profile` as its
+/// blooming there (`a = x·t`, `b = −1`, that one exposure's range), for a profile whose
+/// calibration measured none. The fixed pattern at that exposure becomes the profile's constant
+/// pattern, un-bloomed, so that preprocessing `B⁻¹(D) − FPN` is `B⁻¹(D − FPN)`: the pattern was
+/// measured without the scene's light (bias frames) or, from a recording, as the zero-electron
+/// peak, which smear (light) does not move. The profile then serves recordings at that
+/// exposure.
+pub fn into_profile(profile: &mut emccd_profile::CameraProfile, x: f64, exposure_s: f64) {
+    let mut fpn = vec![0f32; profile.len()];
+    profile.fpn_at(exposure_s, &mut fpn);
+    emccd_profile::remove_blooming(&mut fpn, profile.width, x);
+    profile.maps.fpn_base = fpn;
+    profile.maps.fpn_theta.clear();
+    profile.fpn = emccd_profile::FpnFit {
+        form: emccd_profile::FpnForm::Constant,
+        base_exposure_s: exposure_s,
+        shared_theta: [0.0; 4],
+    };
+    profile.blooming = Some(emccd_profile::BloomingFit {
+        a: x * exposure_s,
+        b: -1.0,
+        range_s: Some([exposure_s, exposure_s]),
+    });
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

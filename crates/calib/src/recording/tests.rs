@@ -512,6 +512,39 @@ fn smear_is_measured_where_the_scene_shows_it_and_never_made_up() {
     let unbloomed = p.maps.fpn_base.iter().map(|&v| v as f64).sum::<f64>() / (w * h) as f64;
     let map = c.bias_map.values.iter().map(|&v| v as f64).sum::<f64>() / (w * h) as f64;
     assert!((unbloomed - map / (1.0 + sm.factor.value)).abs() < 1e-3 * map);
+    // A calibrated profile of the camera without a blooming calibration takes it from the
+    // recording: the output's mean is the light's, where it held the smear's 5 % more.
+    let scenes = smeared_stars(w, h, 20, 1.0, 0.0, 3);
+    let light = scenes.iter().flatten().sum::<f64>() / (20 * w * h) as f64;
+    let mut calibrated = truth_profile(USER, &c);
+    calibrated.blooming = None;
+    calibrated.maps.fpn_base.fill(USER.bias as f32);
+    let output_mean = |p: &CameraProfile| -> f64 {
+        let mut fpn = vec![0f32; w * h];
+        p.fpn_at(0.01, &mut fpn);
+        let per_e = p.dn_per_electron().unwrap();
+        frames
+            .iter()
+            .map(|f| {
+                let mut d = f.clone();
+                emccd_profile::preprocess(&mut d, w, p.blooming_factor(0.01), &fpn);
+                d.iter().map(|&v| v as f64).sum::<f64>() / per_e
+            })
+            .sum::<f64>()
+            / (20 * w * h) as f64
+    };
+    let kept = output_mean(&calibrated) / light;
+    assert!((kept - 1.05).abs() < 0.01, "with the smear kept: {kept}");
+    let said = add_measured_smear(&mut calibrated, &c, 0.01).expect("smear added");
+    assert!(said.contains("smear"), "{said}");
+    let removed = output_mean(&calibrated) / light;
+    assert!(
+        (removed - 1.0).abs() < 0.01 + 3.0 * sm.factor.se,
+        "with the smear removed: {removed}"
+    );
+    // A profile that has its own blooming calibration keeps it.
+    assert!(add_measured_smear(&mut calibrated, &c, 0.01).is_none());
+
     // The same stars without smear, drifting or still, and cells: none claimed.
     for (what, scenes) in [
         ("drifting stars", smeared_stars(w, h, 20, 1.0, 0.0, 3)),
