@@ -309,20 +309,28 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
     } else {
         None
     };
-    // Where the register's tail gives K, the movie's line is used where it agrees with 2K (the
-    // tail's error with 2 % for the register's f², 1.96–2 at the gains a measurable tail takes)
-    // within three errors and is the more precise of the two. A register of gain G has
-    // f² = 2 − 1/G; a line off that is one the scene bent: a flat or dim scene flattens it (its
-    // levels span little more than the bias map's own errors: 0.4 of the slope at 0.05 e⁻),
-    // point sources drifting through the blocks faster than the motion test sees (0.8–0.85 of
-    // it at 1 px a frame on emccd-detect camera A). The tail's 2K is then the better number.
+    // Where the register's tail gives K from dark pixels holding less than an electron a frame,
+    // the movie's line is used where it is the more precise of the two (the tail's `2K` carries
+    // K's error and 2 % for the register's f², 1.96–2 at the gains a measurable tail takes) and
+    // a register can make it with that K: f² = s/K within 1.85–2.5 beyond three errors
+    // (f² = 2 − 1/G). A flat or dim scene flattens the line (its levels span little more than
+    // the bias map's own errors: 0.4 of the slope at 0.05 e⁻); point sources drifting through
+    // the blocks faster than the motion test sees bend it (121–129 DN for 150 at 1 px a frame on
+    // emccd-detect camera A, f² 1.6–1.7), and spread it over the frame's strips, which its
+    // jackknife error shows. Where the dark pixels hold an electron or more a frame the tail's K
+    // runs high (86 and 112 DN for 75 at 4 and 16 e⁻ per pixel on camera A): the line is then
+    // judged on its own.
     let tail_se =
         2.0 * df.gain * ((differences_fit.se.gain / df.gain).powi(2) + F2_SPREAD.powi(2)).sqrt();
-    let emccd_like = |c: &ptc::Curve| -> bool {
-        !gain_known
-            || ((c.slope - 2.0 * df.gain).abs() <= 3.0 * c.slope_se.hypot(tail_se)
-                && c.slope_se <= tail_se)
+    let tail_reliable = gain_known && df.electrons < 1.0;
+    let plausible = |c: &ptc::Curve| -> bool {
+        let f2 = c.slope / df.gain;
+        let se = f2
+            * ((c.slope_se / c.slope).powi(2) + (differences_fit.se.gain / df.gain).powi(2)).sqrt();
+        f2 + 3.0 * se >= 1.85 && f2 - 3.0 * se <= 2.5
     };
+    let emccd_like =
+        |c: &ptc::Curve| -> bool { !tail_reliable || (c.slope_se <= tail_se && plausible(c)) };
     let (slope, slope_from) = match &curve {
         Some(c)
             if c.slope > 0.0
@@ -333,7 +341,7 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
             (Estimate::new(c.slope, c.slope_se), SlopeFrom::TemporalPtc)
         }
         Some(c) if gain_known && c.slope > 0.0 && c.slope_se < 0.2 * c.slope => {
-            notes.push(if (c.slope - 2.0 * df.gain).abs() <= 3.0 * c.slope_se.hypot(tail_se) {
+            notes.push(if plausible(c) {
                 format!(
                     "the movie's mean–variance slope, {:.2} ± {:.2} DN, is less precise than twice the register's gain ({:.2} DN per electron), which is taken",
                     c.slope, c.slope_se, df.gain
