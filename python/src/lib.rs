@@ -426,7 +426,7 @@ fn through(
         notes.extend(c.notes.iter().cloned());
         return Ok((p, exposure_s.unwrap_or(NOMINAL_EXPOSURE_S), notes));
     };
-    let p = profile.inner.clone();
+    let mut p = profile.inner.clone();
     let exposure_s = match exposure_s {
         Some(t) => t,
         None if p.from_recording() && p.exposures_s.len() == 1 => p.exposures_s[0],
@@ -444,7 +444,11 @@ fn through(
             Ok((off, _)) if !off.is_empty() => {
                 anyhow::bail!("{}", misfit_message(SOURCE, &p.camera, &off, "force=True"))
             }
-            Ok(_) => {}
+            // A smear the frames show goes into a profile without a blooming calibration, as
+            // `emccd denoise` does.
+            Ok((_, c)) => notes.extend(emccd_calib::recording::add_measured_smear(
+                &mut p, &c, exposure_s,
+            )),
             Err(why) => notes.push(format!("not checked against the profile: {why}")),
         }
     }
