@@ -464,49 +464,62 @@ fn a_profile_without_bias_maps_cannot_denoise() {
     assert!(!d.join("o.tif").exists());
 }
 
-/// Frames smaller than a BM3D block (11×11) are denoised, not a panic.
+/// Frames smaller than a block (BM3D's 11×11, the temporal method's 8×8), a tiny frame and a
+/// strip narrower than a block, are denoised by every method, not a panic (`temporal-net`
+/// overflowed its block positions below 8 px and left an empty store behind).
 #[test]
-fn bm3d_denoises_tiny_frames() {
+fn every_method_denoises_tiny_frames() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    emccd_profile::default_profile()
-        .crop(emccd_profile::Roi::corner(8, 6))
-        .unwrap()
-        .save(d.join("tiny"))
-        .unwrap();
-    let mut w =
-        emccd_io::StackWriter::create(d.join("t.tif"), 8, 6, emccd_io::SampleFormat::U16, Some(2))
+    for (w, h, n) in [(8usize, 6usize, 2usize), (6, 64, 3)] {
+        let name = format!("{w}x{h}");
+        emccd_profile::default_profile()
+            .crop(emccd_profile::Roi::corner(w, h))
+            .unwrap()
+            .save(d.join(&name))
             .unwrap();
-    for k in 0..2 {
-        w.write_frame(
-            &(0..48)
-                .map(|i| 500.0 + ((i * 7 + k) % 5) as f32 * 40.0)
-                .collect::<Vec<f32>>(),
+        let input = format!("{name}.tif");
+        let mut wr = emccd_io::StackWriter::create(
+            d.join(&input),
+            w,
+            h,
+            emccd_io::SampleFormat::U16,
+            Some(n),
         )
         .unwrap();
-    }
-    w.finish().unwrap();
-    // Both classical methods; ivst bins this dim frame 4×4 (2×2 blocks) before BM3D.
-    for method in ["bm3d", "ivst"] {
-        let out = format!("o-{method}.tif");
-        ok(&emccd(
-            &[
-                "denoise",
-                "t.tif",
-                "-o",
-                &out,
-                "--profile",
-                "tiny",
-                "--method",
-                method,
-                "--exposure-s",
-                "0.01",
-            ],
-            d,
-        ));
-        let (info, frames) = emccd_io::read_all(d.join(&out)).unwrap();
-        assert_eq!((info.width, info.height, info.frames), (8, 6, 2));
-        assert!(frames.iter().flatten().all(|v| v.is_finite()), "{method}");
+        for k in 0..n {
+            wr.write_frame(
+                &(0..w * h)
+                    .map(|i| 500.0 + ((i * 7 + k) % 5) as f32 * 40.0)
+                    .collect::<Vec<f32>>(),
+            )
+            .unwrap();
+        }
+        wr.finish().unwrap();
+        // ivst bins this dim frame 4×4 (2×2 blocks) before BM3D.
+        for method in ["bm3d", "ivst", "net", "blend", "hybrid", "temporal", "temporal-net"] {
+            for ext in ["tif", "zarr"] {
+                let out = format!("o-{name}-{method}.{ext}");
+                ok(&emccd(
+                    &[
+                        "denoise",
+                        &input,
+                        "-o",
+                        &out,
+                        "--profile",
+                        &name,
+                        "--method",
+                        method,
+                        "--exposure-s",
+                        "0.01",
+                    ],
+                    d,
+                ));
+                let (info, frames) = emccd_io::read_all(d.join(&out)).unwrap();
+                assert_eq!((info.width, info.height, info.frames), (w, h, n), "{out}");
+                assert!(frames.iter().flatten().all(|v| v.is_finite()), "{out}");
+            }
+        }
     }
 }
 

@@ -239,7 +239,10 @@ fn haar(g: &mut [Block], len: usize, inverse: bool) {
 
 /// Reference positions along one axis: every `step` px, plus the last possible one.
 pub(crate) fn positions(len: usize, n: usize, step: usize) -> Vec<usize> {
-    let last = len - n;
+    // A side shorter than a block holds none.
+    let Some(last) = len.checked_sub(n) else {
+        return Vec::new();
+    };
     let mut v: Vec<usize> = (0..=last).step_by(step).collect();
     if *v.last().unwrap_or(&0) != last {
         v.push(last);

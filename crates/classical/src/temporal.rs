@@ -490,7 +490,9 @@ pub fn scene(
     h: usize,
     p: PoissonGaussian,
 ) -> Scene {
-    scene_on_grid(window, guides, center, w, h, p, scene_step(w, h))
+    // A frame narrower than a block has none to track (a spectroscopy strip, a narrow sub-array).
+    let step = if w >= N && h >= N { scene_step(w, h) } else { N };
+    scene_on_grid(window, guides, center, w, h, p, step)
 }
 
 /// [`scene`] from the reference blocks every `step` px each way.
