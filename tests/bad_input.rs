@@ -1163,9 +1163,10 @@ fn a_failed_calibration_leaves_no_report() {
     assert!(!d.join("rep").exists(), "the report folder was left");
 }
 
-/// Eight copies of one flat as eight levels: refused naming the flats and what is wrong with
-/// them (they were fitted to a slope with r² = 1 here; the report that found it got
-/// "ptc_slope_dn must be positive, got -16" from the profile's checks).
+/// Eight copies of one flat (eight files) as eight levels: refused naming the flats and what
+/// is wrong with them (they were fitted to a slope with r² = 1 here; the report that found it
+/// got "ptc_slope_dn must be positive, got -16" from the profile's checks). One file listed
+/// eight times is refused before (`a_stack_listed_twice_or_a_flat_listed_as_a_bias_is_refused`).
 #[test]
 fn identical_flats_are_named() {
     let dir = tempfile::tempdir().unwrap();
@@ -1181,13 +1182,19 @@ fn identical_flats_are_named() {
         .unwrap()
         .to_string();
     let head = manifest.split("[[flat]]").next().unwrap().to_string();
-    let eight: String = (0..8).map(|_| format!("[[flat]]{flat}")).collect();
+    let eight: String = (0..8)
+        .map(|i| {
+            let copy = format!("flat/copy_{i}.tif");
+            std::fs::copy(d.join("cal/flat/flat_01.tif"), d.join("cal").join(&copy)).unwrap();
+            format!("[[flat]]{}", flat.replace("flat/flat_01.tif", &copy))
+        })
+        .collect();
     std::fs::write(d.join("cal/eight.toml"), format!("{head}{eight}")).unwrap();
     let o = emccd(&["calibrate", "cal/eight.toml", "-o", "p"], d);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(
-        err.contains("all hold one light level") && err.contains("flat_01.tif"),
+        err.contains("all hold one light level") && err.contains("copy_0.tif"),
         "{err}"
     );
     assert!(!d.join("p").exists());
@@ -1743,4 +1750,42 @@ fn a_stopped_calibration_leaves_no_report_and_no_folder() {
         let _ = std::fs::remove_dir_all(d.join("prof"));
         let _ = std::fs::remove_dir_all(d.join("rep"));
     }
+}
+
+/// One stack listed twice (however its path is spelled) would be an extra light level or
+/// blooming exposure; a flat listed as a bias would be read noise of its shot noise: both
+/// refused, naming the file, and nothing written.
+#[test]
+fn a_stack_listed_twice_or_a_flat_listed_as_a_bias_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    small_acquisition(d, "100,200,400,800");
+    let manifest = std::fs::read_to_string(d.join("cal/calibration.toml")).unwrap();
+    let write = |name: &str, from: &str, to: &str| {
+        assert!(manifest.contains(from), "{from}");
+        std::fs::write(d.join("cal").join(name), manifest.replace(from, to)).unwrap();
+    };
+    write("flat-twice.toml", "flat/flat_02.tif", "flat/flat_01.tif");
+    write(
+        "bloom-twice.toml",
+        "blooming/bloom_0.002s.tif",
+        "./blooming/../blooming/bloom_0.001s.tif",
+    );
+    write("flat-and-bias.toml", "bias/bias_0.01s.tif", "flat/flat_01.tif");
+    std::fs::copy(d.join("cal/flat/flat_01.tif"), d.join("cal/bias/lit.tif")).unwrap();
+    write("flat-as-bias.toml", "bias/bias_0.01s.tif", "bias/lit.tif");
+    for (m, want) in [
+        ("flat-twice.toml", "listed twice"),
+        ("bloom-twice.toml", "listed twice"),
+        ("flat-and-bias.toml", "listed twice"),
+        ("flat-as-bias.toml", "holds light"),
+    ] {
+        fails_with(
+            &emccd(&["calibrate", &format!("cal/{m}"), "-o", "p"], d),
+            want,
+        );
+        assert!(!d.join("p").exists(), "{m}");
+    }
+    // The acquisition as written calibrates.
+    ok(&emccd(&["calibrate", "cal/calibration.toml", "-o", "p"], d));
 }

@@ -377,7 +377,7 @@ pub fn calibrate(m: &Manifest, opts: &Options, progress: &dyn Progress) -> Resul
         missing,
         warnings,
     };
-    cal.spurious = spurious_charge(&cal.bias, cal.slope(), cal.em_gain, &mut cal.missing);
+    cal.spurious = spurious_charge(&cal.bias, cal.slope(), cal.em_gain, &mut cal.missing)?;
     Ok(cal)
 }
 
@@ -388,39 +388,60 @@ fn spurious_charge(
     slope: Option<f64>,
     em_gain: f64,
     missing: &mut Vec<String>,
-) -> Option<SpuriousFit> {
+) -> Result<Option<SpuriousFit>> {
     if bias.is_empty() {
-        return None;
+        return Ok(None);
     }
     let Some(slope) = slope else {
         missing.push(
             "clock-induced charge and dark current: need the photon-transfer slope (flat fields)"
                 .into(),
         );
-        return None;
+        return Ok(None);
     };
     if em_gain < 2.0 {
         missing.push(format!(
             "clock-induced charge and dark current: not separable from read noise at EM gain {em_gain}"
         ));
-        return None;
+        return Ok(None);
     }
-    let levels: Vec<_> = bias
+    let fitted: Vec<_> = bias
         .par_iter()
         .filter_map(|b| {
             let d = b.differences.as_ref()?;
-            crate::spurious::fit_level(d, b.exposure_s, slope / 2.0, em_gain)
+            crate::spurious::fit_level(d, b.exposure_s, slope / 2.0, em_gain).map(|l| (b, l))
         })
         .collect();
-    let fit = crate::spurious::fit_exposures(levels);
+    // A bias stack is read with the shutter closed: its frame differences hold the clock-induced
+    // charge and dark current of a cooled sensor, hundredths of an electron a pixel. One holding
+    // over an electron (and two errors above none: the model, made for a few hundredths, fits a
+    // lit stack loosely) is lit, a flat listed as a bias, whose "read noise" would be its shot
+    // noise (117 DN for 15) and its pattern its scene.
+    if let Some((b, l)) = fitted
+        .iter()
+        .find(|(_, l)| l.electrons > MAX_BIAS_ELECTRONS && l.electrons > 2.0 * l.electrons_se)
+    {
+        return Err(Error::input(
+            &b.file,
+            format!(
+                "listed as a bias stack, but its frame differences hold {:.2} ± {:.2} electrons per pixel per frame (a bias stack's spurious charge is hundredths): it holds light; is it a flat? List it under [[flat]], or record the bias with the shutter closed",
+                l.electrons, l.electrons_se
+            ),
+        ));
+    }
+    let fit = crate::spurious::fit_exposures(fitted.into_iter().map(|(_, l)| l).collect());
     if fit.is_none() {
         missing.push(
             "clock-induced charge and dark current: the bias stacks hold too few frame pairs"
                 .into(),
         );
     }
-    fit
+    Ok(fit)
 }
+
+/// The most spurious charge a bias stack may show, electrons per pixel per frame: a cooled
+/// EMCCD's clock-induced charge and dark current are hundredths even over seconds.
+const MAX_BIAS_ELECTRONS: f64 = 1.0;
 
 /// What every stage of a calibration reads stacks with: the sensor's size, the options and
 /// the progress sink.

@@ -197,6 +197,26 @@ impl Manifest {
                 }
             }
         }
+        // One stack is one acquisition: listed twice it would count as two light levels (a
+        // smaller error, an extra point on the line) or two blooming exposures.
+        let mut seen: Vec<(PathBuf, &str)> = Vec::new();
+        for (e, kind) in m
+            .bias
+            .iter()
+            .map(|e| (e, "[[bias]]"))
+            .chain(m.flat.iter().map(|e| (e, "[[flat]]")))
+            .chain(m.blooming.iter().map(|e| (e, "[[blooming]]")))
+        {
+            let id = std::fs::canonicalize(&e.file).unwrap_or_else(|_| e.file.clone());
+            if let Some((_, first)) = seen.iter().find(|(p, _)| *p == id) {
+                return Err(Error::Format(format!(
+                    "listed twice in {} (under {first} and {kind}): each entry must be its own acquisition",
+                    path.display()
+                ))
+                .at(&e.file));
+            }
+            seen.push((id, kind));
+        }
         for p in m.files() {
             if let Some(kind) = emccd_io::not_a_file(&p) {
                 return Err(Error::Format(format!(
