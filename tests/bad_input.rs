@@ -497,7 +497,15 @@ fn every_method_denoises_tiny_frames() {
         }
         wr.finish().unwrap();
         // ivst bins this dim frame 4×4 (2×2 blocks) before BM3D.
-        for method in ["bm3d", "ivst", "net", "blend", "hybrid", "temporal", "temporal-net"] {
+        for method in [
+            "bm3d",
+            "ivst",
+            "net",
+            "blend",
+            "hybrid",
+            "temporal",
+            "temporal-net",
+        ] {
             for ext in ["tif", "zarr"] {
                 let out = format!("o-{name}-{method}.{ext}");
                 ok(&emccd(
@@ -1771,7 +1779,11 @@ fn a_stack_listed_twice_or_a_flat_listed_as_a_bias_is_refused() {
         "blooming/bloom_0.002s.tif",
         "./blooming/../blooming/bloom_0.001s.tif",
     );
-    write("flat-and-bias.toml", "bias/bias_0.01s.tif", "flat/flat_01.tif");
+    write(
+        "flat-and-bias.toml",
+        "bias/bias_0.01s.tif",
+        "flat/flat_01.tif",
+    );
     std::fs::copy(d.join("cal/flat/flat_01.tif"), d.join("cal/bias/lit.tif")).unwrap();
     write("flat-as-bias.toml", "bias/bias_0.01s.tif", "bias/lit.tif");
     for (m, want) in [

@@ -491,7 +491,11 @@ pub fn scene(
     p: PoissonGaussian,
 ) -> Scene {
     // A frame narrower than a block has none to track (a spectroscopy strip, a narrow sub-array).
-    let step = if w >= N && h >= N { scene_step(w, h) } else { N };
+    let step = if w >= N && h >= N {
+        scene_step(w, h)
+    } else {
+        N
+    };
     scene_on_grid(window, guides, center, w, h, p, step)
 }
 
