@@ -873,6 +873,21 @@ fn adapt_refuses_mismatched_recordings_and_writes_nothing() {
         ]),
         "the output is the --init model",
     );
+    // An earlier file that is no input (a recording, a manifest, a model) is not written over
+    // without --force, a folder is no model's name, and a missing folder is said before any
+    // training (which left a checkpoint folder of 40 MB behind).
+    std::fs::write(d.join("notes.toml"), "kept = true\n").unwrap();
+    std::fs::create_dir(d.join("models")).unwrap();
+    let before = files(d);
+    for (out, want) in [
+        ("notes.toml", "notes.toml: exists; pass --force"),
+        ("models", "models: is a folder"),
+        ("nowhere/m.safetensors", "the folder nowhere does not exist"),
+    ] {
+        fails_with(&adapt(&["good.tif", "--profile", "default", "-o", out]), want);
+    }
+    assert_eq!(std::fs::read_to_string(d.join("notes.toml")).unwrap(), "kept = true\n");
+    assert!(std::fs::read_dir(d.join("models")).unwrap().next().is_none());
     assert_eq!(files(d), before, "adapt wrote or removed files");
 }
 

@@ -17,7 +17,8 @@ use crate::common::{progress, step_progress, RecordingArgs};
 /// --profile the camera characterized from the recordings). The output is an
 /// ordinary model file (`emccd denoise --model OUT`) that records what it was adapted on and
 /// from which model. A checkpoint is kept in OUT.ckpt/; --resume continues an interrupted run.
-/// The more frames, the better the scene estimate: 20–50 is a good range.
+/// The more frames, the better the scene estimate: 20–50 is a good range. An existing OUT is
+/// replaced only with --force.
 ///
 /// --method noise2noise and --method neighbors train on the recorded frames themselves instead
 /// (self-supervised; up to 256 MiB of frames are kept); `--from-scratch --method neighbors` is
@@ -66,6 +67,8 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(file) = init.file() {
         emccd_io::refuse_overwrite(&a.out, file, "the --init model")?;
     }
+    // Before anything is read or trained: where the model goes.
+    check_out(&a.out, a.recording.force)?;
     let init_meta = init.read_meta()?;
     let mut chosen = a.recording.choose_profile(&a.inputs, true)?;
     let profile = chosen.profile.clone();
@@ -138,5 +141,29 @@ pub fn run(a: Args) -> Result<()> {
         model.meta.steps,
         a.out.display()
     );
+    Ok(())
+}
+
+/// The model's path must name a file in an existing folder, and an existing file (an earlier
+/// model, or anything else) is replaced only with `--force`: a run that fails on it after
+/// minutes of training would leave its checkpoint behind.
+fn check_out(out: &std::path::Path, force: bool) -> Result<()> {
+    if out.is_dir() {
+        anyhow::bail!(
+            "{}: is a folder; -o takes the model's file name (e.g. {})",
+            out.display(),
+            out.join("adapted.safetensors").display()
+        );
+    }
+    let parent = out.parent().filter(|p| !p.as_os_str().is_empty());
+    if let Some(dir) = parent.filter(|d| !d.is_dir()) {
+        anyhow::bail!("{}: the folder {} does not exist", out.display(), dir.display());
+    }
+    if out.exists() && !force {
+        anyhow::bail!(
+            "{}: exists; pass --force to replace it (an adapted model is written there)",
+            out.display()
+        );
+    }
     Ok(())
 }
