@@ -884,10 +884,49 @@ fn adapt_refuses_mismatched_recordings_and_writes_nothing() {
         ("models", "models: is a folder"),
         ("nowhere/m.safetensors", "the folder nowhere does not exist"),
     ] {
-        fails_with(&adapt(&["good.tif", "--profile", "default", "-o", out]), want);
+        fails_with(
+            &adapt(&["good.tif", "--profile", "default", "-o", out]),
+            want,
+        );
     }
-    assert_eq!(std::fs::read_to_string(d.join("notes.toml")).unwrap(), "kept = true\n");
-    assert!(std::fs::read_dir(d.join("models")).unwrap().next().is_none());
+    assert_eq!(
+        std::fs::read_to_string(d.join("notes.toml")).unwrap(),
+        "kept = true\n"
+    );
+    assert!(std::fs::read_dir(d.join("models"))
+        .unwrap()
+        .next()
+        .is_none());
+    assert_eq!(files(d), before, "adapt wrote or removed files");
+    // Bias frames hold no scene to adapt to (they trained without a word).
+    ok(&emccd(
+        &[
+            "simulate",
+            "calibration",
+            "-o",
+            "cal",
+            "--crop",
+            "64x64",
+            "--frames",
+            "8",
+            "--bias-exposures",
+            "0.01",
+            "--flat-levels",
+            "100",
+        ],
+        d,
+    ));
+    let before = files(d);
+    fails_with(
+        &adapt(&[
+            "cal/bias/bias_0.01s.tif",
+            "--profile",
+            "p64",
+            "-o",
+            "m.safetensors",
+        ]),
+        "no scene to adapt to",
+    );
     assert_eq!(files(d), before, "adapt wrote or removed files");
 }
 

@@ -97,6 +97,11 @@ pub fn run(a: Args) -> Result<()> {
     let frames = rec.frames();
     let data = rec.finish(&profile)?;
     let level = data.mean_electrons(&profile)?;
+    if level < MIN_LEVEL {
+        anyhow::bail!(
+            "the recordings hold {level:.3} mean photoelectrons per pixel, what bias frames leave: no scene to adapt to (bias or dark frames?); adapt on a recording of the scene, at {MIN_LEVEL} or more"
+        );
+    }
     match &data {
         AdaptData::Scene(_) => eprintln!(
             "scene estimate from {frames} frames at {level:.3} mean photoelectrons per pixel"
@@ -144,6 +149,11 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
+/// The least light a recording is adapted on, mean photoelectrons per pixel per frame: below it
+/// the frames are a bias (a calibrated profile takes its spurious charge out with the fixed
+/// pattern; 0.007 is left on the virtual camera), not a scene.
+const MIN_LEVEL: f64 = 0.02;
+
 /// The model's path must name a file in an existing folder, and an existing file (an earlier
 /// model, or anything else) is replaced only with `--force`: a run that fails on it after
 /// minutes of training would leave its checkpoint behind.
@@ -157,7 +167,11 @@ fn check_out(out: &std::path::Path, force: bool) -> Result<()> {
     }
     let parent = out.parent().filter(|p| !p.as_os_str().is_empty());
     if let Some(dir) = parent.filter(|d| !d.is_dir()) {
-        anyhow::bail!("{}: the folder {} does not exist", out.display(), dir.display());
+        anyhow::bail!(
+            "{}: the folder {} does not exist",
+            out.display(),
+            dir.display()
+        );
     }
     if out.exists() && !force {
         anyhow::bail!(
