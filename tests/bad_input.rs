@@ -1855,3 +1855,50 @@ fn a_stack_listed_twice_or_a_flat_listed_as_a_bias_is_refused() {
     // The acquisition as written calibrates.
     ok(&emccd(&["calibrate", "cal/calibration.toml", "-o", "p"], d));
 }
+
+/// Two `calibrate` runs into one empty profile folder at once: one profile is placed, the other
+/// run is refused (at its start or as it places its profile) instead of replacing it with exit
+/// 0 (`--from-recording` places its profile the same way, `save_with_report`).
+#[test]
+fn concurrent_calibrations_never_replace_each_other() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    small_acquisition(d, "100,200,400");
+    for (k, args) in [vec!["calibrate", "cal/calibration.toml", "-o"]]
+        .into_iter()
+        .enumerate()
+    {
+        let out = format!("p{k}");
+        std::fs::create_dir(d.join(&out)).unwrap();
+        for trial in 0..3 {
+            let _ = std::fs::remove_file(d.join(&out).join("profile.toml"));
+            let _ = std::fs::remove_file(d.join(&out).join("maps.safetensors"));
+            let runs: Vec<std::process::Child> = (0..2)
+                .map(|_| {
+                    std::process::Command::new(env!("CARGO_BIN_EXE_emccd"))
+                        .args(&args)
+                        .arg(&out)
+                        .current_dir(d)
+                        .stdout(std::process::Stdio::null())
+                        .stderr(std::process::Stdio::piped())
+                        .spawn()
+                        .unwrap()
+                })
+                .collect();
+            let done: Vec<std::process::Output> = runs
+                .into_iter()
+                .map(|c| c.wait_with_output().unwrap())
+                .collect();
+            let placed = done.iter().filter(|o| o.status.success()).count();
+            assert_eq!(
+                placed, 1,
+                "{args:?}, trial {trial}: {placed} runs placed a profile"
+            );
+            let refused = done.iter().find(|o| !o.status.success()).unwrap();
+            let err = String::from_utf8_lossy(&refused.stderr);
+            assert_eq!(refused.status.code(), Some(2), "{err}");
+            assert!(err.contains("already holds"), "{err}");
+            emccd_profile::CameraProfile::load(d.join(&out)).expect("the placed profile loads");
+        }
+    }
+}

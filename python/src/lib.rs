@@ -391,7 +391,7 @@ fn calibrate(
     let cb = Callback::new(progress, emccd_calib::total_frames(&m));
     let r = py.detach(|| -> anyhow::Result<CameraProfile> {
         let cal = emccd_calib::calibrate(&m, &emccd_calib::Options::default(), &cb)?;
-        Ok(cal.save(&out, report.as_deref())?)
+        Ok(cal.save(&out, report.as_deref(), force)?)
     });
     if let Some(e) = cb.take_error() {
         return Err(e);

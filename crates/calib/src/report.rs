@@ -17,10 +17,11 @@ impl Calibration {
     /// Writes the outputs of `emccd calibrate` (and of Python's `calibrate`): the HTML report
     /// into `report` where asked, then the profile folder `out`; returns the profile. A report
     /// folder this call made is removed again if the profile cannot be written (the profile
-    /// leaves nothing behind itself): a failed run leaves nothing it created.
-    pub fn save(&self, out: &Path, report: Option<&Path>) -> Result<CameraProfile> {
+    /// leaves nothing behind itself): a failed run leaves nothing it created. Without `replace`,
+    /// a profile found in `out` as it is placed is an error ([`CameraProfile::save_new`]).
+    pub fn save(&self, out: &Path, report: Option<&Path>, replace: bool) -> Result<CameraProfile> {
         let profile = self.profile()?;
-        save_with_report(&profile, out, report, |dir| write(self, dir))?;
+        save_with_report(&profile, out, report, replace, |dir| write(self, dir))?;
         Ok(profile)
     }
 }
@@ -33,6 +34,7 @@ pub(crate) fn save_with_report(
     profile: &CameraProfile,
     out: &Path,
     report: Option<&Path>,
+    replace: bool,
     write_report: impl FnOnce(&Path) -> std::io::Result<()>,
 ) -> Result<()> {
     let staged = report
@@ -48,7 +50,12 @@ pub(crate) fn save_with_report(
             what: format!("the report to {}", report.unwrap_or(out).display()),
             source,
         })?;
-    profile.save(out).map_err(|e| Error::Write {
+    if replace {
+        profile.save(out)
+    } else {
+        profile.save_new(out)
+    }
+    .map_err(|e| Error::Write {
         what: format!("the profile to {}", out.display()),
         source: Box::new(e),
     })?;

@@ -73,7 +73,7 @@ pub fn run(a: Args) -> Result<()> {
     for w in &cal.warnings {
         eprintln!("warning: {w}");
     }
-    cal.save(&a.out, a.report.as_deref())?;
+    cal.save(&a.out, a.report.as_deref(), a.force)?;
     print!("{}", cal.summary());
     eprintln!("profile written to {}", a.out.display());
     if let Some(dir) = &a.report {
@@ -110,7 +110,13 @@ fn from_recording(a: &Args) -> Result<()> {
     let frames = emccd_calib::recording::read(&paths)?;
     let c = frames.characterize()?;
     let profile = frames.profile(&c)?;
-    c.save(&profile, &frames.source, &a.out, a.report.as_deref())?;
+    c.save(
+        &profile,
+        &frames.source,
+        &a.out,
+        a.report.as_deref(),
+        a.force,
+    )?;
     println!("{}: {}", frames.source, c.summary_line());
     for n in &c.notes {
         println!("  note: {n}");

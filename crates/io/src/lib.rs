@@ -758,6 +758,28 @@ impl Staged {
         persist(self.tmp, &self.target)
     }
 
+    /// Moves the file to its target only where none is there at that moment (a link, which the
+    /// filesystem refuses over an existing name): of two runs placing the same file at once,
+    /// the second is refused instead of replacing the first's. `Ok(false)` where the target
+    /// exists; the staged file is then removed.
+    pub fn place_new(self) -> Result<bool> {
+        let was = self.tmp.path().to_path_buf();
+        let placed = readable(&was)
+            .and_then(|()| flush(&was))
+            .map_err(|e| Error::from(e).with_path(&self.target));
+        let placed = placed.and_then(|()| match self.tmp.persist_noclobber(&self.target) {
+            Ok(_) => Ok(true),
+            Err(e) if e.error.kind() == std::io::ErrorKind::AlreadyExists => Ok(false),
+            Err(e) => Err(Error::from(e.error).with_path(&self.target)),
+        });
+        live_temps().remove(&was);
+        if placed? {
+            sync_parent(&self.target);
+            return Ok(true);
+        }
+        Ok(false)
+    }
+
     /// Where it goes.
     pub fn target(&self) -> &Path {
         &self.target
@@ -1077,11 +1099,31 @@ pub fn stage_bytes(path: &Path, bytes: &[u8]) -> Result<Staged> {
 /// target first, then each renamed into place. A failure while writing (a full disk) leaves
 /// every earlier file as it was; only the renames, which need no space, come after it.
 pub fn write_atomic_together(files: &[(&Path, &[u8])]) -> Result<()> {
-    let staged = files
+    write_together(files, false).map(|_| ())
+}
+
+/// [`write_atomic_together`] where the last file marks the set (a profile's `profile.toml`):
+/// it is placed only where none is there at that moment ([`Staged::place_new`]), and the
+/// others after it. `Ok(false)`, with nothing placed, where one is.
+pub fn write_new_together(files: &[(&Path, &[u8])]) -> Result<bool> {
+    write_together(files, true)
+}
+
+fn write_together(files: &[(&Path, &[u8])], new: bool) -> Result<bool> {
+    let mut staged = files
         .iter()
         .map(|&(path, bytes)| stage_bytes(path, bytes))
         .collect::<Result<Vec<_>>>()?;
-    staged.into_iter().try_for_each(Staged::place)
+    if new {
+        let Some(marker) = staged.pop() else {
+            return Ok(true);
+        };
+        if !marker.place_new()? {
+            return Ok(false);
+        }
+    }
+    staged.into_iter().try_for_each(Staged::place)?;
+    Ok(true)
 }
 
 /// Writes one frame as an 8-bit grayscale PNG, mapping `lo..=hi` to 0..=255 (for previews).

@@ -121,20 +121,45 @@ impl CameraProfile {
     /// before either replaces an earlier profile's, so a failure (a full disk) leaves the earlier
     /// profile loading as it was, and a folder this call made is removed again.
     pub fn save(&self, dir: impl AsRef<Path>) -> Result<()> {
-        let dir = dir.as_ref();
+        self.save_as(dir.as_ref(), true)
+    }
+
+    /// [`save`](Self::save) where no profile may be in `dir`, checked as the profile is placed,
+    /// not only when a run starts: of two runs writing a new profile into one folder at once,
+    /// the later is refused rather than replacing the first's.
+    pub fn save_new(&self, dir: impl AsRef<Path>) -> Result<()> {
+        self.save_as(dir.as_ref(), false)
+    }
+
+    fn save_as(&self, dir: &Path, replace: bool) -> Result<()> {
         self.validate()?;
+        let taken = || {
+            Error::Format(format!(
+                "already holds a profile ({PROFILE_TOML}), placed while this run was working (another run writing there?); this run's profile was not written: write it elsewhere, or pass --force to replace that one"
+            ))
+            .at(dir)
+        };
         if dir.exists() {
             // Its two files are replaced together (`write_atomic_together`).
-            return self.save_into(dir);
+            return if self.save_into(dir, replace)? {
+                Ok(())
+            } else {
+                Err(taken())
+            };
         }
         // A new profile folder is written beside its name and renamed into place: a run that
         // fails or is stopped leaves no folder.
         let stage = emccd_io::StagedDir::beside(dir).map_err(|e| Error::from(e).at(dir))?;
-        self.save_into(stage.path())?;
+        self.save_into(stage.path(), true)?;
+        if !replace && dir.join(PROFILE_TOML).exists() {
+            return Err(taken());
+        }
         stage.place().map_err(|e| Error::from(e).at(dir))
     }
 
-    fn save_into(&self, dir: &Path) -> Result<()> {
+    /// Writes the two files into `dir`; `false` (nothing written) where `replace` is off and a
+    /// profile is there as they are placed.
+    fn save_into(&self, dir: &Path, replace: bool) -> Result<bool> {
         let (h, w, e) = (self.height, self.width, self.exposures_s.len());
         let base = f32_bytes(&self.maps.fpn_base);
         let theta = f32_bytes(&self.maps.fpn_theta);
@@ -170,10 +195,14 @@ impl CameraProfile {
             maps_fnv1a64: Some(fnv1a64(&bytes)),
             ..self.to_toml_struct()
         };
-        emccd_io::write_atomic_together(&[
-            (&dir.join(MAPS_FILE), &bytes),
-            (&dir.join(PROFILE_TOML), toml_text(&toml).as_bytes()),
-        ])
+        let (maps, text) = (dir.join(MAPS_FILE), toml_text(&toml));
+        let marker = dir.join(PROFILE_TOML);
+        let files: [(&Path, &[u8]); 2] = [(&maps, &bytes), (&marker, text.as_bytes())];
+        if replace {
+            emccd_io::write_atomic_together(&files).map(|()| true)
+        } else {
+            emccd_io::write_new_together(&files)
+        }
         .map_err(|e| Error::Io(std::io::Error::other(e)))
     }
 

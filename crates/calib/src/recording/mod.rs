@@ -743,15 +743,17 @@ pub fn regime(mean_electrons: f64) -> &'static str {
 
 impl Characterization {
     /// Writes `profile` (made by [`Characterization::profile`]) into `out` and, where asked, the
-    /// report into `report`; a failed run leaves nothing it created.
+    /// report into `report`; a failed run leaves nothing it created. Without `replace`, a
+    /// profile found in `out` as it is placed is an error.
     pub fn save(
         &self,
         profile: &CameraProfile,
         source: &str,
         out: &std::path::Path,
         report: Option<&std::path::Path>,
+        replace: bool,
     ) -> Result<()> {
-        crate::report::save_with_report(profile, out, report, |dir| {
+        crate::report::save_with_report(profile, out, report, replace, |dir| {
             report::write(self, source, dir)
         })
     }

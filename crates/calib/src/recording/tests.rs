@@ -253,7 +253,7 @@ fn a_file_becomes_a_profile_and_a_report() {
     check(&c, LOW, "from a file");
     let p = read.profile(&c).unwrap();
     let (out, rep) = (dir.path().join("prof"), dir.path().join("rep"));
-    c.save(&p, &read.source, &out, Some(&rep)).unwrap();
+    c.save(&p, &read.source, &out, Some(&rep), false).unwrap();
     let back = CameraProfile::load(&out).unwrap();
     assert!(back.from_recording());
     assert_eq!(back.ptc_slope_dn, p.ptc_slope_dn);
