@@ -1306,6 +1306,65 @@ fn a_value_beyond_float32_says_so() {
     assert!(!d.join("x.tif").exists());
 }
 
+/// One finite value no camera reads (1e20, −1e20, 3e38 in a float file) is refused naming the
+/// pixel, by every method (the networks normalized the whole frame by it: one value ruined it,
+/// and four frames of `temporal-net`); nothing is written.
+#[test]
+fn a_value_no_camera_reads_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    emccd_profile::default_profile()
+        .crop(emccd_profile::Roi::corner(32, 32))
+        .unwrap()
+        .save(d.join("p32"))
+        .unwrap();
+    for (k, bad) in [1e20f32, -1e20, 3e38].into_iter().enumerate() {
+        let name = format!("f{k}.tif");
+        let mut w = emccd_io::StackWriter::create(
+            d.join(&name),
+            32,
+            32,
+            emccd_io::SampleFormat::F32,
+            Some(3),
+        )
+        .unwrap();
+        for f in 0..3 {
+            w.write_frame(
+                &(0..32 * 32)
+                    .map(|i| {
+                        if f == 1 && i == 40 {
+                            bad
+                        } else {
+                            500.0 + (i % 7) as f32 * 20.0
+                        }
+                    })
+                    .collect::<Vec<f32>>(),
+            )
+            .unwrap();
+        }
+        w.finish().unwrap();
+        for method in ["net", "blend", "hybrid", "temporal-net", "bm3d"] {
+            let o = emccd(
+                &[
+                    "denoise",
+                    &name,
+                    "--profile",
+                    "p32",
+                    "--exposure-s",
+                    "0.01",
+                    "--method",
+                    method,
+                    "-o",
+                    "x.tif",
+                ],
+                d,
+            );
+            fails_with(&o, "at pixel (8, 1) is no camera reading");
+            assert!(!d.join("x.tif").exists(), "{method}");
+        }
+    }
+}
+
 /// Runs `emccd ARGS` in `cwd`, killed after 60 s (a run waiting on a FIFO would wait forever).
 fn emccd_or_kill(args: &[&str], cwd: &Path) -> std::process::Output {
     let mut child = Command::new(env!("CARGO_BIN_EXE_emccd"))

@@ -234,6 +234,11 @@ pub const DEFAULT_WINDOW: usize = 12;
 /// The most frames each side a temporal method takes (33 frames held at a time).
 pub const MAX_WINDOW: usize = 16;
 
+/// How far beyond its A/D range (a multiple of the range, either sign) a raw value is taken for
+/// no reading at all: far past any bias-subtracted or summed float export (a few times the
+/// range), near no value a damaged file's 1e20 or 3e38 gets.
+pub const IMPOSSIBLE: f64 = 64.0;
+
 impl Denoiser<'_> {
     /// An error when the method needs a model and has none, or has one it does not run.
     pub(crate) fn check_model(&self) -> Result<()> {
@@ -251,18 +256,29 @@ impl Denoiser<'_> {
         Ok(())
     }
 
-    /// An error naming the first pixel of `raw` that is not a finite number, if one is.
+    /// An error naming the first pixel of `raw` that is not a finite number, or that no camera
+    /// of this profile produces (beyond [`IMPOSSIBLE`] times its A/D range either way: a
+    /// float file's 1e20 spoiled the whole frame for the networks, whose input is normalized
+    /// by the frame), if one is.
     pub(crate) fn check_finite(&self, raw: &[f32]) -> Result<()> {
         let width = self.profile.width.max(1);
-        match raw.iter().position(|v| !v.is_finite()) {
-            Some(i) => Err(Error::Data(format!(
-                "a non-finite value at pixel ({}, {}) ({}; a float64 beyond float32's ±3.4e38 reads as ±inf)",
-                i % width,
-                i / width,
+        let bound = IMPOSSIBLE * self.profile.adc_max_dn;
+        let at = |i: usize| (i % width, i / width);
+        if let Some(i) = raw.iter().position(|v| !v.is_finite()) {
+            let (x, y) = at(i);
+            return Err(Error::Data(format!(
+                "a non-finite value at pixel ({x}, {y}) ({}; a float64 beyond float32's ±3.4e38 reads as ±inf)",
                 raw[i]
-            ))),
-            None => Ok(()),
+            )));
         }
+        if let Some(i) = raw.iter().position(|&v| (v as f64).abs() > bound) {
+            let (x, y) = at(i);
+            return Err(Error::Data(format!(
+                "the value {:e} at pixel ({x}, {y}) is no camera reading: the profile's A/D converter reads 0 to {} DN, and values beyond ±{bound:e} are refused (a damaged or rescaled file?)",
+                raw[i], self.profile.adc_max_dn
+            )));
+        }
+        Ok(())
     }
 
     /// Denoises one raw frame (DN, the profile's size) taken with `exposure_s`; a frame with a
