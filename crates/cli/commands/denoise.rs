@@ -179,7 +179,10 @@ fn denoise_files(
         let done =
             emccd_denoise::stack::denoise_file_staged(&fd, rec, out, &lines, &mut || pb.inc(1));
         pb.finish_and_clear();
-        let (frames, file) = done?;
+        let (frames, file, warnings) = done?;
+        for w in warnings {
+            eprintln!("warning: {w}");
+        }
         staged.push((input, frames, file));
     }
     for (input, frames, file) in staged {
@@ -247,6 +250,9 @@ fn run_zarr(a: &Args, r: &Resolved, chosen: &mut ChosenProfile, window: usize) -
     // Cleared whatever happened: a failed run leaves no bar on the screen.
     pb.finish_and_clear();
     let r = r?;
+    for w in &r.warnings {
+        eprintln!("warning: {w}");
+    }
     let (frames, done) = (r.frames, r.done);
     let share = if shard.count > 1 {
         format!("shard {}/{}: ", shard.index, shard.count)

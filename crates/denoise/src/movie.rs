@@ -27,6 +27,64 @@ struct Held {
     index: usize,
     frame: Vec<f32>,
     single: Vec<f32>,
+    /// The raw frame's identity (a hash of its values): a repeated frame has its original's.
+    id: u64,
+    /// Every raw value the same: no read noise, so no reading (a dropped frame).
+    dropped: bool,
+}
+
+/// Frames of a recording that are no fresh readings, by number from 0: repeats of the frame
+/// before (a frozen camera, acquisition software repeating frames) and constant frames (a
+/// dropped frame, written as zeros). Neither is in another frame's window: a repeat's noise is
+/// its original's, which the window's average would keep as signal (the interior frames of a
+/// movie of one repeated frame kept 7.4–8.4 DN of error against 1.5 for one frame alone).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Irregular {
+    /// Frames equal to the frame before.
+    pub repeated: Vec<usize>,
+    /// Frames of one value throughout.
+    pub dropped: Vec<usize>,
+}
+
+impl Irregular {
+    /// Warnings for a person, naming frames from 1 in `name` (the input).
+    pub fn warnings(&self, name: &str) -> Vec<String> {
+        let list = |v: &[usize]| -> String {
+            let shown: Vec<String> = v.iter().take(8).map(|j| (j + 1).to_string()).collect();
+            let more = if v.len() > 8 {
+                format!(" and {} more", v.len() - 8)
+            } else {
+                String::new()
+            };
+            format!("{}{more}", shown.join(", "))
+        };
+        let mut w = Vec::new();
+        if !self.repeated.is_empty() {
+            w.push(format!(
+                "{name}: {} frame(s) repeat the frame before value for value (frames {}): a frozen camera or repeated frames; each is denoised without its copies",
+                self.repeated.len(),
+                list(&self.repeated)
+            ));
+        }
+        if !self.dropped.is_empty() {
+            w.push(format!(
+                "{name}: {} frame(s) hold one value throughout, no camera reading (frames {}): dropped frames? They are left out of their neighbours' windows and come out as they are",
+                self.dropped.len(),
+                list(&self.dropped)
+            ));
+        }
+        w
+    }
+}
+
+/// A hash of a raw frame's values (their bits).
+fn identity(raw: &[f32]) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    for v in raw {
+        v.to_bits().hash(&mut h);
+    }
+    h.finish()
 }
 
 /// Frames `want` of a recording of `count` frames taken with `exposure_s`, denoised by `fd`'s
@@ -43,10 +101,11 @@ pub fn denoise_frames(
     at: &dyn Fn(usize) -> String,
     next: &mut dyn FnMut(usize, Option<&mut [f32]>) -> Result<()>,
     emit: &mut dyn FnMut(usize, Vec<f32>) -> Result<()>,
-) -> Result<()> {
+) -> Result<Irregular> {
     let want = want.start..want.end.min(count);
+    let mut irregular = Irregular::default();
     if want.is_empty() {
-        return Ok(());
+        return Ok(irregular);
     }
     fd.check_model()?;
     let k = fd.window;
@@ -63,6 +122,7 @@ pub fn denoise_frames(
     let mut held: VecDeque<Held> = VecDeque::with_capacity(2 * k + 1);
     let mut buf = vec![0f32; p.len()];
     let mut due = want.start;
+    let mut last_id = None;
     // Frame `j`'s estimate handed over in `fd`'s units, or its error named.
     let mut hand_over = |(j, out): (usize, Result<Vec<f32>>)| {
         let mut out = out.map_err(|e| e.at(at(j)))?;
@@ -85,7 +145,16 @@ pub fn denoise_frames(
         let read = next(j, Some(&mut buf))
             .and_then(|()| prepare(fd, j, &buf, exposure_s, members).map_err(|e| e.at(at(j))));
         let frame = match read {
-            Ok(frame) => frame,
+            Ok(frame) => {
+                if last_id == Some(frame.id) {
+                    irregular.repeated.push(j);
+                }
+                last_id = Some(frame.id);
+                if frame.dropped {
+                    irregular.dropped.push(j);
+                }
+                frame
+            }
             Err(e) => {
                 // The frame before, whose window was complete, is handed over first (a shard
                 // resumed after the error starts after it).
@@ -104,14 +173,27 @@ pub fn denoise_frames(
             while held.front().is_some_and(|h| h.index + k < due) {
                 held.pop_front();
             }
-            let first = held.front().expect("the frame itself is held").index;
-            let frames: Vec<&[f32]> = held.iter().map(|h| h.frame.as_slice()).collect();
-            let singles: Vec<&[f32]> = held.iter().map(|h| h.single.as_slice()).collect();
+            // The window: the frame and its neighbours but their repeats and dropped frames.
+            let own = held
+                .iter()
+                .find(|h| h.index == due)
+                .expect("the frame itself is held");
+            let (own_id, own_dropped) = (own.id, own.dropped);
+            let members: Vec<&Held> = held
+                .iter()
+                .filter(|h| h.index == due || (h.id != own_id && !h.dropped && !own_dropped))
+                .collect();
+            let centre = members
+                .iter()
+                .position(|h| h.index == due)
+                .expect("the frame itself");
+            let frames: Vec<&[f32]> = members.iter().map(|h| h.frame.as_slice()).collect();
+            let singles: Vec<&[f32]> = members.iter().map(|h| h.single.as_slice()).collect();
             match network {
                 // The network's fixed window: the frame's scene, at its brightness.
                 Some(model) => {
                     let (shown, before) = rayon::join(
-                        || net_window(&frames, &singles, due - first, k, p.width, noise),
+                        || net_window(&frames, &singles, centre, k, p.width, noise),
                         || shown_before.take().map(|b| infer(model, b)),
                     );
                     if let Some(before) = before {
@@ -122,12 +204,7 @@ pub fn denoise_frames(
                 None => hand_over((
                     due,
                     Ok(emccd_classical::temporal::estimate(
-                        &frames,
-                        &singles,
-                        due - first,
-                        p.width,
-                        p.height,
-                        noise,
+                        &frames, &singles, centre, p.width, p.height, noise,
                     )),
                 ))?,
             }
@@ -137,7 +214,7 @@ pub fn denoise_frames(
     if let (Some(model), Some(last)) = (network, shown_before) {
         hand_over(infer(model, last))?;
     }
-    Ok(())
+    Ok(irregular)
 }
 
 /// The `2k + 1` frames a temporal network is shown for frame `center` of `window` (the
@@ -198,7 +275,7 @@ pub fn denoise_slice(
     exposure_s: f64,
     raw: &[f32],
     emit: &mut dyn FnMut(usize, Vec<f32>) -> Result<()>,
-) -> Result<()> {
+) -> Result<Irregular> {
     let (n, count) = (fd.profile.len(), frame_count(fd.profile, raw.len())?);
     let at = |j: usize| format!("frame {}", j + 1);
     if fd.method.temporal() {
@@ -220,7 +297,7 @@ pub fn denoise_slice(
     for (j, frame) in raw.chunks(n).enumerate() {
         emit(j, fd.run(frame, exposure_s).map_err(|e| e.at(at(j)))?)?;
     }
-    Ok(())
+    Ok(Irregular::default())
 }
 
 /// Raw frame `index` preprocessed, with its single-frame estimate (the classical method's: as
@@ -252,5 +329,7 @@ fn prepare(
         index,
         frame,
         single,
+        id: identity(raw),
+        dropped: raw.iter().all(|&v| v == raw[0]),
     })
 }

@@ -160,6 +160,8 @@ pub struct ZarrRun {
     pub run: ShardRun,
     /// Frames of the store complete after this run, every share's.
     pub done: usize,
+    /// What a person should know about the frames read ([`crate::movie::Irregular`]).
+    pub warnings: Vec<String>,
 }
 
 /// Denoises this process's share of the stack that `inputs` make (in the order given) into the
@@ -234,15 +236,17 @@ fn denoise_share(
                 skipped: 0,
             },
             done: store.done_count(),
+            warnings: Vec::new(),
         });
     }
     pending(range.clone().filter(|&k| !store.is_done(k)).count());
-    let run = denoise_shard(fd, inputs, store, range.clone(), on_frame)?;
+    let (run, warnings) = shard(fd, inputs, store, range.clone(), on_frame)?;
     Ok(ZarrRun {
         frames,
         range,
         run,
         done: store.done_count(),
+        warnings,
     })
 }
 
@@ -259,6 +263,18 @@ pub fn denoise_shard(
     range: Range<usize>,
     on_frame: &mut dyn FnMut(),
 ) -> Result<ShardRun> {
+    shard(fd, inputs, store, range, on_frame).map(|(run, _)| run)
+}
+
+/// [`denoise_shard`], with the warnings about the frames read.
+fn shard(
+    fd: &Denoiser,
+    inputs: Vec<Recording>,
+    store: &ZarrStackWriter,
+    range: Range<usize>,
+    on_frame: &mut dyn FnMut(),
+) -> Result<(ShardRun, Vec<String>)> {
+    let mut warnings = Vec::new();
     let frames: usize = inputs.iter().map(|i| i.info.frames).sum();
     let spec = store.spec();
     let size = (fd.profile.width, fd.profile.height);
@@ -295,7 +311,7 @@ pub fn denoise_shard(
             let first = k;
             let want = range.start.saturating_sub(first)..(range.end - first).min(count);
             let exposure = i.exposure;
-            crate::movie::denoise_frames(
+            let irregular = crate::movie::denoise_frames(
                 fd,
                 exposure,
                 count,
@@ -316,6 +332,7 @@ pub fn denoise_shard(
                     Ok(())
                 },
             )?;
+            warnings.extend(irregular.warnings(&name));
             k += count;
             continue;
         }
@@ -336,7 +353,7 @@ pub fn denoise_shard(
             k += 1;
         }
     }
-    Ok(run)
+    Ok((run, warnings))
 }
 
 /// Denoises every frame of `input` into a float32 stack at `out`, in the format its extension
@@ -350,7 +367,7 @@ pub fn denoise_file(
     out: &Path,
     on_frame: &mut dyn FnMut(),
 ) -> Result<usize> {
-    let (frames, staged) = denoise_file_staged(fd, input, out, &[], on_frame)?;
+    let (frames, staged, _) = denoise_file_staged(fd, input, out, &[], on_frame)?;
     staged.place()?;
     Ok(frames)
 }
@@ -358,14 +375,15 @@ pub fn denoise_file(
 /// [`denoise_file`], the finished stack left beside `out` for the caller to place: a run over
 /// several inputs places its outputs only once every input has been denoised. `notes` are
 /// `key=value` lines the stack records after its own (method, units, profile fingerprint): a
-/// TIFF's description, a FITS header's HISTORY.
+/// TIFF's description, a FITS header's HISTORY. Returns the frames written, the stack, and
+/// what a person should know about the frames read ([`crate::movie::Irregular`]).
 pub fn denoise_file_staged(
     fd: &Denoiser,
     mut input: Recording,
     out: &Path,
     notes: &[String],
     on_frame: &mut dyn FnMut(),
-) -> Result<(usize, emccd_io::Staged)> {
+) -> Result<(usize, emccd_io::Staged, Vec<String>)> {
     let (width, height, frames) = (input.info.width, input.info.height, input.info.frames);
     let mut w = emccd_io::StackWriter::create(
         out,
@@ -388,7 +406,7 @@ pub fn denoise_file_staged(
     let at = |j: usize| format!("{name}: frame {}", j + 1);
     if fd.method.temporal() {
         let exposure = input.exposure;
-        crate::movie::denoise_frames(
+        let irregular = crate::movie::denoise_frames(
             fd,
             exposure,
             frames,
@@ -404,7 +422,7 @@ pub fn denoise_file_staged(
                 Ok(())
             },
         )?;
-        return Ok((frames, w.finish_staged()?));
+        return Ok((frames, w.finish_staged()?, irregular.warnings(&name)));
     }
     let mut buf = vec![0f32; width * height];
     for j in 0..frames {
@@ -413,5 +431,5 @@ pub fn denoise_file_staged(
         w.write_frame(&den)?;
         on_frame();
     }
-    Ok((frames, w.finish_staged()?))
+    Ok((frames, w.finish_staged()?, Vec::new()))
 }

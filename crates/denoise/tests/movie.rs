@@ -364,3 +364,64 @@ fn every_method_keeps_a_uniform_regions_mean() {
     }
     assert!(failed.is_empty(), "means off: {failed:?}");
 }
+
+/// A movie of one frame repeated (a frozen camera) is no movie: each frame is denoised
+/// without its copies, so every frame comes out as the first (the interior frames kept most
+/// of their noise when their copies were averaged in as neighbours), and the repeats are named.
+/// A dropped frame (zeros) is named and kept out of its neighbours' windows.
+#[test]
+fn repeated_and_dropped_frames_are_named_and_kept_out_of_windows() {
+    let p = profile();
+    let fd = temporal(&p, 3);
+    let run = |raws: &[Vec<f32>]| -> (Vec<Vec<f32>>, emccd_denoise::movie::Irregular) {
+        let flat: Vec<f32> = raws.iter().flatten().copied().collect();
+        let mut out = Vec::new();
+        let irregular = emccd_denoise::movie::denoise_slice(&fd, EXPOSURE, &flat, &mut |_, f| {
+            out.push(f);
+            Ok(())
+        })
+        .unwrap();
+        (out, irregular)
+    };
+    let one = movie(1).remove(0);
+    let (out, irregular) = run(&vec![one.clone(); 9]);
+    assert_eq!(irregular.repeated, (1..9).collect::<Vec<_>>());
+    assert!(irregular.dropped.is_empty());
+    for f in &out[1..] {
+        assert!(f == &out[0], "a repeat comes out as its original");
+    }
+    let pre = preprocess(&p, &one, EXPOSURE).unwrap();
+    let rms = |a: &[f32], b: &[f32]| {
+        (a.iter()
+            .zip(b)
+            .map(|(x, y)| ((x - y) as f64).powi(2))
+            .sum::<f64>()
+            / a.len() as f64)
+            .sqrt()
+    };
+    let (alone, _) = run(std::slice::from_ref(&one));
+    // Denoised as much as the frame alone is (not left as it came).
+    assert!(
+        rms(&out[4], &pre) > 0.8 * rms(&alone[0], &pre),
+        "{} vs {}",
+        rms(&out[4], &pre),
+        rms(&alone[0], &pre)
+    );
+    assert!(irregular.warnings("m.tif")[0].contains("frames 2, 3, 4"));
+
+    let mut raws = movie(9);
+    let (clean, _) = run(&raws);
+    raws[4] = vec![0.0; W * H];
+    let (out, irregular) = run(&raws);
+    assert_eq!(irregular.dropped, vec![4]);
+    assert!(irregular.repeated.is_empty());
+    let mean = |f: &[f32]| f.iter().map(|&v| v as f64).sum::<f64>() / f.len() as f64;
+    for t in [3, 5] {
+        assert!(
+            (mean(&out[t]) / mean(&clean[t]) - 1.0).abs() < 0.05,
+            "frame {t}: {} vs {}",
+            mean(&out[t]),
+            mean(&clean[t])
+        );
+    }
+}
