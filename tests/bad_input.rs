@@ -1961,3 +1961,31 @@ fn concurrent_calibrations_never_replace_each_other() {
         }
     }
 }
+
+/// An output format no stack is written in is refused before any frame is denoised, with the
+/// formats that are (`.png` said "unsupported: writing Png stacks").
+#[test]
+fn an_output_format_no_stack_is_written_in_lists_those_that_are() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    raw_frame(d, "x.tif", Some(0.01));
+    for out in ["x.png", "x.jpg"] {
+        fails_with(
+            &emccd(
+                &[
+                    "denoise",
+                    "x.tif",
+                    "--profile",
+                    "default",
+                    "--method",
+                    "none",
+                    "-o",
+                    out,
+                ],
+                d,
+            ),
+            "output must end in .tif, .tiff, .btf (BigTIFF) or .fits (or .zarr",
+        );
+        assert!(!d.join(out).exists());
+    }
+}

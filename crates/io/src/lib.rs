@@ -590,6 +590,10 @@ pub fn needs_bigtiff(width: usize, height: usize, sample: SampleFormat, frames: 
     data + 1024 * frames as u128 + (1 << 20) > u32::MAX as u128
 }
 
+/// The outputs a stack is written as, for messages.
+const OUTPUT_FORMATS: &str =
+    "output must end in .tif, .tiff, .btf (BigTIFF) or .fits (or .zarr, for `denoise` and `count`)";
+
 /// Writes a stack frame by frame to a temporary file that is renamed into place by
 /// [`StackWriter::finish`]; dropped unfinished, it removes the temporary file and leaves any
 /// existing target untouched.
@@ -618,13 +622,8 @@ impl StackWriter {
         frames_hint: Option<usize>,
     ) -> Result<StackWriter> {
         let path = path.as_ref();
-        let fmt = Format::from_extension(path).ok_or_else(|| {
-            Error::Usage(
-                "output must end in .tif, .tiff, .btf (BigTIFF) or .fits (or .zarr, for `denoise`)"
-                    .into(),
-            )
-            .with_path(path)
-        })?;
+        let fmt = Format::from_extension(path)
+            .ok_or_else(|| Error::Usage(OUTPUT_FORMATS.into()).with_path(path))?;
         Self::create_as(path, fmt, width, height, sample, frames_hint)
     }
 
@@ -675,7 +674,11 @@ impl StackWriter {
                     .map_err(|e| e.with_path(path))?,
             ),
             other => {
-                return Err(Error::Unsupported(format!("writing {other:?} stacks")).with_path(path))
+                return Err(Error::Usage(format!(
+                    "{} files hold no stack written here: {OUTPUT_FORMATS}",
+                    format!("{other:?}").to_uppercase()
+                ))
+                .with_path(path))
             }
         };
         Ok(StackWriter {

@@ -696,6 +696,42 @@ struct Start {
     loss_ema: f64,
 }
 
+/// An error where the run a checkpoint holds was made through another profile or adapted on
+/// other recordings than the run asked to continue it: continued, the model would be trained
+/// on both and record only the first.
+fn resumable(was: &ModelMeta, now: &ModelMeta, checkpoint: &Path) -> Result<()> {
+    let start_again = "start a new run (without --resume, or with another -o), or resume with the first run's inputs";
+    if was.profile_fingerprint != now.profile_fingerprint {
+        return Err(Error::Data(format!(
+            "{}: the run there went through profile {}, this one through {}: {start_again}",
+            checkpoint.display(),
+            was.profile_fingerprint,
+            now.profile_fingerprint
+        )));
+    }
+    if let (Some(a), Some(b)) = (&was.adapted, &now.adapted) {
+        let what = |x: &emccd_nn::Adaptation| {
+            format!(
+                "{} from {} on {} ({} frames at {:.3} e⁻)",
+                x.method,
+                x.from,
+                x.files.join(", "),
+                x.frames,
+                x.mean_electrons
+            )
+        };
+        if a != b {
+            return Err(Error::Data(format!(
+                "{}: the run there adapts {}, this one {}: {start_again}",
+                checkpoint.display(),
+                what(a),
+                what(b)
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// The checkpoint in `checkpoint` when resuming (and one was written), else the `init` model
 /// (with this run's metadata) or a new network seeded from the config, with a new optimizer.
 fn start_model(
@@ -713,6 +749,7 @@ fn start_model(
             &std::fs::read_to_string(&state_path).map_err(|e| Error::io(&state_path, e))?,
         )
         .map_err(|e| Error::Model(format!("{}: {e}", state_path.display())))?;
+        resumable(&st.meta, meta, checkpoint)?;
         let model = load_net_with_ids(st.meta.clone(), &checkpoint.join("net.bpk"), device)?;
         let optim = adamw()
             .init()

@@ -489,3 +489,74 @@ fn a_recipe_is_checked_before_any_frame_is_read() {
         assert!(e.contains("spread") || e.contains("at least 1"), "{e}");
     }
 }
+
+/// `--resume` continues only the run the checkpoint holds: other recordings or another profile
+/// are refused (they were trained on silently, the file recording the first run's provenance),
+/// and the same inputs continue.
+#[test]
+fn a_checkpoint_resumes_only_its_own_run() {
+    let cam = camera();
+    let dir = tempfile::tempdir().unwrap();
+    let set = frame_set(&cam, 4);
+    let level = set.mean_electrons(&cam.profile).unwrap();
+    let cfg = AdaptConfig {
+        method: AdaptMethod::Noise2noise,
+        steps: 4,
+        crop: 32,
+        checkpoint_every: 1,
+        ..AdaptConfig::default()
+    };
+    let paths = RunPaths {
+        out: dir.path().join("m.safetensors"),
+        checkpoint: dir.path().join("m.ckpt"),
+    };
+    let provenance = |file: &str| Adaptation {
+        method: "noise2noise".into(),
+        from: "scratch".into(),
+        files: vec![file.into()],
+        frames: set.len(),
+        mean_electrons: level,
+    };
+    let other = emccd_profile::default_profile()
+        .crop(emccd_profile::Roi {
+            x: 8,
+            y: 8,
+            width: SIDE,
+            height: SIDE,
+        })
+        .unwrap();
+    let run = |file: &str, profile, resume, stop_after: usize| {
+        let mut steps = 0;
+        adapt(
+            AdaptData::Frames(set.clone()),
+            AdaptRun {
+                profile,
+                start: Start::Scratch(common::meta(8, 2)),
+                cfg: &cfg,
+                provenance: provenance(file),
+                paths: &paths,
+                resume,
+                device: emccd_nn::cpu(),
+            },
+            &mut |_| {
+                steps += 1;
+                steps < stop_after
+            },
+        )
+    };
+    // Stopped after two steps: the checkpoint stays.
+    let _ = run("a.tif", &cam.profile, false, 2);
+    assert!(paths.checkpoint.join("state.json").is_file());
+    let e = run("b.tif", &cam.profile, true, 99)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("the run there adapts") && e.contains("b.tif"),
+        "{e}"
+    );
+    let e = run("a.tif", &other, true, 99).unwrap_err().to_string();
+    assert!(e.contains("the run there went through profile"), "{e}");
+    let m = run("a.tif", &cam.profile, true, 99).unwrap();
+    assert_eq!(m.meta.adapted, Some(provenance("a.tif")));
+    assert_eq!(m.meta.steps, 4);
+}
