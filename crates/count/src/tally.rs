@@ -264,6 +264,10 @@ pub fn light_level(
     Ok(sum / n.max(1) as f64 / k)
 }
 
+/// A counted rate's standard error at or beyond this (f32::MAX where every frame crossed the
+/// threshold) says the count holds no rate.
+const UNBOUNDED: f32 = 1e30;
+
 /// A stack counted frame by frame into output frames of `per` frames each: the rate (counted,
 /// or the analog mean) and its standard error per pixel. What `emccd count` and Python's
 /// `emccd.count` share; the frames come preprocessed (DN above bias), from a file or an array.
@@ -432,9 +436,13 @@ impl Counter {
                             own > cam.analog_variance(i, level, n)
                         })
                         .collect();
+                    // A pixel over the threshold in (nearly) every frame has no counted rate at
+                    // all (its error unbounded: 36 e⁻ a frame came out 19.995 ± 3.4e38): the
+                    // analog mean is its estimate whatever its neighbours show. Only a bright
+                    // pixel is, so the choice biases no faint one.
                     let mut taken = 0usize;
                     for (i, &a) in analog.iter().enumerate() {
-                        if a {
+                        if a || !(se[i] < UNBOUNDED) {
                             rate[i] = ra[i];
                             se[i] = sa[i];
                             taken += 1;

@@ -251,3 +251,51 @@ fn the_automatic_threshold_minimizes_the_error() {
     println!("closed form {best:.2}σ, chosen {k:.2}σ");
     assert!((k - best).abs() <= 0.1, "{k} vs {best}");
 }
+
+/// Isolated bright pixels in a faint field (a hot pixel, a small bright spot) saturate the
+/// count: with the automatic threshold they take the analog mean, with a finite error, though
+/// their neighbours are faint (36 and 21.6 e⁻ a frame came out 19.995 ± 3.4e38).
+#[test]
+fn an_isolated_bright_pixel_takes_the_analog_mean() {
+    let cam = camera();
+    let bright = [(W * 20 + 20, 36.0), (W * 40 + 30, 21.6)];
+    let mut lambda = vec![0.05; W * H];
+    for &(i, l) in &bright {
+        lambda[i] = l;
+    }
+    let mut rng = Pcg64::seed_from_u64(77);
+    let mut c = Counter::new(cam.clone(), Threshold::Auto, 0.05, 200, 200, false).unwrap();
+    let mut out = None;
+    for _ in 0..200 {
+        let f: Vec<f32> = lambda
+            .iter()
+            .zip(&cam.sigma)
+            .map(|(&l, &s)| {
+                let n = Poisson::new(l + cam.spurious).unwrap().sample(&mut rng) as usize;
+                let em = if n == 0 {
+                    0.0
+                } else {
+                    Gamma::new(n as f64, cam.g).unwrap().sample(&mut rng)
+                };
+                (em + Normal::new(0.0, s as f64).unwrap().sample(&mut rng)) as f32
+            })
+            .collect();
+        out = c.add(&f).or(out);
+    }
+    let (rate, se) = out.unwrap();
+    for &(i, l) in &bright {
+        // The analog mean of 200 frames: its error √(2λ/200)·(1 + …), about 0.6 e⁻ at 36; the
+        // truth within four of the errors given.
+        assert!(
+            se[i].is_finite() && se[i] < 0.1 * l as f32,
+            "{l}: ± {}",
+            se[i]
+        );
+        assert!(
+            ((rate[i] as f64) - l).abs() < 4.0 * se[i] as f64,
+            "{l}: {} ± {}",
+            rate[i],
+            se[i]
+        );
+    }
+}
