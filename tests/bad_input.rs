@@ -1989,3 +1989,49 @@ fn an_output_format_no_stack_is_written_in_lists_those_that_are() {
         assert!(!d.join(out).exists());
     }
 }
+
+/// `count` on frames far below the profile's bias (an all-zero stack, a denoised float file
+/// fed back in) is refused with how far below, and nothing is written (it counted them with
+/// exit 0: rates at or below zero, "about −15.352 photo-electrons … the photon-counting regime").
+#[test]
+fn count_refuses_frames_far_below_the_bias() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    emccd_profile::default_profile()
+        .crop(emccd_profile::Roi::corner(32, 32))
+        .unwrap()
+        .save(d.join("p32"))
+        .unwrap();
+    for (name, value) in [("zeros.tif", 0.0f32), ("denoised.tif", -40.0)] {
+        let mut w = emccd_io::StackWriter::create(
+            d.join(name),
+            32,
+            32,
+            emccd_io::SampleFormat::F32,
+            Some(4),
+        )
+        .unwrap();
+        for k in 0..4 {
+            w.write_frame(&vec![value + k as f32 * 0.1; 32 * 32])
+                .unwrap();
+        }
+        w.finish().unwrap();
+        fails_with(
+            &emccd(
+                &[
+                    "count",
+                    name,
+                    "--profile",
+                    "p32",
+                    "--exposure-s",
+                    "0.01",
+                    "-o",
+                    "c.tif",
+                ],
+                d,
+            ),
+            "below the profile's bias on average",
+        );
+        assert!(!d.join("c.tif").exists(), "{name}");
+    }
+}

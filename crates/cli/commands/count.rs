@@ -165,6 +165,8 @@ pub fn run(a: Args) -> Result<()> {
         }
         let level = emccd_count::light_level(profile, &mut rec, emccd_count::LEVEL_FRAMES)?
             - camera.unremoved();
+        emccd_count::check_level(level, &camera)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", input.display()))?;
         jobs.push(Job {
             input: input.clone(),
             out,

@@ -32,7 +32,9 @@ pub mod tally;
 pub use model::PixelModel;
 pub use plan::{choose_k, Camera, Plan, ReadNoise, Threshold};
 pub use stack::{count_stack, Counted, Request, LEVEL_FRAMES};
-pub use tally::{count_outputs, light_level, preprocessed_frames, Counter, Preprocessed, Tally};
+pub use tally::{
+    check_level, count_outputs, light_level, preprocessed_frames, Counter, Preprocessed, Tally,
+};
 
 /// Why a stack cannot be counted, in words.
 #[derive(Debug, thiserror::Error)]

@@ -85,6 +85,7 @@ pub fn count_stack(
     let level =
         first.iter().flatten().map(|&v| v as f64).sum::<f64>() / (first.len() * px) as f64 / cam.g
             - cam.unremoved();
+    crate::tally::check_level(level, &cam)?;
     let per = req.per.unwrap_or(frames);
     let g = cam.g;
     let mut counter = Counter::new(cam, req.threshold, level, per, frames, req.analog)?;

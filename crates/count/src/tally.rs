@@ -264,6 +264,29 @@ pub fn light_level(
     Ok(sum / n.max(1) as f64 / k)
 }
 
+/// An error where a stack's light `level` (photo-electrons per pixel per frame, as
+/// [`light_level`] measures it, less what preprocessing leaves of the spurious charge) puts its
+/// mean more than [`BELOW_BIAS`] read-noise σ below the profile's bias: no raw frames of this
+/// camera give that (a denoised or bias-subtracted file fed back, another camera's frames, an
+/// all-zero stack), and counting them gives rates at or below zero with no warning.
+pub fn check_level(level: f64, cam: &Camera) -> Result<()> {
+    let mut s: Vec<f32> = cam.sigma.clone();
+    s.sort_by(f32::total_cmp);
+    let sigma = s.get(s.len() / 2).copied().unwrap_or(0.0) as f64;
+    let below = -level * cam.g;
+    if sigma > 0.0 && below > BELOW_BIAS * sigma {
+        return Err(Error(format!(
+            "the frames lie {below:.1} DN ({:.0} read-noise σ) below the profile's bias on average ({level:.3} photo-electrons per pixel per frame): not this camera's raw frames (a denoised or bias-subtracted file, another camera's, an empty stack?); count takes the camera's raw frames",
+            below / sigma
+        )));
+    }
+    Ok(())
+}
+
+/// How far below the bias (read-noise σ of one value) a stack's mean may lie: a mean over a
+/// frame of pixels errs by a small share of σ, a profile's bias by about one.
+pub const BELOW_BIAS: f64 = 3.0;
+
 /// A counted rate's standard error at or beyond this (f32::MAX where every frame crossed the
 /// threshold) says the count holds no rate.
 const UNBOUNDED: f32 = 1e30;
