@@ -184,18 +184,14 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
 
     // 1. The darkest pixels, chosen by their neighbours.
     let means = pixel_means(frames, ceiling);
-    let (dark, dark_pairs) = darkest(frames, &means, width, height, 10);
+    let (ranked, ranked_pairs) = darkest(&means, width, height);
+    let dark = darkest_share(&ranked, 10, frames.len());
+    let dark_pairs = darkest_share(&ranked_pairs, 10, 1);
     let movie = frames.len() >= 2;
 
     // 2. Differences: the register's gain and the read noise.
     let diffs: Vec<f64> = if movie {
-        dark.iter()
-            .flat_map(|&i| {
-                frames
-                    .chunks_exact(2)
-                    .map(move |p| p[1][i] as f64 - p[0][i] as f64)
-            })
-            .collect()
+        frame_differences(frames, &dark)
     } else {
         dark_pairs
             .iter()
@@ -219,16 +215,8 @@ pub fn characterize(frames: &[Vec<f32>], width: usize, height: usize) -> Result<
     // flat background the fortieth is as bright, and only noisier) and enough to measure the
     // gain.
     if movie && differences_fit.params.electrons > DARKER_ABOVE {
-        let (darker, _) = darkest(frames, &means, width, height, 40);
-        let diffs: Vec<f64> = darker
-            .iter()
-            .flat_map(|&i| {
-                frames
-                    .chunks_exact(2)
-                    .map(move |p| p[1][i] as f64 - p[0][i] as f64)
-            })
-            .collect();
-        let (hist, start) = difference_start(&diffs);
+        let darker = darkest_share(&ranked, 40, frames.len());
+        let (hist, start) = difference_start(&frame_differences(frames, &darker));
         if let Some(f) = em::fit(
             em::Form::Differences,
             &hist,
@@ -596,17 +584,22 @@ fn no_light(frames: &[Vec<f32>], sigma: f64, ceiling: f64) -> Option<(f64, f64)>
     Some((median, (var / 2.0).sqrt()))
 }
 
-/// The darkest pixels by their neighbours' mean over all frames: the pixels whose eight
-/// neighbours' mean is in the lowest tenth (more where that holds too few values), and the
-/// horizontal pairs `(i, i + 1)` whose ten neighbours' mean is. Pixels with a saturated value
-/// are left out.
-fn darkest(
-    frames: &[Vec<f32>],
-    mean: &[f64],
-    width: usize,
-    height: usize,
-    one_in: usize,
-) -> (Vec<usize>, Vec<usize>) {
+/// The differences of non-overlapping pairs of frames (1 − 0, 3 − 2, …) at each of `pixels`.
+fn frame_differences(frames: &[Vec<f32>], pixels: &[usize]) -> Vec<f64> {
+    pixels
+        .iter()
+        .flat_map(|&i| {
+            frames
+                .chunks_exact(2)
+                .map(move |p| p[1][i] as f64 - p[0][i] as f64)
+        })
+        .collect()
+}
+
+/// The pixels ranked from the darkest by their neighbours' mean over all frames (their eight
+/// neighbours'), and the horizontal pairs `(i, i + 1)` ranked by their ten neighbours' mean:
+/// each with that mean, darkest first. Pixels with a saturated value are left out.
+fn darkest(mean: &[f64], width: usize, height: usize) -> (Vec<(f64, usize)>, Vec<(f64, usize)>) {
     let at = |x: usize, y: usize| mean[y * width + x];
     let mut centre = Vec::new();
     let mut pairs = Vec::new();
@@ -641,18 +634,22 @@ fn darkest(
             }
         }
     }
-    let pick = |mut v: Vec<(f64, usize)>, per: usize| -> Vec<usize> {
+    for v in [&mut centre, &mut pairs] {
         v.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let want = (v.len() / one_in)
-            .max(MIN_DARK_VALUES.div_ceil(per) * 2)
-            .min(v.len() / 2)
-            .max(1);
-        let mut keep: Vec<usize> = v.into_iter().take(want).map(|p| p.1).collect();
-        keep.sort_unstable();
-        keep
-    };
-    let per = frames.len();
-    (pick(centre, per), pick(pairs, 1))
+    }
+    (centre, pairs)
+}
+
+/// The darkest `1/one_in` of a [`darkest`] ranking (more where that holds too few values, with
+/// `per` values each), in pixel order.
+fn darkest_share(ranked: &[(f64, usize)], one_in: usize, per: usize) -> Vec<usize> {
+    let want = (ranked.len() / one_in)
+        .max(MIN_DARK_VALUES.div_ceil(per) * 2)
+        .min(ranked.len() / 2)
+        .max(1);
+    let mut keep: Vec<usize> = ranked.iter().take(want).map(|p| p.1).collect();
+    keep.sort_unstable();
+    keep
 }
 
 /// The widest histogram window a fit is made on, DN: the cost of every likelihood evaluation
