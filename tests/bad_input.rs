@@ -54,6 +54,31 @@ fn flat_stack(d: &Path, name: &str, n: usize) {
     w.finish().unwrap();
 }
 
+/// The bundled profile cropped to its top-left `w`×`h`, saved as `d/name`.
+fn cropped_profile(d: &Path, name: &str, w: usize, h: usize) {
+    emccd_profile::default_profile()
+        .crop(emccd_profile::Roi::corner(w, h))
+        .unwrap()
+        .save(d.join(name))
+        .unwrap();
+}
+
+/// `frames` of `w`×`h` written as `d/name` in `format`, with no exposure in the header.
+fn write_stack(
+    d: &Path,
+    name: &str,
+    (w, h): (usize, usize),
+    format: emccd_io::SampleFormat,
+    frames: &[Vec<f32>],
+) {
+    let mut wr =
+        emccd_io::StackWriter::create(d.join(name), w, h, format, Some(frames.len())).unwrap();
+    for f in frames {
+        wr.write_frame(f).unwrap();
+    }
+    wr.finish().unwrap();
+}
+
 /// A small virtual-camera acquisition in `cal/`: 64×48, 4 frames per stack, three bias
 /// exposures and flats at `flat_levels` (DN, comma-separated).
 fn small_acquisition(d: &Path, flat_levels: &str) {
@@ -473,29 +498,16 @@ fn every_method_denoises_tiny_frames() {
     let d = dir.path();
     for (w, h, n) in [(8usize, 6usize, 2usize), (6, 64, 3)] {
         let name = format!("{w}x{h}");
-        emccd_profile::default_profile()
-            .crop(emccd_profile::Roi::corner(w, h))
-            .unwrap()
-            .save(d.join(&name))
-            .unwrap();
+        cropped_profile(d, &name, w, h);
         let input = format!("{name}.tif");
-        let mut wr = emccd_io::StackWriter::create(
-            d.join(&input),
-            w,
-            h,
-            emccd_io::SampleFormat::U16,
-            Some(n),
-        )
-        .unwrap();
-        for k in 0..n {
-            wr.write_frame(
-                &(0..w * h)
+        let frames: Vec<Vec<f32>> = (0..n)
+            .map(|k| {
+                (0..w * h)
                     .map(|i| 500.0 + ((i * 7 + k) % 5) as f32 * 40.0)
-                    .collect::<Vec<f32>>(),
-            )
-            .unwrap();
-        }
-        wr.finish().unwrap();
+                    .collect()
+            })
+            .collect();
+        write_stack(d, &input, (w, h), emccd_io::SampleFormat::U16, &frames);
         // ivst bins this dim frame 4×4 (2×2 blocks) before BM3D.
         for method in [
             "bm3d",
@@ -803,11 +815,7 @@ fn adapt_refuses_mismatched_recordings_and_writes_nothing() {
     raw_frame(d, "good.tif", Some(0.01));
     raw_frame(d, "no-exposure.tif", None);
     flat_stack(d, "small.tif", 256);
-    emccd_profile::default_profile()
-        .crop(emccd_profile::Roi::corner(64, 64))
-        .unwrap()
-        .save(d.join("p64"))
-        .unwrap();
+    cropped_profile(d, "p64", 64, 64);
     std::fs::copy(
         Path::new(env!("CARGO_MANIFEST_DIR")).join("models/default-unet.safetensors"),
         d.join("init.safetensors"),
@@ -899,29 +907,14 @@ fn adapt_refuses_mismatched_recordings_and_writes_nothing() {
         .is_none());
     assert_eq!(files(d), before, "adapt wrote or removed files");
     // Bias frames hold no scene to adapt to (they trained without a word).
-    ok(&emccd(
-        &[
-            "simulate",
-            "calibration",
-            "-o",
-            "cal",
-            "--crop",
-            "64x64",
-            "--frames",
-            "8",
-            "--bias-exposures",
-            "0.01",
-            "--flat-levels",
-            "100",
-        ],
-        d,
-    ));
+    small_acquisition(d, "100");
+    cropped_profile(d, "p64x48", 64, 48);
     let before = files(d);
     fails_with(
         &adapt(&[
             "cal/bias/bias_0.01s.tif",
             "--profile",
-            "p64",
+            "p64x48",
             "-o",
             "m.safetensors",
         ]),
@@ -1313,24 +1306,12 @@ fn a_value_beyond_float32_says_so() {
 fn a_value_no_camera_reads_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    emccd_profile::default_profile()
-        .crop(emccd_profile::Roi::corner(32, 32))
-        .unwrap()
-        .save(d.join("p32"))
-        .unwrap();
+    cropped_profile(d, "p32", 32, 32);
     for (k, bad) in [1e20f32, -1e20, 3e38].into_iter().enumerate() {
         let name = format!("f{k}.tif");
-        let mut w = emccd_io::StackWriter::create(
-            d.join(&name),
-            32,
-            32,
-            emccd_io::SampleFormat::F32,
-            Some(3),
-        )
-        .unwrap();
-        for f in 0..3 {
-            w.write_frame(
-                &(0..32 * 32)
+        let frames: Vec<Vec<f32>> = (0..3)
+            .map(|f| {
+                (0..32 * 32)
                     .map(|i| {
                         if f == 1 && i == 40 {
                             bad
@@ -1338,11 +1319,10 @@ fn a_value_no_camera_reads_is_refused() {
                             500.0 + (i % 7) as f32 * 20.0
                         }
                     })
-                    .collect::<Vec<f32>>(),
-            )
-            .unwrap();
-        }
-        w.finish().unwrap();
+                    .collect()
+            })
+            .collect();
+        write_stack(d, &name, (32, 32), emccd_io::SampleFormat::F32, &frames);
         for method in ["net", "blend", "hybrid", "temporal-net", "bm3d"] {
             let o = emccd(
                 &[
@@ -1997,25 +1977,12 @@ fn an_output_format_no_stack_is_written_in_lists_those_that_are() {
 fn count_refuses_frames_far_below_the_bias() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    emccd_profile::default_profile()
-        .crop(emccd_profile::Roi::corner(32, 32))
-        .unwrap()
-        .save(d.join("p32"))
-        .unwrap();
+    cropped_profile(d, "p32", 32, 32);
     for (name, value) in [("zeros.tif", 0.0f32), ("denoised.tif", -40.0)] {
-        let mut w = emccd_io::StackWriter::create(
-            d.join(name),
-            32,
-            32,
-            emccd_io::SampleFormat::F32,
-            Some(4),
-        )
-        .unwrap();
-        for k in 0..4 {
-            w.write_frame(&vec![value + k as f32 * 0.1; 32 * 32])
-                .unwrap();
-        }
-        w.finish().unwrap();
+        let frames: Vec<Vec<f32>> = (0..4)
+            .map(|k| vec![value + k as f32 * 0.1; 32 * 32])
+            .collect();
+        write_stack(d, name, (32, 32), emccd_io::SampleFormat::F32, &frames);
         fails_with(
             &emccd(
                 &[

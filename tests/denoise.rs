@@ -120,14 +120,7 @@ fn train_then_denoise_a_stack_and_refuse_bad_input() {
         d,
     ));
     let (_, f2) = emccd_io::read_all(d.join("den2.tif")).unwrap();
-    let rms = |a: &[f32], b: &[f32]| {
-        (a.iter()
-            .zip(b)
-            .map(|(x, y)| ((x - y) as f64).powi(2))
-            .sum::<f64>()
-            / a.len() as f64)
-            .sqrt()
-    };
+    let rms = |a: &[f32], b: &[f32]| emccd_eval::mse(a, b).sqrt();
     let (diff, spread) = (rms(&f2[0], &frames[0]), rms(&frames[0], &frames[1]));
     assert!(
         diff > 0.0 && diff < spread,

@@ -391,14 +391,7 @@ fn repeated_and_dropped_frames_are_named_and_kept_out_of_windows() {
         assert!(f == &out[0], "a repeat comes out as its original");
     }
     let pre = preprocess(&p, &one, EXPOSURE).unwrap();
-    let rms = |a: &[f32], b: &[f32]| {
-        (a.iter()
-            .zip(b)
-            .map(|(x, y)| ((x - y) as f64).powi(2))
-            .sum::<f64>()
-            / a.len() as f64)
-            .sqrt()
-    };
+    let rms = |a: &[f32], b: &[f32]| emccd_eval::mse(a, b).sqrt();
     let (alone, _) = run(std::slice::from_ref(&one));
     // Denoised as much as the frame alone is (not left as it came).
     assert!(

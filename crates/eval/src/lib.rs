@@ -49,16 +49,19 @@ impl From<&str> for Error {
 /// This crate's results.
 pub type Result<T> = std::result::Result<T, Error>;
 
-/// Peak signal-to-noise ratio in dB for data range `r`: `10·log10(r² / MSE)`.
-pub fn psnr(test: &[f32], reference: &[f32], r: f64) -> f64 {
+/// Mean squared difference of two images of one size.
+pub fn mse(test: &[f32], reference: &[f32]) -> f64 {
     assert_eq!(test.len(), reference.len(), "images differ in size");
-    let mse = test
-        .iter()
+    test.iter()
         .zip(reference)
         .map(|(a, b)| (*a as f64 - *b as f64).powi(2))
         .sum::<f64>()
-        / test.len().max(1) as f64;
-    10.0 * (r * r / mse.max(1e-300)).log10()
+        / test.len().max(1) as f64
+}
+
+/// Peak signal-to-noise ratio in dB for data range `r`: `10·log10(r² / MSE)`.
+pub fn psnr(test: &[f32], reference: &[f32], r: f64) -> f64 {
+    10.0 * (r * r / mse(test, reference).max(1e-300)).log10()
 }
 
 /// SSIM constants and window.
